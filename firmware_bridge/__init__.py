@@ -1,0 +1,1 @@
+"""Companion-computer side: runs a generated steering solver in the loop over MAVLink."""
