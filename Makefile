@@ -1,4 +1,4 @@
-# Every target sets up what it needs: a fresh clone needs only python3 (>=3.10) and a C compiler.
+# Every target sets up what it needs: a fresh clone needs only python3 (>=3.11) and a C compiler.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python

@@ -4,7 +4,9 @@ Data flows one way: IODataset -> Hankel / PE check -> Predictor -> SteeringProbl
 -> generated C solver -> runtime solver in the loop.
 """
 
+from .config import SteeringConfig
 from .data import IODataset, prbs
+from .deepc import DeePCProblem
 from .errors import (
     CodegenError,
     ConfigError,
@@ -14,12 +16,25 @@ from .errors import (
     ManifestError,
     SolverError,
 )
+from .hankel import PEReport, block_hankel, mosaic_hankel, persistency_of_excitation
+from .predictor import Predictor, fit_predictor
+from .problem import SteeringProblem, SteeringResult
 
 __version__ = "0.1.0"
 
 __all__ = [
     "IODataset",
     "prbs",
+    "block_hankel",
+    "mosaic_hankel",
+    "persistency_of_excitation",
+    "PEReport",
+    "fit_predictor",
+    "Predictor",
+    "SteeringConfig",
+    "SteeringProblem",
+    "SteeringResult",
+    "DeePCProblem",
     "DDPCError",
     "DataError",
     "ExcitationError",

@@ -14,6 +14,8 @@ from .errors import DDPCError
 
 # module path -> registers its subcommands (add one line per feature module)
 _COMMAND_MODULES: tuple[str, ...] = (
+    "ddpc_codegen.sim.cli",
+    "ddpc_codegen.logs.cli",
 )
 
 

@@ -1,0 +1,32 @@
+"""Flight logs -> IODataset: PX4 ULog (pyulog) and MAVLink telemetry logs (pymavlink).
+
+Inputs are the setpoints that were sent (held between samples, as the autopilot holds them),
+outputs what the vehicle did (interpolated), both resampled onto the controller's uniform grid
+and split into trajectories at gaps and mode changes; see :mod:`.resample` for the exact rule.
+Bad logs raise :class:`~ddpc_codegen.errors.DataError` naming the topic and time range, or
+warn (:class:`LogImportWarning`) saying what was dropped; nothing is silently invented.
+"""
+
+from .frames import down_to_up, euler_to_quat, ned_to_enu, quat_to_euler, yaw_ned_to_enu
+from .resample import RESAMPLING_RULE, ChannelSpec, LogImportWarning, parse_channel_spec
+from .tlog import TLOG_PRESETS, import_tlog, list_tlog_messages, read_tlog
+from .ulog import ULOG_PRESETS, import_ulog, list_ulog_topics
+
+__all__ = [
+    "import_ulog",
+    "import_tlog",
+    "read_tlog",
+    "list_ulog_topics",
+    "list_tlog_messages",
+    "ULOG_PRESETS",
+    "TLOG_PRESETS",
+    "ChannelSpec",
+    "parse_channel_spec",
+    "LogImportWarning",
+    "RESAMPLING_RULE",
+    "quat_to_euler",
+    "euler_to_quat",
+    "ned_to_enu",
+    "down_to_up",
+    "yaw_ned_to_enu",
+]

@@ -1,0 +1,285 @@
+"""PX4 ULog flight logs -> IODataset (inputs: setpoints sent, outputs: what the vehicle did).
+
+Channels are picked by ``[NAME=]TOPIC[@INSTANCE].FIELD[:UNIT]`` (see
+:class:`~ddpc_codegen.logs.resample.ChannelSpec`), e.g.::
+
+    pitch_ref=vehicle_attitude_setpoint.pitch     # Euler pitch of q_d, rad
+    z_ref=trajectory_setpoint.z_up                # -position[2] (or -z on PX4 < 1.14), m
+    z=vehicle_local_position.z_up                 # height, m, up
+    pitch=vehicle_attitude.pitch                  # Euler pitch of q, rad
+
+Times are PX4's ``timestamp`` field (µs since boot); errors quote seconds since the ULog's
+start timestamp, as Flight Review's time axis does. Mode filters use ``vehicle_status``:
+``nav_state`` (14 = offboard) and ``arming_state`` (2 = armed); vehicle_status is published
+on every change, so a mode lasts from its first report to the next change.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import struct
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..data import IODataset
+from ..errors import DataError
+from .frames import ANGLE_FIELDS, derive_field
+from .resample import (
+    ChannelSpec,
+    Notes,
+    Series,
+    assemble,
+    build_segments,
+    check_rule,
+    clean_series,
+    file_meta,
+    fmt_t,
+    intersect_windows,
+    resolve_channels,
+    state_windows,
+)
+
+__all__ = ["import_ulog", "list_ulog_topics", "ULOG_PRESETS", "NAV_STATE_NAMES", "NAV_STATE_OFFBOARD"]
+
+# preset -> (input specs, output specs)
+ULOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    # PogoX flying: height + pitch references from the companion, as PX4 logged them
+    "pogox-flying": (
+        ("z_ref=trajectory_setpoint.z_up:m", "pitch_ref=vehicle_attitude_setpoint.pitch:rad"),
+        ("z=vehicle_local_position.z_up:m", "pitch=vehicle_attitude.pitch:rad"),
+    ),
+    # attitude loop: attitude + collective thrust setpoint -> attitude
+    "attitude": (
+        (
+            "roll_ref=vehicle_attitude_setpoint.roll:rad",
+            "pitch_ref=vehicle_attitude_setpoint.pitch:rad",
+            "yaw_ref=vehicle_attitude_setpoint.yaw:rad",
+            "thrust_ref=vehicle_attitude_setpoint.thrust_body[2]_up:1",
+        ),
+        ("roll=vehicle_attitude.roll:rad", "pitch=vehicle_attitude.pitch:rad", "yaw=vehicle_attitude.yaw:rad"),
+    ),
+    # position loop: position setpoint -> position (x north, y east, z up)
+    "position": (
+        ("x_ref=trajectory_setpoint.x:m", "y_ref=trajectory_setpoint.y:m", "z_ref=trajectory_setpoint.z_up:m"),
+        ("x=vehicle_local_position.x:m", "y=vehicle_local_position.y:m", "z=vehicle_local_position.z_up:m"),
+    ),
+}
+
+NAV_STATE_OFFBOARD = 14
+ARMING_STATE_ARMED = 2
+NAV_STATE_NAMES = {
+    0: "manual", 1: "altctl", 2: "posctl", 3: "auto_mission", 4: "auto_loiter", 5: "auto_rtl",
+    10: "acro", 12: "descend", 13: "termination", 14: "offboard", 15: "stab", 17: "auto_takeoff",
+    18: "auto_land", 19: "auto_follow_target", 20: "auto_precland", 21: "orbit",
+    22: "auto_vtol_takeoff",
+}
+
+
+def _nav_name(v: int) -> str:
+    return NAV_STATE_NAMES.get(v, f"nav_state_{v}")
+
+
+def _read(path: Path, topics: Sequence[str] | None, notes: Notes):
+    """Parse a ULog with pyulog; its stdout chatter about corruption becomes warnings."""
+    from pyulog import ULog
+    from pyulog.exceptions import ULogException
+
+    if not path.is_file():
+        raise DataError(f"ULog file {path} does not exist")
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf):
+            ulog = ULog(str(path), message_name_filter_list=None if topics is None else sorted(set(topics)))
+    except (ULogException, OSError, ValueError, IndexError, KeyError, struct.error) as e:
+        raise DataError(f"{path}: not a readable ULog file ({type(e).__name__}: {e})") from e
+    for line in buf.getvalue().splitlines():
+        if line.strip():
+            notes.warn(f"{path.name}: pyulog: {line.strip()}")
+    if ulog.file_corruption:
+        notes.warn(f"{path.name}: pyulog detected corrupt bytes and skipped them; data may be missing there")
+    return ulog
+
+
+def _topic_fields(ulog, path: Path, topic: str, instance: int) -> tuple[np.ndarray, dict]:
+    """(timestamps int64 µs (N,), field name -> (N,) array) of one topic instance."""
+    data = [d for d in ulog.data_list if d.name == topic]
+    if not data:
+        full = _read(path, None, Notes())  # error path only: list what is logged
+        logged = sorted({d.name for d in full.data_list})
+        why = "is defined but has no logged samples" if topic in ulog.message_formats else "is not in the log"
+        raise DataError(f"topic {topic!r} {why} ({path}); logged topics: {', '.join(logged) or 'none'}")
+    inst = [d for d in data if d.multi_id == instance]
+    if not inst:
+        have = sorted(d.multi_id for d in data)
+        raise DataError(f"topic {topic!r} has no instance {instance} in {path}; instances: {have}")
+    d = inst[0]
+    if "timestamp" not in d.data:
+        raise DataError(f"topic {topic!r} in {path} has no 'timestamp' field")
+    return d.data["timestamp"].astype(np.int64), d.data
+
+
+def _mode_windows(
+    ulog, path: Path, origin: int, *, offboard_only: bool, armed_only: bool, split_on_mode: bool
+) -> list[tuple[int, int, str]] | None:
+    """Allowed (a, b, label) windows from vehicle_status, or None when no mode filter is asked."""
+    if not (offboard_only or armed_only or split_on_mode):
+        return None
+    what = "--offboard-only" if offboard_only else "--armed-only" if armed_only else "--split-on-mode"
+    try:
+        t, f = _topic_fields(ulog, path, "vehicle_status", 0)
+    except DataError as e:
+        raise DataError(f"{what} needs topic vehicle_status (nav_state, arming_state): {e}") from None
+    t_end = int(ulog.last_timestamp)
+    wins = None
+    if offboard_only or split_on_mode:
+        if "nav_state" not in f:
+            raise DataError(f"{what}: vehicle_status in {path} has no field nav_state")
+        keep = (lambda v: v == NAV_STATE_OFFBOARD) if offboard_only else None
+        wins = [(a, b, _nav_name(v)) for a, b, v in state_windows(t, f["nav_state"], t_end_us=t_end, keep=keep)]
+        if offboard_only and not wins:
+            seen = sorted({_nav_name(int(v)) for v in f["nav_state"]})
+            raise DataError(
+                f"--offboard-only: {path} never is in offboard mode "
+                f"({fmt_t(t[0], origin)}..{fmt_t(t_end, origin)}; modes seen: {', '.join(seen)})"
+            )
+    if armed_only:
+        if "arming_state" not in f:
+            raise DataError(f"--armed-only: vehicle_status in {path} has no field arming_state")
+        arm = [(a, b, "armed") for a, b, _ in
+               state_windows(t, f["arming_state"], t_end_us=t_end, keep=lambda v: v == ARMING_STATE_ARMED)]
+        if not arm:
+            raise DataError(f"--armed-only: the vehicle is never armed in {path}")
+        wins = intersect_windows(wins, arm)
+    return wins
+
+
+def import_ulog(
+    paths: str | Path | Sequence[str | Path],
+    inputs: Sequence[str | ChannelSpec] | None = None,
+    outputs: Sequence[str | ChannelSpec] | None = None,
+    *,
+    preset: str | None = None,
+    rate_hz: float = 200.0,
+    max_gap: float | None = None,
+    gap_factor: float = 5.0,
+    min_duration: float = 1.0,
+    offboard_only: bool = False,
+    armed_only: bool = False,
+    split_on_mode: bool = False,
+    time_range: tuple[float, float] | None = None,
+    input_rule: str = "hold",
+    output_rule: str = "linear",
+    on_nan: str = "drop",
+) -> IODataset:
+    """Read PX4 ULog file(s) into an IODataset on a uniform ``rate_hz`` grid.
+
+    Args:
+        paths: one .ulg file or several (each contributes its own trajectories).
+        inputs / outputs: channel specs ``[NAME=]TOPIC[@N].FIELD[:UNIT]``; appended to the
+            preset's channels if ``preset`` is given (see ``ULOG_PRESETS``).
+        rate_hz: controller rate of the grid (dt = 1/rate_hz s).
+        max_gap: split at spells without samples longer than this (s); default per channel
+            ``gap_factor`` x its median sampling interval.
+        min_duration: drop (with a warning) trajectories shorter than this (s).
+        offboard_only / armed_only: keep only offboard (nav_state 14) / armed spans;
+            split_on_mode: split at every nav_state change (trajectories keep one mode).
+        time_range: (start, end) in s since the log start, applied to every file.
+        input_rule / output_rule: "hold" (zero-order hold), "linear" or "cubic".
+        on_nan: "drop" NaN samples with a warning, or "error".
+    Returns:
+        IODataset, u (T_i, m) references, y (T_i, p) realized motion, with provenance metadata.
+    Raises:
+        DataError for missing files/topics/fields, backwards timestamps, no usable segment.
+    """
+    if on_nan not in ("drop", "error"):
+        raise DataError(f"on_nan must be 'drop' or 'error'; got {on_nan!r}")
+    if time_range is not None and not float(time_range[1]) > float(time_range[0]):
+        raise DataError(f"time_range end must be after start; got {time_range[0]}..{time_range[1]} s")
+    check_rule(input_rule, "input")
+    check_rule(output_rule, "output")
+    ins, outs = resolve_channels(preset, inputs, outputs, ULOG_PRESETS, "ULog")
+    path_list = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if not path_list:
+        raise DataError("no ULog file given")
+    notes = Notes()
+    topics = {s.source for s in ins + outs}
+    if offboard_only or armed_only or split_on_mode:
+        topics.add("vehicle_status")
+    per_file = []
+    chan_info: list[dict] = []
+    for fi, p in enumerate(path_list):
+        path = Path(p)
+        ulog = _read(path, sorted(topics), notes)
+        origin = int(ulog.start_timestamp)
+        crop = None if time_range is None else (
+            origin + int(round(float(time_range[0]) * 1e6)), origin + int(round(float(time_range[1]) * 1e6)) + 1)
+        series = {"input": [], "output": []}
+        for role, specs, rule in (("input", ins, input_rule), ("output", outs, output_rule)):
+            for s in specs:
+                inst = 0 if s.instance is None else s.instance
+                t, fields = _topic_fields(ulog, path, s.source, inst)
+                x, how = derive_field(fields, s.field, f"topic {s.source!r} of {path}")
+                src = f"{path.name}:{s.where}"
+                raw = Series(s.name, s.unit, src, t, x, rule, angle=s.field in ANGLE_FIELDS)
+                series[role].append(clean_series(raw, origin_us=origin, on_nan=on_nan, notes=notes, crop_us=crop))
+                if fi == 0:
+                    chan_info.append({"role": role, "name": s.name, "unit": s.unit, "spec": s.text,
+                                      "topic": s.source, "instance": inst, "field": s.field,
+                                      "derivation": how, "rule": rule,
+                                      "angle_unwrapped": s.field in ANGLE_FIELDS})
+        wins = _mode_windows(ulog, path, origin, offboard_only=offboard_only, armed_only=armed_only,
+                             split_on_mode=split_on_mode)
+        if crop is not None:
+            wins = intersect_windows(wins, [(crop[0], crop[1], "")])
+        segs = build_segments(series["input"], series["output"], rate_hz=rate_hz, origin_us=origin,
+                              notes=notes, windows=wins, max_gap_s=max_gap, gap_factor=gap_factor,
+                              min_duration_s=min_duration, what=str(path),
+                              rate_hint=" (PX4: SDLOG_PROFILE 'high rate' or a custom logger topic list)")
+        if ulog.dropouts:
+            lost = sum(d.duration for d in ulog.dropouts)
+            notes.warn(f"{path.name}: the logger reported {len(ulog.dropouts)} dropout(s), {lost} ms in total "
+                       f"(first at {fmt_t(ulog.dropouts[0].timestamp, origin)}); gaps they leave are split by the gap rule")
+        meta = file_meta(path)
+        meta.update({
+            "format": "ulog",
+            "log_start_us": origin,
+            "duration_s": round((int(ulog.last_timestamp) - origin) / 1e6, 6),
+            "sys_name": str(ulog.msg_info_dict.get("sys_name", "")),
+            "ver_sw": str(ulog.msg_info_dict.get("ver_sw", "")),
+            "topics": sorted({s.source if s.instance is None else f"{s.source}@{s.instance}" for s in ins + outs}),
+            "channels": {
+                ser.name: {"source": ser.source, "t_first_s": round((int(ser.t_us[0]) - origin) / 1e6, 6),
+                           "t_last_s": round((int(ser.t_us[-1]) - origin) / 1e6, 6),
+                           "samples": int(ser.t_us.size), "log_rate_hz": ser.info.get("log_rate_hz")}
+                for ser in series["input"] + series["output"]
+            },
+        })
+        per_file.append((meta, segs, origin))
+    settings = {
+        "source_format": "ulog",
+        "importer": "ddpc_codegen.logs.import_ulog",
+        "preset": preset,
+        "time_base": "seconds since each file's ULog start timestamp",
+        "gap_rule": (f"split at spells > {max_gap} s without samples" if max_gap is not None
+                     else f"split at spells > {gap_factor:g} x the channel's median sampling interval"),
+        "min_duration_s": float(min_duration),
+        "mode_filter": {"offboard_only": offboard_only, "armed_only": armed_only, "split_on_mode": split_on_mode},
+        "time_range_s": None if time_range is None else [float(v) for v in time_range],
+        "on_nan": on_nan,
+    }
+    return assemble(per_file, ins, outs, rate_hz=rate_hz, notes=notes, settings=settings, channel_info=chan_info)
+
+
+def list_ulog_topics(path: str | Path) -> list[tuple[str, int, int, float, list[str]]]:
+    """(topic, instance, samples, rate Hz, fields) for every logged topic, to choose channels."""
+    notes = Notes()
+    ulog = _read(Path(path), None, notes)
+    out = []
+    for d in ulog.data_list:
+        t = d.data["timestamp"].astype(np.int64)
+        rate = float(1e6 / np.median(np.diff(t))) if t.size > 1 and np.median(np.diff(t)) > 0 else 0.0
+        out.append((d.name, d.multi_id, int(t.size), rate, [k for k in d.data if k != "timestamp"]))
+    return out

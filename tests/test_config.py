@@ -1,0 +1,95 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ddpc_codegen import ConfigError, SteeringConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+BASE = """
+name = "t"
+[horizon]
+t_ini = 4
+t_f = 3
+[signals]
+inputs = ["a", "b"]
+outputs = ["c"]
+[cost]
+Q = [1.0]
+R = [0.1, 0.2]
+"""
+
+
+def _load(tmp_path, text):
+    f = tmp_path / "c.toml"
+    f.write_text(text)
+    return SteeringConfig.from_toml(f)
+
+
+def test_shipped_flying_config_loads():
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml")
+    assert (cfg.t_ini, cfg.t_f, cfg.m, cfg.p) == (20, 15, 2, 2)
+    assert cfg.R_mode == "offset" and cfg.codegen["backend"] == "daqp"
+    assert cfg.Q.shape == (2, 2) and cfg.Q[0, 0] == 1000.0
+    assert cfg.dataset.endswith("data/flying.npz") and Path(cfg.dataset).is_absolute()
+
+
+def test_minimal_config_defaults(tmp_path):
+    cfg = _load(tmp_path, BASE)
+    assert cfg.m == 2 and cfg.p == 1 and cfg.R_mode == "offset"
+    assert np.all(np.isinf(cfg.u_min)) and np.all(np.isinf(cfg.du_max))
+    assert cfg.predictor["method"] == "pem"
+
+
+def test_full_matrix_weight(tmp_path):
+    cfg = _load(tmp_path, BASE.replace("R = [0.1, 0.2]", "R = [[1.0, 0.1], [0.1, 2.0]]"))
+    assert cfg.R[0, 1] == 0.1
+
+
+def test_digest_ignores_codegen_but_not_weights(tmp_path):
+    a = _load(tmp_path, BASE)
+    b = _load(tmp_path, BASE + '\n[codegen]\nbackend = "osqp"\n')
+    c = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [2.0]"))
+    assert a.digest == b.digest != c.digest
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (("Q = [1.0]", "Q = [1.0, 2.0]"), "[cost] Q must have 1 entries"),
+        (("R = [0.1, 0.2]", "R = [0.1, -0.2]"), "[cost] R diagonal entries must be finite and >= 0"),
+        (("t_f = 3", "t_f = 0"), "t_f must be a positive integer; got 0"),
+        (("t_f = 3", "t_f = 2.5"), "t_f must be a positive integer; got 2.5"),
+        (("t_ini = 4\n", ""), "[horizon] t_ini is required but missing"),
+        (("Q = [1.0]", 'Q = [1.0]\nR_mode = "abs"'), "R_mode must be one of ['absolute', 'offset', 'increment']; got 'abs'"),
+        (("Q = [1.0]", "Q = [1.0]\nlamda_sigma = 3"), "[cost] lamda_sigma is not a known key"),
+        (("[cost]", "[bounds]\nu_min = [1, 0]\nu_max = [0, 1]\n[cost]"), "channel 0: lower 1.0 > upper 0.0"),
+        (("[cost]", "[bounds]\ndu_max = [0, 1]\n[cost]"), "du_max must be > 0"),
+        (("[cost]", "[bounds]\nu_min = [1, 0, 2]\n[cost]"), "u_min must have 2 entries (one per channel); got 3"),
+        (('name = "t"', 'name = "t"\n[codegen]\nbackend = "cvx"'), "[codegen] backend must be one of ['daqp', 'osqp']; got 'cvx'"),
+        (('name = "t"', 'name = "t"\n[predictor]\nmethod = "dmd"'), "[predictor] method must be one of ['pem', 'lsq']; got 'dmd'"),
+        (('outputs = ["c"]', "outputs = []"), "[signals] outputs must be a non-empty list"),
+        (("[cost]", "[costs]"), "'costs' is not a known top-level key"),
+    ],
+)
+def test_bad_config_messages_name_key_and_value(tmp_path, edit, message):
+    with pytest.raises(ConfigError) as e:
+        _load(tmp_path, BASE.replace(*edit))
+    assert message in str(e.value)
+    assert "c.toml" in str(e.value)
+
+
+def test_missing_file_and_bad_toml(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        SteeringConfig.from_toml(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        _load(tmp_path, "name = ")
+
+
+def test_nonsymmetric_and_indefinite_weights():
+    kw = dict(t_ini=2, t_f=2, m=1, p=2, R=[1.0])
+    with pytest.raises(ConfigError, match="symmetric"):
+        SteeringConfig(Q=[[1, 2], [0, 1]], **kw)
+    with pytest.raises(ConfigError, match="positive semidefinite"):
+        SteeringConfig(Q=[[1, 2], [2, 1]], **kw)
