@@ -77,8 +77,10 @@ class SteeringProblem:
     """Condensed steering QP for a fitted predictor and a steering configuration.
 
     Attributes:
-        P (n_u, n_u), A (n_c, n_u): constant QP matrices (dense numpy).
-        param_map: CasADi Function theta (n_theta,) -> (q (n_u,), l (n_c,), u (n_c,)).
+        P (n_u, n_u): constant Hessian. lb_u, ub_u (n_u,): constant simple bounds on u.
+        A_g (n_g, n_u): constant general constraint rows (predicted-y bounds, increments);
+        A = [I; A_g] (n_c, n_u) is the OSQP form.
+        param_map: CasADi Function theta (n_theta,) -> (q (n_u,), l_g (n_g,), u_g (n_g,)).
         n_u = m*Tf, n_theta = (m+p)*Tini + p*Tf (+ m*Tf in R_mode "offset").
     """
 
@@ -119,12 +121,10 @@ class SteeringProblem:
             ru = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_prev, ca.DM.zeros(self.n_u - m))
         J = J + ca.mtimes([ru.T, Rb, ru])
 
-        # Constraint rows: boxes on u, on predicted y, on increments — only rows that bound something.
+        # Simple bounds on u (constant) and general rows: predicted y and increments (only rows that bound something).
+        self.lb_u = np.tile(c.u_min, Tf).astype(float)
+        self.ub_u = np.tile(c.u_max, Tf).astype(float)
         rows, lo, hi, kinds = [], [], [], []
-        um = np.tile(c.u_min, Tf), np.tile(c.u_max, Tf)
-        sel = np.isfinite(um[0]) | np.isfinite(um[1])
-        for i in np.nonzero(sel)[0]:
-            rows.append(u[int(i)]); lo.append(um[0][i]); hi.append(um[1][i]); kinds.append("u")
         ym = np.tile(c.y_min, Tf), np.tile(c.y_max, Tf)
         for i in np.nonzero(np.isfinite(ym[0]) | np.isfinite(ym[1]))[0]:
             rows.append(y[int(i)]); lo.append(ym[0][i]); hi.append(ym[1][i]); kinds.append("y")
@@ -133,39 +133,43 @@ class SteeringProblem:
             dexpr = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
             for i in np.nonzero(np.isfinite(du))[0]:
                 rows.append(dexpr[int(i)]); lo.append(-du[i]); hi.append(du[i]); kinds.append("du")
-        self.constraint_kinds = tuple(kinds)
+        self.general_kinds = tuple(kinds)
         g = ca.vertcat(*rows) if rows else ca.SX(0, 1)
-        self.n_c = int(g.shape[0])
+        self.n_g = int(g.shape[0])
+        self.n_c = self.n_u + self.n_g  # OSQP form: A = [I; A_g]
 
         H, grad = ca.hessian(J, u)
         Ag = ca.jacobian(g, u)
-        if ca.depends_on(H, theta) or (self.n_c and ca.depends_on(Ag, theta)):
+        if ca.depends_on(H, theta) or (self.n_g and ca.depends_on(Ag, theta)):
             raise AssertionError("steering QP is not a parametric QP with constant P and A")  # pragma: no cover
-        q_expr = ca.substitute(grad, u, ca.DM.zeros(self.n_u))
-        g0 = ca.substitute(g, u, ca.DM.zeros(self.n_u)) if self.n_c else g
+        zero = ca.DM.zeros(self.n_u)
+        q_expr = ca.substitute(grad, u, zero)
+        g0 = ca.substitute(g, u, zero) if self.n_g else g
         lo_v, hi_v = ca.DM(np.asarray(lo, float)), ca.DM(np.asarray(hi, float))
-        l_expr = lo_v - g0 if self.n_c else ca.SX(0, 1)
-        u_expr = hi_v - g0 if self.n_c else ca.SX(0, 1)
+        l_expr = lo_v - g0 if self.n_g else ca.SX(0, 1)
+        u_expr = hi_v - g0 if self.n_g else ca.SX(0, 1)
         consts = ca.Function("consts", [theta], [H, Ag])
         Hn, An = consts(np.zeros(self.n_theta))
         self.P = np.array(Hn, dtype=float)
         self.P = 0.5 * (self.P + self.P.T)
-        self.A = np.array(An, dtype=float).reshape(self.n_c, self.n_u)
-        # CasADi-generated C of this function is the per-tick parameter map in the generated solver.
-        self.param_map = ca.Function(
-            "ddpc_param_map", [theta], [q_expr, l_expr, u_expr], ["theta"], ["q", "l", "u"]
-        )
+        self.A_g = np.array(An, dtype=float).reshape(self.n_g, self.n_u)
+        self.A = np.vstack([np.eye(self.n_u), self.A_g])
+        # CasADi Functions of the parameters; their generated C is the per-tick parameter map.
+        self.param_map = ca.Function("ddpc_param_map", [theta], [q_expr, l_expr, u_expr],
+                                     ["theta"], ["q", "l_g", "u_g"])
+        self.linear_map = ca.Function("ddpc_linear_map", [theta], [q_expr], ["theta"], ["q"])
+        self.bounds_map = ca.Function("ddpc_bounds_map", [theta], [l_expr, u_expr], ["theta"], ["l_g", "u_g"])
         self._cost_fn = ca.Function("cost", [u, theta], [J])
-        # q, l, u are affine in theta: keep the dense matrices for numpy evaluation and the gain.
+        # q, l_g, u_g are affine in theta: keep dense matrices for numpy evaluation and the gain.
         jac = ca.Function("param_jacobian", [theta], [ca.jacobian(q_expr, theta),
-                                            ca.jacobian(l_expr, theta) if self.n_c else ca.DM(0, self.n_theta)])
+                                                      ca.jacobian(l_expr, theta) if self.n_g else ca.DM(0, self.n_theta)])
         Fq, Fl = jac(np.zeros(self.n_theta))
         self.F_q = np.array(Fq, dtype=float).reshape(self.n_u, self.n_theta)
-        self.F_c = np.array(Fl, dtype=float).reshape(self.n_c, self.n_theta)  # l = l0 + F_c theta, u = u0 + F_c theta
+        self.F_g = np.array(Fl, dtype=float).reshape(self.n_g, self.n_theta)  # l_g = lg0 + F_g theta, same for u_g
         q0, l0, u0 = self.param_map(np.zeros(self.n_theta))
         self.q0 = np.array(q0, dtype=float).reshape(-1)
-        self.l0 = np.array(l0, dtype=float).reshape(-1)
-        self.u0 = np.array(u0, dtype=float).reshape(-1)
+        self.lg0 = np.array(l0, dtype=float).reshape(-1)
+        self.ug0 = np.array(u0, dtype=float).reshape(-1)
         try:
             self._P_chol = np.linalg.cholesky(self.P)
         except np.linalg.LinAlgError:
@@ -197,8 +201,15 @@ class SteeringProblem:
         return np.concatenate(parts)
 
     def qp_vectors(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(q, l, u) of the QP at theta (numpy evaluation of the affine parameter map)."""
-        return self.q0 + self.F_q @ theta, self.l0 + self.F_c @ theta, self.u0 + self.F_c @ theta
+        """(q, l, u) of the QP in OSQP form (A = [I; A_g]) at theta; unbounded entries are ±inf."""
+        Ft = self.F_g @ theta
+        return (self.q0 + self.F_q @ theta, np.concatenate([self.lb_u, self.lg0 + Ft]),
+                np.concatenate([self.ub_u, self.ug0 + Ft]))
+
+    def is_feasible(self, z: np.ndarray, l: np.ndarray, u: np.ndarray, tol: float = 1e-9) -> bool:
+        """Whether z satisfies l - tol <= A z <= u + tol."""
+        Az = np.concatenate([z, self.A_g @ z])
+        return bool(np.all(Az >= l - tol) and np.all(Az <= u + tol))
 
     def unconstrained(self, theta: np.ndarray) -> np.ndarray:
         """Unconstrained optimum K theta + k0, (n_u,)."""
@@ -237,7 +248,7 @@ class SteeringProblem:
         fast = False
         if solver == "fast":
             z = self.unconstrained(th)
-            if self.n_c == 0 or np.all((self.A @ z >= l - 1e-9) & (self.A @ z <= ub + 1e-9)):
+            if self.is_feasible(z, l, ub):
                 z, status, it, fast = z, "solved", 0, True
             else:
                 z, status, it = self._solve_exact(q, l, ub)
@@ -268,12 +279,12 @@ class SteeringProblem:
     def _solve_osqp(self, q, l, ub, eps, max_iter):
         if self._osqp is None:
             s = osqp.OSQP()
-            A = sp.csc_matrix(self.A) if self.n_c else sp.csc_matrix((0, self.n_u))
-            s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, A, l, ub, verbose=False,
+            s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, sp.csc_matrix(self.A),
+                    np.maximum(l, -1e30), np.minimum(ub, 1e30), verbose=False,
                     eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter, warm_starting=True)
             self._osqp = s
         else:
-            self._osqp.update(q=q, l=l, u=ub)
+            self._osqp.update(q=q, l=np.maximum(l, -1e30), u=np.minimum(ub, 1e30))
         r = self._osqp.solve(raise_error=False)
         status = str(r.info.status).lower()
         status = "solved" if status in _OSQP_OK else status.replace(" ", "_")
@@ -282,12 +293,12 @@ class SteeringProblem:
     def _solve_exact(self, q, l, ub):
         if self._exact is None:
             Hs = ca.DM(self.P).sparsity()
-            As = ca.DM(self.A).sparsity() if self.n_c else ca.Sparsity(0, self.n_u)
+            As = ca.DM(self.A_g).sparsity() if self.n_g else ca.Sparsity(0, self.n_u)
             self._exact = ca.conic("exact", "daqp", {"h": Hs, "a": As},
                                    {"error_on_fail": False, "print_problem": False})
-        kw = dict(h=self.P, g=q, lbx=-np.inf, ubx=np.inf)
-        if self.n_c:
-            kw.update(a=self.A, lba=l, uba=ub)
+        kw = dict(h=self.P, g=q, lbx=l[: self.n_u], ubx=ub[: self.n_u])
+        if self.n_g:
+            kw.update(a=self.A_g, lba=l[self.n_u :], uba=ub[self.n_u :])
         r = self._exact(**kw)
         st = self._exact.stats()
         ok = bool(st.get("success", False))

@@ -66,7 +66,7 @@ def test_condensed_equals_direct_ddpc_flying(plant, mode):
         assert np.abs(res.u.ravel() - ref).max() <= 1e-6
         th = prob.theta(*args)
         _, l, ub = prob.qp_vectors(th)
-        Az = prob.A @ res.u.ravel()
+        Az = prob.A @ res.u.ravel()  # [I; A_g] z
         n_active += bool(np.any(np.isclose(Az, l, atol=1e-8) | np.isclose(Az, ub, atol=1e-8)))
     assert 5 <= n_active < 20  # both active and inactive bound draws were exercised
 
@@ -111,10 +111,12 @@ def test_qp_matrices_are_constant_and_vectors_affine(plant):
     q, l, u = (np.array(v).ravel() for v in prob.param_map(th))
     qn, ln, un = prob.qp_vectors(th)
     np.testing.assert_allclose(q, qn, atol=1e-9)
-    np.testing.assert_allclose(l, ln, atol=1e-9)
-    np.testing.assert_allclose(u, un, atol=1e-9)
+    np.testing.assert_allclose(l, ln[prob.n_u :], atol=1e-9)
+    np.testing.assert_allclose(u, un[prob.n_u :], atol=1e-9)
+    np.testing.assert_array_equal(ln[: prob.n_u], np.tile([-1.5, -1.2], TF))
     assert prob.P.shape == (M * TF, M * TF) and np.allclose(prob.P, prob.P.T)
     assert prob.A.shape == (2 * M * TF + P * TF, M * TF)  # u box, y box, du box rows
+    assert prob.A_g.shape == (M * TF + P * TF, M * TF)
     assert prob.n_theta == (M + P) * TI + P * TF + M * TF
 
 

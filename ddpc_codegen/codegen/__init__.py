@@ -1,0 +1,64 @@
+"""Code generation: a SteeringProblem -> C sources + compiled extension + manifest.json."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from ..errors import CodegenError
+from ..problem import SteeringProblem
+from .build import compile_extension
+from .emit import BACKENDS, DEFAULTS, check_name, emit_sources
+from .manifest import build_manifest, read_manifest, write_manifest
+
+__all__ = ["generate", "BACKENDS", "read_manifest"]
+
+
+def generate(
+    problem: SteeringProblem,
+    out_dir: str | Path,
+    backend: str | None = None,
+    *,
+    name: str | None = None,
+    compile: bool = True,
+    march_native: bool | None = None,
+    max_iter: int | None = None,
+    eps: float | None = None,
+    verbose: bool = False,
+) -> Path:
+    """Emit (and compile) the steering solver of ``problem`` into the folder ``out_dir``.
+
+    Args:
+        backend: ``"daqp"`` (exact dense active set) or ``"osqp"`` (embedded OSQP, parameters='vectors');
+            default: the config's ``[codegen] backend``.
+        name: C/Python identifier of the solver; default: the config's name.
+        compile: build the Python-loadable extension (needs a C compiler; no network).
+        march_native: add ``-march=native`` (opt-in: the binary then only runs on this CPU family).
+        max_iter, eps: solver settings; default from the config, then the backend's defaults.
+    Returns:
+        the solver folder (with manifest.json), loadable by :func:`ddpc_codegen.load_solver`.
+    """
+    cfg = problem.config
+    backend = backend or cfg.codegen.get("backend", "daqp")
+    if backend not in BACKENDS:
+        raise CodegenError(f"unknown backend {backend!r}; choose one of {list(BACKENDS)}")
+    name = check_name(name or cfg.name)
+    out = Path(out_dir)
+    settings = dict(DEFAULTS[backend])
+    for key, val in (("max_iter", max_iter if max_iter is not None else cfg.codegen.get("max_iter")),
+                     ("eps", eps if eps is not None else cfg.codegen.get("eps"))):
+        if val is not None and key in settings:
+            settings[key] = val
+    native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)
+    t0 = time.perf_counter()
+    units = emit_sources(problem, out, name, backend, settings)
+    sources = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".c", ".h") and "build" not in p.parts)
+    module = f"_ddpc_{name}_{problem.predictor.digest[:8]}_{backend}"
+    if not compile:
+        return out
+    for old in out.glob("_ddpc_*"):
+        old.unlink()
+    ext, flags = compile_extension(out, name, module, units, backend, march_native=native, verbose=verbose)
+    settings["build_seconds"] = round(time.perf_counter() - t0, 3)
+    write_manifest(out, build_manifest(problem, name, backend, module, ext, sources, out, settings, flags))
+    return out

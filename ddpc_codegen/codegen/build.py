@@ -1,0 +1,79 @@
+"""Compile emitted sources into a Python-loadable extension (cffi, API mode) — offline, local compiler only."""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import sysconfig
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+
+import casadi
+import cffi
+
+from ..errors import CodegenError
+
+PORTABLE_FLAGS = ["-O3", "-std=c99", "-fno-strict-aliasing", "-Wno-unused-function", "-Wno-unused-variable"]
+
+
+def casadi_dir() -> Path:
+    return Path(casadi.__file__).resolve().parent
+
+
+def cdef_text() -> str:
+    return """
+int ddpc_init(void);
+int ddpc_step(const double *theta, double *u_out, double *y_out, double *sigma_out, double *info);
+void ddpc_reset(void);
+int ddpc_bench(const double *thetas, int n, double *times_us, int *statuses);
+void ddpc_dims(int *out);
+"""
+
+
+def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], backend: str,
+                      march_native: bool = False, verbose: bool = False) -> tuple[Path, list[str]]:
+    """Build ``module`` from ``units``; returns (extension path, compiler flags used)."""
+    flags = list(PORTABLE_FLAGS) + (["-march=native"] if march_native else [])
+    include_dirs = [str(out_dir)]
+    libraries, library_dirs, link_args = ["m"], [], []
+    if backend == "daqp":
+        cd = casadi_dir()
+        if not (cd / "include" / "daqp" / "api.h").exists():
+            raise CodegenError(f"the DAQP headers are missing from the casadi wheel at {cd}; reinstall casadi>=3.6")
+        include_dirs.append(str(cd / "include"))
+        library_dirs.append(str(cd))
+        libraries.append("daqp")
+        link_args.append(f"-Wl,-rpath,{cd}")
+    else:
+        include_dirs += [str(out_dir / "osqp"), str(out_dir / "osqp" / "inc" / "public"),
+                         str(out_dir / "osqp" / "inc" / "private")]
+    # The dims helper lives in the cffi glue so the loader can check the binary against the manifest.
+    glue = f"""
+#include "{name}_solver.h"
+void ddpc_dims(int *out) {{ out[0] = ddpc_N_U; out[1] = ddpc_N_THETA; out[2] = ddpc_N_Y; out[3] = ddpc_N_SIGMA; }}
+"""
+    ffi = cffi.FFI()
+    ffi.cdef(cdef_text())
+    ffi.set_source(module, glue, sources=[str(u) for u in units], include_dirs=include_dirs,
+                   libraries=libraries, library_dirs=library_dirs, extra_compile_args=flags,
+                   extra_link_args=link_args)
+    build_dir = out_dir / "build"
+    if build_dir.exists():
+        shutil.rmtree(build_dir)
+    build_dir.mkdir(parents=True)
+    log = io.StringIO()
+    try:
+        with redirect_stdout(log), redirect_stderr(log):
+            built = Path(ffi.compile(tmpdir=str(build_dir), verbose=verbose))
+    except Exception as e:  # cffi raises VerificationError/CompileError/DistutilsError variants
+        raise CodegenError(
+            f"compiling solver '{name}' failed ({type(e).__name__}: {e}). Is a C compiler (cc/gcc) installed? "
+            f"Build log:\n{log.getvalue()[-4000:]}"
+        ) from e
+    suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
+    target = out_dir / f"{module}{suffix}"
+    shutil.copy2(built, target)
+    if not os.environ.get("DDPC_KEEP_BUILD"):
+        shutil.rmtree(build_dir, ignore_errors=True)
+    return target, flags

@@ -1,0 +1,130 @@
+"""Tracking metrics of a simulated run (true outputs vs desired outputs).
+
+Flying (after the scenario's settle time): RMSE / mean / max of the z error, RMSE of pitch,
+RMSE of x against the ellipse.
+Hopping (after the first ``settle_hops`` hops): per-hop apex height error, per-hop average
+horizontal velocity error (touchdown to touchdown), RMSE of z / roll / pitch over the aerial
+phase, stance durations, bottom-outs.
+All errors are realized - desired, in metres / radians / m/s.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..control import GROUND
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .loop import SimResult
+
+__all__ = ["compute_metrics", "rmse", "hop_apexes"]
+
+
+def rmse(e: np.ndarray) -> float:
+    e = np.asarray(e, dtype=float)
+    return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
+
+
+def hop_apexes(res: "SimResult") -> tuple[np.ndarray, np.ndarray]:
+    """(times [s], heights [m]) of the true apex of every aerial phase from a liftoff to the next touchdown."""
+    z = res.state[:, 2]
+    t = res.t
+    times, heights = [], []
+    lo = list(res.liftoffs)
+    td = list(res.touchdowns)
+    for a in lo:
+        nxt = [b for b in td if b > a]
+        if not nxt:
+            break
+        b = nxt[0]
+        i0 = int(np.searchsorted(t, a))
+        i1 = int(np.searchsorted(t, b))
+        if i1 - i0 < 3:
+            continue
+        i = i0 + int(np.argmax(z[i0:i1]))
+        # Refine with the vertex of the parabola through the samples around the max (ballistic).
+        zi = z[i]
+        if i0 < i < i1 - 1:
+            y0, y1, y2 = z[i - 1], z[i], z[i + 1]
+            den = y0 - 2 * y1 + y2
+            if den < 0:
+                off = 0.5 * (y0 - y2) / den
+                zi = y1 - 0.25 * (y0 - y2) * off
+        times.append(t[i])
+        heights.append(zi)
+    return np.array(times), np.array(heights)
+
+
+def compute_metrics(res: "SimResult") -> dict[str, Any]:
+    """A flat dict of floats/ints (JSON-friendly)."""
+    out: dict[str, Any] = {
+        "scenario": res.scenario,
+        "duration": float(res.t[-1] + res.dt) if res.n else 0.0,
+        "crashed": bool(res.crashed),
+        "wall_time_s": float(res.wall_time),
+        "controller_model_mass": float(res.config.model_mass),
+        "true_mass": float(res.params.mass),
+    }
+    if res.scenario == "flying":
+        settle = float(getattr(res.scenario_obj, "settle_time", 0.0))
+        sel = res.t >= settle
+        ez = res.y_true[sel, 0] - res.y_des[sel, 0]
+        ep = res.y_true[sel, 1] - res.y_des[sel, 1]
+        out.update(
+            rmse_z=rmse(ez),
+            mean_z_error=float(np.mean(ez)) if ez.size else math.nan,
+            max_abs_z_error=float(np.max(np.abs(ez))) if ez.size else math.nan,
+            rmse_pitch=rmse(ep),
+            rmse_pitch_deg=math.degrees(rmse(ep)),
+        )
+        if "x_des" in res.extras:
+            ex = res.state[sel, 0] - res.extras["x_des"][sel]
+            out["rmse_x"] = rmse(ex)
+            out["rmse_xz"] = rmse(np.hypot(ex, res.state[sel, 2] - res.extras["z_des"][sel]))
+        return out
+
+    # ---- hopping
+    cfg = res.config
+    settle_hops = int(getattr(res.scenario_obj, "settle_hops", 0))
+    ta, za = hop_apexes(res)
+    apex_err = za - cfg.apex_height
+    td = res.touchdowns
+    lo = res.liftoffs
+    # Average horizontal velocity of each full cycle touchdown -> touchdown.
+    vel_err = []
+    x = res.state[:, 0:2]
+    for a, b in zip(td[:-1], td[1:]):
+        ia, ib = int(np.searchsorted(res.t, a)), int(np.searchsorted(res.t, b))
+        if ib >= res.n or ib <= ia:
+            continue
+        v = (x[ib] - x[ia]) / (res.t[ib] - res.t[ia])
+        vel_err.append(v - np.asarray(cfg.target_velocity))
+    vel_err = np.array(vel_err).reshape(-1, 2)
+    stance = [b - a for a in td for b in lo[lo > a][:1]]
+    ap = apex_err[settle_hops:]
+    ve = vel_err[settle_hops:]
+    t_from = ta[settle_hops] if len(ta) > settle_hops else (res.t[-1] if res.n else 0.0)
+    aerial = (res.phase != GROUND) & (res.t >= t_from)
+    e = res.y_true[aerial] - res.y_des[aerial]
+    out.update(
+        n_hops=int(len(td)),
+        n_hops_scored=int(len(ap)),
+        apex_target=float(cfg.apex_height),
+        apex_error_mean=float(np.mean(ap)) if ap.size else math.nan,
+        apex_error_rmse=rmse(ap),
+        apex_error_max_abs=float(np.max(np.abs(ap))) if ap.size else math.nan,
+        apex_errors=[float(v) for v in apex_err],
+        velocity_target=[float(v) for v in cfg.target_velocity],
+        velocity_error_mean=[float(v) for v in (np.mean(ve, axis=0) if len(ve) else [math.nan, math.nan])],
+        velocity_error_rmse=rmse(ve[:, 0]) if len(ve) else math.nan,
+        rmse_z_aerial=rmse(e[:, 0]),
+        mean_z_error_aerial=float(np.mean(e[:, 0])) if e.size else math.nan,
+        rmse_roll_aerial=rmse(e[:, 1]),
+        rmse_pitch_aerial=rmse(e[:, 2]),
+        stance_time_mean=float(np.mean(stance)) if stance else math.nan,
+        n_bottom_outs=int(res.n_bottom_outs),
+    )
+    return out
