@@ -4,6 +4,8 @@ Data flows one way: IODataset -> Hankel / PE check -> Predictor -> SteeringProbl
 -> generated C solver -> runtime solver in the loop.
 """
 
+__version__ = "0.1.0"
+
 from .config import SteeringConfig
 from .data import IODataset, prbs
 from .deepc import DeePCProblem
@@ -19,8 +21,9 @@ from .errors import (
 from .hankel import PEReport, block_hankel, mosaic_hankel, persistency_of_excitation
 from .predictor import Predictor, fit_predictor
 from .problem import SteeringProblem, SteeringResult
-
-__version__ = "0.1.0"
+from .codegen import generate
+from .runtime import GeneratedSolver, load_solver
+from .steering import ReferenceSteerer, SteerOutcome
 
 __all__ = [
     "IODataset",
@@ -35,6 +38,11 @@ __all__ = [
     "SteeringProblem",
     "SteeringResult",
     "DeePCProblem",
+    "generate",
+    "load_solver",
+    "GeneratedSolver",
+    "ReferenceSteerer",
+    "SteerOutcome",
     "DDPCError",
     "DataError",
     "ExcitationError",

@@ -16,6 +16,7 @@ from .errors import DDPCError
 _COMMAND_MODULES: tuple[str, ...] = (
     "ddpc_codegen.sim.cli",
     "ddpc_codegen.logs.cli",
+    "ddpc_codegen.codegen.cli",
 )
 
 

@@ -31,7 +31,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "cost": ("Q", "R", "R_mode", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
     "predictor": ("method", "slack_weight", "ridge", "rcond"),
-    "codegen": ("backend", "max_iter", "eps", "march_native"),
+    "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
     "data": ("dataset",),
 }
 
@@ -166,6 +166,8 @@ class SteeringConfig:
             raise _err(src, "[codegen] max_iter", f"must be a positive integer; got {cg['max_iter']!r}")
         if "eps" in cg and not (isinstance(cg["eps"], (int, float)) and 0 < cg["eps"] < 1):
             raise _err(src, "[codegen] eps", f"must be a number in (0, 1); got {cg['eps']!r}")
+        if "rho" in cg and not (isinstance(cg["rho"], (int, float)) and cg["rho"] > 0):
+            raise _err(src, "[codegen] rho", f"must be a positive number; got {cg['rho']!r}")
         if "march_native" in cg and not isinstance(cg["march_native"], bool):
             raise _err(src, "[codegen] march_native", f"must be true or false; got {cg['march_native']!r}")
         set_("codegen", cg)

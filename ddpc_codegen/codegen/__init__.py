@@ -43,10 +43,11 @@ def generate(
     if backend not in BACKENDS:
         raise CodegenError(f"unknown backend {backend!r}; choose one of {list(BACKENDS)}")
     name = check_name(name or cfg.name)
-    out = Path(out_dir)
+    out = Path(out_dir).resolve()
     settings = dict(DEFAULTS[backend])
     for key, val in (("max_iter", max_iter if max_iter is not None else cfg.codegen.get("max_iter")),
-                     ("eps", eps if eps is not None else cfg.codegen.get("eps"))):
+                     ("eps", eps if eps is not None else cfg.codegen.get("eps")),
+                     ("rho", cfg.codegen.get("rho"))):
         if val is not None and key in settings:
             settings[key] = val
     native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import io
 import os
 import shutil
+import sys
 import sysconfig
-from contextlib import redirect_stderr, redirect_stdout
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import casadi
@@ -15,6 +16,29 @@ import cffi
 from ..errors import CodegenError
 
 PORTABLE_FLAGS = ["-O3", "-std=c99", "-fno-strict-aliasing", "-Wno-unused-function", "-Wno-unused-variable"]
+
+
+@contextmanager
+def _captured_fds():
+    """Capture what the compiler (a child process) writes to fds 1 and 2; yields a reader."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        saved = os.dup(1), os.dup(2)
+        os.dup2(tmp.fileno(), 1)
+        os.dup2(tmp.fileno(), 2)
+        text: list[str] = []
+        try:
+            yield text
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            tmp.seek(0)
+            text.append(tmp.read().decode(errors="replace"))
 
 
 def casadi_dir() -> Path:
@@ -62,15 +86,19 @@ void ddpc_dims(int *out) {{ out[0] = ddpc_N_U; out[1] = ddpc_N_THETA; out[2] = d
     if build_dir.exists():
         shutil.rmtree(build_dir)
     build_dir.mkdir(parents=True)
-    log = io.StringIO()
-    try:
-        with redirect_stdout(log), redirect_stderr(log):
+    error = None
+    with _captured_fds() as log:
+        try:
             built = Path(ffi.compile(tmpdir=str(build_dir), verbose=verbose))
-    except Exception as e:  # cffi raises VerificationError/CompileError/DistutilsError variants
+        except Exception as e:  # cffi raises VerificationError/CompileError/DistutilsError variants
+            error = e
+    if error is not None:
         raise CodegenError(
-            f"compiling solver '{name}' failed ({type(e).__name__}: {e}). Is a C compiler (cc/gcc) installed? "
-            f"Build log:\n{log.getvalue()[-4000:]}"
-        ) from e
+            f"compiling solver '{name}' failed ({type(error).__name__}: {error}). Is a C compiler (cc/gcc) "
+            f"installed? Build log (tail):\n{log[0][-4000:]}"
+        ) from error
+    if verbose:
+        print(log[0], file=sys.stderr)
     suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
     target = out_dir / f"{module}{suffix}"
     shutil.copy2(built, target)

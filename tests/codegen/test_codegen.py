@@ -1,0 +1,270 @@
+"""Generated C solvers against the interpreted design layer (independent solvers, same QP)."""
+
+import json
+import socket
+from pathlib import Path
+
+import numpy as np
+import osqp
+import pytest
+import scipy.sparse as sp
+from scipy.optimize import nnls
+
+from conftest import random_lti
+from ddpc_codegen import (DataError, IODataset, ManifestError, SteeringConfig, SteeringProblem, fit_predictor,
+                          generate, load_solver)
+from ddpc_codegen.cli import main as cli_main
+
+TI, TF, M, P = 10, 8, 2, 2
+
+
+def _config(**kw):
+    base = dict(t_ini=TI, t_f=TF, m=M, p=P, Q=[10.0, 4.0], R=[0.2, 0.1], R_mode="offset", lambda_sigma=50.0,
+                u_min=[-1.5, -1.2], u_max=[1.5, 1.2], y_min=[-6.0, -6.0], y_max=[6.0, 6.0], du_max=[0.6, 0.8],
+                name="cgtest")
+    return SteeringConfig(**(base | kw))
+
+
+@pytest.fixture(scope="module")
+def plant():
+    sys_ = random_lti(4, M, P, 5)
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal((400, M))
+    y, _ = sys_.simulate(u, rng.standard_normal(4))
+    return sys_, IODataset(u, y, 0.005)
+
+
+@pytest.fixture(scope="module")
+def problem(plant):
+    return SteeringProblem(fit_predictor(plant[1], TI, TF, "pem"), _config())
+
+
+@pytest.fixture(scope="module")
+def solvers(problem, tmp_path_factory):
+    root = tmp_path_factory.mktemp("gen")
+    return {b: load_solver(generate(problem, root / b, backend=b, name=f"cg_{b}")) for b in ("daqp", "osqp")}
+
+
+def _draws(problem, plant, n, seed):
+    """A closed-loop-like stream: sliding windows of a trajectory, alternating easy and aggressive targets."""
+    sys_ = plant[0]
+    rng = np.random.default_rng(seed)
+    u = rng.uniform(-0.4, 0.4, (n + TI, M))
+    y, _ = sys_.simulate(u, 0.3 * rng.standard_normal(4))
+    out = []
+    for k in range(n):
+        scale = 0.05 if k % 3 else 4.0
+        y_des = y[k + TI - 1] + scale * rng.standard_normal((TF, P))
+        u_nom = np.tile(u[k + TI - 1], (TF, 1))
+        out.append(problem.theta(u[k : k + TI], y[k : k + TI], y_des, u_nom))
+    return out
+
+
+def _kkt(problem, th, z, tol=1e-7):
+    """Max KKT residual of z for the QP at theta: stationarity with sign-correct multipliers, feasibility."""
+    q, l, u = problem.qp_vectors(th)
+    A = problem.A
+    Az = A @ z
+    lo, hi = np.isclose(Az, l, atol=tol), np.isclose(Az, u, atol=tol)
+    g = problem.P @ z + q
+    # P z + q + A_hi' lam - A_lo' mu = 0 with lam, mu >= 0 (NNLS: sign-correct even when degenerate)
+    B = np.hstack([A[hi].T, -A[lo].T])
+    if B.shape[1]:
+        _, res = nnls(B, -g, maxiter=5000)
+    else:
+        res = np.linalg.norm(g)
+    primal_viol = max(0.0, (l - Az).max(), (Az - u).max())
+    return res / max(1.0, np.linalg.norm(q)), primal_viol
+
+
+def test_daqp_matches_exact_interpreted_over_200_draws(problem, plant, solvers):
+    s = solvers["daqp"]
+    s.reset()
+    fast = active = 0
+    for th in _draws(problem, plant, 220, 1):
+        r = s.solve_theta(th)
+        ref = problem.solve_theta(th, solver="exact")
+        assert r.ok and ref.ok
+        assert np.abs(r.u - ref.u).max() <= 1e-8
+        np.testing.assert_allclose(r.y_pred, ref.y_pred, atol=1e-8)
+        np.testing.assert_allclose(r.sigma, ref.sigma, atol=1e-8)
+        res, primal = _kkt(problem, th, r.u.ravel())
+        assert res <= 1e-8 and primal <= 1e-8
+        fast += r.fast_path
+        active += not r.fast_path
+    assert fast >= 10 and active >= 100  # both regimes exercised
+
+
+def test_fast_path_is_kkt_with_empty_active_set(problem, plant, solvers):
+    s = solvers["daqp"]
+    n_fast = 0
+    for th in _draws(problem, plant, 60, 2):
+        r = s.solve_theta(th)
+        if r.fast_path:
+            n_fast += 1
+            q, l, u = problem.qp_vectors(th)
+            z = r.u.ravel()
+            assert np.linalg.norm(problem.P @ z + q) <= 1e-9 * max(1.0, np.linalg.norm(q))
+            assert problem.is_feasible(z, l, u, tol=1e-9)
+            assert r.iterations == 0
+    assert n_fast > 0
+
+
+def test_osqp_generated_equals_interpreted_osqp_same_settings(problem, plant, solvers):
+    """Same algorithm, same settings, same warm-start sequence: generated C == osqp Python."""
+    s = solvers["osqp"]
+    st = s.manifest["settings"]
+    s.reset()
+    ref = osqp.OSQP()
+    q0, l0, u0 = problem.qp_vectors(np.zeros(problem.n_theta))
+    ref.setup(sp.triu(sp.csc_matrix(problem.P), format="csc"), q0, sp.csc_matrix(problem.A),
+              np.maximum(np.r_[problem.lb_u, problem.lg0], -1e30), np.minimum(np.r_[problem.ub_u, problem.ug0], 1e30),
+              verbose=False, eps_abs=st["eps"], eps_rel=st["eps"], max_iter=st["max_iter"], rho=st["rho"],
+              adaptive_rho=False, polishing=False, warm_starting=True)
+    n_qp = 0
+    for th in _draws(problem, plant, 200, 3):
+        r = s.solve_theta(th)
+        if r.fast_path:
+            continue  # the C path skipped the QP; the interpreted one keeps its warm start untouched too
+        n_qp += 1
+        q, l, u = problem.qp_vectors(th)
+        ref.update(q=q, l=np.maximum(l, -1e30), u=np.minimum(u, 1e30))
+        x = ref.solve(raise_error=False)
+        if r.ok:
+            assert np.abs(r.u.ravel() - x.x).max() <= 1e-5  # same iterates up to round-off
+            exact = problem.solve_theta(th, solver="exact")
+            assert np.abs(r.u - exact.u).max() <= 5e-3  # documented accuracy at eps=1e-5
+        else:
+            assert str(x.info.status).lower() != "solved"
+            assert np.isnan(r.u).all()
+            ref.cold_start() if hasattr(ref, "cold_start") else None
+    assert n_qp >= 50
+
+
+def test_bad_input_refused_before_c(solvers):
+    s = solvers["daqp"]
+    z = np.zeros
+    with pytest.raises(DataError, match="u_ini contains NaN or inf; refusing to steer on it"):
+        s.solve(np.full((TI, M), np.nan), z((TI, P)), z((TF, P)), z((TF, M)))
+    with pytest.raises(DataError, match=r"y_des must be \(8, 2\) time-major or stacked \(16,\); got shape \(7, 2\)"):
+        s.solve(z((TI, M)), z((TI, P)), z((7, P)), z((TF, M)))
+    with pytest.raises(DataError, match="R_mode 'offset' needs u_nom"):
+        s.solve(z((TI, M)), z((TI, P)), z((TF, P)))
+    with pytest.raises(DataError, match="theta must have"):
+        s.solve_theta(np.zeros(3))
+
+
+@pytest.mark.parametrize("backend", ["daqp", "osqp"])
+def test_infeasible_returns_status_never_garbage_and_recovers(problem, plant, solvers, backend):
+    s = solvers[backend]
+    u_ini = np.full((TI, M), 5.0)  # far outside the box with a rate bound: no feasible first step
+    r = s.solve(u_ini, np.zeros((TI, P)), np.zeros((TF, P)), np.zeros((TF, M)))
+    assert not r.ok and r.status in ("infeasible", "max_iter") and np.isnan(r.u).all() and np.isnan(r.y_pred).all()
+    th = _draws(problem, plant, 3, 4)[1]
+    ok = s.solve_theta(th)
+    assert ok.ok and np.abs(ok.u - problem.solve_theta(th, solver="exact").u).max() <= (1e-8 if backend == "daqp" else 5e-3)
+
+
+def test_regenerating_gives_identical_bytes(problem, tmp_path):
+    for backend in ("daqp", "osqp"):
+        a = generate(problem, tmp_path / f"a_{backend}", backend=backend, name="same", compile=False)
+        b = generate(problem, tmp_path / f"b_{backend}", backend=backend, name="same", compile=False)
+        fa = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+        fb = sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+        assert fa == fb and len(fa) >= 6
+        for rel in fa:
+            assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
+
+
+def test_manifest_contents_and_mismatch_refused(problem, plant, solvers, tmp_path):
+    s = solvers["daqp"]
+    man = s.manifest
+    assert man["dims"] == {"m": M, "p": P, "t_ini": TI, "t_f": TF, "n_u": M * TF, "n_theta": problem.n_theta,
+                           "n_g": problem.n_g, "n_y": P * TF, "n_sigma": P * TI}
+    assert man["config_hash"] == problem.config.digest and man["predictor_hash"] == problem.predictor.digest
+    assert man["bounds"]["u_max"] == [1.5, 1.2] and man["versions"]["casadi"] and man["compiler"]["flags"]
+    assert "-march=native" not in man["compiler"]["flags"]
+    load_solver(s.folder, config=problem.config, predictor_hash=problem.predictor.digest)
+    other = _config(Q=[11.0, 4.0])
+    with pytest.raises(ManifestError, match="was generated from a different configuration"):
+        load_solver(s.folder, config=other)
+    with pytest.raises(ManifestError, match="different predictor"):
+        load_solver(s.folder, predictor_hash="0" * 64)
+
+
+def test_tampered_or_missing_artifacts_refused(problem, tmp_path):
+    out = generate(problem, tmp_path / "t", backend="daqp", name="tamper")
+    src = out / "tamper_data.c"
+    src.write_text(src.read_text() + "\n/* edited */\n")
+    with pytest.raises(ManifestError, match="tamper_data.c differs from the one the solver was built from"):
+        load_solver(out)
+    man = json.loads((out / "manifest.json").read_text())
+    man["format_version"] = 99
+    (out / "manifest.json").write_text(json.dumps(man))
+    with pytest.raises(ManifestError, match="regenerate the solver"):
+        load_solver(out)
+    (out / "manifest.json").write_text("{not json")
+    with pytest.raises(ManifestError, match="is not valid JSON"):
+        load_solver(out)
+    with pytest.raises(ManifestError, match="has no manifest.json"):
+        load_solver(tmp_path)
+
+
+def test_build_works_without_network(problem, tmp_path, monkeypatch):
+    def refuse(*a, **k):
+        raise OSError("network access attempted during codegen")
+
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    monkeypatch.setattr(socket, "create_connection", refuse)
+    for backend in ("daqp", "osqp"):
+        out = generate(problem, tmp_path / backend, backend=backend, name=f"offline_{backend}")
+        assert load_solver(out).solve_theta(np.zeros(problem.n_theta)).ok
+
+
+def test_cli_codegen(plant, tmp_path, capsys):
+    _, ds = plant
+    ds.save(tmp_path / "d.npz")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f"""
+name = "clitest"
+[horizon]
+t_ini = {TI}
+t_f = {TF}
+[signals]
+inputs = ["a", "b"]
+outputs = ["c", "d"]
+[cost]
+Q = [10.0, 4.0]
+R = [0.2, 0.1]
+[bounds]
+u_min = [-1.5, -1.2]
+u_max = [1.5, 1.2]
+[predictor]
+method = "lsq"
+[data]
+dataset = "d.npz"
+""")
+    assert cli_main(["codegen", str(cfg), "--out", str(tmp_path / "gen"), "--quiet"]) == 0
+    out = Path(capsys.readouterr().out.strip())
+    assert out == tmp_path / "gen" / "clitest" and (out / "manifest.json").exists()
+    assert load_solver(out, config=cfg).manifest["backend"] == "daqp"
+    (tmp_path / "d.npz").unlink()
+    assert cli_main(["codegen", str(cfg), "--out", str(tmp_path / "gen"), "--quiet"]) == 2
+    assert "dataset file" in capsys.readouterr().err
+
+
+def test_missing_compiler_gives_clear_error(problem, tmp_path, monkeypatch):
+    from ddpc_codegen import CodegenError
+
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    with pytest.raises(CodegenError, match="compiling solver 'nocc' failed .* Is a C compiler"):
+        generate(problem, tmp_path / "x", backend="daqp", name="nocc")
+
+
+def test_bad_names_and_backends(problem, tmp_path):
+    from ddpc_codegen import CodegenError
+
+    with pytest.raises(CodegenError, match="must start with a letter"):
+        generate(problem, tmp_path / "x", name="1-bad name", compile=False)
+    with pytest.raises(CodegenError, match="unknown backend 'cvx'"):
+        generate(problem, tmp_path / "x", backend="cvx", compile=False)
