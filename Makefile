@@ -18,5 +18,15 @@ $(STAMP): pyproject.toml
 test: install
 	$(PY) -m pytest -q
 
+# Steering solvers from configs/: collect a PRBS-excited dataset on the simulator when none is there yet.
+data/flying.npz: | install
+	$(VENV)/bin/ddpc-codegen collect --scenario flying --duration 60 -o $@
+
+codegen: install data/flying.npz
+	$(VENV)/bin/ddpc-codegen codegen configs/flying.toml
+
+bench: install
+	$(PY) -m ddpc_codegen.bench
+
 clean:
 	rm -rf build generated/*/ reports/*.json reports/*.png .pytest_cache

@@ -13,7 +13,6 @@ parameter map is a CasADi Function (later exported as C).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -32,26 +31,49 @@ _DAQP_STATUS = {1: "solved", 2: "solved", -1: "infeasible", -2: "cycling", -3: "
                 -4: "max_iter", -5: "nonconvex", -6: "overdetermined_initial_active_set"}
 
 
-@dataclass
 class SteeringResult:
     """Outcome of one steering solve.
 
     u (Tf, m): steered references over the horizon (u[0] is what to send now).
-    y_pred (Tf, p): predicted outputs under u. sigma (Tini, p): predictor slack.
+    y_pred (Tf, p): predicted outputs under u. sigma (Tini, p): predictor slack. (Generated
+    solvers compute these two on first access, so a loop that only needs u does not pay for them.)
     status: "solved", or the solver's failure status ("max_iter", "infeasible", ...).
     fast_path: True when the unconstrained optimum was feasible and returned as is.
-    solve_time: seconds spent in the solver call (wall clock).
+    solve_time: seconds spent in the solver call.
     """
 
-    u: np.ndarray
-    y_pred: np.ndarray
-    sigma: np.ndarray
-    status: str
-    iterations: int = 0
-    solve_time: float = 0.0
-    cost: float = float("nan")
-    fast_path: bool = False
-    info: dict = field(default_factory=dict)
+    __slots__ = ("u", "status", "iterations", "solve_time", "cost", "fast_path", "info", "_y_pred", "_sigma",
+                 "_predict")
+
+    def __init__(self, u: np.ndarray, y_pred: np.ndarray | None = None, sigma: np.ndarray | None = None,
+                 status: str = "solved", iterations: int = 0, solve_time: float = 0.0,
+                 cost: float = float("nan"), fast_path: bool = False, info: dict | None = None,
+                 predict=None) -> None:
+        self.u = u
+        self._y_pred = y_pred
+        self._sigma = sigma
+        self.status = status
+        self.iterations = iterations
+        self.solve_time = solve_time
+        self.cost = cost
+        self.fast_path = fast_path
+        self.info = info if info is not None else {}
+        self._predict = predict
+
+    def _fill(self) -> None:
+        if self._y_pred is None and self._predict is not None:
+            self._y_pred, self._sigma = self._predict()
+            self._predict = None
+
+    @property
+    def y_pred(self) -> np.ndarray:
+        self._fill()
+        return self._y_pred
+
+    @property
+    def sigma(self) -> np.ndarray:
+        self._fill()
+        return self._sigma
 
     @property
     def ok(self) -> bool:
@@ -61,6 +83,10 @@ class SteeringResult:
     def u_next(self) -> np.ndarray:
         """The reference to apply at this tick, (m,)."""
         return self.u[0]
+
+    def __repr__(self) -> str:
+        return (f"SteeringResult(status={self.status!r}, fast_path={self.fast_path}, iterations={self.iterations}, "
+                f"solve_time={self.solve_time:.3g}, u_next={self.u[0]})")
 
 
 def _window(x: np.ndarray, T: int, c: int, what: str) -> np.ndarray:

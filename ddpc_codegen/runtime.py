@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 import sys
 from pathlib import Path
 
@@ -23,6 +24,24 @@ def _window(x, T: int, c: int, what: str) -> np.ndarray:
     if a.size != T * c or a.ndim > 2 or (a.ndim == 2 and a.shape != (T, c)):
         raise DataError(f"{what} must be ({T}, {c}) time-major or stacked ({T * c},); got shape {a.shape}")
     return a.reshape(-1)
+
+
+_NAN = float("nan")
+
+
+class _Prediction:
+    """Deferred y_pred / sigma of one result (computed in C on first access)."""
+
+    __slots__ = ("solver", "theta", "u")
+
+    def __init__(self, solver, theta, u):
+        self.solver, self.theta, self.u = solver, theta, u
+
+    def __call__(self):
+        s = self.solver
+        if self.theta is None:
+            return np.full((s.t_f, s.p), np.nan), np.full((s.t_ini, s.p), np.nan)
+        return s._predict(self.theta, self.u)
 
 
 class GeneratedSolver:
@@ -49,13 +68,10 @@ class GeneratedSolver:
             raise ManifestError(f"{folder}: the solver workspace failed to initialise")
         self._theta = np.empty(self.n_theta)
         self._u = np.empty(self.n_u)
-        self._y = np.empty(self.n_y)
-        self._s = np.empty(max(1, self.n_sigma))
-        self._info = np.empty(4)
+        self._info = self._ffi.new("double[4]")
         fb = self._ffi.from_buffer
-        self._pt, self._pu, self._py, self._ps, self._pi = (
-            fb("double[]", self._theta), fb("double[]", self._u), fb("double[]", self._y),
-            fb("double[]", self._s), fb("double[]", self._info))
+        self._pt, self._pu, self._pi = fb("double[]", self._theta), fb("double[]", self._u), self._info
+        self._shape_u = (self.t_f, self.m)
 
     def __repr__(self) -> str:
         return f"GeneratedSolver({self.name!r}, backend={self.backend!r}, n_u={self.n_u}, n_theta={self.n_theta})"
@@ -85,24 +101,38 @@ class GeneratedSolver:
     def solve_theta(self, theta: np.ndarray, _checked: bool = False) -> SteeringResult:
         """Like :meth:`solve`, from a stacked parameter vector (n_theta,)."""
         if not _checked:
-            theta = np.asarray(theta, dtype=float).reshape(-1)
-            if theta.shape[0] != self.n_theta:
-                raise DataError(f"theta must have {self.n_theta} entries; got {theta.shape[0]}")
-            if not np.isfinite(theta).all():
+            theta = np.asarray(theta, dtype=float)
+            if theta.shape != (self.n_theta,):
+                raise DataError(f"theta must have shape ({self.n_theta},); got {theta.shape}")
+            if not math.isfinite(theta.sum()):  # any NaN/inf makes the sum non-finite
                 raise DataError("theta contains NaN or inf; refusing to steer on it")
         self._theta[:] = theta
-        st = self._lib.ddpc_step(self._pt, self._pu, self._py, self._ps, self._pi)
+        st = self._lib.ddpc_step(self._pt, self._pu, self._ffi.NULL, self._ffi.NULL, self._pi)
         info = self._info
-        return SteeringResult(
-            self._u.reshape(self.t_f, self.m).copy(), self._y.reshape(self.t_f, self.p).copy(),
-            self._s[: self.n_sigma].reshape(self.t_ini, self.p).copy(), _STATUS.get(st, f"status_{st}"),
-            int(info[0]), info[2] * 1e-6, float("nan"), bool(info[1]), {"raw_status": int(info[3])})
+        u = self._u.reshape(self._shape_u)  # a fresh view...
+        u = u.copy()  # ...and its own data: the buffer is reused next tick
+        if st == 0:
+            predict = _Prediction(self, self._theta.copy(), u)
+            status = "solved"
+        else:
+            predict = _Prediction(self, None, u)
+            status = _STATUS.get(st, f"status_{st}")
+        return SteeringResult(u, None, None, status, int(info[0]), info[2] * 1e-6, _NAN, info[1] == 1.0,
+                              {"raw_status": int(info[3])}, predict)
+
+    def _predict(self, theta: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        y = np.empty(self.n_y)
+        s = np.empty(max(1, self.n_sigma))
+        fb = self._ffi.from_buffer
+        self._lib.ddpc_predict(fb("double[]", theta), fb("double[]", np.ascontiguousarray(u, dtype=float)),
+                               fb("double[]", y), fb("double[]", s))
+        return y.reshape(self.t_f, self.p), s[: self.n_sigma].reshape(self.t_ini, self.p)
 
     def step_u(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
         """Lowest-overhead call for loops: (status code, u (n_u,) view, valid until the next call).
         theta must be a float64 array of n_theta finite entries (not checked)."""
         self._theta[:] = theta
-        return self._lib.ddpc_step(self._pt, self._pu, self._py, self._ps, self._pi), self._u
+        return self._lib.ddpc_step(self._pt, self._pu, self._ffi.NULL, self._ffi.NULL, self._pi), self._u
 
     def bench(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Run every row of ``thetas`` (n, n_theta) in C; returns (times in µs, status codes)."""

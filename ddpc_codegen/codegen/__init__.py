@@ -8,7 +8,7 @@ from pathlib import Path
 from ..errors import CodegenError
 from ..problem import SteeringProblem
 from .build import compile_extension
-from .emit import BACKENDS, DEFAULTS, check_name, emit_sources
+from .emit import BACKENDS, DEFAULTS, auto_rho, check_name, emit_sources
 from .manifest import build_manifest, read_manifest, write_manifest
 
 __all__ = ["generate", "BACKENDS", "read_manifest"]
@@ -50,6 +50,8 @@ def generate(
                      ("rho", cfg.codegen.get("rho"))):
         if val is not None and key in settings:
             settings[key] = val
+    if settings.get("rho") == "auto":
+        settings["rho"] = round(auto_rho(problem), 6)
     native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)
     t0 = time.perf_counter()
     units = emit_sources(problem, out, name, backend, settings)

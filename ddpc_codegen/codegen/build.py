@@ -50,6 +50,7 @@ def cdef_text() -> str:
 int ddpc_init(void);
 int ddpc_step(const double *theta, double *u_out, double *y_out, double *sigma_out, double *info);
 void ddpc_reset(void);
+void ddpc_predict(const double *theta, const double *u, double *y_out, double *sigma_out);
 int ddpc_bench(const double *thetas, int n, double *times_us, int *statuses);
 void ddpc_dims(int *out);
 """
