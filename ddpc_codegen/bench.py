@@ -190,6 +190,35 @@ def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
     return results
 
 
+def predictor_scaling(samples: int = 10**6) -> dict:
+    """Fit both predictors on ``samples`` samples (m = p = 2, Tini = 20, Tf = 15) in a fresh
+    process; report wall time and the process's peak resident memory (includes Python + numpy)."""
+    import subprocess
+
+    code = f"""
+import json, resource, time, numpy as np
+from ddpc_codegen.bench import _plant, _simulate
+from ddpc_codegen import IODataset, prbs, fit_predictor
+A, B, C, off = _plant(2, 0)
+u = prbs({samples}, 2, amplitude=0.05, min_hold=4, seed=0)
+y, _ = _simulate(A, B, C, off, u, np.zeros(4)) if {samples} <= 20000 else (None, None)
+if y is None:
+    from scipy.signal import dlsim
+    _, y, _ = dlsim((A, B, C, np.zeros((2, 2)), 1.0), u)
+ds = IODataset(u, y, 0.005)
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+out = {{"samples": {samples}, "rss_before_fit_mib": base}}
+for method in ("lsq", "pem"):
+    t0 = time.perf_counter()
+    fit_predictor(ds, 20, 15, method)
+    out[method + "_seconds"] = time.perf_counter() - t0
+out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps(out))
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
 def _table(report: dict) -> str:
     rows = [f"{'size':8} {'solver':18} {'median µs':>10} {'p99 µs':>9} {'C med µs':>9} {'max |Δu|':>10} {'fast':>6}"]
     for size in SIZES:
@@ -209,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ddpc_codegen.bench", description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=2000, help="ticks per size (default 2000)")
     ap.add_argument("--out", default="reports/bench.json")
+    ap.add_argument("--skip-predictor", action="store_true", help="skip the 10^6-sample predictor fit")
     args = ap.parse_args(argv)
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
     report: dict = {}
@@ -216,12 +246,20 @@ def main(argv: list[str] | None = None) -> int:
         for size in SIZES:
             log(f"bench {size} ...")
             report[size] = bench_size(size, args.ticks, Path(tmp), log)
+    if not args.skip_predictor:
+        log("predictor fit on 10^6 samples (fresh process) ...")
+        report["predictor_1e6"] = predictor_scaling()
     report["meta"] = {"ticks": args.ticks, "machine": platform.machine(), "python": platform.python_version(),
                       "date": time.strftime("%Y-%m-%d")}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
     print(_table(report))
+    if "predictor_1e6" in report:
+        p = report["predictor_1e6"]
+        print(f"\npredictor fit, 10^6 samples (m=p=2, Tini=20, Tf=15): lsq {p['lsq_seconds']:.1f} s, "
+              f"pem {p['pem_seconds']:.1f} s, peak RSS {p['peak_rss_mib']:.0f} MiB "
+              f"({p['rss_before_fit_mib']:.0f} MiB before fitting)")
     print(f"\nwrote {out}")
     return 0
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from scipy.signal import max_len_seq
 
 from .errors import DataError
 
@@ -254,28 +255,6 @@ class IODataset:
         )
 
 
-# Primitive trinomial/pentanomial taps of maximal-length LFSRs (Fibonacci form, 1-based).
-_LFSR_TAPS = {
-    3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4), 9: (9, 5),
-    10: (10, 7), 11: (11, 9), 12: (12, 11, 10, 4), 13: (13, 12, 11, 8), 14: (14, 13, 12, 2),
-    15: (15, 14), 16: (16, 15, 13, 4), 17: (17, 14), 18: (18, 11), 19: (19, 18, 17, 14),
-    20: (20, 17), 21: (21, 19), 22: (22, 21), 23: (23, 18), 24: (24, 23, 22, 17),
-}
-
-
-def _lfsr_bits(order: int, n: int, state: int) -> np.ndarray:
-    taps = _LFSR_TAPS[order]
-    out = np.empty(n, dtype=np.int8)
-    mask = (1 << order) - 1
-    for k in range(n):
-        bit = 0
-        for t in taps:
-            bit ^= (state >> (t - 1)) & 1
-        out[k] = state & 1
-        state = ((state << 1) | bit) & mask
-    return out
-
-
 def prbs(
     n_samples: int,
     channels: int = 1,
@@ -287,7 +266,8 @@ def prbs(
 ) -> np.ndarray:
     """Maximal-length pseudo-random binary sequence(s), values ``±amplitude``.
 
-    Each channel is an LFSR m-sequence of the given ``order`` (period 2**order - 1 bits)
+    Each channel is a maximal-length LFSR sequence (``scipy.signal.max_len_seq``) of the given
+    ``order`` (period 2**order - 1 bits)
     started from its own seeded nonzero state, each bit held for ``min_hold`` samples.
 
     Returns:
@@ -302,17 +282,18 @@ def prbs(
     n_samples, channels, min_hold = int(n_samples), int(channels), int(min_hold)
     n_bits = -(-n_samples // min_hold)
     if order is None:
-        order = max(7, min(20, int(np.ceil(np.log2(n_bits + 1)))))
-    if order not in _LFSR_TAPS:
-        raise DataError(f"prbs order must be in {min(_LFSR_TAPS)}..{max(_LFSR_TAPS)}; got {order}")
+        order = max(7, min(24, int(np.ceil(np.log2(n_bits + 1)))))
+    if not 3 <= int(order) <= 24:
+        raise DataError(f"prbs order must be in 3..24; got {order}")
     amp = np.broadcast_to(np.asarray(amplitude, dtype=float), (channels,))
     rng = np.random.default_rng(seed)
     out = np.empty((n_samples, channels))
-    period = (1 << order) - 1
     for c in range(channels):
         # Different nonzero start states give shifted copies of the m-sequence; a random
         # shift per channel keeps channels nearly uncorrelated.
-        state = int(rng.integers(1, period + 1))
-        bits = _lfsr_bits(order, n_bits, state)
+        state = rng.integers(0, 2, int(order))
+        if not state.any():
+            state[0] = 1
+        bits, _ = max_len_seq(int(order), state=state, length=n_bits)
         out[:, c] = np.repeat(2.0 * bits - 1.0, min_hold)[:n_samples] * amp[c]
     return out

@@ -123,3 +123,20 @@ def test_bad_arguments():
         pred.predict(np.zeros((7, 2)), np.zeros((TI, 2)), np.zeros((TF, 2)))
     with pytest.raises(DataError, match="y_ini contains NaN"):
         pred.predict(np.zeros((TI, 2)), np.full((TI, 2), np.nan), np.zeros((TF, 2)))
+
+
+def test_streaming_memory_does_not_grow_with_samples():
+    """Peak allocation during the fit is set by the block size, not by T (beyond the data itself)."""
+    import tracemalloc
+
+    peaks = []
+    for T in (40_000, 160_000):
+        u = prbs(T, 2, amplitude=1.0, min_hold=2, seed=1)
+        y = np.cumsum(u, axis=0) * 0.01
+        ds = IODataset(u, y, 0.005)
+        tracemalloc.start()
+        fit_predictor(ds, 20, 15, "pem", block_columns=4096)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert peaks[1] < peaks[0] + 4e6  # 4x the samples, < 4 MB more peak
+    assert peaks[1] < 60e6
