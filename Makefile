@@ -26,6 +26,7 @@ codegen: install data/flying.npz
 	$(VENV)/bin/ddpc-codegen codegen configs/flying.toml
 
 bench: install
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,bench]' || echo "(bench extra not installed: the CVXPYgen comparison is skipped)"
 	$(PY) -m ddpc_codegen.bench
 
 clean:
