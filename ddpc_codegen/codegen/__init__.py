@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -55,8 +57,12 @@ def generate(
     native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)
     t0 = time.perf_counter()
     units = emit_sources(problem, out, name, backend, settings)
-    sources = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".c", ".h") and "build" not in p.parts)
-    module = f"_ddpc_{name}_{problem.predictor.digest[:8]}_{backend}"
+    sources = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".c", ".h") and not any(part.startswith("build-") for part in p.relative_to(out).parts))
+    # The module (and file) name changes with anything that changes the binary: a process cannot
+    # dlopen a rebuilt library under a path it has already loaded.
+    ident = hashlib.sha256(json.dumps([problem.predictor.digest, cfg.digest, backend, settings, native],
+                                      sort_keys=True, default=str).encode()).hexdigest()[:12]
+    module = f"_ddpc_{name}_{ident}"
     if not compile:
         return out
     for old in out.glob("_ddpc_*"):

@@ -83,10 +83,9 @@ void ddpc_dims(int *out) {{ out[0] = ddpc_N_U; out[1] = ddpc_N_THETA; out[2] = d
     ffi.set_source(module, glue, sources=[str(u) for u in units], include_dirs=include_dirs,
                    libraries=libraries, library_dirs=library_dirs, extra_compile_args=flags,
                    extra_link_args=link_args)
-    build_dir = out_dir / "build"
-    if build_dir.exists():
-        shutil.rmtree(build_dir)
-    build_dir.mkdir(parents=True)
+    # A fresh directory per build: distutils caches the directories it created per process, so
+    # reusing a deleted one makes the second build in a process fail.
+    build_dir = Path(tempfile.mkdtemp(prefix="build-", dir=out_dir))
     error = None
     with _captured_fds() as log:
         try:

@@ -268,3 +268,17 @@ def test_bad_names_and_backends(problem, tmp_path):
         generate(problem, tmp_path / "x", name="1-bad name", compile=False)
     with pytest.raises(CodegenError, match="unknown backend 'cvx'"):
         generate(problem, tmp_path / "x", backend="cvx", compile=False)
+
+
+def test_regenerating_in_place_loads_the_new_binary(problem, tmp_path):
+    """A rebuilt solver in the same folder must not be served by the library already loaded."""
+    out = tmp_path / "same"
+    a = load_solver(generate(problem, out, backend="daqp", name="inplace"))
+    th = np.zeros(problem.n_theta)
+    th[problem.n_w : problem.n_w + P * TF] = 50.0  # a far target: the u bound is active
+    ua = a.solve_theta(th).u.max()
+    tighter = SteeringProblem(problem.predictor, problem.config.replace(u_max=[0.5, 0.5]))
+    b = load_solver(generate(tighter, out, backend="daqp", name="inplace"))
+    ub = b.solve_theta(th).u.max()
+    assert ua > 0.5 + 1e-6 and ub <= 0.5 + 1e-9
+    assert a.manifest["module"] != b.manifest["module"]
