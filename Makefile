@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test demo codegen bench clean
+.PHONY: install test demo codegen bench bridge-demo clean
 
 install: $(STAMP)
 
@@ -24,6 +24,10 @@ data/flying.npz: | install
 
 codegen: install data/flying.npz
 	$(VENV)/bin/ddpc-codegen codegen configs/flying.toml
+
+# Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights.
+bridge-demo: install
+	$(PY) -m firmware_bridge.demo
 
 bench: install
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,bench]' || echo "(bench extra not installed: the CVXPYgen comparison is skipped)"

@@ -1,0 +1,879 @@
+"""The companion-computer tick loop: telemetry in, steering + height / leg-angle controller,
+SET_ATTITUDE_TARGET out, at 200 Hz (``ddpc-bridge``).
+
+One tick (event-driven: it runs as soon as every telemetry stream has a new sample)::
+
+    newest telemetry (NED/FRD -> ENU/FLU)                -> MeasuredState (t = trajectory time)
+    r_nom = controller.nominal_reference(state)             stage (a)
+    u     = steer: ReferenceSteerer.step(y_des, u_nom)      the generated solver, with fallback
+            passthrough: r_nom                              the model-based controller alone
+            collect: r_nom + PRBS                           new data
+    sp    = controller.track(u, state)                      stage (b): quaternion + thrust
+    clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
+
+Timing. The loop sleeps in ``select`` on the link, drains *everything* pending and folds it
+into the newest state. A tick fires when both streams (attitude, position) have advanced; in
+real time a timer also fires 1.25 periods after the last setpoint if telemetry is late (then
+every period while it stays away): with
+fresh telemetry it repeats the last setpoint ("hold", so a late sample never corrupts the
+steering history), with telemetry older than ``max_age`` it applies the stale action. So the
+setpoint stream continues while the vehicle is silent -- for ``stale_stream_limit`` seconds,
+after which the bridge goes quiet and lets the autopilot's own off-board-loss failsafe
+(PX4 COM_OF_LOSS_T) take over with its own estimator. Latency (logged per event tick) is from
+the kernel receive time of the telemetry message that completed the state to the return of
+the send call. In ``lockstep`` (with ``ddpc-vehicle --lockstep``) only telemetry drives ticks and
+the controller's time is the vehicle's time stamp.
+
+Safety:
+* Steering only while the vehicle reports armed and off-board / guided, its heartbeat is
+  recent and telemetry is fresh; the steering history is reset whenever that chain breaks
+  (or a telemetry sample is lost), so the solver never sees a window with a hole.
+* Solver failure, NaN, out-of-bounds or too large a step -> the unsteered reference for that
+  tick (ReferenceSteerer), counted per reason.
+* Attitude (roll, pitch) and thrust clamped to configured limits before sending.
+* Only the configured vehicle's messages are used (other system ids counted and ignored;
+  bytes that are not MAVLink are skipped per datagram).
+* Arming and mode changes happen only with ``arm`` / ``offboard``; a vehicle that leaves
+  off-board by itself (pilot, failsafe) is not pulled back.
+* SIGINT / SIGTERM: stop, (with ``offboard``) ask for HOLD, write the log, print a summary.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import math
+import signal
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ddpc_codegen.control import (
+    ControllerConfig,
+    EllipseTrajectory,
+    HeightLegAngleController,
+    quat_from_euler,
+)
+from ddpc_codegen.problem import SteeringResult
+from ddpc_codegen.steering import ReferenceSteerer
+
+from .link import CommandTracker, MavLink, mavlink, set_realtime_priority
+from .profiles import ArduPilotProfile, Profile, make_profile
+from .telemetry import TelemetryState, swap_frames
+from .ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, reason_code
+
+__all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
+           "gap_statistics"]
+
+_MSG_IDS = {
+    "ATTITUDE": mavlink.MAVLINK_MSG_ID_ATTITUDE,
+    "ATTITUDE_QUATERNION": mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    "LOCAL_POSITION_NED": mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    "ODOMETRY": mavlink.MAVLINK_MSG_ID_ODOMETRY,
+}
+# Body rates ignored: attitude + thrust (= 7).
+_TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+              | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+              | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
+_R = {r: i for i, r in enumerate(REASONS)}
+
+
+class NoVehicleError(RuntimeError):
+    """No heartbeat from the target vehicle within the wait time."""
+
+
+def default_controller_config() -> ControllerConfig:
+    """The flying controller configured for the simulated PogoX (what ``ddpc-vehicle`` flies)."""
+    from ddpc_codegen.sim.params import PogoXParams
+    from ddpc_codegen.sim.scenarios import FlyingScenario
+
+    return FlyingScenario().controller_config(PogoXParams())
+
+
+@dataclass
+class BridgeConfig:
+    """Options of the bridge (CLI flags of ``ddpc-bridge`` map 1:1; units SI unless named).
+
+    Attributes:
+        url, baud: MAVLink connection (see :func:`firmware_bridge.link.parse_url`).
+        mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS).
+        solver: folder of a generated solver (``ddpc-codegen codegen``), steer mode.
+        autopilot: "px4" or "ardupilot"; guid_options: ArduPilot GUID_OPTIONS (None: read it).
+        sysid, compid: our identity; target_system / target_component: the vehicle (0: first seen).
+        rate_hz: control rate (must match the solver's dt and the controller's dt).
+        attitude_stream / position_stream: telemetry messages to request.
+        max_age: telemetry older than this [s] -> stop steering, stale action.
+        stale_action: "reference" (controller on the newest telemetry, unsteered), "hover"
+            (level, hover thrust / climb rate 0), "land" (like hover and, with ``offboard``,
+            request the autopilot's LAND mode).
+        stale_stream_limit: stop streaming after telemetry has been stale this long [s] so the
+            autopilot's off-board-loss failsafe takes over (0: never stop).
+        link_timeout: no vehicle heartbeat for this long [s] -> link lost.
+        max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
+        max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard).
+        arm, offboard: explicitly allowed actions: arm the vehicle; switch it to OFFBOARD /
+            GUIDED after ``prestream`` seconds of setpoints (and HOLD at exit / LAND if stale).
+        duration: stop after this long in off-board [s] (None: until signalled).
+        timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
+        lockstep: tick only on telemetry, controller time = vehicle time stamps.
+        log: tick log path (.npz; an IODataset). summary: JSON summary path.
+        dataset_skip: seconds after each activation left out of the dataset part of the log.
+        settle: seconds after activation excluded from the RMSE in the summary.
+        excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed.
+        inject_solver_failure: (first solve index, count[, "fail" | "nan"]) fault injection for tests.
+        controller: ControllerConfig (default: :func:`default_controller_config`).
+        trajectory: EllipseTrajectory (default: the controller's default ellipse).
+        rt_priority: >0: run the loop SCHED_FIFO at this priority (if permitted).
+    """
+
+    url: str = "udpin:127.0.0.1:14540"
+    baud: int | None = None
+    mode: str = "steer"
+    solver: str | None = None
+    autopilot: str = "px4"
+    guid_options: int | None = None
+    sysid: int = 1
+    compid: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+    target_system: int = 1
+    target_component: int = 1
+    rate_hz: float = 200.0
+    attitude_stream: str = "ATTITUDE_QUATERNION"
+    position_stream: str = "LOCAL_POSITION_NED"
+    max_age: float = 0.050
+    stale_action: str = "reference"
+    stale_stream_limit: float = 1.0
+    link_timeout: float = 3.0
+    max_tilt_deg: float = 30.0
+    thrust_min: float = 0.0
+    thrust_max: float = 1.0
+    max_step: tuple | None = (0.3, 0.5)
+    arm: bool = False
+    offboard: bool = False
+    prestream: float = 1.0
+    duration: float | None = None
+    timeout: float | None = None
+    wait_heartbeat: float = 30.0
+    lockstep: bool = False
+    log: str | None = None
+    summary: str | None = None
+    dataset_skip: float = 0.0
+    settle: float = 3.0
+    excitation: tuple = (0.05, 0.03)
+    excitation_hold: int = 4
+    seed: int = 0
+    inject_solver_failure: tuple | None = None
+    controller: ControllerConfig | None = None
+    trajectory: EllipseTrajectory | None = None
+    rt_priority: int = 0
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("steer", "passthrough", "collect"):
+            raise ValueError(f"mode must be steer, passthrough or collect; got {self.mode!r}")
+        if self.mode == "steer" and not self.solver:
+            raise ValueError("steer mode needs a generated solver folder (--solver generated/<name>)")
+        if self.stale_action not in ("reference", "hover", "land"):
+            raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
+        if not (self.rate_hz > 0 and self.max_age > 0):
+            raise ValueError("rate_hz and max_age must be positive")
+        if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
+            raise ValueError("need 0 <= thrust_min < thrust_max <= 1")
+
+
+class FaultInjectingSolver:
+    """Wraps a solver; solve calls number ``start`` .. ``start+count-1`` fail (test hook).
+
+    kind "fail": status "injected_failure" (not ok); "nan": a NaN solution with status "solved".
+    """
+
+    def __init__(self, solver, start: int, count: int, kind: str = "fail") -> None:
+        self._solver, self.start, self.count, self.kind = solver, int(start), int(count), kind
+        self.calls = 0
+        self.injected = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._solver, name)
+
+    def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
+        i = self.calls
+        self.calls += 1
+        if self.start <= i < self.start + self.count:
+            self.injected += 1
+            if self.kind == "nan":
+                res = self._solver.solve(u_ini, y_ini, y_des, u_nom)
+                res.u = np.full_like(res.u, np.nan)
+                return res
+            d = self._solver.manifest["dims"]
+            return SteeringResult(np.full((d["t_f"], d["m"]), np.nan), status="injected_failure")
+        return self._solver.solve(u_ini, y_ini, y_des, u_nom)
+
+
+def gap_statistics(send_times: np.ndarray, period: float) -> dict:
+    """Missed ticks from setpoint send times [s]: a gap of g seconds between two setpoints
+    misses round(g / period) - 1 ticks once g >= 1.5 periods (jitter below that is not a miss)."""
+    t = np.asarray(send_times, dtype=float)
+    if t.size < 2:
+        return {"missed_ticks": 0, "max_gap_ms": math.nan, "rate_hz": math.nan, "duration_s": 0.0}
+    g = np.diff(t)
+    miss = np.where(g >= 1.5 * period, np.rint(g / period) - 1, 0).astype(int)
+    dur = float(t[-1] - t[0])
+    return {"missed_ticks": int(miss.sum()), "max_gap_ms": float(g.max() * 1e3),
+            "rate_hz": float((t.size - 1) / dur) if dur > 0 else math.nan, "duration_s": dur}
+
+
+def _pct(a: np.ndarray) -> dict:
+    a = np.asarray(a, dtype=float)
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return {"p50": None, "p99": None, "max": None, "n": 0}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
+            "n": int(a.size)}
+
+
+class Bridge:
+    """The tick loop (see the module docstring). ``run()`` returns the summary dict.
+
+    Args:
+        config: :class:`BridgeConfig`.
+        link: an open :class:`MavLink` (default: opened from ``config.url``).
+        solver: a loaded solver (default: ``load_solver(config.solver)`` in steer mode).
+    """
+
+    def __init__(self, config: BridgeConfig, link: MavLink | None = None, solver=None) -> None:
+        self.cfg = c = config
+        self.period = 1.0 / c.rate_hz
+        self.ctrl_cfg = c.controller or default_controller_config()
+        if abs(self.ctrl_cfg.dt - self.period) > 1e-9:
+            raise ValueError(f"controller dt {self.ctrl_cfg.dt} s does not match the rate {c.rate_hz} Hz")
+        if self.ctrl_cfg.mode != "flying":
+            raise ValueError("the bridge flies the 'flying' controller (hopping needs a contact estimate "
+                             "that MAVLink telemetry does not carry)")
+        self.ctrl = HeightLegAngleController(self.ctrl_cfg, c.trajectory)
+        self.m, self.p = self.ctrl.m, self.ctrl.p
+        self.hover_thrust = self.ctrl_cfg.model_mass * self.ctrl_cfg.g / self.ctrl_cfg.max_thrust
+        kw = {"prestream": c.prestream}
+        if c.autopilot == "ardupilot" and c.guid_options is not None:
+            kw["guid_options"] = int(c.guid_options)
+        self.profile: Profile = make_profile(c.autopilot, **kw)
+        self._guid_known = c.autopilot != "ardupilot" or c.guid_options is not None
+        self.steerer: ReferenceSteerer | None = None
+        self.solver = None
+        if c.mode == "steer":
+            self._setup_solver(solver)
+        self.link = link or MavLink(c.url, baud=c.baud, source_system=c.sysid, source_component=c.compid,
+                                    target_system=c.target_system, target_component=c.target_component)
+        self.tracker = CommandTracker(self.link)
+        self.telem = TelemetryState(c.attitude_stream, c.position_stream)
+        self.rec = TickRecorder(self.m, self.p, capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
+        self.tilt_max = math.radians(c.max_tilt_deg)
+        self._exc = None
+        if c.mode == "collect":
+            self._exc_amp = np.broadcast_to(np.asarray(c.excitation, dtype=float), (self.m,)).copy()
+        self._stop = False
+        self.stop_reason = ""
+        self.events: list[tuple[float, str]] = []
+        self.params: dict[str, float] = {}
+        self.counts: dict[str, int] = {"tilt_clamped": 0, "thrust_clamped": 0, "telemetry_gaps": 0,
+                                       "reboots": 0, "stream_requests": 0, "link_losses": 0}
+        self.t0 = time.monotonic()
+        self._send_times: list[float] = []
+        self._send_stamps: list[float] = []  # vehicle time of each send (the clock that counts in lock-step)
+        self.scheduling = "best effort"
+        self._init_run_state()
+
+    # ------------------------------------------------------------------ setup
+    def _setup_solver(self, solver) -> None:
+        from ddpc_codegen.runtime import load_solver
+
+        c = self.cfg
+        solver = solver if solver is not None else load_solver(c.solver)
+        man = solver.manifest
+        d = man["dims"]
+        if (d["m"], d["p"]) != (self.m, self.p):
+            raise ValueError(f"solver has m={d['m']}, p={d['p']} but the flying loop has m={self.m}, p={self.p}")
+        sig = man.get("signals", {})
+        if sig.get("inputs") and tuple(sig["inputs"]) != self.ctrl.input_names:
+            raise ValueError(f"solver inputs {sig['inputs']} != controller references {list(self.ctrl.input_names)}")
+        if sig.get("outputs") and tuple(sig["outputs"]) != self.ctrl.output_names:
+            raise ValueError(f"solver outputs {sig['outputs']} != controller outputs {list(self.ctrl.output_names)}")
+        if sig.get("dt") and abs(float(sig["dt"]) - self.period) > 1e-9:
+            raise ValueError(f"solver dt {sig['dt']} s does not match the bridge rate {c.rate_hz} Hz")
+        if c.inject_solver_failure:
+            start, count, *kind = c.inject_solver_failure
+            solver = FaultInjectingSolver(solver, int(start), int(count), kind[0] if kind else "fail")
+        b = man.get("bounds", {})
+        nan_none = lambda v: np.array([np.inf if x is None else x for x in v]) if v else None  # noqa: E731
+        u_min, u_max = nan_none(b.get("u_min")), nan_none(b.get("u_max"))
+        if u_min is not None:
+            u_min = np.where(np.isinf(u_min), -np.inf, u_min)
+        self.solver = solver
+        self.steerer = ReferenceSteerer.for_solver(
+            solver, u_min=u_min, u_max=u_max, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
+        self.t_f = d["t_f"]
+        self._ahead = self.period * np.arange(self.t_f)
+
+    def stop(self, *_args) -> None:
+        """Ask the loop to finish (signal handler)."""
+        self._stop = True
+        if not self.stop_reason:
+            self.stop_reason = "signal"
+
+    def _event(self, what: str) -> None:
+        t = time.monotonic() - self.t0
+        self.events.append((round(t, 4), what))
+        if self.cfg.verbose:
+            print(f"[bridge {t:8.3f}] {what}", file=sys.stderr, flush=True)
+
+    # ------------------------------------------------------------------ vehicle state
+    def _init_run_state(self) -> None:
+        """Everything the loop keeps between ticks (fresh at every :meth:`run`)."""
+        self.armed = False
+        self.offboard = False
+        self.mode_name = "?"
+        self.last_hb = -math.inf
+        self.hb_seen = False
+        self._link_lost = False
+        self._t_offset = math.inf          # receive time - vehicle time stamp (clock sync estimate) [s]
+        self._last_seq = (0, 0)            # telemetry sample counts used by the last event tick
+        self._last_send = -math.inf
+        self._last_was_event = True
+        self._last_msg = None              # last SET_ATTITUDE_TARGET (repeated by hold ticks)
+        self._stream_since = math.inf      # start of the current uninterrupted setpoint stream [s]
+        self._stream_since_stamp = math.nan
+        self._prev_stream_t = -math.inf
+        self._stale_since: float | None = None
+        self._engaged = False
+        self._traj_t0: float | None = None  # vehicle time at which the trajectory started [s]
+        self._last_stamp = math.nan
+        self._n_activations = 0
+        self._offboard_attempts = 0
+        self._next_offboard_try = 0.0
+        self._arm_attempts = 0
+        self._next_arm_try = 0.0
+        self._was_engaged_ever = False
+        self._stale_mode_sent = False
+        self._k_exc = 0
+
+    def _on_message(self, msg, rx: float) -> None:
+        typ = msg.get_type()
+        if typ in self.telem.wanted:
+            tel = self.telem
+            before = (tel.att.stamp, tel.pos.stamp)
+            tel.update(msg, rx)
+            if before[0] - tel.att.stamp > 1.0 or before[1] - tel.pos.stamp > 1.0:
+                # Vehicle clock went back: it rebooted. Forget its state and ask for the streams again.
+                self.counts["reboots"] += 1
+                self._event(f"vehicle time went back ({max(before):.3f} s -> {tel.newest_stamp():.3f} s): "
+                            "reboot, re-requesting streams")
+                self.telem.reset()
+                self.telem.update(msg, rx)
+                self._last_seq = (0, 0)
+                self._t_offset = math.inf
+                self._request_streams()
+            new = self.telem.newest_stamp()
+            off = rx - new
+            # Vehicle clock estimate: minimum of (receive - stamp), slowly forgetting (clock drift).
+            self._t_offset = min(self._t_offset + 1e-5, off) if math.isfinite(self._t_offset) else off
+        elif typ == "HEARTBEAT":
+            vm = self.profile.decode(msg.base_mode, msg.custom_mode)
+            if not self.hb_seen:
+                self._event(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, {vm.name}, armed={vm.armed}")
+            elif rx - self.last_hb > self.cfg.link_timeout:
+                self._event("vehicle heartbeat back: link restored, re-requesting streams")
+                self._request_streams()
+            if self.hb_seen and (vm.armed != self.armed or vm.name != self.mode_name):
+                self._event(f"vehicle {vm.name}, armed={vm.armed}")
+            self.hb_seen = True
+            self.last_hb = rx
+            self.armed, self.offboard, self.mode_name = vm.armed, vm.offboard, vm.name
+        elif typ == "COMMAND_ACK":
+            pc = self.tracker.on_ack(msg)
+            if pc is not None and (self.cfg.verbose or not pc.accepted):
+                self._event(f"{pc.label}: {mavlink.enums['MAV_RESULT'][pc.result].name}")
+        elif typ == "PARAM_VALUE":
+            name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
+            name = name.rstrip("\x00")
+            self.params[name] = float(msg.param_value)
+            if name == "GUID_OPTIONS" and isinstance(self.profile, ArduPilotProfile) and not self._guid_known:
+                self.profile.guid_options = int(msg.param_value)
+                self._guid_known = True
+                self._event(f"GUID_OPTIONS={int(msg.param_value)}: thrust field is a "
+                            + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
+            if name == "COM_OF_LOSS_T":
+                self.profile.offboard_loss_timeout = float(msg.param_value)
+        elif typ == "STATUSTEXT" and self.cfg.verbose:
+            self._event(f"vehicle says: {msg.text}")
+
+    def _request_streams(self) -> None:
+        us = int(round(1e6 / self.cfg.rate_hz))
+        for name in sorted({self.cfg.attitude_stream, self.cfg.position_stream}):
+            self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(_MSG_IDS[name]), float(us)),
+                                f"SET_MESSAGE_INTERVAL {name} {self.cfg.rate_hz:g} Hz")
+        self.counts["stream_requests"] += 1
+        if isinstance(self.profile, ArduPilotProfile) and not self._guid_known:
+            self._request_param("GUID_OPTIONS")
+        elif self.profile.name == "px4":
+            self._request_param("COM_OF_LOSS_T")
+
+    def _request_param(self, name: str) -> None:
+        self.link.send(self.link.mav.param_request_read_encode(self.link.target_system or 0,
+                                                               self.link.target_component or 0, name.encode(), -1))
+
+    # ------------------------------------------------------------------ main loop
+    def run(self, install_signals: bool = True) -> dict:
+        """Connect, configure, run the tick loop until stopped; write the log; return the summary."""
+        c = self.cfg
+        if install_signals:
+            signal.signal(signal.SIGINT, self.stop)
+            signal.signal(signal.SIGTERM, self.stop)
+        self.scheduling = set_realtime_priority(c.rt_priority)
+        if c.rt_priority:
+            self._event(f"scheduling: {self.scheduling}")
+        self._init_run_state()
+        next_hb = 0.0
+        gc_was = gc.isenabled()
+        try:
+            self._wait_for_vehicle()
+            self._request_streams()
+            gc.collect()
+            gc.freeze()  # keep the collector's full passes off the tick path (objects made so far are immortal)
+            gc.disable()
+            last_gc = time.monotonic()
+            n_gc = 0
+            while not self._stop:
+                now = time.monotonic()
+                timeout = self._wake_in(now)
+                if timeout > 0:
+                    self.link.wait(timeout)
+                for msg, rx in self.link.drain():
+                    self._on_message(msg, rx)
+                now = time.monotonic()
+                kind = self._tick_kind(now)
+                if kind:
+                    self._tick(kind, now)
+                # ---- housekeeping, after the tick (never delays a setpoint)
+                now = time.monotonic()
+                if now >= next_hb:
+                    next_hb = now + 1.0
+                    self.link.send_heartbeat()
+                self.tracker.poll(now)
+                if self.link.poll(now):
+                    self._event(f"link reopened ({self.link.endpoint})")
+                    self._request_streams()
+                self._supervise(now)
+                if now - last_gc > 1.0 and now - self._last_send < 0.5 * self.period:
+                    # Right after a tick, off the critical path: young generations only (the setup objects
+                    # are frozen), the middle one every ~30 s.
+                    n_gc += 1
+                    gc.collect(1 if n_gc % 30 == 0 else 0)
+                    last_gc = now
+            self._shutdown()
+        except NoVehicleError:
+            self.stop_reason = "no vehicle"
+            raise
+        finally:
+            if gc_was:
+                gc.enable()
+            gc.unfreeze()
+            self._finish()
+        return self.summary()
+
+    def _wait_for_vehicle(self) -> None:
+        c = self.cfg
+        t_end = time.monotonic() + c.wait_heartbeat
+        next_hb = 0.0
+        while not self.hb_seen and not self._stop:
+            now = time.monotonic()
+            if now > t_end:
+                raise NoVehicleError(f"no heartbeat from system {c.target_system} on {self.link.endpoint} "
+                                     f"within {c.wait_heartbeat:g} s")
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self.link.send_heartbeat()  # udpout: lets a udpin vehicle learn our address
+            self.link.poll(now)
+            self.link.wait(0.05)
+            for msg, rx in self.link.drain():
+                self._on_message(msg, rx)
+
+    def _deadline(self) -> float:
+        """When a timer tick is due: 1.25 periods after an event tick (late telemetry gets a
+        chance), then every period while telemetry stays away (a steady 200 Hz stream)."""
+        return self._last_send + (1.25 if self._last_was_event else 1.0) * self.period
+
+    def _wake_in(self, now: float) -> float:
+        if self.cfg.lockstep or not math.isfinite(self._last_send):
+            return 0.05
+        return min(0.05, self._deadline() - now)
+
+    def _tick_kind(self, now: float) -> str:
+        t = self.telem
+        if not t.has_data:
+            return ""
+        if t.att.seq > self._last_seq[0] and t.pos.seq > self._last_seq[1]:
+            if self.cfg.lockstep or now - self._last_send >= 0.5 * self.period:
+                return "event"
+            return ""
+        if not self.cfg.lockstep and math.isfinite(self._last_send) and now >= self._deadline():
+            return "timer"
+        return ""
+
+    def _vehicle_now(self, now: float) -> float:
+        """Vehicle time [s] now: the newest stamp in lockstep, else the clock estimate."""
+        if self.cfg.lockstep or not math.isfinite(self._t_offset):
+            return self.telem.newest_stamp()
+        return now - self._t_offset
+
+    # ------------------------------------------------------------------ one tick
+    def _tick(self, kind: str, now: float) -> None:
+        c = self.cfg
+        tel = self.telem
+        event = kind == "event"
+        self._last_was_event = event
+        if c.lockstep:
+            age = tel.newest_stamp() - tel.oldest_stamp()
+        else:
+            age = now - tel.oldest_rx()
+        fresh = age <= c.max_age
+        hb_ok = now - self.last_hb <= c.link_timeout
+        engaged = self.armed and self.offboard and hb_ok
+        stamp = tel.newest_stamp() if event else self._vehicle_now(now)
+        # ---- staleness bookkeeping and the stream limit
+        if fresh:
+            if self._stale_since is not None:
+                self._event(f"telemetry fresh again after {now - self._stale_since:.3f} s")
+            self._stale_since = None
+        else:
+            if self._stale_since is None:
+                self._stale_since = now
+                self._event(f"telemetry stale (age {age * 1e3:.1f} ms > {c.max_age * 1e3:.0f} ms): fallback "
+                            f"'{c.stale_action}'")
+            if c.stale_stream_limit > 0 and now - self._stale_since > c.stale_stream_limit:
+                if event:
+                    self._last_seq = (tel.att.seq, tel.pos.seq)
+                self._last_send = now  # quiet: the autopilot's own failsafe takes over
+                return
+        if not event and fresh:
+            # Late telemetry, still fresh: repeat the last setpoint (zero-order hold), leave the history alone.
+            self._hold_tick(now, age, engaged, stamp)
+            return
+        gap = False
+        if event:
+            self._last_seq = (tel.att.seq, tel.pos.seq)
+            step = stamp - self._last_stamp
+            if math.isfinite(step) and abs(step - self.period) > 0.4 * self.period:
+                gap = True
+                self.counts["telemetry_gaps"] += 1
+                if self.steerer is not None:
+                    self.steerer.reset()  # a hole in the window: refill before steering again
+            self._last_stamp = stamp
+        # ---- engagement and the trajectory clock
+        if engaged and not self._engaged:
+            self._traj_t0 = stamp
+            self._n_activations += 1
+            self._was_engaged_ever = True
+            if self.steerer is not None:
+                self.steerer.reset()
+            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {c.mode}")
+        elif not engaged and self._engaged:
+            self._traj_t0 = None
+            self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
+        self._engaged = engaged
+        t_traj = stamp - self._traj_t0 if self._traj_t0 is not None else 0.0
+        state = tel.measured_state(t_traj)
+        ctrl = self.ctrl
+        r_nom = ctrl.nominal_reference(state)
+        y = ctrl.outputs(state)
+        u = r_nom
+        exc = None
+        u_st = None
+        solve_us = math.nan
+        if not hb_ok:
+            reason = "no_heartbeat"
+        elif not engaged:
+            reason = "inactive"
+        elif not fresh:
+            reason = "stale"
+            if self.steerer is not None:
+                self.steerer.reset()
+        elif c.mode == "steer":
+            y_des = ctrl.desired_outputs(t_traj + self._ahead)
+            u_nom = y_des.copy()  # flying: the nominal references ahead are the desired outputs ahead ...
+            u_nom[0] = r_nom      # ... and exactly r_nom now
+            out = self.steerer.step(y_des, u_nom)
+            u = out.u
+            reason = out.reason
+            solve_us = out.solve_us
+            if out.steered:
+                u_st = u
+            self.steerer.observe(u, y)
+        elif c.mode == "collect":
+            exc = self._excitation()
+            u = r_nom + exc
+            reason = "collect"
+        else:
+            reason = "passthrough"
+        # ---- stage (b) and the stale action
+        if not fresh and c.stale_action != "reference":
+            q, thrust, field = self._level_setpoint()
+            if c.stale_action == "land":
+                self._request_land()
+        else:
+            sp = ctrl.track(u, state)
+            q, thrust, _ = self._clamp(sp)
+            field = self.profile.thrust_field(thrust, float(u[0]), float(state.position[2]))
+        stamp_ms = int(round(stamp * 1000.0)) if math.isfinite(stamp) else 0
+        sent = self._send_setpoint(q, field, stamp_ms)
+        t_sent = time.monotonic()
+        latency = (t_sent - tel.newest_rx()) * 1e6 if event else math.nan
+        # ---- log
+        i = self.rec.new_row()
+        A = self.rec.arrays
+        A["t_wall"][i] = now - self.t0
+        A["t_vehicle"][i] = stamp
+        A["t_traj"][i] = t_traj if self._traj_t0 is not None else math.nan
+        A["age_ms"][i] = age * 1e3
+        A["position"][i] = state.position
+        A["velocity"][i] = state.velocity
+        A["euler"][i] = state.euler
+        A["rates"][i] = state.body_rates
+        A["y"][i] = y
+        A["y_des"][i] = ctrl.y_des
+        A["r_nom"][i] = r_nom
+        A["u"][i] = u
+        if u_st is not None:
+            A["u_steered"][i] = u_st
+        A["excitation"][i] = exc if exc is not None else 0.0
+        A["sp_q"][i] = q
+        A["sp_thrust"][i] = thrust
+        A["sp_field"][i] = field
+        A["reason"][i] = reason_code(reason)
+        A["solve_us"][i] = solve_us
+        A["latency_us"][i] = latency
+        A["compute_us"][i] = (t_sent - now) * 1e6
+        A["event"][i] = event
+        A["armed"][i] = self.armed
+        A["offboard"][i] = self.offboard
+        A["active"][i] = engaged and fresh
+        A["fresh"][i] = fresh
+        A["sent"][i] = sent
+        A["valid"][i] = event and engaged and fresh
+        A["gap"][i] = gap
+
+    def _hold_tick(self, now: float, age: float, engaged: bool, stamp: float) -> None:
+        """Repeat the last setpoint verbatim (no controller call: its filters see one call per sample)."""
+        msg = self._last_msg
+        sent = False
+        if msg is not None:
+            sent = self.link.send(msg)
+            self._last_send = time.monotonic()
+            if sent:
+                self._send_times.append(self._last_send)
+                self._send_stamps.append(self._vehicle_now(self._last_send))
+                self._stream_mark(self._last_send)
+        i = self.rec.new_row()
+        A = self.rec.arrays
+        prev = i - 1
+        A["t_wall"][i] = now - self.t0
+        A["t_vehicle"][i] = stamp
+        A["t_traj"][i] = A["t_traj"][prev] if prev >= 0 else math.nan
+        A["age_ms"][i] = age * 1e3
+        for k in ("position", "velocity", "euler", "rates", "y", "y_des", "r_nom", "u", "sp_q", "sp_thrust",
+                  "sp_field"):
+            if prev >= 0:
+                A[k][i] = A[k][prev]
+        A["excitation"][i] = 0.0
+        A["reason"][i] = _R["hold"]
+        A["armed"][i], A["offboard"][i], A["fresh"][i], A["sent"][i] = self.armed, self.offboard, True, sent
+        A["active"][i] = engaged
+
+    def _excitation(self) -> np.ndarray:
+        from ddpc_codegen.data import prbs
+
+        block = 12000
+        j = self._k_exc % block
+        if self._exc is None or j == 0:
+            seed = self.cfg.seed * 1009 + self._k_exc // block
+            self._exc = prbs(block, self.m, amplitude=self._exc_amp, min_hold=self.cfg.excitation_hold, seed=seed)
+        self._k_exc += 1
+        return self._exc[j]
+
+    def _level_setpoint(self) -> tuple[tuple, float, float]:
+        """Level attitude (yaw as the controller commands it) and hover thrust / zero climb rate."""
+        q = swap_frames(1.0, 0.0, 0.0, 0.0)
+        thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
+        return q, thrust, self.profile.hover_field(thrust)
+
+    def _clamp(self, sp) -> tuple[tuple, float, tuple]:
+        roll, pitch, yaw = (float(v) for v in sp.euler)
+        lim = self.tilt_max
+        q_enu = tuple(float(v) for v in sp.q)
+        if abs(roll) > lim or abs(pitch) > lim or not (math.isfinite(roll) and math.isfinite(pitch)):
+            self.counts["tilt_clamped"] += 1
+            roll = max(-lim, min(lim, roll)) if math.isfinite(roll) else 0.0
+            pitch = max(-lim, min(lim, pitch)) if math.isfinite(pitch) else 0.0
+            q_enu = tuple(float(v) for v in quat_from_euler(roll, pitch, yaw if math.isfinite(yaw) else 0.0))
+        thrust = float(sp.thrust)
+        lo, hi = self.cfg.thrust_min, self.cfg.thrust_max
+        if not math.isfinite(thrust):
+            thrust = self.hover_thrust
+            self.counts["thrust_clamped"] += 1
+        if thrust < lo or thrust > hi:
+            self.counts["thrust_clamped"] += 1
+            thrust = min(max(thrust, lo), hi)
+        return swap_frames(*q_enu), thrust, (roll, pitch, yaw)
+
+    def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
+        lk = self.link
+        msg = lk.mav.set_attitude_target_encode(
+            stamp_ms & 0xFFFFFFFF, lk.target_system or 0, lk.target_component or 0, _TYPE_MASK,
+            list(q_ned), 0.0, 0.0, 0.0, float(field))
+        ok = lk.send(msg)
+        self._last_msg = msg
+        self._last_send = time.monotonic()
+        if ok:
+            self._send_times.append(self._last_send)
+            self._send_stamps.append(self._vehicle_now(self._last_send))
+            self._stream_mark(self._last_send)
+        return ok
+
+    def _stream_mark(self, t: float) -> None:
+        # Continuous streaming since when (PX4 wants a live stream before it accepts OFFBOARD).
+        if not math.isfinite(self._stream_since) or t - self._prev_stream_t > 0.5:
+            self._stream_since = t
+            self._stream_since_stamp = self.telem.newest_stamp()
+        self._prev_stream_t = t
+
+
+    # ------------------------------------------------------------------ arming / modes
+    def _supervise(self, now: float) -> None:
+        c = self.cfg
+        if not self.hb_seen:
+            return
+        if c.arm and not self.armed and now >= self._next_arm_try and self._arm_attempts < 3 \
+                and not self.tracker.queues.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM):
+            self._arm_attempts += 1
+            self._next_arm_try = now + 2.0
+            self._event("arming (--arm)")
+            self.tracker.submit(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "ARM")
+        streaming = math.isfinite(self._stream_since) and now - self._prev_stream_t < 0.1
+        # Lockstep: "1 s of setpoints" in vehicle time (wall time runs much faster or slower there).
+        streamed = (self.telem.newest_stamp() - self._stream_since_stamp) if c.lockstep else now - self._stream_since
+        if (c.offboard and not self.offboard and not self._was_engaged_ever and streaming
+                and streamed >= self.profile.prestream and (self.armed or not c.arm)
+                and now >= self._next_offboard_try and self._offboard_attempts < 5
+                and not self.tracker.queues.get(mavlink.MAV_CMD_DO_SET_MODE)):
+            self._offboard_attempts += 1
+            self._next_offboard_try = now + 1.0
+            params = self.profile.offboard_command()
+            self._event(f"requesting {self.profile.mode_command_name(params)} after "
+                        f"{streamed:.2f} s of setpoints (--offboard)")
+            self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
+        if c.duration is not None and self._engaged and self._traj_t0 is not None:
+            if self.telem.newest_stamp() - self._traj_t0 >= c.duration - 1e-9:
+                self.stop_reason = f"duration {c.duration:g} s flown"
+                self._stop = True
+        if c.timeout is not None and now - self.t0 > c.timeout:
+            self.stop_reason = self.stop_reason or f"timeout {c.timeout:g} s"
+            self._stop = True
+        if self.hb_seen and now - self.last_hb > c.link_timeout and not self._link_lost:
+            self._link_lost = True
+            self.counts["link_losses"] += 1
+            self._event(f"no vehicle heartbeat for {c.link_timeout:g} s: link lost")
+        elif now - self.last_hb <= c.link_timeout:
+            self._link_lost = False
+
+    def _request_land(self) -> None:
+        if self.cfg.offboard and not self._stale_mode_sent:
+            self._stale_mode_sent = True
+            params = self.profile.land_command()
+            self._event(f"stale telemetry: requesting {self.profile.mode_command_name(params)}")
+            self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
+
+    def _shutdown(self) -> None:
+        """With --offboard: hand the vehicle to HOLD before going quiet (setpoints keep flowing meanwhile)."""
+        c = self.cfg
+        if not (c.offboard and self.offboard and self.armed):
+            return
+        params = self.profile.hold_command()
+        self._event(f"exit: requesting {self.profile.mode_command_name(params)}")
+        pc = self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
+        t_end = time.monotonic() + 1.5
+        self._stop = False
+        while time.monotonic() < t_end and not pc.done:
+            now = time.monotonic()
+            self.link.wait(max(0.0, min(0.05, self._last_send + self.period - now)))
+            for msg, rx in self.link.drain():
+                self._on_message(msg, rx)
+            now = time.monotonic()
+            if now - self._last_send >= self.period and self._last_msg is not None:
+                self.link.send(self._last_msg)
+                self._last_send = now
+            self.tracker.poll(now)
+        self._stop = True
+
+    # ------------------------------------------------------------------ results
+    def ticklog(self) -> TickLog:
+        c = self.cfg
+        meta = {"bridge": {k: v for k, v in asdict(c).items() if k not in ("controller", "trajectory")},
+                "controller": asdict(self.ctrl_cfg), "trajectory": asdict(self.ctrl.trajectory),
+                "autopilot": self.profile.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
+                "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
+                                                           "config_hash": self.solver.manifest.get("config_hash"),
+                                                           "predictor_hash": self.solver.manifest.get("predictor_hash")}}
+        return self.rec.to_log(dt=self.period, input_names=self.ctrl.input_names, output_names=self.ctrl.output_names,
+                               input_units=self.ctrl.input_units, output_units=self.ctrl.output_units, metadata=meta)
+
+    def summary(self) -> dict:
+        c = self.cfg
+        v = self.rec.view()
+        n = self.rec.n
+        reasons = v["reason"]
+        names = np.array(REASONS)
+        counts = {str(names[i]): int((reasons == i).sum()) for i in np.unique(reasons)} if n else {}
+        fb = {k: cnt for k, cnt in counts.items() if k in FALLBACK_REASONS}
+        # In lock-step the vehicle's clock is the one that matters: wall-clock gaps only say the
+        # machine was busy, not that a tick of the (paused) vehicle went without a setpoint.
+        gaps = gap_statistics(np.asarray(self._send_stamps if c.lockstep else self._send_times), self.period)
+        eng = v["event"] & v["active"] & (np.nan_to_num(v["t_traj"], nan=-1.0) >= c.settle)
+        ez = v["y"][eng, 0] - v["y_des"][eng, 0] if n else np.zeros(0)
+        out = {
+            "mode": c.mode, "autopilot": self.profile.name, "stop_reason": self.stop_reason, "ticks": n,
+            "setpoints_sent": len(self._send_times), "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
+            "latency_us": _pct(v["latency_us"]) if n else _pct(np.zeros(0)),
+            "missed_ticks": gaps["missed_ticks"], "max_gap_ms": gaps["max_gap_ms"],
+            "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
+            "event_ticks": int(v["event"].sum()) if n else 0, "activations": self._n_activations,
+            "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
+            "rmse_samples": int(ez.size), **self.counts,
+            "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
+            "params": self.params, "scheduling": self.scheduling, "events": self.events,
+        }
+        if self.steerer is not None:
+            out["steering"] = self.steerer.summary()
+            if isinstance(self.solver, FaultInjectingSolver):
+                out["steering"]["injected_failures"] = self.solver.injected
+        return out
+
+    def _finish(self) -> None:
+        c = self.cfg
+        if c.log and self.rec.n:
+            self.log_path = self.ticklog().save(c.log)
+        s = self.summary()
+        if c.summary:
+            Path(c.summary).parent.mkdir(parents=True, exist_ok=True)
+            Path(c.summary).write_text(json.dumps(s, indent=2, default=_jsonable) + "\n")
+        self.link.close()
+
+
+def _jsonable(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

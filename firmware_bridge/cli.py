@@ -1,0 +1,277 @@
+"""Console entry points: ``ddpc-bridge`` (:func:`bridge_main`) and ``ddpc-vehicle`` (:func:`vehicle_main`).
+
+Without the console scripts installed: ``python -m firmware_bridge.cli bridge ...`` and
+``python -m firmware_bridge.cli vehicle ...``.
+
+Typical use (loopback)::
+
+    ddpc-vehicle udpout:127.0.0.1:14540 &                       # simulated PX4, hovering in HOLD
+    ddpc-bridge udpin:127.0.0.1:14540 --mode collect --offboard --duration 60 --log flight.npz
+    ddpc-codegen codegen configs/flying.toml --dataset flight.npz --out generated
+    ddpc-bridge udpin:127.0.0.1:14540 --solver generated/flying --offboard --duration 20
+
+On the robot: ``ddpc-bridge /dev/ttyAMA0:921600 --solver generated/flying --controller robot.toml``
+(arming and the OFFBOARD switch stay with the pilot unless --arm / --offboard are given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tomllib
+from dataclasses import fields, replace
+from pathlib import Path
+
+__all__ = ["bridge_main", "vehicle_main", "build_bridge_parser", "build_vehicle_parser", "main"]
+
+_ATT = {"attitude": "ATTITUDE", "quaternion": "ATTITUDE_QUATERNION", "odometry": "ODOMETRY"}
+_POS = {"local": "LOCAL_POSITION_NED", "odometry": "ODOMETRY"}
+
+
+def _floats(s: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in s.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {s!r}") from None
+
+
+def _window(s: str) -> tuple[float, float]:
+    a, sep, b = s.partition(":")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected T0:T1 (seconds), got {s!r}")
+    return float(a), float(b)
+
+
+def _fault(s: str) -> tuple:
+    parts = s.split(":")
+    if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] not in ("fail", "nan")):
+        raise argparse.ArgumentTypeError(f"expected START:COUNT[:fail|nan], got {s!r}")
+    return (int(parts[0]), int(parts[1])) + ((parts[2],) if len(parts) == 3 else ())
+
+
+# ----------------------------------------------------------------------------- bridge
+def build_bridge_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="ddpc-bridge",
+        description="Run the generated steering solver and the height / leg-angle controller in the loop over "
+                    "MAVLink: telemetry in, SET_ATTITUDE_TARGET out at 200 Hz.",
+        epilog="Modes: steer (DDPC on), passthrough (model-based controller alone, the baseline), collect (PRBS "
+               "on the references; the --log file is an IODataset for `ddpc-codegen codegen --dataset`).",
+    )
+    p.add_argument("connection", nargs="?", default="udpin:127.0.0.1:14540",
+                   help="pymavlink-style connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
+                        "device (/dev/ttyACM0[:BAUD]) (default udpin:127.0.0.1:14540)")
+    p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 921600)")
+    p.add_argument("--mode", choices=("steer", "passthrough", "collect"), default="steer")
+    p.add_argument("--solver", default=None, help="generated solver folder (steer mode), e.g. generated/flying")
+    g = p.add_argument_group("autopilot")
+    g.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
+    g.add_argument("--guid-options", type=int, default=None,
+                   help="ArduPilot GUID_OPTIONS (bit 3 = thrust field is a thrust); default: read it from the vehicle "
+                        "(climb-rate semantics until known)")
+    g.add_argument("--sysid", type=int, default=1, help="our system id (default 1: the vehicle's companion)")
+    g.add_argument("--compid", type=int, default=191, help="our component id (default 191, onboard computer)")
+    g.add_argument("--target-system", type=int, default=1, help="vehicle system id (0: the first autopilot heard)")
+    g.add_argument("--target-component", type=int, default=1, help="vehicle component id (0: any)")
+    g.add_argument("--arm", action="store_true", help="arm the vehicle (otherwise arming is left to the pilot)")
+    g.add_argument("--offboard", action="store_true",
+                   help="switch to OFFBOARD (PX4) / GUIDED_NOGPS (ArduPilot) after --prestream s of setpoints, HOLD at "
+                        "exit, LAND on stale telemetry with --stale-action land (otherwise no mode changes)")
+    g.add_argument("--prestream", type=float, default=1.0, help="seconds of setpoints before the mode switch")
+    g = p.add_argument_group("loop")
+    g.add_argument("--rate", type=float, default=200.0, help="control rate [Hz] (default 200)")
+    g.add_argument("--attitude-stream", choices=tuple(_ATT), default="quaternion")
+    g.add_argument("--position-stream", choices=tuple(_POS), default="local")
+    g.add_argument("--lockstep", action="store_true", help="tick only on telemetry, vehicle time (ddpc-vehicle --lockstep)")
+    g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
+    g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
+    g.add_argument("--wait-heartbeat", type=float, default=30.0, help="give up if no vehicle heartbeat [s]")
+    g.add_argument("--controller", default=None,
+                   help="TOML with [controller] (ControllerConfig fields: model_mass, max_thrust, kp_z, ...) and "
+                        "[trajectory] (EllipseTrajectory fields) tables; default: the simulated PogoX")
+    g = p.add_argument_group("safety")
+    g.add_argument("--max-age-ms", type=float, default=50.0, help="telemetry older than this stops steering")
+    g.add_argument("--stale-action", choices=("reference", "hover", "land"), default="reference",
+                   help="on stale telemetry: unsteered reference on the newest telemetry, level hover setpoint, or "
+                        "hover + the autopilot's LAND mode (with --offboard)")
+    g.add_argument("--stale-stream-limit", type=float, default=1.0,
+                   help="stop streaming after this long stale so the autopilot's offboard-loss failsafe acts [s] "
+                        "(0: stream forever)")
+    g.add_argument("--link-timeout", type=float, default=3.0, help="no heartbeat for this long = link lost [s]")
+    g.add_argument("--max-tilt-deg", type=float, default=30.0, help="clamp on commanded roll and pitch")
+    g.add_argument("--thrust-min", type=float, default=0.0)
+    g.add_argument("--thrust-max", type=float, default=1.0)
+    g.add_argument("--max-step", default="0.3,0.5",
+                   help="largest |steered - nominal| per reference, comma-separated, or 'none'")
+    g.add_argument("--inject-solver-failure", type=_fault, default=None, metavar="START:COUNT[:fail|nan]",
+                   help="testing: make solver calls START..START+COUNT-1 fail")
+    g = p.add_argument_group("logging")
+    g.add_argument("--log", default=None, help="tick log (.npz, loads as an IODataset)")
+    g.add_argument("--summary", default=None, help="write the summary JSON here")
+    g.add_argument("--dataset-skip", type=float, default=0.0, help="seconds after activation left out of the dataset")
+    g.add_argument("--settle", type=float, default=3.0, help="seconds after activation left out of the RMSE")
+    g.add_argument("--excitation", type=_floats, default=(0.05, 0.03), help="collect: PRBS amplitude per reference")
+    g.add_argument("--excitation-hold", type=int, default=4, help="collect: ticks per PRBS bit")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--rt-priority", type=int, default=0,
+                   help="run the loop SCHED_FIFO at this priority if permitted (recommended on the robot; 0: off)")
+    g.add_argument("--json", action="store_true", help="print the summary as JSON")
+    g.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
+    return p
+
+
+def _controller_from_toml(path: str):
+    from ddpc_codegen.control import EllipseTrajectory
+
+    from .bridge import default_controller_config
+
+    raw = tomllib.loads(Path(path).read_text())
+    base = default_controller_config()
+    known = {f.name for f in fields(base)}
+    c = raw.get("controller", {})
+    bad = set(c) - known
+    if bad:
+        raise ValueError(f"{path}: unknown [controller] keys {sorted(bad)}; known: {sorted(known)}")
+    cfg = replace(base, **{k: tuple(v) if isinstance(v, list) else v for k, v in c.items()})
+    traj = None
+    if "trajectory" in raw:
+        tk = {f.name for f in fields(EllipseTrajectory)}
+        bad = set(raw["trajectory"]) - tk
+        if bad:
+            raise ValueError(f"{path}: unknown [trajectory] keys {sorted(bad)}; known: {sorted(tk)}")
+        traj = EllipseTrajectory(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw["trajectory"].items()})
+    return cfg, traj
+
+
+def bridge_config_from_args(a: argparse.Namespace):
+    from .bridge import BridgeConfig
+
+    ctrl, traj = _controller_from_toml(a.controller) if a.controller else (None, None)
+    max_step = None if str(a.max_step).lower() == "none" else _floats(a.max_step)
+    return BridgeConfig(
+        url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, autopilot=a.autopilot,
+        guid_options=a.guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
+        target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
+        position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
+        stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
+        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=max_step, arm=a.arm, offboard=a.offboard,
+        prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
+        lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
+        excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
+        inject_solver_failure=a.inject_solver_failure, controller=ctrl, trajectory=traj, rt_priority=a.rt_priority,
+        verbose=a.verbose)
+
+
+def format_summary(s: dict) -> str:
+    """A few human-readable lines of a bridge summary."""
+    lat = s.get("latency_us") or {}
+    f = lambda v, fmt="{:.0f}": "-" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v)  # noqa: E731
+    lines = [
+        f"ddpc-bridge {s['mode']} ({s['autopilot']}): {s['stop_reason'] or 'stopped'}",
+        f"  ticks {s['ticks']}  setpoints {s['setpoints_sent']}  rate {f(s['rate_hz'], '{:.1f}')} Hz  "
+        f"missed {s['missed_ticks']}  max gap {f(s['max_gap_ms'], '{:.1f}')} ms",
+        f"  latency us p50 {f(lat.get('p50'))}  p99 {f(lat.get('p99'))}  max {f(lat.get('max'))}",
+        f"  fallbacks {s['fallbacks']} {s['fallback_reasons'] or ''}  telemetry gaps {s['telemetry_gaps']}  "
+        f"clamps tilt {s['tilt_clamped']} thrust {s['thrust_clamped']}",
+        f"  rmse z (telemetry, after settle) {f(s['rmse_z_measured'], '{:.4f}')} m  "
+        f"link rx {s['link'].get('rx', 0)} bad {s['link'].get('bad_data', 0)} foreign {s['link'].get('foreign', 0)}",
+    ]
+    if "steering" in s:
+        st = s["steering"]
+        lines.append(f"  steering: steered {st['steered']} warmup {st['warmup']} fallbacks {st['fallbacks']}  "
+                     f"solve us median {f(st['solve_us']['median'], '{:.1f}')} p99 {f(st['solve_us']['p99'], '{:.1f}')}")
+    return "\n".join(lines)
+
+
+def bridge_main(argv: list[str] | None = None) -> int:
+    """``ddpc-bridge``: exit 0 on a clean stop, 2 on a configuration error, 3 if no vehicle answered."""
+    args = build_bridge_parser().parse_args(argv)
+    from ddpc_codegen.errors import DDPCError
+
+    from .bridge import Bridge, NoVehicleError
+
+    try:
+        bridge = Bridge(bridge_config_from_args(args))
+    except (ValueError, DDPCError, OSError) as e:
+        print(f"ddpc-bridge: error: {e}", file=sys.stderr)
+        return 2
+    try:
+        summary = bridge.run()
+    except NoVehicleError as e:
+        print(f"ddpc-bridge: {e}", file=sys.stderr)
+        return 3
+    print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary), flush=True)
+    return 0
+
+
+# ----------------------------------------------------------------------------- vehicle
+def build_vehicle_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="ddpc-vehicle",
+        description="The PogoX simulator behind a MAVLink endpoint that behaves like PX4 (or ArduCopter) in "
+                    "off-board: heartbeat, telemetry at requested rates, arm / mode commands, SET_ATTITUDE_TARGET, "
+                    "off-board-loss failsafe.",
+    )
+    p.add_argument("connection", nargs="?", default="udpout:127.0.0.1:14540",
+                   help="connection string (default udpout:127.0.0.1:14540, to a bridge listening there)")
+    p.add_argument("--baud", type=int, default=None)
+    p.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--sysid", type=int, default=1)
+    p.add_argument("--compid", type=int, default=1)
+    p.add_argument("--lockstep", action="store_true", help="advance one tick per setpoint (fast, deterministic)")
+    p.add_argument("--lockstep-timeout", type=float, default=1.0, help="lockstep: max wall wait per tick [s]")
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
+    p.add_argument("--no-noise", action="store_true", help="no sensor noise (the delay stays)")
+    p.add_argument("--start", choices=("hover", "disarmed"), default="hover",
+                   help="hover: armed in HOLD at the start point; disarmed: parked there")
+    p.add_argument("--com-of-loss-t", type=float, default=1.0, help="off-board loss timeout [s] (PX4 COM_OF_LOSS_T)")
+    p.add_argument("--loss-action", choices=("hold", "land"), default="hold", help="failsafe after off-board loss")
+    p.add_argument("--guid-options", type=int, default=0, help="ArduPilot GUID_OPTIONS (8: thrust is a thrust)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this much simulated time [s]")
+    p.add_argument("--silence", type=_window, action="append", default=[], metavar="T0:T1",
+                   help="send nothing during this simulated-time window (repeatable)")
+    p.add_argument("--truth-log", default=None, help="write the true state per tick to this .npz")
+    p.add_argument("--summary", default=None, help="write the summary JSON here")
+    p.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority if permitted (0: off)")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def vehicle_main(argv: list[str] | None = None) -> int:
+    """``ddpc-vehicle``: serve until SIGINT / SIGTERM or --duration; exit 0."""
+    a = build_vehicle_parser().parse_args(argv)
+    from .vehicle import SimVehicle, VehicleConfig
+
+    try:
+        cfg = VehicleConfig(url=a.connection, baud=a.baud, sysid=a.sysid,
+                            compid=a.compid, autopilot=a.autopilot, lockstep=a.lockstep,
+                            lockstep_timeout=a.lockstep_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
+                            com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
+                            duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
+                            rt_priority=a.rt_priority, verbose=a.verbose)
+        veh = SimVehicle(cfg)
+    except (ValueError, OSError) as e:
+        print(f"ddpc-vehicle: error: {e}", file=sys.stderr)
+        return 2
+    summary = veh.run()
+    if a.summary:
+        Path(a.summary).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.summary).write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    if a.verbose:
+        print(json.dumps(summary, default=str), file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m firmware_bridge.cli {bridge,vehicle} ...``"""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in ("bridge", "vehicle"):
+        print("usage: python -m firmware_bridge.cli {bridge,vehicle} [options]  (see --help of each)", file=sys.stderr)
+        return 2
+    return bridge_main(argv[1:]) if argv[0] == "bridge" else vehicle_main(argv[1:])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,275 @@
+"""The bridge's per-tick log, stored as an IODataset ``.npz`` with extra ``tick_*`` arrays.
+
+The file is what :meth:`ddpc_codegen.IODataset.save` writes (``header`` + ``u_i`` / ``y_i`` /
+``phase_i``), so ``IODataset.load(path)`` and ``ddpc-codegen codegen --dataset path`` read it
+directly: collect -> dataset -> codegen -> steer with no glue. The dataset part holds only the
+ticks that are valid closed-loop IO data of the loop being modelled:
+
+* the vehicle was armed and in the off-board / guided mode and telemetry was fresh;
+* the tick was triggered by new telemetry whose time stamp is exactly one period after the
+  previous one (a uniformly sampled sequence; a lost or merged telemetry sample splits it);
+* u is the reference applied at that tick (nominal + steering or PRBS), y the measured outputs
+  the tick decided on (the convention of :mod:`ddpc_codegen.sim.loop`: u[k] acts on y[k+1]...).
+
+Each maximal run of such ticks becomes one trajectory. "hold" ticks (telemetry late but still
+fresh: the last setpoint repeated) are skipped over -- they add no sample and change nothing the
+vehicle sees; any other tick (stale, inactive, a fallback outside off-board) or a time-stamp gap
+ends the run. Runs shorter than ``min_segment`` ticks, and the first ``skip`` seconds after each
+activation, are dropped. Every tick (including timer / stale ticks and the time before
+activation) is kept in the ``tick_*`` arrays: times, telemetry (ENU/FLU), references, steered u,
+setpoint (NED/FRD quaternion + thrust), solver status and time, latency, flags.
+:func:`load_ticklog` reads them back.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ddpc_codegen.data import IODataset
+
+__all__ = ["TickRecorder", "TickLog", "load_ticklog", "REASONS", "reason_code", "TICK_FIELDS"]
+
+# Why a tick's reference is what it is (int8 in the log).
+REASONS = (
+    "steered",        # 0 the DDPC solution
+    "passthrough",    # 1 mode passthrough: the model-based controller alone
+    "collect",        # 2 mode collect: nominal + PRBS
+    "warmup",         # 3 steering history not full yet
+    "inactive",       # 4 vehicle not armed / not in off-board
+    "stale",          # 5 telemetry older than the limit: fallback action
+    "hold",           # 6 timer tick with fresh telemetry: last setpoint repeated
+    "solver_failed",  # 7 solver status not ok (incl. injected failures)
+    "nonfinite",      # 8 NaN / inf in inputs or solution
+    "out_of_bounds",  # 9 solution outside u bounds
+    "step_too_large", # 10 |u - u_nom| above the guard
+    "exception",      # 11 the solver raised
+    "no_heartbeat",   # 12 link lost (no vehicle heartbeat)
+)
+_CODE = {r: i for i, r in enumerate(REASONS)}
+FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",
+                              "exception", "no_heartbeat"})
+
+
+def reason_code(reason: str) -> int:
+    """Map a :class:`ddpc_codegen.SteerOutcome` reason (or a bridge reason) to its code."""
+    if reason in _CODE:
+        return _CODE[reason]
+    if reason.startswith("solver_"):
+        return _CODE["solver_failed"]
+    if reason.startswith("nonfinite"):
+        return _CODE["nonfinite"]
+    if reason.startswith("exception"):
+        return _CODE["exception"]
+    return _CODE["solver_failed"]
+
+
+# name -> (columns or 0 for a scalar, dtype)
+def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
+    return {
+        "t_wall": (0, float),       # bridge clock since start [s]
+        "t_vehicle": (0, float),    # vehicle time of the tick [s] (telemetry stamp / estimate)
+        "t_traj": (0, float),       # controller trajectory time [s] (nan before activation)
+        "age_ms": (0, float),       # telemetry age at the tick [ms]
+        "position": (3, float),     # ENU [m]
+        "velocity": (3, float),     # ENU [m/s]
+        "euler": (3, float),        # roll, pitch, yaw ENU/FLU [rad]
+        "rates": (3, float),        # body FLU [rad/s]
+        "y": (p, float),            # measured outputs
+        "y_des": (p, float),        # desired outputs
+        "r_nom": (m, float),        # nominal references (stage a)
+        "u": (m, float),            # references applied (sent to stage b)
+        "u_steered": (m, float),    # solver's u[0] (nan when not solved)
+        "excitation": (m, float),   # PRBS part of u
+        "sp_q": (4, float),         # SET_ATTITUDE_TARGET quaternion (w, x, y, z), FRD -> NED
+        "sp_thrust": (0, float),    # normalized thrust after clamping
+        "sp_field": (0, float),     # the thrust field sent (climb-rate semantics on ArduPilot)
+        "reason": (0, np.int8),     # REASONS code
+        "solve_us": (0, float),     # solver wall time [µs] (nan if not called)
+        "latency_us": (0, float),   # telemetry receive -> setpoint sent [µs] (event ticks)
+        "compute_us": (0, float),   # tick start -> setpoint sent [µs] (the rest of the latency is waking up)
+        "event": (0, bool),         # triggered by new telemetry (else timer)
+        "armed": (0, bool),
+        "offboard": (0, bool),
+        "active": (0, bool),        # armed & off-board & heartbeat & fresh telemetry
+        "fresh": (0, bool),
+        "sent": (0, bool),          # setpoint went out
+        "valid": (0, bool),         # closed-loop IO sample (event tick, engaged, fresh)
+        "gap": (0, bool),           # event tick whose stamp is not one period after the previous one
+    }
+
+
+TICK_FIELDS = tuple(tick_fields(1, 1))
+
+
+class TickRecorder:
+    """Growable per-tick arrays (no allocation per tick except when doubling).
+
+    Args:
+        m, p: number of references / outputs.
+        capacity: initial number of ticks (doubles when full).
+    """
+
+    def __init__(self, m: int, p: int, capacity: int = 4096) -> None:
+        self.m, self.p = m, p
+        self._spec = tick_fields(m, p)
+        self.n = 0
+        self._cap = max(16, int(capacity))
+        self.arrays: dict[str, np.ndarray] = {}
+        for k, (c, dt) in self._spec.items():
+            shape = (self._cap, c) if c else (self._cap,)
+            fill = np.nan if dt is float else 0
+            self.arrays[k] = np.full(shape, fill, dtype=dt)
+
+    def new_row(self) -> int:
+        """Index of a fresh row (floats nan, flags False)."""
+        if self.n == self._cap:
+            self._cap *= 2
+            for k, a in self.arrays.items():
+                b = np.full((self._cap,) + a.shape[1:], np.nan if a.dtype == float else 0, dtype=a.dtype)
+                b[: self.n] = a[: self.n]
+                self.arrays[k] = b
+        i = self.n
+        self.n += 1
+        return i
+
+    def view(self) -> dict[str, np.ndarray]:
+        return {k: a[: self.n] for k, a in self.arrays.items()}
+
+    def to_log(self, *, dt: float, input_names, output_names, input_units=None, output_units=None,
+               metadata: dict | None = None) -> "TickLog":
+        return TickLog({k: v.copy() for k, v in self.view().items()}, dt, tuple(input_names), tuple(output_names),
+                       tuple(input_units or ("",) * self.m), tuple(output_units or ("",) * self.p),
+                       dict(metadata or {}))
+
+
+@dataclass
+class TickLog:
+    """All ticks of one bridge run (see the module docstring for the fields)."""
+
+    ticks: dict[str, np.ndarray]
+    dt: float
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    input_units: tuple[str, ...] = ()
+    output_units: tuple[str, ...] = ()
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return int(self.ticks["t_wall"].shape[0])
+
+    def segments(self, *, skip: float = 0.0, min_segment: int = 50) -> list[np.ndarray]:
+        """Row indices of each dataset trajectory: runs of valid rows; "hold" rows (the last setpoint
+        repeated while telemetry was late but fresh) are skipped over, anything else or a time-stamp
+        gap ends a run."""
+        v = self.ticks["valid"].astype(bool)
+        gap = self.ticks["gap"].astype(bool) if "gap" in self.ticks else np.zeros(self.n, bool)
+        hold = (self.ticks["reason"] == _CODE["hold"]) & self.ticks["active"].astype(bool)
+        tt = self.ticks["t_traj"]
+        out: list[np.ndarray] = []
+        cur: list[int] = []
+
+        def close() -> None:
+            idx = np.array(cur, dtype=int)
+            if skip > 0 and idx.size:
+                # Drop the start of each activation (the hand-over transient), like the simulator's settle time.
+                idx = idx[np.nan_to_num(tt[idx], nan=-1.0) >= skip - 1e-9]
+            if idx.size >= min_segment:
+                out.append(idx)
+            cur.clear()
+
+        for i in range(self.n):
+            if v[i]:
+                if gap[i]:
+                    close()
+                cur.append(i)
+            elif not hold[i]:
+                close()
+        close()
+        return out
+
+    def to_dataset(self, *, skip: float | None = None, min_segment: int | None = None) -> IODataset:
+        """The closed-loop IO data as an :class:`IODataset` (one trajectory per valid run)."""
+        skip = float(self.metadata.get("dataset_skip", 0.0) if skip is None else skip)
+        min_segment = int(self.metadata.get("min_segment", 50) if min_segment is None else min_segment)
+        segs = self.segments(skip=skip, min_segment=min_segment)
+        meta = {k: v for k, v in self.metadata.items() if k not in ("summary",)}
+        meta.update(source="firmware_bridge.ticklog", segments_ticks=[[int(s[0]), int(s[-1]) + 1] for s in segs],
+                    dataset_skip=skip, min_segment=min_segment)
+        if not segs:
+            from ddpc_codegen.errors import DataError
+
+            raise DataError(
+                f"the tick log has no closed-loop segment of >= {min_segment} ticks (armed, off-board, fresh "
+                f"telemetry, after {skip} s); fly longer or check that the vehicle entered off-board")
+        u, y = self.ticks["u"], self.ticks["y"]
+        return IODataset([u[s] for s in segs], [y[s] for s in segs], self.dt,
+                         input_names=self.input_names, output_names=self.output_names,
+                         input_units=self.input_units or None, output_units=self.output_units or None,
+                         phases=[np.zeros(s.size, dtype=np.int8) for s in segs], metadata=meta)
+
+    def save(self, path: str | Path, *, skip: float | None = None, min_segment: int | None = None) -> Path:
+        """Write the IODataset part (via IODataset.save) plus the ``tick_*`` arrays in one .npz.
+
+        If there is no valid segment, every tick with finite telemetry is written as one trajectory
+        and the metadata says ``"closed_loop": false`` (the file still loads; do not fit on it).
+        """
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(".npz")
+        from ddpc_codegen.errors import DataError
+
+        try:
+            ds = self.to_dataset(skip=skip, min_segment=min_segment)
+            ds = IODataset(list(ds.u), list(ds.y), ds.dt, input_names=ds.input_names, output_names=ds.output_names,
+                           input_units=ds.input_units, output_units=ds.output_units, phases=list(ds.phases),
+                           metadata={**ds.metadata, "closed_loop": True})
+        except DataError:
+            ok = np.isfinite(self.ticks["y"]).all(axis=1) & np.isfinite(self.ticks["u"]).all(axis=1)
+            if not ok.any():
+                ok = np.zeros(self.n, dtype=bool)
+            u = self.ticks["u"][ok] if ok.any() else np.zeros((1, len(self.input_names)))
+            y = self.ticks["y"][ok] if ok.any() else np.zeros((1, len(self.output_names)))
+            ds = IODataset(u, y, self.dt, input_names=self.input_names, output_names=self.output_names,
+                           metadata={**self.metadata, "closed_loop": False, "source": "firmware_bridge.ticklog"})
+        ds.save(path)
+        # Re-open and add the tick arrays (IODataset.load ignores unknown entries).
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        for k, a in self.ticks.items():
+            arrays[f"tick_{k}"] = a
+        extra = {"dt": self.dt, "input_names": list(self.input_names), "output_names": list(self.output_names),
+                 "input_units": list(self.input_units), "output_units": list(self.output_units),
+                 "reasons": list(REASONS), "metadata": self.metadata}
+        arrays["ticklog_header"] = np.frombuffer(json.dumps(extra, sort_keys=True, default=_json_default).encode(),
+                                                 dtype=np.uint8)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+        return path
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def load_ticklog(path: str | Path) -> TickLog:
+    """Read the tick arrays of a bridge log written by :meth:`TickLog.save`."""
+    with np.load(Path(path), allow_pickle=False) as z:
+        if "ticklog_header" not in z.files:
+            raise ValueError(f"{path} has no tick arrays (not a bridge tick log)")
+        h = json.loads(bytes(z["ticklog_header"]).decode())
+        ticks = {k[5:]: z[k] for k in z.files if k.startswith("tick_")}
+    return TickLog(ticks, float(h["dt"]), tuple(h["input_names"]), tuple(h["output_names"]),
+                   tuple(h.get("input_units", ())), tuple(h.get("output_units", ())), h.get("metadata", {}))

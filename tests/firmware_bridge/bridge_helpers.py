@@ -1,0 +1,195 @@
+"""Helpers and fixtures for the MAVLink bridge tests: free loopback ports, process spawning that
+always cleans up, a small generated solver, an in-process fake vehicle. (No conftest.py here:
+other test modules import the top-level ``conftest`` by name, so a second one would shadow it.
+Test modules import the fixtures they use from this module.)
+
+Everything talks UDP on 127.0.0.1 only; every wait is bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+class Procs:
+    """Spawns ``python -m firmware_bridge.cli ...`` processes; kills whatever is left at teardown."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.tmp = tmp
+        self.procs: list[subprocess.Popen] = []
+
+    def spawn(self, *args: str, name: str = "proc") -> subprocess.Popen:
+        out = open(self.tmp / f"{name}.out", "w")
+        p = subprocess.Popen([sys.executable, "-m", "firmware_bridge.cli", *args], env=_env(), stdout=out,
+                             stderr=subprocess.STDOUT, cwd=str(self.tmp))
+        p._log = self.tmp / f"{name}.out"  # type: ignore[attr-defined]
+        self.procs.append(p)
+        return p
+
+    def wait(self, p: subprocess.Popen, timeout: float) -> int:
+        try:
+            return p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(5)
+            raise AssertionError(f"process did not finish in {timeout} s:\n{Path(p._log).read_text()[-3000:]}")
+
+    def terminate(self, p: subprocess.Popen, timeout: float = 15.0) -> int:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+        return self.wait(p, timeout)
+
+    def log(self, p: subprocess.Popen) -> str:
+        return Path(p._log).read_text()
+
+    def cleanup(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.kill()
+                try:
+                    p.wait(5)
+                except subprocess.TimeoutExpired:  # pragma: no cover
+                    pass
+
+
+def read_json(path: Path) -> dict:
+    return json.loads(Path(path).read_text())
+
+
+class FakeVehicle(threading.Thread):
+    """A scripted PX4 stand-in in a thread (udpout to the bridge): heartbeat (armed, OFFBOARD),
+    hover telemetry at 200 Hz in one datagram per tick, COMMAND_ACKs; records every setpoint.
+
+    ``telemetry`` and ``heartbeat`` switch the two streams on and off while running.
+    """
+
+    def __init__(self, port: int, sysid: int = 1, z: float = 0.9) -> None:
+        super().__init__(daemon=True)
+        from firmware_bridge.link import MavLink
+
+        self.link = MavLink(f"udpout:127.0.0.1:{port}", source_system=sysid, source_component=1, target_system=None)
+        self.z = z
+        self.telemetry = True
+        self.heartbeat = True
+        self.extra: list = []  # callables run once per tick (garbage injection ...)
+        self.setpoints: list[tuple[float, object]] = []
+        self.first_setpoint = threading.Event()
+        self.stop_flag = threading.Event()
+        self.k = 0
+
+    def run(self) -> None:
+        from firmware_bridge.link import mavlink
+        from firmware_bridge.profiles import MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, MAV_MODE_FLAG_SAFETY_ARMED, px4_custom_mode
+
+        from firmware_bridge.telemetry import swap_frames
+
+        q_level = swap_frames(1.0, 0.0, 0.0, 0.0)  # level, yaw 0 ENU (= 90 deg NED), as PX4 would send it
+        mav = self.link.mav
+        t0 = time.monotonic()
+        hb_next = 0.0
+        while not self.stop_flag.is_set():
+            target = t0 + self.k * 0.005
+            d = target - time.monotonic()
+            if d > 0:
+                time.sleep(d)
+            now = time.monotonic()
+            for msg, rx in self.link.drain():
+                if msg.get_type() == "SET_ATTITUDE_TARGET":
+                    self.setpoints.append((rx, msg))
+                    self.first_setpoint.set()
+                elif msg.get_type() == "COMMAND_LONG":
+                    self.link.send(mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_ACCEPTED))
+            if self.heartbeat and now >= hb_next:
+                hb_next = now + 0.5
+                self.link.send_heartbeat(mavlink.MAV_TYPE_QUADROTOR, 12,
+                                         MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED,
+                                         px4_custom_mode(6), mavlink.MAV_STATE_ACTIVE)
+            if self.telemetry:
+                ms = self.k * 5
+                self.link.send_many([
+                    mav.attitude_quaternion_encode(ms, *q_level, 0.0, 0.0, 0.0, (0, 0, 0, 0)),
+                    mav.local_position_ned_encode(ms, 0.0, 0.0, -self.z, 0.0, 0.0, 0.0)])
+            for f in list(self.extra):
+                f(self)
+            self.k += 1
+
+    def setpoint_times(self) -> np.ndarray:
+        return np.array([t for t, _ in self.setpoints])
+
+    def close(self) -> None:
+        self.stop_flag.set()
+        self.join(5)
+        self.link.close()
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture
+def procs(tmp_path):
+    pr = Procs(tmp_path)
+    try:
+        yield pr
+    finally:
+        pr.cleanup()
+
+
+_SOLVERS: dict[str, Path] = {}
+
+
+@pytest.fixture(scope="session")
+def flying_solver(tmp_path_factory) -> Path:
+    """A steering solver for the flying loop: 30 s of PRBS-excited in-process data, lsq predictor,
+    configs/flying.toml otherwise, DAQP backend (~3-5 s; built once per session even though several
+    modules import this fixture)."""
+    from ddpc_codegen import SteeringConfig, SteeringProblem, fit_predictor, generate
+    from ddpc_codegen.sim import simulate
+
+    if "flying" in _SOLVERS:
+        return _SOLVERS["flying"]
+    out = tmp_path_factory.mktemp("solver") / "flying"
+    ds = simulate("flying", 30.0, excitation=True, seed=11, noise=True).to_dataset()
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml").replace(predictor={"method": "lsq"})
+    pred = fit_predictor(ds, cfg.t_ini, cfg.t_f, method="lsq")
+    generate(SteeringProblem(pred, cfg), out, backend="daqp", name="bridge_test_flying")
+    _SOLVERS["flying"] = out
+    return out
+
+
+@pytest.fixture
+def fake_vehicle_factory():
+    made: list[FakeVehicle] = []
+
+    def make(port: int, **kw) -> FakeVehicle:
+        v = FakeVehicle(port, **kw)
+        made.append(v)
+        return v
+
+    try:
+        yield make
+    finally:
+        for v in made:
+            v.close()

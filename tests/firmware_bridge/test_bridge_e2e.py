@@ -1,0 +1,109 @@
+"""End to end over real UDP sockets on 127.0.0.1: ``ddpc-vehicle`` and ``ddpc-bridge`` as separate
+processes (lock-step, so the flight is fast and deterministic), baseline then steered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from firmware_bridge.demo import in_process, truth_rmse
+from firmware_bridge.ticklog import load_ticklog
+
+from bridge_helpers import Procs, free_port, read_json
+from bridge_helpers import flying_solver, procs  # noqa: F401 (fixtures)
+
+FLIGHT = 8.0  # s of off-board flight per run (RMSE over t >= 3 s)
+
+
+def _fly(procs, tmp_path, name: str, bridge_args: list[str], *, seed: int = 2) -> dict:
+    port = free_port()
+    truth = tmp_path / f"{name}_truth.npz"
+    log = tmp_path / f"{name}.npz"
+    summ = tmp_path / f"{name}.json"
+    veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--seed", str(seed),
+                      "--truth-log", str(truth), name=f"{name}_vehicle")
+    br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--offboard", "--duration", str(FLIGHT),
+                     "--log", str(log), "--summary", str(summ), "--timeout", "90", "--wait-heartbeat", "30",
+                     *bridge_args, name=f"{name}_bridge")
+    rc = procs.wait(br, 120)
+    assert rc == 0, procs.log(br)
+    assert procs.terminate(veh) == 0, procs.log(veh)
+    s = read_json(summ)
+    s["truth"] = truth_rmse(log, truth)
+    return s
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory, flying_solver):
+    tmp = tmp_path_factory.mktemp("e2e")
+    pr = Procs(tmp)
+    try:
+        base = _fly(pr, tmp, "baseline", ["--mode", "passthrough"])
+        steer = _fly(pr, tmp, "steered", ["--mode", "steer", "--solver", str(flying_solver)])
+    finally:
+        pr.cleanup()
+    return base, steer
+
+
+def test_flight_over_the_link_runs_the_whole_protocol(flights):
+    base, steer = flights
+    for s in (base, steer):
+        assert s["stop_reason"].startswith("duration")
+        assert s["activations"] == 1                     # entered OFFBOARD once (after the pre-stream)
+        assert s["missed_ticks"] == 0 and s["telemetry_gaps"] == 0  # lock-step: one setpoint per telemetry tick
+        assert s["setpoints_sent"] == s["ticks"]
+        assert s["link"]["bad_data"] == 0 and s["link"]["foreign"] == 0
+        assert s["truth"]["flown_s"] >= FLIGHT - 0.01
+        ev = [e for _, e in s["events"]]
+        assert any("requesting OFFBOARD after" in e for e in ev)
+        assert any("exit: requesting AUTO.LOITER" in e for e in ev)   # handed back to HOLD at the end
+    assert steer["steering"]["steered"] > 0.9 * (FLIGHT / 0.005)
+
+
+def test_steering_improves_z_rmse_over_passthrough(flights):
+    base, steer = flights
+    assert steer["fallbacks"] == 0, steer["fallback_reasons"]
+    # The model mass is 200 g low: the baseline sags ~6 cm; steering removes most of it.
+    assert base["truth"]["rmse_z"] > 0.04
+    assert steer["truth"]["rmse_z"] < 0.5 * base["truth"]["rmse_z"]
+    assert steer["rmse_z_measured"] < 0.5 * base["rmse_z_measured"]
+
+
+def test_link_flight_matches_the_in_process_simulation(flights, flying_solver):
+    # Same solver, same closed loop, in one process: lock-step over MAVLink must land within 20 %.
+    base, steer = flights
+    ip = in_process(flying_solver, FLIGHT, seed=2)
+    assert steer["truth"]["rmse_z"] == pytest.approx(ip["steered"]["rmse_z"], rel=0.2)
+    assert base["truth"]["rmse_z"] == pytest.approx(ip["baseline"]["rmse_z"], rel=0.2)
+    assert np.isfinite(steer["latency_us"]["p99"])
+
+
+def test_ardupilot_profile_guided_nogps_with_both_thrust_semantics(procs, tmp_path):
+    # Two vehicle/bridge pairs at once: GUID_OPTIONS 0 (thrust field = climb rate) and 8 (= thrust).
+    runs = {}
+    for opt in (0, 8):
+        port = free_port()
+        veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--autopilot", "ardupilot",
+                          "--guid-options", str(opt), name=f"ap{opt}_vehicle")
+        br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--autopilot", "ardupilot", "--offboard",
+                         "--attitude-stream", "attitude",
+                         "--mode", "passthrough", "--duration", "4", "--settle", "1",
+                         "--log", str(tmp_path / f"ap{opt}.npz"), "--summary", str(tmp_path / f"ap{opt}.json"),
+                         "--timeout", "90", name=f"ap{opt}_bridge")
+        runs[opt] = (veh, br)
+    for opt, (veh, br) in runs.items():
+        assert procs.wait(br, 120) == 0, procs.log(br)
+        procs.terminate(veh)
+        s = read_json(tmp_path / f"ap{opt}.json")
+        ev = " | ".join(e for _, e in s["events"])
+        assert f"GUID_OPTIONS={opt}: thrust field is a {'climb rate' if opt == 0 else 'thrust'}" in ev
+        assert "requesting GUIDED_NOGPS" in ev and "engaged (GUIDED_NOGPS" in ev and "requesting BRAKE" in ev
+        assert s["stop_reason"].startswith("duration") and s["activations"] == 1
+        t = load_ticklog(tmp_path / f"ap{opt}.npz").ticks
+        on = t["active"] & t["event"]
+        if opt == 0:
+            assert np.all(np.abs(t["sp_field"][on] - 0.5) < 0.3) and not np.allclose(t["sp_field"][on], t["sp_thrust"][on])
+            assert s["rmse_z_measured"] < 0.05     # ArduPilot's own altitude loop closes height
+        else:
+            np.testing.assert_array_equal(t["sp_field"][on], t["sp_thrust"][on])
+            assert s["rmse_z_measured"] < 0.15

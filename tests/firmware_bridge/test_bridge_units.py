@@ -1,0 +1,296 @@
+"""Units of the bridge: autopilot profiles, frames, connection strings, the link's receive path
+(loopback sockets and a pty), command retries, tick statistics."""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.control import enu_flu_to_ned_frd, euler_from_quat, quat_from_euler
+from firmware_bridge.bridge import gap_statistics
+from firmware_bridge.link import CommandTracker, MavLink, mavlink, parse_url
+from firmware_bridge.profiles import (
+    ARDUCOPTER_MODES,
+    ArduPilotProfile,
+    PX4Profile,
+    make_profile,
+    px4_custom_mode,
+    px4_decode,
+    px4_mode_name,
+)
+from firmware_bridge.telemetry import TelemetryState, euler_enu_to_ned, swap_frames
+from firmware_bridge.vehicle import _rotate_inv
+
+
+# ----------------------------------------------------------------------------- profiles
+def test_px4_mode_encoding_round_trips_and_offboard_is_main_mode_6():
+    assert px4_custom_mode(6) == 6 << 16
+    assert px4_decode(px4_custom_mode(4, 3)) == (4, 3)
+    assert px4_mode_name(px4_custom_mode(4, 6)) == "AUTO.LAND"
+    p = PX4Profile()
+    assert p.offboard_command() == (1.0, 6.0, 0.0)
+    assert p.decode(1 | 128, px4_custom_mode(6)) .offboard and p.decode(1 | 128, px4_custom_mode(6)).armed
+    assert not p.decode(1, px4_custom_mode(6)).armed
+    assert not p.decode(1 | 128, px4_custom_mode(4, 3)).offboard
+    assert p.thrust_field(0.73, 1.0, 0.5) == 0.73       # normalized thrust as is
+
+
+def test_ardupilot_guided_modes_and_both_thrust_semantics():
+    p = make_profile("ardupilot")
+    assert p.offboard_command() == (1.0, 20.0, 0.0)       # GUIDED_NOGPS
+    assert p.decode(129, ARDUCOPTER_MODES["GUIDED"]).offboard
+    assert p.decode(129, ARDUCOPTER_MODES["GUIDED_NOGPS"]).offboard
+    assert not p.decode(129, ARDUCOPTER_MODES["LOITER"]).offboard
+    # Default GUID_OPTIONS = 0: thrust is a climb rate, 0.5 holds height.
+    assert p.climb_rate_thrust and p.hover_field(0.7) == 0.5
+    assert p.thrust_field(0.9, 1.0, 1.0) == 0.5
+    up = p.thrust_field(0.9, 1.5, 1.0)                     # 0.5 m low -> climb 0.75 m/s
+    assert up == pytest.approx(0.5 + 0.5 * 0.75 / 2.5)
+    assert p.field_to_climb_rate(up) == pytest.approx(0.75)
+    assert p.field_to_climb_rate(p.thrust_field(0.9, 0.0, 1.0)) == pytest.approx(-1.5)  # saturates at descent speed
+    # GUID_OPTIONS bit 3: the field is a thrust, like PX4.
+    q = ArduPilotProfile(guid_options=8)
+    assert not q.climb_rate_thrust and q.thrust_field(0.61, 2.0, 1.0) == 0.61
+    with pytest.raises(ValueError):
+        make_profile("betaflight")
+
+
+# ----------------------------------------------------------------------------- frames
+def _telemetry(kind: str, q_ned, rates_frd, p_ned, v_ned, ms: int = 1234):
+    mav = mavlink.MAVLink(None, 1, 1)
+    roll, pitch, yaw = euler_from_quat(q_ned)
+    if kind == "ATTITUDE":
+        att = mav.attitude_encode(ms, roll, pitch, yaw, *rates_frd)
+    elif kind == "ATTITUDE_QUATERNION":
+        att = mav.attitude_quaternion_encode(ms, *q_ned, *rates_frd, (0, 0, 0, 0))
+    else:
+        nan = [math.nan] * 21
+        att = mav.odometry_encode(ms * 1000, 1, 12, *p_ned, list(q_ned), *_rotate_inv(q_ned, v_ned), *rates_frd,
+                                  nan, nan, 0, 0, 0)
+    pos = att if kind == "ODOMETRY" else mav.local_position_ned_encode(ms, *p_ned, *v_ned)
+    parser = mavlink.MAVLink(None)
+    return [parser.parse_buffer(m.pack(mav))[0] for m in ((att,) if kind == "ODOMETRY" else (att, pos))]
+
+
+@pytest.mark.parametrize("kind", ["ATTITUDE", "ATTITUDE_QUATERNION", "ODOMETRY"])
+def test_every_telemetry_stream_gives_the_same_enu_flu_state(kind):
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        e_enu = rng.uniform([-0.5, -0.5, -3.0], [0.5, 0.5, 3.0])
+        q_ned = enu_flu_to_ned_frd(quat_from_euler(*e_enu))
+        p_enu, v_enu, w_flu = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)
+        p_ned = (p_enu[1], p_enu[0], -p_enu[2])
+        v_ned = (v_enu[1], v_enu[0], -v_enu[2])
+        w_frd = (w_flu[0], -w_flu[1], -w_flu[2])
+        tel = TelemetryState("ODOMETRY" if kind == "ODOMETRY" else kind,
+                             "ODOMETRY" if kind == "ODOMETRY" else "LOCAL_POSITION_NED")
+        for m in _telemetry(kind, q_ned, w_frd, p_ned, v_ned):
+            assert tel.update(m, rx=1.0)
+        np.testing.assert_allclose(tel.euler, e_enu, atol=2e-6)
+        np.testing.assert_allclose(tel.position, p_enu, atol=1e-6)
+        np.testing.assert_allclose(tel.velocity, v_enu, atol=2e-6)
+        np.testing.assert_allclose(tel.rates, w_flu, atol=1e-6)
+        assert tel.newest_stamp() == pytest.approx(1.234)
+
+
+def test_frame_helpers_agree_with_the_controller_conventions():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        np.testing.assert_allclose(swap_frames(*q), enu_flu_to_ned_frd(q), atol=1e-15)
+        np.testing.assert_allclose(swap_frames(*swap_frames(*q)), q, atol=1e-15)
+        e = euler_from_quat(q)
+        np.testing.assert_allclose(np.unwrap(euler_enu_to_ned(*e)), np.unwrap(euler_from_quat(enu_flu_to_ned_frd(q))),
+                                   atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- link
+def test_connection_strings():
+    assert parse_url("udpin:127.0.0.1:14540").kind == "udpin"
+    assert parse_url("udp:127.0.0.1:14540").kind == "udpin"
+    ep = parse_url("udpout:localhost:14550")
+    assert (ep.kind, ep.host, ep.port) == ("udpout", "localhost", 14550)
+    assert parse_url("tcp:127.0.0.1:5760").kind == "tcp"
+    assert parse_url("/dev/ttyACM0:57600").baud == 57600
+    assert parse_url("/dev/ttyACM0,115200").device == "/dev/ttyACM0"
+    assert parse_url("/dev/ttyAMA0", baud=460800).baud == 460800
+    for bad in ("udpin:14540", "bogus", "tcpin:0.0.0.0:5760"):
+        with pytest.raises(ValueError):
+            parse_url(bad)
+
+
+def _pair():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rx = MavLink(f"udpin:127.0.0.1:{port}", target_system=1, target_component=1)
+    tx = MavLink(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1, target_system=None)
+    return rx, tx, port
+
+
+def _drain_until(link: MavLink, n: int, timeout: float = 5.0):
+    got, t_end = [], time.monotonic() + timeout
+    while len(got) < n and time.monotonic() < t_end:
+        link.wait(0.05)
+        got += link.drain()
+    return got
+
+
+def test_drain_returns_everything_pending_in_order_with_kernel_receive_times():
+    rx, tx, _ = _pair()
+    try:
+        for k in range(50):
+            tx.send(tx.mav.local_position_ned_encode(k, 0, 0, -float(k), 0, 0, 0))
+        time.sleep(0.05)
+        t_before = time.monotonic()
+        got = _drain_until(rx, 50)
+        assert [m.time_boot_ms for m, _ in got] == list(range(50))
+        # Receive times are when the kernel got the datagrams (before draining began), in order.
+        assert got[0][1] <= t_before
+        assert all(a[1] <= b[1] for a, b in zip(got, got[1:]))
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_garbage_and_other_systems_are_dropped_and_replies_stay_pinned():
+    rx, tx, port = _pair()
+    other = MavLink(f"udpout:127.0.0.1:{port}", source_system=7, source_component=1, target_system=None)
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        tx.send_heartbeat(2, 12, 129, 0, 4)
+        assert len(_drain_until(rx, 1)) == 1
+        peer = rx.peer
+        raw.sendto(b"\xfe\x09\x00garbage", ("127.0.0.1", port))          # truncated MAVLink 1 start + junk
+        tx.transport.write(b"\xfd\x40\x00\x00")                          # a truncated packet from the vehicle
+        other.send_heartbeat(2, 12, 129, 0, 4)                            # another system
+        tx.send(tx.mav.local_position_ned_encode(5, 0, 0, -1, 0, 0, 0))  # must survive the junk before it
+        got = _drain_until(rx, 1)
+        assert [m.get_type() for m, _ in got] == ["LOCAL_POSITION_NED"]
+        assert rx.stats["foreign"] == 1 and 7 in rx.foreign_systems and rx.stats["bad_data"] >= 2
+        assert rx.peer == peer
+        rx.send_heartbeat()
+        tx.wait(1.0)
+        assert [m.get_type() for m, _ in tx.drain()] == ["HEARTBEAT"]
+    finally:
+        for link in (rx, tx, other):
+            link.close()
+        raw.close()
+
+
+def test_target_system_zero_locks_onto_the_first_autopilot():
+    rx, tx, port = _pair()
+    gcs = MavLink(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190, target_system=None)
+    rx.target_system, rx.target_component = 0, 0
+    try:
+        gcs.send_heartbeat(6, 8, 0, 0, 4)                   # a ground station: autopilot INVALID
+        tx.send_heartbeat(2, 12, 129, 0, 4)
+        got = _drain_until(rx, 1)
+        assert rx.target_system == 1 and rx.target_component == 1
+        assert [m.get_srcSystem() for m, _ in got] == [1]
+    finally:
+        for link in (rx, tx, gcs):
+            link.close()
+
+
+def test_serial_transport_over_a_pty():
+    master, slave = os.openpty()
+    try:
+        link = MavLink(os.ttyname(slave) + ":115200", source_system=1, source_component=191)
+        mav = mavlink.MAVLink(None, 1, 1)
+        os.write(master, b"line noise" + mav.heartbeat_encode(2, 12, 129, 0, 4).pack(mav))
+        got = _drain_until(link, 1)
+        assert [m.get_type() for m, _ in got] == ["HEARTBEAT"]
+        link.send_heartbeat()
+        time.sleep(0.05)
+        data = os.read(master, 1000)
+        assert mavlink.MAVLink(None).parse_buffer(data)[0].get_srcComponent() == 191
+        link.close()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_tcp_link_reconnects_after_the_peer_goes_away():
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port = srv.getsockname()[1]
+    link = MavLink(f"tcp:127.0.0.1:{port}", reconnect_interval=0.05)
+    try:
+        conn, _ = srv.accept()
+        conn.close()                                       # the peer drops the connection
+        t_end = time.monotonic() + 5
+        while link.is_open and time.monotonic() < t_end:
+            link.wait(0.05)
+            link.drain()
+        assert not link.is_open and link.stats["link_errors"] == 1
+        t_end = time.monotonic() + 5
+        while not link.poll() and time.monotonic() < t_end:
+            time.sleep(0.02)
+        conn2, _ = srv.accept()
+        assert link.is_open and link.stats["reconnects"] == 1
+        mav = mavlink.MAVLink(None, 1, 1)
+        conn2.sendall(mav.heartbeat_encode(2, 12, 129, 0, 4).pack(mav))
+        assert len(_drain_until(link, 1)) == 1
+        conn2.close()
+    finally:
+        link.close()
+        srv.close()
+
+
+def test_command_tracker_retries_until_acked_and_serializes_same_command():
+    rx, tx, _ = _pair()
+    try:
+        tx.send_heartbeat(2, 12, 129, 0, 4)
+        _drain_until(rx, 1)
+        tr = CommandTracker(rx, timeout=0.05, max_tries=3)
+        a = tr.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (31.0, 5000.0), "att")
+        b = tr.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (32.0, 5000.0), "pos")
+        t = time.monotonic()
+        tr.poll(t)
+        tr.poll(t + 0.06)                                   # no ACK yet: resent with confirmation 1
+        cmds = [m for m, _ in _drain_until(tx, 2)]
+        assert [(m.param1, m.confirmation) for m in cmds] == [(31.0, 0), (31.0, 1)]   # b waits for a
+        tr.on_ack(tx.mav.command_ack_encode(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0))
+        assert a.done and a.accepted and not b.done
+        tr.poll(time.monotonic())
+        assert [m.param1 for m, _ in _drain_until(tx, 1)] == [32.0]
+        for k in range(3):
+            tr.poll(time.monotonic() + 0.1 * (k + 1))
+        assert b.done and b.timed_out
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_gap_statistics_counts_missed_ticks_not_jitter():
+    t = np.arange(0, 1, 0.005)
+    assert gap_statistics(t, 0.005)["missed_ticks"] == 0
+    jit = t + np.random.default_rng(0).uniform(-0.0012, 0.0012, t.size)   # gaps up to 7.4 ms
+    assert gap_statistics(np.sort(jit), 0.005)["missed_ticks"] == 0
+    holes = np.delete(t, [50, 100, 101, 102])
+    s = gap_statistics(holes, 0.005)
+    assert s["missed_ticks"] == 4 and s["max_gap_ms"] == pytest.approx(20.0)
+    assert s["rate_hz"] == pytest.approx(195 / 0.995, rel=1e-6)  # intervals / span
+
+
+def test_controller_toml_overrides_the_model(tmp_path):
+    from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
+
+    f = tmp_path / "robot.toml"
+    f.write_text('[controller]\nmodel_mass = 3.3\nkp_z = 12.0\n\n[trajectory]\nperiod = 12.0\nradii = [0.5, 0.2]\n')
+    cfg = bridge_config_from_args(build_bridge_parser().parse_args(
+        ["udpin:127.0.0.1:14540", "--mode", "passthrough", "--controller", str(f), "--max-step", "none"]))
+    assert cfg.controller.model_mass == 3.3 and cfg.controller.kp_z == 12.0 and cfg.controller.mode == "flying"
+    assert cfg.trajectory.period == 12.0 and cfg.trajectory.radii == (0.5, 0.2)
+    assert cfg.max_step is None and cfg.max_age == pytest.approx(0.05)
+    f.write_text("[controller]\nmodel_mas = 3.3\n")
+    with pytest.raises(ValueError, match="unknown \\[controller\\] keys"):
+        bridge_config_from_args(build_bridge_parser().parse_args(["--mode", "passthrough", "--controller", str(f)]))
