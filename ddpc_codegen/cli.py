@@ -17,6 +17,7 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "ddpc_codegen.sim.cli",
     "ddpc_codegen.logs.cli",
     "ddpc_codegen.codegen.cli",
+    "ddpc_codegen.demo",
 )
 
 
