@@ -64,7 +64,7 @@ from ddpc_codegen.steering import ReferenceSteerer
 from .link import CommandTracker, MavLink, mavlink, set_realtime_priority
 from .profiles import ArduPilotProfile, Profile, make_profile
 from .telemetry import TelemetryState, swap_frames
-from .ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, reason_code
+from .ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
            "gap_statistics"]
@@ -865,15 +865,5 @@ class Bridge:
         s = self.summary()
         if c.summary:
             Path(c.summary).parent.mkdir(parents=True, exist_ok=True)
-            Path(c.summary).write_text(json.dumps(s, indent=2, default=_jsonable) + "\n")
+            Path(c.summary).write_text(json.dumps(s, indent=2, default=_json_default) + "\n")
         self.link.close()
-
-
-def _jsonable(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)

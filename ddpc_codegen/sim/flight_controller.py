@@ -29,6 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..control import quat_multiply
 from .params import PogoXParams
 from .plant import rotor_geometry
 
@@ -108,7 +109,7 @@ class PX4LikeFlightController:
         ax, ay = (-by / s, bx / s) if s > 1e-12 else (1.0, 0.0)
         q_tilt = np.array([math.cos(ang / 2), ax * math.sin(ang / 2), ay * math.sin(ang / 2), 0.0])
         q_yaw_in_tilt = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-        out = _qmul(q_tilt, q_yaw_in_tilt)
+        out = quat_multiply(q_tilt, q_yaw_in_tilt)
         return out / np.linalg.norm(out)
 
     # ------------------------------------------------------------------ loops
@@ -193,14 +194,3 @@ class PX4LikeFlightController:
         return [_clamp(c + rp[i] + k * yw[i], tmin, tmax) for i in range(4)]
 
 
-def _qmul(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
-    )
