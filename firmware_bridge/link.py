@@ -21,6 +21,8 @@ is. Times are returned on the ``time.monotonic()`` clock.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import errno
 import math
 import os
@@ -113,29 +115,30 @@ def parse_url(url: str, baud: int | None = None) -> Endpoint:
 
 
 # ----------------------------------------------------------------------------- transports
-class _Transport:
+class _Transport(ABC):
     datagram = False
     peer: Any = None
 
-    def fileno(self) -> int | None:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def fileno(self) -> int | None: ...
 
     @property
     def is_open(self) -> bool:
         return self.fileno() is not None
 
-    def read(self) -> list[tuple[bytes, Any, float | None]]:  # pragma: no cover - interface
+    @abstractmethod
+    def read(self) -> list[tuple[bytes, Any, float | None]]:
         """All pending chunks: (data, source address or None, kernel receive time (epoch s) or None)."""
-        raise NotImplementedError
+        ...
 
-    def write(self, buf: bytes) -> bool:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def write(self, buf: bytes) -> bool: ...
 
-    def open(self) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def open(self) -> None: ...
 
-    def close(self) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def close(self) -> None: ...
 
 
 class UdpTransport(_Transport):
@@ -246,8 +249,8 @@ class _StreamTransport(_Transport):
         self._out = bytearray()
         self.dropped = 0
 
-    def _raw_write(self, buf: bytes | bytearray) -> int:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def _raw_write(self, buf: bytes | bytearray) -> int: ...
 
     def write(self, buf: bytes) -> bool:
         if not self.is_open:
@@ -531,8 +534,9 @@ class MavLink:
             rx = now_m
             if kts is not None:
                 age = now_r - kts
-                if 0.0 <= age < 1.0:
-                    rx = now_m - age
+                # a kernel stamp a hair "in the future" is clock-read jitter, not a bad stamp
+                if -0.01 <= age < 1.0:
+                    rx = now_m - max(age, 0.0)
             try:
                 msgs = parser.parse_buffer(data)
             except Exception:  # a malformed packet must never take the loop down

@@ -23,6 +23,8 @@ modes when asked by an explicit CLI flag.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import math
 from dataclasses import dataclass
 
@@ -91,7 +93,7 @@ class VehicleMode:
 
 
 @dataclass
-class Profile:
+class Profile(ABC):
     """Common interface (see :class:`PX4Profile`, :class:`ArduPilotProfile`).
 
     Attributes:
@@ -104,18 +106,19 @@ class Profile:
     name: str = "generic"
     autopilot: int = 0
 
-    def decode(self, base_mode: int, custom_mode: int) -> VehicleMode:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def decode(self, base_mode: int, custom_mode: int) -> VehicleMode: ...
 
-    def offboard_command(self) -> tuple[float, float, float]:  # pragma: no cover - abstract
+    @abstractmethod
+    def offboard_command(self) -> tuple[float, float, float]:
         """DO_SET_MODE params 1..3 that enter the off-board / guided mode."""
-        raise NotImplementedError
+        ...
 
-    def hold_command(self) -> tuple[float, float, float]:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def hold_command(self) -> tuple[float, float, float]: ...
 
-    def land_command(self) -> tuple[float, float, float]:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def land_command(self) -> tuple[float, float, float]: ...
 
     @property
     def climb_rate_thrust(self) -> bool:
