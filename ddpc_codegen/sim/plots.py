@@ -87,24 +87,29 @@ def plot_tracking(results, labels: Sequence[str] | None = None, t_range: tuple[f
     p = r0.y.shape[1]
     fig, axes = plt.subplots(p, 1, figsize=(9, 2.2 * p + 0.6), sharex=True)
     axes = np.atleast_1d(axes)
-    scale = [1.0] + [180.0 / np.pi] * (p - 1)
-    units = ["m"] + ["deg"] * (p - 1)
     for j, ax in enumerate(axes):
-        _shade_ground(ax, r0)
-        ax.plot(r0.t, r0.y_des[:, j] * scale[j], "k--", lw=1.0, label="desired")
-        for i, (r, lab) in enumerate(zip(rs, labels)):
-            c = _COLORS[i % len(_COLORS)]
-            ax.plot(r.t, r.u[:, j] * scale[j], ":", color=c, lw=1.0, label=_lab("reference u", lab))
-            ax.plot(r.t, r.y_true[:, j] * scale[j], "-", color=c, lw=1.2, label=_lab("realized y", lab))
-        ax.set_ylabel(f"{r0.output_names[j]} [{units[j]}]")
-        ax.grid(True, alpha=0.3)
-        if t_range is not None:
-            ax.set_xlim(*t_range)
+        _output_panel(ax, j, rs, labels, t_range)
     axes[0].legend(loc="upper right", fontsize=7, ncol=2)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(f"{r0.scenario}: outputs (grey = ground phase)" if r0.scenario == "hopping" else f"{r0.scenario}: outputs")
     fig.tight_layout()
     return fig
+
+
+def _output_panel(ax, j: int, rs, labels, t_range) -> None:
+    """Output j of every run vs time: desired, reference sent, realized (z in m, angles in deg)."""
+    r0 = rs[0]
+    scale, unit = (1.0, "m") if j == 0 else (180.0 / np.pi, "deg")
+    _shade_ground(ax, r0)
+    ax.plot(r0.t, r0.y_des[:, j] * scale, "k--", lw=1.0, label="desired")
+    for i, (r, lab) in enumerate(zip(rs, labels)):
+        c = _COLORS[i % len(_COLORS)]
+        ax.plot(r.t, r.u[:, j] * scale, ":", color=c, lw=1.0, label=_lab("reference u", lab))
+        ax.plot(r.t, r.y_true[:, j] * scale, "-", color=c, lw=1.2, label=_lab("realized y", lab))
+    ax.set_ylabel(f"{r0.output_names[j]} [{unit}]")
+    ax.grid(True, alpha=0.3)
+    if t_range is not None:
+        ax.set_xlim(*t_range)
 
 
 def plot_result(results, labels: Sequence[str] | None = None, t_range: tuple[float, float] | None = None) -> "Figure":
@@ -117,22 +122,11 @@ def plot_result(results, labels: Sequence[str] | None = None, t_range: tuple[flo
     gs = fig.add_gridspec(p, 2, width_ratios=[1, 1.6])
     ax_xz = fig.add_subplot(gs[:, 0])
     plot_xz(rs, labels, ax=ax_xz)
-    scale = [1.0] + [180.0 / np.pi] * (p - 1)
-    units = ["m"] + ["deg"] * (p - 1)
     first = None
     for j in range(p):
         ax = fig.add_subplot(gs[j, 1], sharex=first)
         first = first or ax
-        _shade_ground(ax, r0)
-        ax.plot(r0.t, r0.y_des[:, j] * scale[j], "k--", lw=1.0, label="desired")
-        for i, (r, lab) in enumerate(zip(rs, labels)):
-            c = _COLORS[i % len(_COLORS)]
-            ax.plot(r.t, r.u[:, j] * scale[j], ":", color=c, lw=1.0, label=_lab("reference u", lab))
-            ax.plot(r.t, r.y_true[:, j] * scale[j], "-", color=c, lw=1.2, label=_lab("realized y", lab))
-        ax.set_ylabel(f"{r0.output_names[j]} [{units[j]}]")
-        ax.grid(True, alpha=0.3)
-        if t_range is not None:
-            ax.set_xlim(*t_range)
+        _output_panel(ax, j, rs, labels, t_range)
         if j == 0:
             ax.legend(loc="upper right", fontsize=7, ncol=2)
         if j == p - 1:

@@ -21,6 +21,21 @@ from .params import PogoXParams
 __all__ = ["FlyingScenario", "HoppingScenario", "Scenario", "get_scenario", "EllipseTrajectory"]
 
 
+def _controller_config(params: PogoXParams, mode: str, overrides: dict[str, Any], **mode_fields: Any) -> ControllerConfig:
+    """The controller's view of the robot (its *model* mass, thrust limit, leg), plus overrides."""
+    base = ControllerConfig(
+        mode=mode,
+        dt=params.control_dt,
+        model_mass=params.controller_model_mass,
+        max_thrust=params.max_thrust,
+        g=params.g,
+        leg_length=params.leg_rest_length,
+        leg_stiffness=params.leg_stiffness,
+        **mode_fields,
+    )
+    return replace(base, **overrides)
+
+
 @dataclass(frozen=True)
 class FlyingScenario:
     """Fly the sagittal ellipse (paper, Fig. "Results on flying").
@@ -37,16 +52,7 @@ class FlyingScenario:
     name: str = "flying"
 
     def controller_config(self, params: PogoXParams) -> ControllerConfig:
-        base = ControllerConfig(
-            mode="flying",
-            dt=params.control_dt,
-            model_mass=params.controller_model_mass,
-            max_thrust=params.max_thrust,
-            g=params.g,
-            leg_length=params.leg_rest_length,
-            leg_stiffness=params.leg_stiffness,
-        )
-        return replace(base, **self.controller)
+        return _controller_config(params, "flying", self.controller)
 
     def make_controller(self, params: PogoXParams) -> HeightLegAngleController:
         return HeightLegAngleController(self.controller_config(params), self.ellipse)
@@ -78,20 +84,11 @@ class HoppingScenario:
     name: str = "hopping"
 
     def controller_config(self, params: PogoXParams) -> ControllerConfig:
-        base = ControllerConfig(
-            mode="hopping",
-            dt=params.control_dt,
-            model_mass=params.controller_model_mass,
-            max_thrust=params.max_thrust,
-            g=params.g,
-            thrust_fraction=self.thrust_fraction,
-            apex_height=self.apex_height,
-            target_velocity=tuple(self.target_velocity),
-            leg_length=params.leg_rest_length,
-            leg_stiffness=params.leg_stiffness,
+        return _controller_config(
+            params, "hopping", self.controller, thrust_fraction=self.thrust_fraction,
+            apex_height=self.apex_height, target_velocity=tuple(self.target_velocity),
             initial_apex=self.release_height,
         )
-        return replace(base, **self.controller)
 
     def make_controller(self, params: PogoXParams) -> HeightLegAngleController:
         return HeightLegAngleController(self.controller_config(params))
