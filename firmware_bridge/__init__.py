@@ -6,6 +6,7 @@
 * :mod:`.telemetry` -- NED/FRD telemetry -> the controller's ENU/FLU state (newest sample, age).
 * :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
 * :mod:`.vehicle` -- the simulator behind a PX4-like MAVLink endpoint (``ddpc-vehicle``).
+* :mod:`.realtime` -- SCHED_FIFO, mlockall, PM QoS for the loop; wake-up latency probe (``ddpc-rtcheck``).
 * :mod:`.ticklog` -- the per-tick log, an IODataset ``.npz`` (collect -> dataset -> codegen -> steer).
 * :mod:`.cli`, :mod:`.demo` -- console entry points and ``make bridge-demo``.
 """

@@ -61,7 +61,8 @@ from ddpc_codegen.control import (
 from ddpc_codegen.problem import SteeringResult
 from ddpc_codegen.steering import ReferenceSteerer
 
-from .link import CommandTracker, MavLink, mavlink, set_realtime_priority
+from .link import CommandTracker, MavLink, mavlink
+from .realtime import RealtimeSetup, setup_realtime
 from .profiles import ArduPilotProfile, Profile, make_profile
 from .telemetry import TelemetryState, swap_frames
 from .ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
@@ -127,7 +128,10 @@ class BridgeConfig:
         inject_solver_failure: (first solve index, count[, "fail" | "nan"]) fault injection for tests.
         controller: ControllerConfig (default: :func:`default_controller_config`).
         trajectory: EllipseTrajectory (default: the controller's default ellipse).
-        rt_priority: >0: run the loop SCHED_FIFO at this priority (if permitted).
+        rt_priority: >0: run the loop SCHED_FIFO at this priority, with memory locked and a
+            ``cpu_latency_us`` PM QoS request held (each if permitted; see :mod:`.realtime`).
+        cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
+        cpus: pin the loop to these CPUs (None: any).
     """
 
     url: str = "udpin:127.0.0.1:14540"
@@ -169,6 +173,8 @@ class BridgeConfig:
     controller: ControllerConfig | None = None
     trajectory: EllipseTrajectory | None = None
     rt_priority: int = 0
+    cpu_latency_us: int | None = 0
+    cpus: tuple | None = None
     verbose: bool = False
 
     def __post_init__(self) -> None:
@@ -283,6 +289,7 @@ class Bridge:
         self._send_times: list[float] = []
         self._send_stamps: list[float] = []  # vehicle time of each send (the clock that counts in lock-step)
         self.scheduling = "best effort"
+        self._rt = RealtimeSetup()
         self._init_run_state()
 
     # ------------------------------------------------------------------ setup
@@ -430,8 +437,9 @@ class Bridge:
         if install_signals:
             signal.signal(signal.SIGINT, self.stop)
             signal.signal(signal.SIGTERM, self.stop)
-        self.scheduling = set_realtime_priority(c.rt_priority)
-        if c.rt_priority:
+        self._rt = setup_realtime(c.rt_priority, cpus=c.cpus, cpu_latency_us=c.cpu_latency_us)
+        self.scheduling = self._rt.describe()
+        if c.rt_priority or c.cpus:
             self._event(f"scheduling: {self.scheduling}")
         self._init_run_state()
         next_hb = 0.0
@@ -476,6 +484,7 @@ class Bridge:
             self.stop_reason = "no vehicle"
             raise
         finally:
+            self._rt.release()
             if gc_was:
                 gc.enable()
             gc.unfreeze()

@@ -51,6 +51,30 @@ def _fault(s: str) -> tuple:
     return (int(parts[0]), int(parts[1])) + ((parts[2],) if len(parts) == 3 else ())
 
 
+def _cpus(s: str) -> tuple[int, ...]:
+    try:
+        cpus = tuple(int(v) for v in s.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated CPU numbers, got {s!r}") from None
+    if any(c < 0 for c in cpus):
+        raise argparse.ArgumentTypeError(f"CPU numbers are >= 0, got {s!r}")
+    return cpus
+
+
+def _qos(v: int) -> int | None:
+    return None if v < 0 else v
+
+
+def _add_realtime_args(g, what: str) -> None:
+    g.add_argument("--rt-priority", type=int, default=0,
+                   help=f"run {what} SCHED_FIFO at this priority, memory locked and a PM QoS wake-up latency request "
+                        "held, each if permitted (recommended on the robot; 0: best effort, none of these)")
+    g.add_argument("--cpu-latency-us", type=int, default=0,
+                   help="PM QoS CPU wake-up latency bound held with --rt-priority [us] (0: CPUs poll instead of "
+                        "sleeping deeply: steadier ticks, more power; -1: no request)")
+    g.add_argument("--cpus", type=_cpus, default=None, metavar="LIST", help=f"pin {what} to these CPUs, e.g. 1 or 2,3")
+
+
 # ----------------------------------------------------------------------------- bridge
 def build_bridge_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -115,8 +139,7 @@ def build_bridge_parser() -> argparse.ArgumentParser:
     g.add_argument("--excitation", type=_floats, default=(0.05, 0.03), help="collect: PRBS amplitude per reference")
     g.add_argument("--excitation-hold", type=int, default=4, help="collect: ticks per PRBS bit")
     g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--rt-priority", type=int, default=0,
-                   help="run the loop SCHED_FIFO at this priority if permitted (recommended on the robot; 0: off)")
+    _add_realtime_args(g, "the loop")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
     return p
@@ -161,6 +184,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
         inject_solver_failure=a.inject_solver_failure, controller=ctrl, trajectory=traj, rt_priority=a.rt_priority,
+        cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
         verbose=a.verbose)
 
 
@@ -234,7 +258,7 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
                    help="send nothing during this simulated-time window (repeatable)")
     p.add_argument("--truth-log", default=None, help="write the true state per tick to this .npz")
     p.add_argument("--summary", default=None, help="write the summary JSON here")
-    p.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority if permitted (0: off)")
+    _add_realtime_args(p, "the vehicle")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -250,7 +274,8 @@ def vehicle_main(argv: list[str] | None = None) -> int:
                             lockstep_timeout=a.lockstep_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
-                            rt_priority=a.rt_priority, verbose=a.verbose)
+                            rt_priority=a.rt_priority, cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
+                            verbose=a.verbose)
         veh = SimVehicle(cfg)
     except (ValueError, OSError) as e:
         print(f"ddpc-vehicle: error: {e}", file=sys.stderr)

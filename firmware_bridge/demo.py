@@ -1,8 +1,11 @@
 """``make bridge-demo``: the real-robot workflow over MAVLink, with the simulated vehicle as robot.
 
 Vehicle (``ddpc-vehicle``, real time) and bridge (``ddpc-bridge``) run as two processes talking
-UDP on 127.0.0.1:
+UDP on 127.0.0.1, both with ``--rt-priority`` (SCHED_FIFO, mlockall, a 0 us PM QoS request;
+see :mod:`firmware_bridge.realtime`):
 
+0. machine: a few seconds per CPU of a real-time sleeper's wake-up latency, without and with the
+   PM QoS request, so the timing figures come with the machine they were measured on;
 1. collect: the bridge flies the ellipse with PRBS on the references (``--mode collect``) and
    logs every tick; the log *is* the dataset;
 2. codegen: ``ddpc-codegen codegen <config> --dataset <log>`` (unchanged CLI, no glue); the
@@ -38,6 +41,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from .realtime import kernel_preemption
 
 __all__ = ["main", "run_demo", "free_udp_port", "truth_rmse"]
 
@@ -93,7 +98,7 @@ def write_toml(raw: dict, path: Path) -> Path:
 
 
 def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed: int, rt_priority: int,
-        log=print) -> dict:
+        cpu_latency_us: int = 0, log=print) -> dict:
     """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths + summary."""
     port = free_udp_port()
     truth = work / f"{name}_truth.npz"
@@ -106,10 +111,12 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
     try:
         veh = subprocess.Popen(
             _py() + ["firmware_bridge.cli", "vehicle", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
-                     "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10))],
+                     "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
+                     "--cpu-latency-us", str(cpu_latency_us)],
             env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
         cmd = _py() + ["firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{port}", "--offboard", "--duration",
                        str(duration), "--log", str(ticks), "--summary", str(summ), "--rt-priority", str(rt_priority),
+                       "--cpu-latency-us", str(cpu_latency_us),
                        "--wait-heartbeat", "30", "--timeout", str(duration + 60)] + bridge_args
         log(f"  [{name}] {' '.join(cmd[2:])}")
         t0 = time.monotonic()
@@ -175,11 +182,15 @@ def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)
 
 def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float = 20.0, solver: Path | None = None,
              config: Path = ROOT / "configs" / "flying.toml", predictor: str = "lsq", rt_priority: int = 30,
-             seed: int = 1, log=print) -> dict:
+             cpu_latency_us: int = 0, probe_s: float = 4.0, seed: int = 1, log=print) -> dict:
     """The whole job (see the module docstring). ``predictor``: "config" keeps the config's
     [predictor]; "lsq" / "pem" override it (the demo's copy of the config is written to ``work``).
     The bridge runs at SCHED_FIFO ``rt_priority`` and the vehicle 10 below (if permitted): on the
-    robot they are different computers, here the simulated vehicle must not block the bridge."""
+    robot they are different computers, here the simulated vehicle must not block the bridge.
+    Both hold a ``cpu_latency_us`` PM QoS request (-1: none). First, for ``probe_s`` seconds per
+    CPU, a 1 kHz real-time sleeper measures this machine's wake-up latency without and with that
+    request (:func:`firmware_bridge.realtime.measure_wakeup_latency`; 0: skip), so the timing
+    figures come with the machine they were measured on."""
     import tomllib
 
     work.mkdir(parents=True, exist_ok=True)
@@ -189,11 +200,13 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         raw.pop("data", None)
         config = write_toml(raw, work / f"{raw.get('name', 'flying')}.toml")
     t_start = time.monotonic()
+    machine = probe_machine(probe_s, rt_priority, cpu_latency_us, log) if probe_s > 0 else None
     runs: dict[str, dict] = {}
     if solver is None:
         log(f"1. collect: {collect_s:g} s of PRBS-excited flight over MAVLink")
         runs["collect"] = fly("collect", work, ["--mode", "collect", "--dataset-skip", "3", "--seed", str(seed)],
-                              duration=collect_s, seed=seed, rt_priority=rt_priority, log=log)
+                              duration=collect_s, seed=seed, rt_priority=rt_priority,
+                              cpu_latency_us=cpu_latency_us, log=log)
         log(f"2. codegen: ddpc-codegen codegen {config} --dataset {runs['collect']['ticks']}")
         gen_root = work / "generated"
         r = subprocess.run(_py() + ["ddpc_codegen.cli", "codegen", str(config), "--dataset", str(runs["collect"]["ticks"]),
@@ -204,10 +217,10 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         solver = Path(r.stdout.strip().splitlines()[-1])
     log(f"3. baseline: {flight_s:g} s, model-based controller alone (passthrough)")
     runs["baseline"] = fly("baseline", work, ["--mode", "passthrough"], duration=flight_s, seed=seed + 1,
-                           rt_priority=rt_priority, log=log)
+                           rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, log=log)
     log(f"4. steered: {flight_s:g} s, generated solver {solver} in the loop")
     runs["steered"] = fly("steered", work, ["--mode", "steer", "--solver", str(solver)], duration=flight_s,
-                          seed=seed + 1, rt_priority=rt_priority, log=log)
+                          seed=seed + 1, rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, log=log)
     log("5. in-process reference (simulate, same solver)")
     ip = in_process(solver, flight_s, seed + 1)
 
@@ -235,7 +248,8 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
                              "steered": link["steered"]["rmse_z_telemetry"]},
         "rmse_z_in_process": {"baseline": ip["baseline"]["rmse_z"], "steered": ip["steered"]["rmse_z"]},
         "steered_vs_in_process": link["steered"]["rmse_z"] / ip["steered"]["rmse_z"],
-        "link_seconds": dur, "setpoints": sent, "ticks": ticks, "latency_samples": int(lat.size),
+        "link_seconds": dur, "longest_run_s": max(rr["summary"]["duration_s"] for rr in runs.values()),
+        "setpoints": sent, "ticks": ticks, "latency_samples": int(lat.size),
         "solver": str(solver), "scheduling": runs["steered"]["summary"].get("scheduling", ""),
         "runs": {k: {key: v["summary"][key] for key in ("rate_hz", "latency_us", "missed_ticks", "max_gap_ms",
                                                         "fallbacks", "fallback_reasons", "telemetry_gaps",
@@ -245,7 +259,9 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         "in_process_steering": ip["steering"],
         "settings": {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s, "seed": seed,
                      "config": str(config), "predictor": predictor,
-                     "rt_priority": rt_priority, "settle_s": 3.0},
+                     "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "settle_s": 3.0},
+        "machine_wakeup_latency": machine,
+        "kernel": {"release": os.uname().release, "preemption": kernel_preemption()},
         "wall_s": time.monotonic() - t_start,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -255,13 +271,30 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     return report
 
 
+def probe_machine(seconds: float, rt_priority: int, cpu_latency_us: int, log=print) -> list[dict]:
+    """Wake-up latency of a 1 kHz SCHED_FIFO sleeper per CPU, without and with the PM QoS request."""
+    from .realtime import measure_wakeup_latency
+
+    rows = []
+    log(f"0. machine: kernel {os.uname().release}, preemption {kernel_preemption()}")
+    log(f"   wake-up latency of a real-time sleeper, {seconds:g} s per CPU, without / with PM QoS")
+    for qos in [None] + ([cpu_latency_us] if cpu_latency_us >= 0 else []):
+        for cpu in sorted(os.sched_getaffinity(0)):
+            r = measure_wakeup_latency(seconds, priority=rt_priority, cpu=cpu, cpu_latency_us=qos)
+            rows.append({"cpu": cpu, "pm_qos_us": qos, **r})
+            log(f"    cpu {cpu}  PM QoS {'-' if qos is None else f'{qos} us':>5}  p99 {r['p99_us']:.0f}  "
+                f"p99.99 {r['p9999_us']:.0f}  max {r['max_us']:.0f} us  >2.5 ms: {r['over_2500us']}")
+    return rows
+
+
 def format_table(r: dict) -> str:
     f = lambda v, fmt: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)  # noqa: E731
     lat = r["latency_us"]
     rows = [
         ("rate", f(r["rate_hz"], "{:.1f} Hz"), "200 Hz"),
         ("latency p50 / p99 / max", f"{lat['p50']:.0f} / {lat['p99']:.0f} / {lat['max']:.0f} us", "p99 <= 1000 us"),
-        ("missed ticks", f"{r['missed_ticks']} in {r['link_seconds']:.0f} s", "0"),
+        ("missed ticks", f"{r['missed_ticks']} in {r['link_seconds']:.0f} s (longest run {r['longest_run_s']:.0f} s)",
+         "0 over 60 s"),
         ("fallbacks (steered run)", str(r["fallbacks"]), ""),
         ("rmse z baseline (link / in-process)",
          f"{f(r['rmse_z']['baseline'], '{:.4f}')} / {f(r['rmse_z_in_process']['baseline'], '{:.4f}')} m", ""),
@@ -271,7 +304,8 @@ def format_table(r: dict) -> str:
     ]
     w = max(len(a) for a, _, _ in rows)
     v = max(len(b) for _, b, _ in rows)
-    lines = ["", f"bridge demo over UDP loopback ({r['scheduling'] or 'best effort'})"]
+    lines = ["", f"bridge demo over UDP loopback ({r['scheduling'] or 'best effort'}; "
+                 f"kernel preemption {r['kernel']['preemption']})"]
     lines += [f"  {a:<{w}}  {b:<{v}}  {c}" for a, b, c in rows]
     return "\n".join(lines)
 
@@ -289,11 +323,15 @@ def main(argv: list[str] | None = None) -> int:
                         "config's [predictor])")
     p.add_argument("--rt-priority", type=int, default=30,
                    help="bridge SCHED_FIFO priority if permitted, vehicle 10 below (0: best effort)")
+    p.add_argument("--cpu-latency-us", type=int, default=0,
+                   help="PM QoS wake-up latency bound both processes hold [us] (-1: none; see firmware_bridge.realtime)")
+    p.add_argument("--probe", type=float, default=4.0,
+                   help="seconds per CPU of the machine wake-up latency probe before the flights (0: skip)")
     p.add_argument("--seed", type=int, default=1)
     a = p.parse_args(argv)
     run_demo(Path(a.out), Path(a.work), collect_s=a.collect, flight_s=a.flight,
              solver=Path(a.solver) if a.solver else None, config=Path(a.config), predictor=a.predictor,
-             rt_priority=a.rt_priority, seed=a.seed,
+             rt_priority=a.rt_priority, cpu_latency_us=a.cpu_latency_us, probe_s=a.probe, seed=a.seed,
              log=lambda s: print(s, flush=True))
     return 0
 

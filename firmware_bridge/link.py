@@ -39,7 +39,6 @@ from pymavlink.dialects.v20 import common as mavlink
 
 __all__ = [
     "mavlink",
-    "set_realtime_priority",
     "LinkError",
     "parse_url",
     "Endpoint",
@@ -59,19 +58,6 @@ _MAX_OUTBUF = 1 << 16
 
 class LinkError(RuntimeError):
     """A transport failed (closed, refused, device gone)."""
-
-
-def set_realtime_priority(priority: int) -> str:
-    """Opt-in SCHED_FIFO for this process (what a companion computer should run its loop with:
-    a sleeping real-time task preempts best-effort load at once instead of waiting out a time
-    slice). Returns a note; never raises (no permission -> stays best effort)."""
-    if priority <= 0:
-        return "best effort"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
-        return f"SCHED_FIFO {priority}"
-    except (AttributeError, PermissionError, OSError) as e:
-        return f"best effort (SCHED_FIFO {priority} refused: {e})"
 
 
 # ----------------------------------------------------------------------------- endpoints

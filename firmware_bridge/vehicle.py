@@ -52,7 +52,8 @@ from ddpc_codegen.sim.params import PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import STANCE, PogoXPlant
 from ddpc_codegen.sim.scenarios import get_scenario
 
-from .link import MavLink, mavlink, set_realtime_priority
+from .link import MavLink, mavlink
+from .realtime import setup_realtime
 from .profiles import (
     ARDUCOPTER_MODES,
     MAV_AUTOPILOT_ARDUPILOTMEGA,
@@ -103,7 +104,10 @@ class VehicleConfig:
             (a link-drop / vehicle-silent test).
         truth_log: write the true state per tick to this .npz at exit.
         params: true robot parameters (default PogoXParams()).
-        rt_priority: >0: SCHED_FIFO at this priority if permitted (steadier real-time pacing).
+        rt_priority: >0: SCHED_FIFO at this priority, memory locked, PM QoS ``cpu_latency_us``
+            held (each if permitted; steadier real-time pacing, see :mod:`.realtime`).
+        cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
+        cpus: pin the vehicle to these CPUs (None: any).
     """
 
     url: str = "udpout:127.0.0.1:14540"
@@ -126,6 +130,8 @@ class VehicleConfig:
     truth_log: str | None = None
     params: PogoXParams | None = None
     rt_priority: int = 0
+    cpu_latency_us: int | None = 0
+    cpus: tuple | None = None
     verbose: bool = False
 
     def __post_init__(self) -> None:
@@ -560,7 +566,8 @@ class SimVehicle:
             signal.signal(signal.SIGINT, self.stop)
             signal.signal(signal.SIGTERM, self.stop)
         self._cmd = [self.params.hover_omega] * 4
-        self.scheduling = set_realtime_priority(self.cfg.rt_priority)
+        rt = setup_realtime(self.cfg.rt_priority, cpus=self.cfg.cpus, cpu_latency_us=self.cfg.cpu_latency_us)
+        self.scheduling = rt.describe()
         # The loop allocates short-lived objects only; collect the young generation often (cheap)
         # and never let a full collection land in the middle of a tick.
         gc.collect()
@@ -572,6 +579,7 @@ class SimVehicle:
             else:
                 self._run_realtime()
         finally:
+            rt.release()
             gc.set_threshold(700, 10, 10)
             gc.unfreeze()
             self._write_truth()
