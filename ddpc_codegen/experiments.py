@@ -131,7 +131,8 @@ def collect(scenario: str, spec: CollectSpec | None = None, *, progress: bool = 
                    excitation=Excitation(amplitude=tuple(amp), min_hold=spec.min_hold, aerial_only=True),
                    noise=spec.noise or None, progress=progress)
     if res.crashed:
-        raise DataError(f"the robot was lost at t={res.t[-1]:.2f} s while collecting {scenario} data; lower the PRBS amplitude")
+        raise DataError(f"the robot was lost while collecting {scenario} data ({res.crash_reason}); "
+                        "lower the PRBS amplitude")
     return res
 
 

@@ -154,7 +154,7 @@ def _cmd_collect(args: argparse.Namespace) -> int:
     )
     if res.crashed:
         print(
-            f"ddpc-codegen collect: the robot was lost at t={res.t[-1]:.2f} s; lower --amplitude",
+            f"ddpc-codegen collect: the robot was lost ({res.crash_reason}); lower --amplitude",
             file=sys.stderr,
         )
         return 1

@@ -39,7 +39,7 @@ from ..control import (
 from ..data import IODataset, prbs
 from .flight_controller import PX4LikeFlightController
 from .params import PogoXParams, SensorNoise
-from .plant import STANCE, PogoXPlant
+from .plant import STANCE, HybridEventError, PogoXPlant
 from .scenarios import FlyingScenario, Scenario, get_scenario
 
 __all__ = ["simulate", "SimResult", "TickContext", "Push", "Excitation"]
@@ -163,7 +163,8 @@ class SimResult:
         setpoint_euler: (N, 3) commanded roll, pitch, yaw.
         touchdowns, liftoffs: event times [s] located by the plant.
         extras: scenario-specific logs (flying: "x_des", "z_des" of the ellipse).
-        crashed: True if the run was stopped early (tilt > 70 deg, body near the ground, NaN).
+        crashed: True if the robot was lost (tilt > 70 deg, body near the ground, NaN state, or the
+            hybrid integration stuck in foot chattering); crash_reason says which, and when.
     """
 
     scenario: str
@@ -192,6 +193,7 @@ class SimResult:
     scenario_obj: Any
     seed: int
     crashed: bool = False
+    crash_reason: str = ""
     n_bottom_outs: int = 0
     wall_time: float = 0.0
     extras: dict[str, np.ndarray] = field(default_factory=dict)
@@ -413,6 +415,8 @@ def simulate(
     touchdowns: list[float] = []
     liftoffs: list[float] = []
     crashed = False
+    crash_reason = ""
+    stuck = ""
 
     bar = None
     if progress:
@@ -489,17 +493,27 @@ def simulate(
             if step_count % rate_every == 0:
                 cmd = fc.rate_update(s[10:13], h * rate_every)
             ext = _external(pushes_l, plant.t, s) if pushes_l else (0.0,) * 6
-            for ev in plant.step(h, cmd, ext):
+            try:
+                events = plant.step(h, cmd, ext)
+            except HybridEventError as exc:
+                stuck = str(exc)
+                break
+            for ev in events:
                 (touchdowns if ev.kind == "touchdown" else liftoffs).append(ev.t)
             step_count += 1
             buf.append((plant.t, plant.state.tolist(), plant.mode))
         k_done = k + 1
         if bar is not None and (k % 50 == 0 or k == n_ticks - 1):
             bar.update(k + 1 - bar.n)
-        if _lost(plant):
+        if stuck:
+            crashed, crash_reason = True, crash_reason or stuck
+            break  # the plant cannot go on, whatever stop_on_crash says
+        lost = _lost(plant)
+        if lost and not crashed:
             crashed = True
-            if stop_on_crash:
-                break
+            crash_reason = f"{lost} at t={plant.t:.3f} s"
+        if lost and stop_on_crash:
+            break
     if bar is not None:
         bar.close()
 
@@ -536,6 +550,7 @@ def simulate(
         scenario_obj=sc,
         seed=seed,
         crashed=crashed,
+        crash_reason=crash_reason,
         n_bottom_outs=plant.n_bottom_outs,
         wall_time=time.perf_counter() - t_wall,
         extras=extras,
@@ -566,12 +581,15 @@ def _external(pushes: list[Push], t: float, s: np.ndarray) -> tuple[float, ...]:
     return (fx, fy, fz, tx, ty, tz)
 
 
-def _lost(plant: PogoXPlant) -> bool:
+def _lost(plant: PogoXPlant) -> str:
+    """Why the robot is lost ("" while it is not)."""
     s = plant.state
     if not np.all(np.isfinite(s)):
-        return True
+        return "non-finite state"
     qx, qy = s[7], s[8]
     b3z = 1.0 - 2.0 * (qx * qx + qy * qy)
     if b3z < math.cos(math.radians(70.0)):
-        return True
-    return bool(s[2] < 0.1)
+        return "tilt above 70 deg"
+    if s[2] < 0.1:
+        return "body below 0.1 m"
+    return ""

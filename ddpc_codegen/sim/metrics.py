@@ -64,6 +64,7 @@ def compute_metrics(res: "SimResult") -> dict[str, Any]:
         "scenario": res.scenario,
         "duration": float(res.t[-1] + res.dt) if res.n else 0.0,
         "crashed": bool(res.crashed),
+        "crash_reason": res.crash_reason,
         "wall_time_s": float(res.wall_time),
         "controller_model_mass": float(res.config.model_mass),
         "true_mass": float(res.params.mass),

@@ -48,10 +48,15 @@ from scipy.optimize import brentq
 
 from .params import PogoXParams
 
-__all__ = ["AIR", "STANCE", "PogoXPlant", "PlantEvent", "rotor_geometry"]
+__all__ = ["AIR", "STANCE", "PogoXPlant", "PlantEvent", "HybridEventError", "rotor_geometry"]
 
 AIR, STANCE = 0, 1
 N_STATE = 19
+
+
+class HybridEventError(RuntimeError):
+    """The hybrid integration cannot advance: touchdown / liftoff keep re-triggering within one
+    step (Zeno chattering of the foot on the ground), i.e. the robot is no longer hopping."""
 
 
 @dataclass(frozen=True)
@@ -346,8 +351,9 @@ class PogoXPlant:
             remaining = remaining - theta
             if remaining <= 1e-15:
                 break
-        else:  # pragma: no cover - defensive
-            raise RuntimeError(f"too many hybrid events within one step at t={self.t:.6f}")
+        else:
+            raise HybridEventError(f"too many hybrid events within one step at t={self.t:.6f} s "
+                                   f"({len(events)} touchdowns / liftoffs): the foot is chattering on the ground")
         self.state = np.array(s)
         self.t += h
         if self.mode == STANCE:

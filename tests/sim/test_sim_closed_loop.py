@@ -156,3 +156,29 @@ def test_seeded_runs_are_deterministic():
     for name in ("state", "u", "y", "y_des", "phase", "setpoint_q", "touchdowns", "liftoffs"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     assert not np.array_equal(a.y, c.y)
+
+
+def test_lost_robot_is_reported_with_reason_and_time():
+    # A hard sideways shove at the body top tips the robot over: the run ends, crashed, saying why.
+    r = simulate("flying", 6.0, pushes=[Push(t=4.0, force=(0.0, 400.0, 0.0), duration=0.2, point=(0.0, 0.0, 0.2))])
+    assert r.crashed and r.t[-1] < 5.9
+    assert r.crash_reason.startswith(("tilt above 70 deg at t=", "body below 0.1 m at t="))
+    assert r.metrics()["crash_reason"] == r.crash_reason
+
+
+def test_hybrid_event_chattering_ends_the_run_as_a_crash(monkeypatch):
+    # The plant refusing to advance (foot chattering) must not escape simulate() as an exception:
+    # the run ends there, crashed, with the plant's explanation.
+    from ddpc_codegen.sim import plant as plant_mod
+
+    step = plant_mod.PogoXPlant.step
+
+    def failing_step(self, h, cmd, ext=None):
+        if self.t >= 2.0:
+            raise plant_mod.HybridEventError(f"too many hybrid events within one step at t={self.t:.6f} s")
+        return step(self, h, cmd, ext) if ext is not None else step(self, h, cmd)
+
+    monkeypatch.setattr(plant_mod.PogoXPlant, "step", failing_step)
+    r = simulate("hopping", 5.0, stop_on_crash=False)
+    assert r.crashed and "too many hybrid events" in r.crash_reason
+    assert 1.99 <= r.t[-1] <= 2.01
