@@ -28,7 +28,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "data"),
     "horizon": ("t_ini", "t_f", "dt"),
     "signals": ("inputs", "outputs", "input_units", "output_units"),
-    "cost": ("Q", "R", "R_mode", "lambda_sigma"),
+    "cost": ("Q", "R", "R_mode", "R_du", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
     "predictor": ("method", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
@@ -86,7 +86,8 @@ class SteeringConfig:
     Shapes: Q (p, p), R (m, m) per time step (expanded block-diagonally over Tf);
     u_min/u_max/du_max (m,), y_min/y_max (p,) in the signals' units (±inf = unbounded).
     ``R_mode``: ``absolute`` penalises ||u||_R (the paper), ``offset`` ||u - u_nom||_R,
-    ``increment`` ||Δu||_R with Δu_0 = u_0 - u_ini[-1].
+    ``increment`` ||Δu||_R with Δu_0 = u_0 - u_ini[-1]. ``R_du`` (m, m; default 0) adds a rate
+    penalty ||Δu||_R_du on top of any mode, e.g. a smooth *and* small steering offset.
     """
 
     t_ini: int
@@ -97,6 +98,7 @@ class SteeringConfig:
     R: np.ndarray
     lambda_sigma: float = 1e3
     R_mode: str = "offset"
+    R_du: np.ndarray | None = None
     u_min: np.ndarray | None = None
     u_max: np.ndarray | None = None
     y_min: np.ndarray | None = None
@@ -124,6 +126,7 @@ class SteeringConfig:
         m, p = self.m, self.p
         set_("Q", _weight(self.Q, p, "[cost] Q", src))
         set_("R", _weight(self.R, m, "[cost] R", src))
+        set_("R_du", np.zeros((m, m)) if self.R_du is None else _weight(self.R_du, m, "[cost] R_du", src))
         if self.R_mode not in R_MODES:
             raise _err(src, "[cost] R_mode", f"must be one of {list(R_MODES)}; got {self.R_mode!r}")
         ls = self.lambda_sigma
@@ -224,6 +227,7 @@ class SteeringConfig:
             Q=co["Q"],
             R=co["R"],
             R_mode=co.get("R_mode", "offset"),
+            R_du=co.get("R_du"),
             lambda_sigma=co.get("lambda_sigma", 1e3),
             u_min=bd.get("u_min"),
             u_max=bd.get("u_max"),
@@ -249,6 +253,8 @@ class SteeringConfig:
             "input_names": list(self.input_names), "output_names": list(self.output_names),
             "predictor": {k: v for k, v in self.predictor.items()},
             "codegen": {k: v for k, v in self.codegen.items()},
+            # only when used: configs without a rate penalty keep their digest (and their solvers)
+            **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
         }
 
     @property

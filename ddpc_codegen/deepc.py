@@ -49,6 +49,8 @@ class DeePCProblem:
         Rb = np.kron(np.eye(Tf), c.R)
         D = np.eye(nu) - np.eye(nu, k=-m)
         Ru = D.T @ Rb @ D if c.R_mode == "increment" else Rb
+        Rdu = np.kron(np.eye(Tf), c.R_du)
+        Ru = Ru + D.T @ Rdu @ D
         P = sp.block_diag([self.lambda_g * sp.eye(N), 2 * Ru, 2 * Qb, 2 * c.lambda_sigma * sp.eye(ns)], format="csc")
         I = sp.eye
         Z = lambda a, b: sp.csc_matrix((a, b))  # noqa: E731
@@ -63,7 +65,7 @@ class DeePCProblem:
                         [Z(nu, N), sp.csc_matrix(D), Z(nu, ny), Z(nu, ns)]], format="csc")
         self._A = sp.vstack([Aeq, Abox], format="csc")
         self._P = sp.triu(P, format="csc")
-        self._Qb, self._Rb, self._D = Qb, Rb, D
+        self._Qb, self._Rb, self._D, self._Rdu = Qb, Rb, D, Rdu
         self._solver = None
 
     def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
@@ -85,6 +87,10 @@ class DeePCProblem:
             d0 = np.zeros(nu)
             d0[:m] = u_prev
             q[N : N + nu] = -2 * self._D.T @ self._Rb @ d0
+        if np.any(c.R_du):
+            d0 = np.zeros(nu)
+            d0[:m] = u_prev
+            q[N : N + nu] += -2 * self._D.T @ self._Rdu @ d0
         beq = np.concatenate([ui, yi, np.zeros(nu), np.zeros(ny)])
         d0 = np.zeros(nu)
         d0[:m] = u_prev

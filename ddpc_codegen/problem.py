@@ -146,6 +146,9 @@ class SteeringProblem:
             u_prev = u_ini[m * (Ti - 1) :]
             ru = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_prev, ca.DM.zeros(self.n_u - m))
         J = J + ca.mtimes([ru.T, Rb, ru])
+        if np.any(c.R_du):
+            dU = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
+            J = J + ca.mtimes([dU.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), dU])
 
         # Simple bounds on u (constant) and general rows: predicted y and increments (only rows that bound something).
         self.lb_u = np.tile(c.u_min, Tf).astype(float)

@@ -42,6 +42,15 @@ def test_minimal_config_defaults(tmp_path):
     assert cfg.predictor["method"] == "pem"
 
 
+def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_path):
+    a = _load(tmp_path, BASE)
+    assert np.array_equal(a.R_du, np.zeros((2, 2))) and "R_du" not in a.to_dict()
+    b = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_du = [0.0, 0.0]"))
+    c = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_du = [0.5, 0.0]"))
+    assert a.digest == b.digest != c.digest
+    assert c.to_dict()["R_du"] == [[0.5, 0.0], [0.0, 0.0]]
+
+
 def test_full_matrix_weight(tmp_path):
     cfg = _load(tmp_path, BASE.replace("R = [0.1, 0.2]", "R = [[1.0, 0.1], [0.1, 2.0]]"))
     assert cfg.R[0, 1] == 0.1
@@ -71,6 +80,7 @@ def test_digest_ignores_codegen_but_not_weights(tmp_path):
         (('name = "t"', 'name = "t"\n[predictor]\nmethod = "dmd"'), "[predictor] method must be one of ['pem', 'lsq']; got 'dmd'"),
         (('outputs = ["c"]', "outputs = []"), "[signals] outputs must be a non-empty list"),
         (("[cost]", "[costs]"), "'costs' is not a known top-level key"),
+        (("Q = [1.0]", "Q = [1.0]\nR_du = [1.0]"), "[cost] R_du must have 2 entries"),
     ],
 )
 def test_bad_config_messages_name_key_and_value(tmp_path, edit, message):

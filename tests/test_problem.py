@@ -43,6 +43,8 @@ def _solve_direct(prob: SteeringProblem, u_ini, y_ini, y_des, u_nom):
     d0 = np.r_[np.ravel(u_ini)[-M:], np.zeros(nu - M)]
     ru = {"absolute": u, "offset": u - np.ravel(u_nom), "increment": ca.mtimes(D, u) - d0}[c.R_mode]
     J += ca.mtimes([ru.T, np.kron(np.eye(TF), c.R), ru])
+    du = ca.mtimes(D, u) - d0
+    J += ca.mtimes([du.T, np.kron(np.eye(TF), c.R_du), du])
     g = ca.vertcat(y - pr.Gy_w @ w - ca.mtimes(pr.Gy_u, u), s - pr.Gs_w @ w - ca.mtimes(pr.Gs_u, u),
                    u, y, ca.mtimes(D, u) - d0)
     lb = np.r_[np.zeros(ny + ns), np.tile(c.u_min, TF), np.tile(c.y_min, TF), -np.tile(c.du_max, TF)]
@@ -69,6 +71,24 @@ def test_condensed_equals_direct_ddpc_flying(plant, mode):
         Az = prob.A @ res.u.ravel()  # [I; A_g] z
         n_active += bool(np.any(np.isclose(Az, l, atol=1e-8) | np.isclose(Az, ub, atol=1e-8)))
     assert 5 <= n_active < 20  # both active and inactive bound draws were exercised
+
+
+@pytest.mark.parametrize("mode", ["offset", "absolute"])
+def test_rate_penalty_on_top_of_any_mode_equals_direct(plant, mode):
+    # R_du adds ||du||^2_R_du to the mode's penalty; checked against the uncondensed QP.
+    sys_, ds = plant
+    prob = SteeringProblem(fit_predictor(ds, TI, TF, "pem"), _cfg(mode, R_du=[3.0, 0.5]))
+    plain = SteeringProblem(prob.predictor, _cfg(mode))
+    rng = np.random.default_rng(17)
+    for k in range(10):
+        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
+        res = prob.solve(*args, solver="exact")
+        assert res.ok
+        assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    # The penalty does what it says: smaller steps than without it (same parameters).
+    args = _params(sys_, np.random.default_rng(1), scale=0.1)
+    du = lambda r: np.diff(np.vstack([args[0][-1:], r.u]), axis=0)  # noqa: E731
+    assert np.linalg.norm(du(prob.solve(*args, solver="exact"))) < np.linalg.norm(du(plain.solve(*args, solver="exact")))
 
 
 def test_fast_path_is_exact_and_kkt_holds(plant):
@@ -120,10 +140,11 @@ def test_qp_matrices_are_constant_and_vectors_affine(plant):
     assert prob.n_theta == (M + P) * TI + P * TF + M * TF
 
 
-def test_deepc_matches_condensed_on_exact_data(plant):
+@pytest.mark.parametrize("extra", [{}, {"R_du": [2.0, 1.0]}])
+def test_deepc_matches_condensed_on_exact_data(plant, extra):
     sys_, full = plant
     ds = IODataset(full.u[0][:220], full.y[0][:220], full.dt)  # DeePC is dense in g: keep it small
-    cfg = _cfg("increment", lambda_sigma=1e8)
+    cfg = _cfg("increment", lambda_sigma=1e8, **extra)
     prob = SteeringProblem(fit_predictor(ds, TI, TF, "lsq"), cfg)
     deepc = DeePCProblem(ds, cfg, lambda_g=1e-6)
     rng = np.random.default_rng(21)
