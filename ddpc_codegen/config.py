@@ -25,15 +25,18 @@ _PREDICTOR_METHODS = ("pem", "lsq")
 
 # section -> allowed keys (unknown keys are errors: a typo must not silently fall back to a default)
 _SCHEMA: dict[str, tuple[str, ...]] = {
-    "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "data"),
+    "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data"),
     "horizon": ("t_ini", "t_f", "dt"),
     "signals": ("inputs", "outputs", "input_units", "output_units"),
     "cost": ("Q", "R", "R_mode", "R_du", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
     "predictor": ("method", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
+    "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online"),
     "data": ("dataset",),
 }
+# [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.
+_ART_INT_MIN = {"t_d": 1, "t_a": 1, "t_d_online": 0, "min_ascent": 1, "ground_margin": 0}
 
 
 def _err(src: str, key: str, msg: str) -> ConfigError:
@@ -112,6 +115,7 @@ class SteeringConfig:
     output_units: tuple[str, ...] = ()
     predictor: dict = field(default_factory=dict)
     codegen: dict = field(default_factory=dict)
+    artificial_io: dict = field(default_factory=dict)
     dataset: str | None = None
     source: str = "<config>"
 
@@ -174,6 +178,17 @@ class SteeringConfig:
         if "march_native" in cg and not isinstance(cg["march_native"], bool):
             raise _err(src, "[codegen] march_native", f"must be true or false; got {cg['march_native']!r}")
         set_("codegen", cg)
+        art = dict(self.artificial_io)
+        for k, v in art.items():
+            if k in _ART_INT_MIN:
+                if isinstance(v, bool) or not isinstance(v, int) or v < _ART_INT_MIN[k]:
+                    raise _err(src, f"[artificial_io] {k}", f"must be an integer >= {_ART_INT_MIN[k]}; got {v!r}")
+            elif k in _SCHEMA["artificial_io"]:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+                    raise _err(src, f"[artificial_io] {k}", f"must be a number >= 0; got {v!r}")
+            else:
+                raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
+        set_("artificial_io", art)
 
     # ------------------------------------------------------------------ loading
     @classmethod
@@ -237,6 +252,7 @@ class SteeringConfig:
             name=str(raw.get("name", Path(source).stem if source != "<config>" else "steering")),
             predictor=raw.get("predictor", {}),
             codegen=raw.get("codegen", {}),
+            artificial_io=raw.get("artificial_io", {}),
             dataset=raw.get("data", {}).get("dataset"),
             source=source,
         )
@@ -255,6 +271,7 @@ class SteeringConfig:
             "codegen": {k: v for k, v in self.codegen.items()},
             # only when used: configs without a rate penalty keep their digest (and their solvers)
             **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
+            **({"artificial_io": dict(self.artificial_io)} if self.artificial_io else {}),
         }
 
     @property

@@ -167,7 +167,8 @@ def split_hopping(raw: IODataset) -> tuple[IODataset, IODataset]:
 # ----------------------------------------------------------------------------- setup
 @dataclass(frozen=True)
 class ArtificialIOSpec:
-    """Artificial ground-phase IO settings (hopping; see :mod:`ddpc_codegen.hopping`).
+    """Artificial ground-phase IO settings (hopping; see :mod:`ddpc_codegen.hopping`); the config's
+    ``[artificial_io]`` table sets any of them (validated by :class:`SteeringConfig`).
 
     Attributes:
         t_d, t_a: real descent / ascent samples around each recorded ground phase that the offline
@@ -253,7 +254,7 @@ def build_setup(
         raw = raw.to_dataset("none", t_min=getattr(raw.scenario_obj, "settle_time", 0.0) if scenario == "flying" else 0.0)
     info["raw_samples"] = raw.n_samples
     art = None
-    art_spec = art_spec or ArtificialIOSpec()
+    art_spec = art_spec or ArtificialIOSpec(**cfg.artificial_io)
     if scenario == "flying":
         ds = raw
         if save_data and cfg.dataset:

@@ -51,6 +51,16 @@ def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_
     assert c.to_dict()["R_du"] == [[0.5, 0.0], [0.0, 0.0]]
 
 
+def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
+    from ddpc_codegen.experiments import ArtificialIOSpec
+
+    cfg = _load(tmp_path, BASE + "\n[artificial_io]\nt_a = 24\nmin_ascent = 6\nnoise_level_online = 0.002\n")
+    spec = ArtificialIOSpec(**cfg.artificial_io)
+    assert (spec.t_a, spec.min_ascent, spec.noise_level_online) == (24, 6, 0.002)
+    assert spec.t_d == ArtificialIOSpec().t_d  # unset keys keep their defaults
+    assert _load(tmp_path, BASE).digest != cfg.digest
+
+
 def test_full_matrix_weight(tmp_path):
     cfg = _load(tmp_path, BASE.replace("R = [0.1, 0.2]", "R = [[1.0, 0.1], [0.1, 2.0]]"))
     assert cfg.R[0, 1] == 0.1
@@ -81,6 +91,10 @@ def test_digest_ignores_codegen_but_not_weights(tmp_path):
         (('outputs = ["c"]', "outputs = []"), "[signals] outputs must be a non-empty list"),
         (("[cost]", "[costs]"), "'costs' is not a known top-level key"),
         (("Q = [1.0]", "Q = [1.0]\nR_du = [1.0]"), "[cost] R_du must have 2 entries"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nt_a = 0'), "[artificial_io] t_a must be an integer >= 1; got 0"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nmin_ascent = 2.5'), "[artificial_io] min_ascent must be an integer >= 1; got 2.5"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nnoise_level = -1e-3'), "[artificial_io] noise_level must be a number >= 0"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nt_dd = 3'), "[artificial_io] t_dd is not a known key"),
     ],
 )
 def test_bad_config_messages_name_key_and_value(tmp_path, edit, message):
