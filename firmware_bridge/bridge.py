@@ -3,7 +3,7 @@ SET_ATTITUDE_TARGET out, at 200 Hz (``ddpc-bridge``).
 
 One tick (event-driven: it runs as soon as every telemetry stream has a new sample)::
 
-    newest telemetry (NED/FRD -> ENU/FLU)                -> MeasuredState (t = trajectory time)
+    newest telemetry (NED/FRD -> ENU/FLU -> trajectory frame) -> MeasuredState (t = trajectory time)
     r_nom = controller.nominal_reference(state)             stage (a)
     u     = steer: ReferenceSteerer.step(y_des, u_nom)      the generated solver, with fallback
             passthrough: r_nom                              the model-based controller alone
@@ -64,7 +64,7 @@ from ddpc_codegen.steering import ReferenceSteerer
 from .link import CommandTracker, MavLink, mavlink
 from .realtime import RealtimeSetup, setup_realtime
 from .profiles import ArduPilotProfile, Profile, make_profile
-from .telemetry import TelemetryState, swap_frames
+from .telemetry import TelemetryState, TrajectoryFrame, swap_frames
 from .ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
@@ -128,6 +128,9 @@ class BridgeConfig:
         inject_solver_failure: (first solve index, count[, "fail" | "nan"]) fault injection for tests.
         controller: ControllerConfig (default: :func:`default_controller_config`).
         trajectory: EllipseTrajectory (default: the controller's default ellipse).
+        frame: "start" (default: the trajectory starts where the robot is, along its heading, when
+            it enters off-board; no turn, no jump) or "world" (trajectory coordinates are the
+            autopilot's local ENU, commanded heading east). See :class:`.telemetry.TrajectoryFrame`.
         rt_priority: >0: run the loop SCHED_FIFO at this priority, with memory locked and a
             ``cpu_latency_us`` PM QoS request held (each if permitted; see :mod:`.realtime`).
         cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
@@ -172,6 +175,7 @@ class BridgeConfig:
     inject_solver_failure: tuple | None = None
     controller: ControllerConfig | None = None
     trajectory: EllipseTrajectory | None = None
+    frame: str = "start"
     rt_priority: int = 0
     cpu_latency_us: int | None = 0
     cpus: tuple | None = None
@@ -188,6 +192,8 @@ class BridgeConfig:
             raise ValueError("rate_hz and max_age must be positive")
         if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
             raise ValueError("need 0 <= thrust_min < thrust_max <= 1")
+        if self.frame not in ("start", "world"):
+            raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
 
 
 class FaultInjectingSolver:
@@ -274,6 +280,7 @@ class Bridge:
                                     target_system=c.target_system, target_component=c.target_component)
         self.tracker = CommandTracker(self.link)
         self.telem = TelemetryState(c.attitude_stream, c.position_stream)
+        self.frame = TrajectoryFrame(c.frame, anchor=(self.ctrl.trajectory.start_point()[0], 0.0))
         self.rec = TickRecorder(self.m, self.p, capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
         self.tilt_max = math.radians(c.max_tilt_deg)
         self._exc = None
@@ -586,13 +593,15 @@ class Bridge:
             self._was_engaged_ever = True
             if self.steerer is not None:
                 self.steerer.reset()
-            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {c.mode}")
+            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {c.mode}; {self.frame.describe()}")
         elif not engaged and self._engaged:
             self._traj_t0 = None
             self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
         self._engaged = engaged
         t_traj = stamp - self._traj_t0 if self._traj_t0 is not None else 0.0
-        state = tel.measured_state(t_traj)
+        if not engaged and fresh:
+            self.frame.capture(tel.position, float(tel.euler[2]))  # frozen from the engagement on
+        state = self.frame.to_trajectory(tel.measured_state(t_traj))
         ctrl = self.ctrl
         r_nom = ctrl.nominal_reference(state)
         y = ctrl.outputs(state)
@@ -711,8 +720,8 @@ class Bridge:
         return self._exc[j]
 
     def _level_setpoint(self) -> tuple[tuple, float, float]:
-        """Level attitude (yaw as the controller commands it) and hover thrust / zero climb rate."""
-        q = swap_frames(1.0, 0.0, 0.0, 0.0)
+        """Level attitude at the trajectory frame's heading and hover thrust / zero climb rate."""
+        q = swap_frames(*self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
         thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
         return q, thrust, self.profile.hover_field(thrust)
 
@@ -733,7 +742,7 @@ class Bridge:
         if thrust < lo or thrust > hi:
             self.counts["thrust_clamped"] += 1
             thrust = min(max(thrust, lo), hi)
-        return swap_frames(*q_enu), thrust, (roll, pitch, yaw)
+        return swap_frames(*self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
 
     def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
         lk = self.link

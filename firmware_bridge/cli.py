@@ -124,6 +124,9 @@ def build_bridge_parser() -> argparse.ArgumentParser:
                    help="stop streaming after this long stale so the autopilot's offboard-loss failsafe acts [s] "
                         "(0: stream forever)")
     g.add_argument("--link-timeout", type=float, default=3.0, help="no heartbeat for this long = link lost [s]")
+    g.add_argument("--frame", choices=("start", "world"), default="start",
+                   help="start: fly the trajectory from where the robot is, along its heading, when it enters "
+                        "off-board (no turn, no jump); world: trajectory in the autopilot's local ENU, heading east")
     g.add_argument("--max-tilt-deg", type=float, default=30.0, help="clamp on commanded roll and pitch")
     g.add_argument("--thrust-min", type=float, default=0.0)
     g.add_argument("--thrust-max", type=float, default=1.0)
@@ -183,7 +186,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
-        inject_solver_failure=a.inject_solver_failure, controller=ctrl, trajectory=traj, rt_priority=a.rt_priority,
+        inject_solver_failure=a.inject_solver_failure, controller=ctrl, trajectory=traj, frame=a.frame, rt_priority=a.rt_priority,
         cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
         verbose=a.verbose)
 
@@ -250,6 +253,9 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-noise", action="store_true", help="no sensor noise (the delay stays)")
     p.add_argument("--start", choices=("hover", "disarmed"), default="hover",
                    help="hover: armed in HOLD at the start point; disarmed: parked there")
+    p.add_argument("--start-offset", type=_floats, default=(0.0, 0.0), metavar="X,Y",
+                   help="start this far from the trajectory's start point [m, local ENU]")
+    p.add_argument("--start-yaw-deg", type=float, default=0.0, help="initial heading [deg, ENU: 0 = east, 90 = north]")
     p.add_argument("--com-of-loss-t", type=float, default=1.0, help="off-board loss timeout [s] (PX4 COM_OF_LOSS_T)")
     p.add_argument("--loss-action", choices=("hold", "land"), default="hold", help="failsafe after off-board loss")
     p.add_argument("--guid-options", type=int, default=0, help="ArduPilot GUID_OPTIONS (8: thrust is a thrust)")
@@ -272,6 +278,7 @@ def vehicle_main(argv: list[str] | None = None) -> int:
         cfg = VehicleConfig(url=a.connection, baud=a.baud, sysid=a.sysid,
                             compid=a.compid, autopilot=a.autopilot, lockstep=a.lockstep,
                             lockstep_timeout=a.lockstep_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
+                            start_offset=a.start_offset, start_yaw=math.radians(a.start_yaw_deg),
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
                             rt_priority=a.rt_priority, cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,

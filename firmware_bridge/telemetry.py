@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ddpc_codegen.control import MeasuredState, euler_from_quat
+from ddpc_codegen.control import MeasuredState, euler_from_quat, quat_from_euler, quat_multiply
 
 __all__ = [
     "swap_frames",
@@ -193,3 +193,59 @@ def _rotate(q, v) -> np.ndarray:
     cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
     dx, dy, dz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
     return np.array([vx + 2 * (w * cx + dx), vy + 2 * (w * cy + dy), vz + 2 * (w * cz + dz)])
+
+
+class TrajectoryFrame:
+    """The controller's frame versus the autopilot's local ENU frame.
+
+    The controller flies its trajectory in a frame whose x axis is the robot's heading (yaw 0)
+    and whose start point is where the robot is. ``"start"`` makes that true on a real robot:
+    while the bridge is not engaged, :meth:`capture` follows the vehicle (heading ``yaw0`` and
+    horizontal position), and at engagement the frame freezes, so the robot neither turns nor
+    jumps when it enters off-board; the trajectory's start point ``anchor`` (x, y) maps to where
+    it was. ``"world"`` uses the autopilot's frame as is (the trajectory's coordinates are local
+    ENU positions and the commanded heading is east). Heights are never shifted.
+    """
+
+    def __init__(self, mode: str = "start", anchor: tuple[float, float] = (0.0, 0.0)) -> None:
+        if mode not in ("start", "world"):
+            raise ValueError(f"frame must be 'start' or 'world'; got {mode!r}")
+        self.mode = mode
+        self.anchor = np.asarray(anchor, dtype=float)
+        self.origin = self.anchor.copy()  # local ENU (x, y) that maps to the anchor
+        self.yaw0 = 0.0
+        self._c, self._s = 1.0, 0.0
+        self._q_yaw = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def capture(self, position: np.ndarray, yaw: float) -> None:
+        """Follow the vehicle (call while not engaged): position (3,) local ENU [m], yaw ENU [rad]."""
+        if self.mode != "start":
+            return
+        self.origin = np.asarray(position[:2], dtype=float).copy()
+        self.yaw0 = float(yaw)
+        self._c, self._s = math.cos(self.yaw0), math.sin(self.yaw0)
+        self._q_yaw = quat_from_euler(0.0, 0.0, self.yaw0)
+
+    def to_trajectory(self, st: MeasuredState) -> MeasuredState:
+        """A local-ENU state in the trajectory frame (in place; returns it)."""
+        if self.mode == "world":
+            return st
+        c, s = self._c, self._s
+        dx, dy = st.position[0] - self.origin[0], st.position[1] - self.origin[1]
+        st.position[0], st.position[1] = self.anchor[0] + c * dx + s * dy, self.anchor[1] - s * dx + c * dy
+        vx, vy = st.velocity[0], st.velocity[1]
+        st.velocity[0], st.velocity[1] = c * vx + s * vy, -s * vx + c * vy
+        st.euler[2] = wrap_pi(st.euler[2] - self.yaw0)
+        return st
+
+    def to_world(self, q_enu) -> np.ndarray:
+        """An attitude (w, x, y, z) body FLU -> trajectory frame, as body FLU -> local ENU."""
+        if self.mode == "world":
+            return np.asarray(q_enu, dtype=float)
+        return quat_multiply(self._q_yaw, q_enu)
+
+    def describe(self) -> str:
+        if self.mode == "world":
+            return "frame world (local ENU)"
+        return (f"frame start: heading {math.degrees(self.yaw0):.1f} deg ENU, start point at "
+                f"({self.origin[0]:.2f}, {self.origin[1]:.2f}) m")

@@ -95,6 +95,9 @@ class VehicleConfig:
         scenario: where the vehicle starts (the scenario's start point; "flying").
         seed, noise: sensor-noise seed and switch (the simulator's SensorNoise defaults).
         start: "hover" (armed, HOLD at the start point) or "disarmed" (parked at the start point).
+        start_offset: (x, y) added to the scenario's start point [m, local ENU] (a robot that is
+            not where the trajectory starts). start_yaw: initial heading [rad, ENU: 0 = east];
+            the vehicle's own HOLD / LAND keep the heading they start with.
         com_of_loss_t: off-board setpoint-loss timeout [s] (PX4 COM_OF_LOSS_T).
         loss_action: failsafe after the loss: "hold" or "land".
         guid_options: ArduPilot GUID_OPTIONS (bit 3: thrust field is a thrust, else a climb rate).
@@ -121,6 +124,8 @@ class VehicleConfig:
     seed: int = 0
     noise: bool = True
     start: str = "hover"
+    start_offset: tuple = (0.0, 0.0)
+    start_yaw: float = 0.0
     com_of_loss_t: float = 1.0
     loss_action: str = "hold"
     guid_options: int = 0
@@ -139,6 +144,11 @@ class VehicleConfig:
             raise ValueError(f"autopilot must be 'px4' or 'ardupilot'; got {self.autopilot!r}")
         if self.start not in ("hover", "disarmed"):
             raise ValueError(f"start must be 'hover' or 'disarmed'; got {self.start!r}")
+        off = tuple(float(v) for v in self.start_offset)
+        if len(off) != 2 or not all(math.isfinite(v) for v in off):
+            raise ValueError(f"start_offset must be two finite numbers (x, y) [m]; got {self.start_offset!r}")
+        if not math.isfinite(self.start_yaw):
+            raise ValueError(f"start_yaw must be finite; got {self.start_yaw!r}")
         if self.loss_action not in (MODE_HOLD, MODE_LAND):
             raise ValueError(f"loss_action must be 'hold' or 'land'; got {self.loss_action!r}")
 
@@ -157,7 +167,8 @@ class SimVehicle:
         self.plant = PogoXPlant(p)
         sc = get_scenario(c.scenario)
         self.start_position = np.array(sc.initial_position(p), dtype=float)
-        self.plant.reset(self.start_position)
+        self.start_position[:2] += np.asarray(c.start_offset, dtype=float)
+        self.plant.reset(self.start_position, quaternion=quat_from_euler(0.0, 0.0, float(c.start_yaw)))
         self.fc = PX4LikeFlightController(p)
         self.att_every = max(1, int(round(p.fc.rate_hz / p.fc.att_hz)))
         self.rate_every = max(1, int(round(1.0 / (p.fc.rate_hz * self.h))))
@@ -173,6 +184,7 @@ class SimVehicle:
         self.ardu_mode = ARDUCOPTER_MODES["LOITER"]  # what HEARTBEAT says on ArduPilot
         self.px4_mode = (PX4_MAIN["AUTO"], PX4_AUTO_SUB["LOITER"])
         self.hold_point = self.start_position.copy()
+        self.hold_yaw = float(c.start_yaw)
         self.com_of_loss_t = float(c.com_of_loss_t)
         self.guid_options = int(c.guid_options)
         self._landed_since: float | None = None
@@ -240,7 +252,7 @@ class SimVehicle:
 
     def _set_mode(self, mode: str, px4: tuple[int, int] | None = None, ardu: int | None = None, why: str = "") -> None:
         if mode == MODE_HOLD:
-            self.hold_point = self.plant.state[0:3].copy()
+            self._hold_here()
         if mode == MODE_LAND:
             self._landed_since = None
         self.mode = mode
@@ -254,12 +266,16 @@ class SimVehicle:
         self._event(f"mode {self.mode_name()}" + (f" ({why})" if why else ""))
         self._send_heartbeat()  # tell the companion at once, not at the next 1 Hz beat
 
+    def _hold_here(self) -> None:
+        self.hold_point = self.plant.state[0:3].copy()
+        self.hold_yaw = float(euler_from_quat(self.plant.state[6:10])[2])
+
     def _set_armed(self, armed: bool, why: str = "") -> None:
         if armed == self.armed:
             return
         self.armed = armed
         if armed and self.mode != MODE_OFFBOARD:
-            self.hold_point = self.plant.state[0:3].copy()
+            self._hold_here()
         self._event(("armed" if armed else "disarmed") + (f" ({why})" if why else ""))
         self._send_heartbeat()
 
@@ -519,11 +535,14 @@ class SimVehicle:
         else:
             az = 6.0 * (self.hold_point[2] - p[2]) - 4.0 * v[2]
         lim = math.tan(math.radians(20.0)) * (g + az)
-        ax, ay = max(-lim, min(lim, ax)), max(-lim, min(lim, ay))
-        pitch = math.atan2(ax, g + az)
-        roll = math.atan2(-ay * math.cos(pitch), g + az)
+        # World accelerations in the heading frame (forward, left): pitch drives forward, roll left.
+        cy, sy = math.cos(self.hold_yaw), math.sin(self.hold_yaw)
+        af, al = cy * ax + sy * ay, -sy * ax + cy * ay
+        af, al = max(-lim, min(lim, af)), max(-lim, min(lim, al))
+        pitch = math.atan2(af, g + az)
+        roll = math.atan2(-al * math.cos(pitch), g + az)
         thrust = self.params.mass * (g + az) / max(math.cos(roll) * math.cos(pitch), 0.5) / self.params.max_thrust
-        self.fc.set_attitude_target(quat_from_euler(roll, pitch, 0.0), min(max(thrust, 0.0), 1.0))
+        self.fc.set_attitude_target(quat_from_euler(roll, pitch, self.hold_yaw), min(max(thrust, 0.0), 1.0))
 
     def _failsafe_check(self) -> None:
         if self.mode == MODE_OFFBOARD and self.armed and self.t - self.last_sp_time > self.com_of_loss_t:

@@ -3,6 +3,8 @@ processes (lock-step, so the flight is fast and deterministic), baseline then st
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -107,3 +109,39 @@ def test_ardupilot_profile_guided_nogps_with_both_thrust_semantics(procs, tmp_pa
         else:
             np.testing.assert_array_equal(t["sp_field"][on], t["sp_thrust"][on])
             assert s["rmse_z_measured"] < 0.15
+
+
+def test_frame_start_keeps_heading_and_position_world_turns_east(procs, tmp_path):
+    # The robot is 3.6 m from the trajectory's start point, heading 60 deg (ENU). "start" (default)
+    # flies the ellipse from there along that heading; "world" turns it east and flies to the origin.
+    from ddpc_codegen.control import euler_from_quat
+
+    runs = {}
+    for fr in ("start", "world"):
+        port = free_port()
+        veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--start-yaw-deg", "60",
+                          "--start-offset", "3,-2", "--truth-log", str(tmp_path / f"{fr}_truth.npz"), name=f"{fr}_veh")
+        br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--offboard", "--mode", "passthrough",
+                         "--frame", fr, "--duration", "5", "--summary", str(tmp_path / f"{fr}.json"), "--timeout", "90",
+                         name=f"{fr}_br")
+        runs[fr] = (veh, br)
+    out = {}
+    for fr, (veh, br) in runs.items():
+        assert procs.wait(br, 120) == 0, procs.log(br)
+        procs.terminate(veh)
+        d = np.load(tmp_path / f"{fr}_truth.npz")
+        on = d["offboard"]
+        st = d["state"][on]
+        yaw = np.degrees([euler_from_quat(q)[2] for q in st[:, 6:10]])
+        out[fr] = (st, yaw, read_json(tmp_path / f"{fr}.json"))
+    st, yaw, s = out["start"]
+    assert np.abs(yaw - 60.0).max() < 1.0                       # never turned
+    np.testing.assert_allclose(st[0, :2], [3.0, -2.0], atol=0.05)  # engaged where it was
+    d = st[:, :2] - st[0, :2]
+    along = d @ [math.cos(math.radians(60)), math.sin(math.radians(60))]
+    across = d @ [-math.sin(math.radians(60)), math.cos(math.radians(60))]
+    assert np.ptp(along) > 0.5 and np.abs(across).max() < 0.05  # the ellipse's x is the heading
+    assert st[:, 2].min() > 0.8                                  # the ellipse's bottom is 0.9 m
+    assert any("frame start: heading 60.0 deg ENU, start point at (3.00, -2.00) m" in e for _, e in s["events"])
+    st, yaw, _ = out["world"]
+    assert abs(yaw[-1]) < 2.0 and np.linalg.norm(st[-1, :2]) < 1.5  # turned east, flew towards the origin

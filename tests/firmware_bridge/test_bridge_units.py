@@ -23,7 +23,7 @@ from firmware_bridge.profiles import (
     px4_decode,
     px4_mode_name,
 )
-from firmware_bridge.telemetry import TelemetryState, euler_enu_to_ned, swap_frames
+from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, euler_enu_to_ned, swap_frames
 from firmware_bridge.vehicle import _rotate_inv
 
 
@@ -111,6 +111,39 @@ def test_frame_helpers_agree_with_the_controller_conventions():
 
 
 # ----------------------------------------------------------------------------- link
+def test_trajectory_frame_start_maps_heading_and_start_point():
+    from ddpc_codegen.control import MeasuredState
+
+    yaw0 = math.radians(60.0)
+    fr = TrajectoryFrame("start", anchor=(0.5, 0.0))
+    fr.capture(np.array([3.0, -2.0, 1.0]), yaw0)
+    c, s = math.cos(yaw0), math.sin(yaw0)
+    # 0.4 m ahead and 0.1 m left of the captured point, moving forward at 1 m/s, turned 10 deg further.
+    pos = np.array([3.0 + 0.4 * c - 0.1 * s, -2.0 + 0.4 * s + 0.1 * c, 1.3])
+    st = MeasuredState(0.0, pos, np.array([c, s, -0.2]), np.array([0.05, -0.1, yaw0 + math.radians(10)]), np.zeros(3))
+    fr.to_trajectory(st)
+    np.testing.assert_allclose(st.position, [0.9, 0.1, 1.3], atol=1e-12)
+    np.testing.assert_allclose(st.velocity, [1.0, 0.0, -0.2], atol=1e-12)
+    np.testing.assert_allclose(st.euler, [0.05, -0.1, math.radians(10)], atol=1e-12)
+    # A setpoint in the trajectory frame keeps its roll and pitch and gains the heading.
+    e = euler_from_quat(fr.to_world(quat_from_euler(0.1, -0.2, 0.0)))
+    np.testing.assert_allclose(e, [0.1, -0.2, yaw0], atol=1e-12)
+    assert "heading 60.0 deg" in fr.describe()
+
+
+def test_trajectory_frame_world_is_the_identity():
+    from ddpc_codegen.control import MeasuredState
+
+    fr = TrajectoryFrame("world", anchor=(0.5, 0.0))
+    fr.capture(np.array([3.0, -2.0, 1.0]), 1.0)  # ignored
+    st = MeasuredState(0.0, np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.0, 1.0]), np.zeros(3))
+    fr.to_trajectory(st)
+    np.testing.assert_array_equal(st.position, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(fr.to_world([1.0, 0.0, 0.0, 0.0]), [1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="frame must be 'start' or 'world'; got 'body'"):
+        TrajectoryFrame("body")
+
+
 def test_connection_strings():
     assert parse_url("udpin:127.0.0.1:14540").kind == "udpin"
     assert parse_url("udp:127.0.0.1:14540").kind == "udpin"
