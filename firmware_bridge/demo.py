@@ -98,7 +98,7 @@ def write_toml(raw: dict, path: Path) -> Path:
 
 
 def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed: int, rt_priority: int,
-        cpu_latency_us: int = 0, log=print) -> dict:
+        cpu_latency_us: int = 0, pin: bool = False, log=print) -> dict:
     """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths + summary."""
     port = free_udp_port()
     truth = work / f"{name}_truth.npz"
@@ -112,11 +112,11 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
         veh = subprocess.Popen(
             _py() + ["firmware_bridge.cli", "vehicle", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
                      "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
-                     "--cpu-latency-us", str(cpu_latency_us)],
+                     "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle"),
             env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
         cmd = _py() + ["firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{port}", "--offboard", "--duration",
                        str(duration), "--log", str(ticks), "--summary", str(summ), "--rt-priority", str(rt_priority),
-                       "--cpu-latency-us", str(cpu_latency_us),
+                       "--cpu-latency-us", str(cpu_latency_us), *_pin_args(pin, "bridge"),
                        "--wait-heartbeat", "30", "--timeout", str(duration + 60)] + bridge_args
         log(f"  [{name}] {' '.join(cmd[2:])}")
         t0 = time.monotonic()
@@ -182,7 +182,8 @@ def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)
 
 def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float = 20.0, solver: Path | None = None,
              config: Path = ROOT / "configs" / "flying.toml", predictor: str = "lsq", rt_priority: int = 30,
-             cpu_latency_us: int = 0, probe_s: float = 4.0, seed: int = 1, log=print) -> dict:
+             cpu_latency_us: int = 0, probe_s: float = 4.0, pin: bool = False, seed: int = 1,
+             log=print) -> dict:
     """The whole job (see the module docstring). ``predictor``: "config" keeps the config's
     [predictor]; "lsq" / "pem" override it (the demo's copy of the config is written to ``work``).
     The bridge runs at SCHED_FIFO ``rt_priority`` and the vehicle 10 below (if permitted): on the
@@ -206,7 +207,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         log(f"1. collect: {collect_s:g} s of PRBS-excited flight over MAVLink")
         runs["collect"] = fly("collect", work, ["--mode", "collect", "--dataset-skip", "3", "--seed", str(seed)],
                               duration=collect_s, seed=seed, rt_priority=rt_priority,
-                              cpu_latency_us=cpu_latency_us, log=log)
+                              cpu_latency_us=cpu_latency_us, pin=pin, log=log)
         log(f"2. codegen: ddpc-codegen codegen {config} --dataset {runs['collect']['ticks']}")
         gen_root = work / "generated"
         r = subprocess.run(_py() + ["ddpc_codegen.cli", "codegen", str(config), "--dataset", str(runs["collect"]["ticks"]),
@@ -217,10 +218,10 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         solver = Path(r.stdout.strip().splitlines()[-1])
     log(f"3. baseline: {flight_s:g} s, model-based controller alone (passthrough)")
     runs["baseline"] = fly("baseline", work, ["--mode", "passthrough"], duration=flight_s, seed=seed + 1,
-                           rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, log=log)
+                           rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, pin=pin, log=log)
     log(f"4. steered: {flight_s:g} s, generated solver {solver} in the loop")
     runs["steered"] = fly("steered", work, ["--mode", "steer", "--solver", str(solver)], duration=flight_s,
-                          seed=seed + 1, rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, log=log)
+                          seed=seed + 1, rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, pin=pin, log=log)
     log("5. in-process reference (simulate, same solver)")
     ip = in_process(solver, flight_s, seed + 1)
 
@@ -259,7 +260,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         "in_process_steering": ip["steering"],
         "settings": {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s, "seed": seed,
                      "config": str(config), "predictor": predictor,
-                     "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "settle_s": 3.0},
+                     "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "pin": pin, "settle_s": 3.0},
         "machine_wakeup_latency": machine,
         "kernel": {"release": os.uname().release, "preemption": kernel_preemption()},
         "wall_s": time.monotonic() - t_start,
@@ -269,6 +270,14 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     log(format_table(report))
     log(f"wrote {out}")
     return report
+
+
+def _pin_args(pin: bool, who: str) -> list[str]:
+    """--cpus for one process: the bridge on the last CPU this process may use, the vehicle on the first."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if not pin or len(cpus) < 2:
+        return []
+    return ["--cpus", str(cpus[-1] if who == "bridge" else cpus[0])]
 
 
 def probe_machine(seconds: float, rt_priority: int, cpu_latency_us: int, log=print) -> list[dict]:
@@ -327,11 +336,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="PM QoS wake-up latency bound both processes hold [us] (-1: none; see firmware_bridge.realtime)")
     p.add_argument("--probe", type=float, default=4.0,
                    help="seconds per CPU of the machine wake-up latency probe before the flights (0: skip)")
+    p.add_argument("--pin", action="store_true", help="pin the bridge and the vehicle to different CPUs")
     p.add_argument("--seed", type=int, default=1)
     a = p.parse_args(argv)
     run_demo(Path(a.out), Path(a.work), collect_s=a.collect, flight_s=a.flight,
              solver=Path(a.solver) if a.solver else None, config=Path(a.config), predictor=a.predictor,
-             rt_priority=a.rt_priority, cpu_latency_us=a.cpu_latency_us, probe_s=a.probe, seed=a.seed,
+             rt_priority=a.rt_priority, cpu_latency_us=a.cpu_latency_us, probe_s=a.probe, pin=a.pin, seed=a.seed,
              log=lambda s: print(s, flush=True))
     return 0
 
