@@ -71,13 +71,26 @@ class RealtimeSetup:
         self.release()
 
 
+def _can_lock_unlimited(status: str = "/proc/self/status") -> bool:
+    """CAP_IPC_LOCK (bit 14 of CapEff): locked memory is then not bounded by RLIMIT_MEMLOCK."""
+    try:
+        with open(status) as f:
+            for line in f:
+                if line.startswith("CapEff:"):
+                    return bool(int(line.split()[1], 16) >> 14 & 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return False
+
+
 def _lock_memory() -> str | None:
     """mlockall; None on success, else why not. Without CAP_IPC_LOCK only when RLIMIT_MEMLOCK
-    is unlimited: with MCL_FUTURE, a finite limit would turn later allocations into MemoryError."""
+    is unlimited: with MCL_FUTURE, a finite limit would turn later allocations into MemoryError
+    (root in a container usually lacks CAP_IPC_LOCK)."""
     import resource
 
     soft, _ = resource.getrlimit(resource.RLIMIT_MEMLOCK)
-    if os.geteuid() != 0 and soft != resource.RLIM_INFINITY:
+    if not _can_lock_unlimited() and soft != resource.RLIM_INFINITY:
         return f"memory not locked (RLIMIT_MEMLOCK {soft} B; raise it with ulimit -l or run with CAP_IPC_LOCK)"
     libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
     if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) != 0:

@@ -136,3 +136,25 @@ def test_kernel_preemption_model(tmp_path):
     assert kernel_preemption("#1 SMP PREEMPT_DYNAMIC", debugfs=str(none), cmdline=str(none), kmsg=str(log)) == "none"
     assert kernel_preemption("#1 SMP PREEMPT Mon", debugfs=str(none)) == "full"
     assert kernel_preemption("#1 SMP Mon", debugfs=str(none)) == "none or voluntary"
+
+
+def test_memory_is_locked_only_when_it_cannot_run_out(tmp_path):
+    # With MCL_FUTURE and a finite RLIMIT_MEMLOCK (no CAP_IPC_LOCK), later allocations would fail
+    # mid-flight: the lock must be skipped then, and said why.
+    from firmware_bridge.realtime import _can_lock_unlimited
+
+    st = tmp_path / "status"
+    st.write_text("Name:\tpython\nCapEff:\t00000000a80425fb\n")  # docker's default set: no IPC_LOCK
+    assert not _can_lock_unlimited(str(st))
+    st.write_text("Name:\tpython\nCapEff:\t000001ffffffffff\n")
+    assert _can_lock_unlimited(str(st))
+    out = _run_setup("""
+import json, resource
+from firmware_bridge import realtime
+realtime._can_lock_unlimited = lambda: False
+hard = resource.getrlimit(resource.RLIMIT_MEMLOCK)[1]
+resource.setrlimit(resource.RLIMIT_MEMLOCK, (1 << 30 if hard == resource.RLIM_INFINITY else hard, hard))
+rt = realtime.setup_realtime(5, cpu_latency_us=None)
+print(json.dumps({"desc": rt.describe(), "locked": rt.memory_locked}))
+""")
+    assert not out["locked"] and "memory not locked (RLIMIT_MEMLOCK " in out["desc"]
