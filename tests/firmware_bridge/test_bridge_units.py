@@ -175,9 +175,31 @@ def _drain_until(link: MavLink, n: int, timeout: float = 5.0):
     return got
 
 
+def _wait_for_kernel_stamps(tries: int = 50) -> None:
+    """Linux turns receive time stamping on for the whole stack lazily (a static key flipped from a
+    work queue after the first SO_TIMESTAMPNS socket appears); until then datagrams are stamped
+    when read. Wait, with plain sockets (not the code under test), until a datagram is stamped at
+    arrival."""
+    import struct
+
+    so_ts = getattr(socket, "SO_TIMESTAMPNS", 35)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as b:
+        a.bind(("127.0.0.1", 0))
+        a.setsockopt(socket.SOL_SOCKET, so_ts, 1)
+        for _ in range(tries):
+            b.sendto(b"probe", a.getsockname())
+            time.sleep(0.05)
+            _, anc, _, _ = a.recvmsg(64, 64)
+            stamps = [struct.unpack("qq", d[:16]) for lvl, typ, d in anc if typ == so_ts]
+            if stamps and time.time() - (stamps[0][0] + stamps[0][1] * 1e-9) > 0.025:
+                return
+    pytest.skip("the kernel does not stamp datagrams at arrival here")
+
+
 def test_drain_returns_everything_pending_in_order_with_kernel_receive_times():
     rx, tx, _ = _pair()
     try:
+        _wait_for_kernel_stamps()
         for k in range(50):
             tx.send(tx.mav.local_position_ned_encode(k, 0, 0, -float(k), 0, 0, 0))
         t_sent = time.monotonic()
