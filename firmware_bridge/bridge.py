@@ -839,6 +839,8 @@ class Bridge:
         meta = {"bridge": {k: v for k, v in asdict(c).items() if k not in ("controller", "trajectory")},
                 "controller": asdict(self.ctrl_cfg), "trajectory": asdict(self.ctrl.trajectory),
                 "autopilot": self.profile.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
+                # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
+                "frame": self.frame.as_dict(),
                 "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
                                                            "config_hash": self.solver.manifest.get("config_hash"),
                                                            "predictor_hash": self.solver.manifest.get("predictor_hash")}}
@@ -868,7 +870,8 @@ class Bridge:
             "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
             "rmse_samples": int(ez.size), **self.counts,
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
-            "params": self.params, "scheduling": self.scheduling, "events": self.events,
+            "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
+            "events": self.events,
         }
         if self.steerer is not None:
             out["steering"] = self.steerer.summary()

@@ -244,6 +244,10 @@ class TrajectoryFrame:
             return np.asarray(q_enu, dtype=float)
         return quat_multiply(self._q_yaw, q_enu)
 
+    def as_dict(self) -> dict:
+        """JSON-friendly: mode, heading yaw0 [rad, ENU], origin (local ENU x, y) [m] -> anchor [m]."""
+        return {"mode": self.mode, "yaw0": self.yaw0, "origin": self.origin.tolist(), "anchor": self.anchor.tolist()}
+
     def describe(self) -> str:
         if self.mode == "world":
             return "frame world (local ENU)"

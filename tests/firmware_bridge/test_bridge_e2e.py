@@ -147,5 +147,6 @@ def test_frame_start_keeps_heading_and_position_world_turns_east(procs, tmp_path
           for _, e in s["events"]]
     (hd, x0, y0), = [tuple(float(v) for v in m.groups()) for m in ev if m]  # captured once, with sensor noise
     assert abs(hd - 60.0) < 0.5 and abs(x0 - 3.0) < 0.02 and abs(y0 + 2.0) < 0.02
+    assert s["frame"]["mode"] == "start" and math.degrees(s["frame"]["yaw0"]) == pytest.approx(hd, abs=0.06)
     st, yaw, _ = out["world"]
     assert abs(yaw[-1]) < 2.0 and np.linalg.norm(st[-1, :2]) < 1.5  # turned east, flew towards the origin
