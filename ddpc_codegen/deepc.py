@@ -78,22 +78,17 @@ class DeePCProblem:
         yd = _window(y_des, Tf, p, "y_des")
         q = np.zeros(N + nu + ny + ns)
         q[N + nu : N + nu + ny] = -2 * self._Qb @ yd
-        u_prev = ui[-m:]
+        d0 = np.zeros(nu)  # D u - d0 = increments, the first against the last applied input
+        d0[:m] = ui[-m:]
         if c.R_mode == "offset":
             if u_nom is None:
                 raise DataError("R_mode 'offset' needs u_nom")
             q[N : N + nu] = -2 * self._Rb @ _window(u_nom, Tf, m, "u_nom")
         elif c.R_mode == "increment":
-            d0 = np.zeros(nu)
-            d0[:m] = u_prev
             q[N : N + nu] = -2 * self._D.T @ self._Rb @ d0
         if np.any(c.R_du):
-            d0 = np.zeros(nu)
-            d0[:m] = u_prev
             q[N : N + nu] += -2 * self._D.T @ self._Rdu @ d0
         beq = np.concatenate([ui, yi, np.zeros(nu), np.zeros(ny)])
-        d0 = np.zeros(nu)
-        d0[:m] = u_prev
         du = np.tile(c.du_max, Tf)
         lo = np.concatenate([beq, np.tile(c.u_min, Tf), np.tile(c.y_min, Tf), d0 - du])
         hi = np.concatenate([beq, np.tile(c.u_max, Tf), np.tile(c.y_max, Tf), d0 + du])

@@ -138,17 +138,17 @@ class SteeringProblem:
         e = y - y_des
         J = ca.mtimes([e.T, Qb, e]) + c.lambda_sigma * ca.dot(sig, sig)
         D = np.eye(self.n_u) - np.eye(self.n_u, k=-m)  # stacked differences
+        # Increments du_k = u_k - u_(k-1), the first against the last applied input u_ini[-1].
+        du_expr = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
         if c.R_mode == "absolute":
             ru = u
         elif c.R_mode == "offset":
             ru = u - theta[self.n_w + p * Tf :]
         else:
-            u_prev = u_ini[m * (Ti - 1) :]
-            ru = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_prev, ca.DM.zeros(self.n_u - m))
+            ru = du_expr
         J = J + ca.mtimes([ru.T, Rb, ru])
         if np.any(c.R_du):
-            dU = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
-            J = J + ca.mtimes([dU.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), dU])
+            J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
 
         # Simple bounds on u (constant) and general rows: predicted y and increments (only rows that bound something).
         self.lb_u = np.tile(c.u_min, Tf).astype(float)
@@ -159,9 +159,8 @@ class SteeringProblem:
             rows.append(y[int(i)]); lo.append(ym[0][i]); hi.append(ym[1][i]); kinds.append("y")
         du = np.tile(c.du_max, Tf)
         if np.any(np.isfinite(du)):
-            dexpr = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
             for i in np.nonzero(np.isfinite(du))[0]:
-                rows.append(dexpr[int(i)]); lo.append(-du[i]); hi.append(du[i]); kinds.append("du")
+                rows.append(du_expr[int(i)]); lo.append(-du[i]); hi.append(du[i]); kinds.append("du")
         self.general_kinds = tuple(kinds)
         g = ca.vertcat(*rows) if rows else ca.SX(0, 1)
         self.n_g = int(g.shape[0])
