@@ -282,18 +282,12 @@ def _pin_args(pin: bool, who: str) -> list[str]:
 
 def probe_machine(seconds: float, rt_priority: int, cpu_latency_us: int, log=print) -> list[dict]:
     """Wake-up latency of a 1 kHz SCHED_FIFO sleeper per CPU, without and with the PM QoS request."""
-    from .realtime import measure_wakeup_latency
+    from .realtime import probe_cpus
 
-    rows = []
     log(f"0. machine: kernel {os.uname().release}, preemption {kernel_preemption()}")
     log(f"   wake-up latency of a real-time sleeper, {seconds:g} s per CPU, without / with PM QoS")
-    for qos in [None] + ([cpu_latency_us] if cpu_latency_us >= 0 else []):
-        for cpu in sorted(os.sched_getaffinity(0)):
-            r = measure_wakeup_latency(seconds, priority=rt_priority, cpu=cpu, cpu_latency_us=qos)
-            rows.append({"cpu": cpu, "pm_qos_us": qos, **r})
-            log(f"    cpu {cpu}  PM QoS {'-' if qos is None else f'{qos} us':>5}  p99 {r['p99_us']:.0f}  "
-                f"p99.99 {r['p9999_us']:.0f}  max {r['max_us']:.0f} us  >2.5 ms: {r['over_2500us']}")
-    return rows
+    return probe_cpus(seconds, priority=rt_priority, cpu_latency_us=None if cpu_latency_us < 0 else cpu_latency_us,
+                      log=lambda line: log("    " + line))
 
 
 def format_table(r: dict) -> str:

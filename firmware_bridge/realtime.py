@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RealtimeSetup", "setup_realtime", "measure_wakeup_latency", "kernel_preemption", "PM_QOS_PATH"]
+__all__ = ["RealtimeSetup", "setup_realtime", "measure_wakeup_latency", "probe_cpus", "kernel_preemption",
+           "PM_QOS_PATH"]
 
 PM_QOS_PATH = "/dev/cpu_dma_latency"
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
@@ -248,6 +249,29 @@ def measure_wakeup_latency(duration: float = 5.0, *, period: float = 0.001, prio
             "over_1ms": int((us > 1000).sum()), "over_2500us": int((us > 2500).sum()), "setup": rt.describe()}
 
 
+def probe_cpus(duration: float, *, priority: int, cpus: list[int] | None = None, cpu_latency_us: int | None = 0,
+               period: float = 0.001, log=None) -> list[dict]:
+    """:func:`measure_wakeup_latency` on each CPU, first without a PM QoS request, then (with
+    ``priority`` > 0 and ``cpu_latency_us`` not None) with it. ``log`` gets one line per row.
+
+    Returns:
+        [{"cpu", "pm_qos_us", **measure_wakeup_latency(...)}, ...]
+    """
+    cpus = sorted(os.sched_getaffinity(0)) if cpus is None else list(cpus)
+    # the PM QoS request comes with real time only (setup_realtime)
+    qos_values = [None] + ([int(cpu_latency_us)] if priority > 0 and cpu_latency_us is not None else [])
+    rows = []
+    for qos in qos_values:
+        for c in cpus:
+            r = measure_wakeup_latency(duration, period=period, priority=priority, cpu=c, cpu_latency_us=qos)
+            rows.append({"cpu": c, "pm_qos_us": qos, **r})
+            if log is not None:
+                log(f"cpu {c}  PM QoS {'-' if qos is None else f'{qos} us':>5}  p50 {r['p50_us']:7.0f}  "
+                    f"p99 {r['p99_us']:7.0f}  p99.99 {r['p9999_us']:7.0f}  max {r['max_us']:7.0f} us  "
+                    f">1 ms {r['over_1ms']:4d}  >2.5 ms {r['over_2500us']:4d}   [{r['setup']}]")
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     """``ddpc-rtcheck``: wake-up latency of this machine per CPU, without and with the PM QoS request."""
     p = argparse.ArgumentParser(
@@ -262,20 +286,15 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.duration <= 0 or a.period_us <= 0:
         p.error("--duration and --period-us must be positive")
-    cpus = sorted(os.sched_getaffinity(0)) if a.cpus is None else [int(c) for c in a.cpus.split(",")]
+    try:
+        cpus = sorted(os.sched_getaffinity(0)) if a.cpus is None else [int(c) for c in a.cpus.split(",")]
+    except ValueError:
+        p.error(f"--cpus expects comma-separated CPU numbers; got {a.cpus!r}")
     preempt = kernel_preemption()
     if not a.json:
         print(f"kernel {os.uname().release}: preemption {preempt}", flush=True)
-    rows = []
-    for qos in (None, 0) if a.rt_priority > 0 else (None,):  # the PM QoS request comes with real time only
-        for c in cpus:
-            r = measure_wakeup_latency(a.duration, period=a.period_us * 1e-6, priority=a.rt_priority, cpu=c,
-                                       cpu_latency_us=qos)
-            rows.append({"cpu": c, "pm_qos_us": qos, **r})
-            if not a.json:
-                print(f"cpu {c}  PM QoS {'-' if qos is None else f'{qos} us':>5}  p50 {r['p50_us']:7.0f}  "
-                      f"p99 {r['p99_us']:7.0f}  p99.99 {r['p9999_us']:7.0f}  max {r['max_us']:7.0f} us  "
-                      f">1 ms {r['over_1ms']:4d}  >2.5 ms {r['over_2500us']:4d}   [{r['setup']}]", flush=True)
+    rows = probe_cpus(a.duration, priority=a.rt_priority, cpus=cpus, period=a.period_us * 1e-6,
+                      log=None if a.json else (lambda line: print(line, flush=True)))
     if a.json:
         print(json.dumps({"kernel": os.uname().release, "preemption": preempt, "rows": rows}, indent=2))
     return 0

@@ -109,6 +109,9 @@ def test_rtcheck_cli_rejects_nonpositive_duration(capsys):
         rtcheck_main(["--duration", "0"])
     assert e.value.code == 2
     assert "--duration and --period-us must be positive" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        rtcheck_main(["--cpus", "0,x"])
+    assert "--cpus expects comma-separated CPU numbers; got '0,x'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("build", [build_bridge_parser, build_vehicle_parser])
