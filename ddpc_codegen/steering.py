@@ -98,6 +98,22 @@ class ReferenceSteerer:
         self._y[-1] = y_measured
         self._n += 1
 
+    def fill_gap(self, n_missing: int, y_now: np.ndarray) -> None:
+        """Bridge ``n_missing`` lost ticks instead of forgetting the history.
+
+        During a lost tick the plant kept the last applied reference (zero-order hold), so u
+        repeats the last observed u; the outputs of the lost ticks are interpolated linearly
+        between the last observed y and ``y_now`` (p,), this tick's output (a few ms of a
+        smooth signal). Call before :meth:`step` of the tick that ended the gap.
+        """
+        if self._n == 0 or n_missing <= 0:
+            return
+        u_last, y_last = self._u[-1].copy(), self._y[-1].copy()
+        y_now = np.asarray(y_now, dtype=float)
+        for j in range(1, n_missing + 1):
+            self.observe(u_last, y_last + (y_now - y_last) * (j / (n_missing + 1)))
+        self.counts["gap_filled_ticks"] += n_missing
+
     def window(self) -> tuple[np.ndarray, np.ndarray]:
         """(u_ini (Tini, m), y_ini (Tini, p)) copies."""
         return self._u.copy(), self._y.copy()
@@ -155,6 +171,7 @@ class ReferenceSteerer:
         return {
             "ticks": self.counts["ticks"], "steered": self.counts["steered"],
             "fallbacks": self.counts["fallbacks"], "warmup": self.counts["warmup"],
+            "gap_filled_ticks": self.counts["gap_filled_ticks"],
             "fallback_reasons": {k.split(":", 1)[1]: v for k, v in self.counts.items() if k.startswith("fallback:")},
             "solve_us": {"median": float(np.median(t)) if t.size else None,
                          "p99": float(np.percentile(t, 99)) if t.size else None,

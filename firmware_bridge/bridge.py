@@ -116,6 +116,9 @@ class BridgeConfig:
         link_timeout: no vehicle heartbeat for this long [s] -> link lost.
         max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
         max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard).
+        max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
+            history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
+            instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
         arm, offboard: explicitly allowed actions: arm the vehicle; switch it to OFFBOARD /
             GUIDED after ``prestream`` seconds of setpoints (and HOLD at exit / LAND if stale).
         duration: stop after this long in off-board [s] (None: until signalled).
@@ -158,6 +161,7 @@ class BridgeConfig:
     thrust_min: float = 0.0
     thrust_max: float = 1.0
     max_step: tuple | None = (0.3, 0.5)
+    max_gap_fill: int = 3
     arm: bool = False
     offboard: bool = False
     prestream: float = 1.0
@@ -192,6 +196,8 @@ class BridgeConfig:
             raise ValueError("rate_hz and max_age must be positive")
         if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
             raise ValueError("need 0 <= thrust_min < thrust_max <= 1")
+        if not isinstance(self.max_gap_fill, int) or self.max_gap_fill < 0:
+            raise ValueError(f"max_gap_fill must be an integer >= 0; got {self.max_gap_fill!r}")
         if self.frame not in ("start", "world"):
             raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
 
@@ -577,14 +583,19 @@ class Bridge:
             self._hold_tick(now, age, engaged, stamp)
             return
         gap = False
+        fill = 0  # lost ticks to bridge in the steering history
         if event:
             self._last_seq = (tel.att.seq, tel.pos.seq)
             step = stamp - self._last_stamp
             if math.isfinite(step) and abs(step - self.period) > 0.4 * self.period:
                 gap = True
                 self.counts["telemetry_gaps"] += 1
-                if self.steerer is not None:
-                    self.steerer.reset()  # a hole in the window: refill before steering again
+                r = step / self.period
+                n = int(round(r)) - 1
+                if 1 <= n <= c.max_gap_fill and abs(r - round(r)) < 0.4:
+                    fill = n  # a few samples lost: bridge them (below, once this tick's y is known)
+                elif self.steerer is not None:
+                    self.steerer.reset()  # a long hole, or time went backwards: refill before steering again
             self._last_stamp = stamp
         # ---- engagement and the trajectory clock
         if engaged and not self._engaged:
@@ -618,6 +629,8 @@ class Bridge:
             if self.steerer is not None:
                 self.steerer.reset()
         elif c.mode == "steer":
+            if fill:
+                self.steerer.fill_gap(fill, y)
             y_des = ctrl.desired_outputs(t_traj + self._ahead)
             u_nom = y_des.copy()  # flying: the nominal references ahead are the desired outputs ahead ...
             u_nom[0] = r_nom      # ... and exactly r_nom now

@@ -132,6 +132,9 @@ def build_bridge_parser() -> argparse.ArgumentParser:
     g.add_argument("--thrust-max", type=float, default=1.0)
     g.add_argument("--max-step", default="0.3,0.5",
                    help="largest |steered - nominal| per reference, comma-separated, or 'none'")
+    g.add_argument("--max-gap-fill", type=int, default=3,
+                   help="bridge up to this many lost telemetry samples in the steering history instead of "
+                        "resetting it (0: always reset)")
     g.add_argument("--inject-solver-failure", type=_fault, default=None, metavar="START:COUNT[:fail|nan]",
                    help="testing: make solver calls START..START+COUNT-1 fail")
     g = p.add_argument_group("logging")
@@ -182,7 +185,8 @@ def bridge_config_from_args(a: argparse.Namespace):
         target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
         position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
-        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=max_step, arm=a.arm, offboard=a.offboard,
+        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=max_step, max_gap_fill=a.max_gap_fill,
+        arm=a.arm, offboard=a.offboard,
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,

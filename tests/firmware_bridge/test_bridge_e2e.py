@@ -150,3 +150,33 @@ def test_frame_start_keeps_heading_and_position_world_turns_east(procs, tmp_path
     assert s["frame"]["mode"] == "start" and math.degrees(s["frame"]["yaw0"]) == pytest.approx(hd, abs=0.06)
     st, yaw, _ = out["world"]
     assert abs(yaw[-1]) < 2.0 and np.linalg.norm(st[-1, :2]) < 1.5  # turned east, flew towards the origin
+
+
+def test_a_lost_telemetry_sample_is_bridged_not_a_steering_reset(procs, tmp_path, flying_solver):
+    # The vehicle drops the telemetry of one tick (t = 6.000 s) while steering runs. With gap
+    # filling (default) the history is bridged and steering goes on; with --max-gap-fill 0 it
+    # restarts from an empty history (Tini unsteered ticks).
+    runs = {}
+    for fill in (3, 0):
+        port = free_port()
+        veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--lockstep-timeout", "0.3",
+                          "--silence", "6.0:6.004", name=f"fill{fill}_veh")
+        br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--offboard", "--mode", "steer",
+                         "--solver", str(flying_solver), "--max-gap-fill", str(fill), "--duration", "7",
+                         "--log", str(tmp_path / f"fill{fill}.npz"), "--summary", str(tmp_path / f"fill{fill}.json"),
+                         "--timeout", "90", name=f"fill{fill}_br")
+        runs[fill] = (veh, br)
+    out = {}
+    for fill, (veh, br) in runs.items():
+        assert procs.wait(br, 120) == 0, procs.log(br)
+        procs.terminate(veh)
+        s = read_json(tmp_path / f"fill{fill}.json")
+        t = load_ticklog(tmp_path / f"fill{fill}.npz").ticks
+        g = np.flatnonzero(t["gap"])
+        assert s["telemetry_gaps"] == 1 and g.size == 1
+        out[fill] = (s["steering"], int(t["reason"][g[0]]), t["y"][g[0] - 1 : g[0] + 1])
+    (st3, reason3, _), (st0, reason0, _) = out[3], out[0]
+    t_ini = st3["warmup"]
+    assert st3["gap_filled_ticks"] == 1 and reason3 == 0          # bridged: the gap tick is steered
+    assert st0["gap_filled_ticks"] == 0 and reason0 == 3          # reset: the gap tick is a warm-up tick
+    assert st0["warmup"] == 2 * t_ini and t_ini > 0
