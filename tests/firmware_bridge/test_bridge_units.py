@@ -350,3 +350,20 @@ def test_controller_toml_overrides_the_model(tmp_path):
     f.write_text("[controller]\nmodel_mas = 3.3\n")
     with pytest.raises(ValueError, match="unknown \\[controller\\] keys"):
         bridge_config_from_args(build_bridge_parser().parse_args(["--mode", "passthrough", "--controller", str(f)]))
+
+
+def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
+    from firmware_bridge.bridge import BridgeConfig
+    from firmware_bridge.cli import vehicle_main
+    from firmware_bridge.vehicle import VehicleConfig
+
+    with pytest.raises(ValueError, match="frame must be 'start' or 'world'; got 'body'"):
+        BridgeConfig(mode="passthrough", frame="body")
+    with pytest.raises(ValueError, match="max_gap_fill must be an integer >= 0; got -1"):
+        BridgeConfig(mode="passthrough", max_gap_fill=-1)
+    with pytest.raises(ValueError, match=r"start_offset must be two finite numbers \(x, y\) \[m\]; got \(1.0,\)"):
+        VehicleConfig(start_offset=(1.0,))
+    with pytest.raises(ValueError, match="start_yaw must be finite"):
+        VehicleConfig(start_yaw=float("nan"))
+    assert vehicle_main(["udpout:127.0.0.1:9", "--start-offset", "1,2,3"]) == 2
+    assert "start_offset must be two finite numbers" in capsys.readouterr().err
