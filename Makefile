@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test demo codegen bench bridge-demo clean
+.PHONY: install test lint demo codegen bench bridge-demo clean
 
 install: $(STAMP)
 
@@ -15,17 +15,22 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 	@echo "installed ddpc-codegen into $(VENV)"
 
-test: install
+# Lint first (seconds), then every test tier (markers: e2e, realtime, compiler, sitl, slow; select
+# one with `$(PY) -m pytest -m compiler`).
+test: install lint
 	$(PY) -m pytest -q
+
+lint: install
+	$(VENV)/bin/ruff check .
 
 # The main job: both scenarios with and without steering; table, reports/summary.json, figures.
 demo: install
-	$(PY) -m ddpc_codegen.demo
+	$(PY) -m ddpc_codegen.experiments.demo
 
 # Steering solvers from configs/. A missing dataset is recorded on the simulator first
 # (hopping: aerial data, ground phases replaced by artificial IO, hops stitched into H_G).
 data/%.npz: | install
-	$(PY) -c "from ddpc_codegen.experiments import build_setup; build_setup('$*', generate_dir=None, progress=True)"
+	$(PY) -c "from ddpc_codegen.experiments.pipeline import build_setup; build_setup('$*', generate_dir=None, progress=True)"
 
 codegen: install data/flying.npz data/hopping.npz
 	$(VENV)/bin/ddpc-codegen codegen configs/flying.toml configs/hopping.toml
@@ -36,7 +41,7 @@ bridge-demo: install
 
 bench: install
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,bench]' || echo "(bench extra not installed: the CVXPYgen comparison is skipped)"
-	$(PY) -m ddpc_codegen.bench
+	$(PY) -m ddpc_codegen.experiments.bench
 
 clean:
 	rm -rf build generated/*/ reports/*.json reports/*.png .pytest_cache

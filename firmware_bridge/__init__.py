@@ -11,28 +11,39 @@
 * :mod:`.cli`, :mod:`.demo` -- console entry points and ``make bridge-demo``.
 """
 
-from .bridge import Bridge, BridgeConfig, FaultInjectingSolver, NoVehicleError
-from .link import CommandTracker, LinkError, MavLink, parse_url
-from .profiles import ArduPilotProfile, PX4Profile, make_profile
-from .telemetry import TelemetryState
-from .ticklog import TickLog, load_ticklog
-from .vehicle import SimVehicle, VehicleConfig
+from __future__ import annotations
 
-__all__ = [
-    "Bridge",
-    "BridgeConfig",
-    "FaultInjectingSolver",
-    "NoVehicleError",
-    "MavLink",
-    "LinkError",
-    "CommandTracker",
-    "parse_url",
-    "PX4Profile",
-    "ArduPilotProfile",
-    "make_profile",
-    "TelemetryState",
-    "TickLog",
-    "load_ticklog",
-    "SimVehicle",
-    "VehicleConfig",
-]
+import importlib
+from typing import Any
+
+# public name -> module that defines it (imported on first use: ``import firmware_bridge`` stays
+# light and never loads CasADi or the simulator)
+_EXPORTS: dict[str, str] = {
+    "Bridge": "firmware_bridge.bridge",
+    "BridgeConfig": "firmware_bridge.bridge",
+    "FaultInjectingSolver": "firmware_bridge.bridge",
+    "NoVehicleError": "firmware_bridge.bridge",
+    "CommandTracker": "firmware_bridge.link",
+    "LinkError": "firmware_bridge.link",
+    "MavLink": "firmware_bridge.link",
+    "parse_url": "firmware_bridge.link",
+    "ArduPilotProfile": "firmware_bridge.profiles",
+    "PX4Profile": "firmware_bridge.profiles",
+    "make_profile": "firmware_bridge.profiles",
+    "TelemetryState": "firmware_bridge.telemetry",
+    "TickLog": "firmware_bridge.ticklog",
+    "load_ticklog": "firmware_bridge.ticklog",
+    "SimVehicle": "firmware_bridge.vehicle",
+    "VehicleConfig": "firmware_bridge.vehicle",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'firmware_bridge' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

@@ -46,26 +46,24 @@ import math
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.control import (
-    ControllerConfig,
-    EllipseTrajectory,
-    HeightLegAngleController,
-    quat_from_euler,
-)
-from ddpc_codegen.problem import SteeringResult
-from ddpc_codegen.steering import ReferenceSteerer
+from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController
+from ddpc_codegen.robot.profile import load_profile
+from ddpc_codegen.robot.trajectory import EllipseTrajectory
+from ddpc_codegen.robot.frames import quat_from_euler
+from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
-from .link import CommandTracker, MavLink, mavlink
-from .realtime import RealtimeSetup, setup_realtime
-from .profiles import ArduPilotProfile, Profile, make_profile
-from .telemetry import TelemetryState, TrajectoryFrame, swap_frames
-from .ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
+from firmware_bridge.link import CommandTracker, MavLink, mavlink
+from firmware_bridge.realtime import RealtimeSetup, setup_realtime
+from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
+from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, swap_frames
+from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
            "gap_statistics"]
@@ -88,11 +86,8 @@ class NoVehicleError(RuntimeError):
 
 
 def default_controller_config() -> ControllerConfig:
-    """The flying controller configured for the simulated PogoX (what ``ddpc-vehicle`` flies)."""
-    from ddpc_codegen.sim.params import PogoXParams
-    from ddpc_codegen.sim.scenarios import FlyingScenario
-
-    return FlyingScenario().controller_config(PogoXParams())
+    """The flying controller of the shipped ``pogox`` profile (what ``ddpc-vehicle`` flies)."""
+    return load_profile("pogox").controller
 
 
 @dataclass
@@ -307,7 +302,7 @@ class Bridge:
 
     # ------------------------------------------------------------------ setup
     def _setup_solver(self, solver) -> None:
-        from ddpc_codegen.runtime import load_solver
+        from ddpc_codegen.runtime.loader import load_solver
 
         c = self.cfg
         solver = solver if solver is not None else load_solver(c.solver)
@@ -722,7 +717,7 @@ class Bridge:
         A["active"][i] = engaged
 
     def _excitation(self) -> np.ndarray:
-        from ddpc_codegen.data import prbs
+        from ddpc_codegen.design.data import prbs
 
         block = 12000
         j = self._k_exc % block

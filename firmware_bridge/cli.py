@@ -20,8 +20,6 @@ import argparse
 import json
 import math
 import sys
-import tomllib
-from dataclasses import fields, replace
 from pathlib import Path
 
 __all__ = ["bridge_main", "vehicle_main", "build_bridge_parser", "build_vehicle_parser", "main"]
@@ -112,9 +110,10 @@ def build_bridge_parser() -> argparse.ArgumentParser:
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
     g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
     g.add_argument("--wait-heartbeat", type=float, default=30.0, help="give up if no vehicle heartbeat [s]")
-    g.add_argument("--controller", default=None,
-                   help="TOML with [controller] (ControllerConfig fields: model_mass, max_thrust, kp_z, ...) and "
-                        "[trajectory] (EllipseTrajectory fields) tables; default: the simulated PogoX")
+    g.add_argument("--profile", "--controller", dest="controller", default=None, metavar="NAME|TOML",
+                   help="robot profile: a shipped name (pogox) or a TOML with [controller] (ControllerConfig "
+                        "fields: model_mass, max_thrust, kp_z, ...) and [trajectory] (EllipseTrajectory fields); "
+                        "default: pogox, the simulated PogoX")
     g = p.add_argument_group("safety")
     g.add_argument("--max-age-ms", type=float, default=50.0, help="telemetry older than this stops steering")
     g.add_argument("--stale-action", choices=("reference", "hover", "land"), default="reference",
@@ -152,30 +151,15 @@ def build_bridge_parser() -> argparse.ArgumentParser:
 
 
 def _controller_from_toml(path: str):
-    from ddpc_codegen.control import EllipseTrajectory
+    """(ControllerConfig, EllipseTrajectory) of a robot profile (shipped name or TOML path)."""
+    from ddpc_codegen.robot.profile import load_profile
 
-    from .bridge import default_controller_config
-
-    raw = tomllib.loads(Path(path).read_text())
-    base = default_controller_config()
-    known = {f.name for f in fields(base)}
-    c = raw.get("controller", {})
-    bad = set(c) - known
-    if bad:
-        raise ValueError(f"{path}: unknown [controller] keys {sorted(bad)}; known: {sorted(known)}")
-    cfg = replace(base, **{k: tuple(v) if isinstance(v, list) else v for k, v in c.items()})
-    traj = None
-    if "trajectory" in raw:
-        tk = {f.name for f in fields(EllipseTrajectory)}
-        bad = set(raw["trajectory"]) - tk
-        if bad:
-            raise ValueError(f"{path}: unknown [trajectory] keys {sorted(bad)}; known: {sorted(tk)}")
-        traj = EllipseTrajectory(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw["trajectory"].items()})
-    return cfg, traj
+    prof = load_profile(path)
+    return prof.controller, prof.trajectory
 
 
 def bridge_config_from_args(a: argparse.Namespace):
-    from .bridge import BridgeConfig
+    from firmware_bridge.bridge import BridgeConfig
 
     ctrl, traj = _controller_from_toml(a.controller) if a.controller else (None, None)
     max_step = None if str(a.max_step).lower() == "none" else _floats(a.max_step)
@@ -221,7 +205,7 @@ def bridge_main(argv: list[str] | None = None) -> int:
     args = build_bridge_parser().parse_args(argv)
     from ddpc_codegen.errors import DDPCError
 
-    from .bridge import Bridge, NoVehicleError
+    from firmware_bridge.bridge import Bridge, NoVehicleError
 
     try:
         bridge = Bridge(bridge_config_from_args(args))
@@ -276,7 +260,7 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
 def vehicle_main(argv: list[str] | None = None) -> int:
     """``ddpc-vehicle``: serve until SIGINT / SIGTERM or --duration; exit 0."""
     a = build_vehicle_parser().parse_args(argv)
-    from .vehicle import SimVehicle, VehicleConfig
+    from firmware_bridge.vehicle import SimVehicle, VehicleConfig
 
     try:
         cfg = VehicleConfig(url=a.connection, baud=a.baud, sysid=a.sysid,

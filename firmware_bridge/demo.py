@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .realtime import kernel_preemption
+from firmware_bridge.realtime import kernel_preemption
 
 __all__ = ["main", "run_demo", "free_udp_port", "truth_rmse"]
 
@@ -134,7 +134,7 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
 def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
     """True height error over the link: vehicle truth at each engaged event tick's vehicle time
     minus that tick's desired height, for trajectory time >= settle [m]."""
-    from .ticklog import load_ticklog
+    from firmware_bridge.ticklog import load_ticklog
 
     tl = load_ticklog(ticks_path).ticks
     with np.load(truth_path) as z:
@@ -210,7 +210,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
                               cpu_latency_us=cpu_latency_us, pin=pin, log=log)
         log(f"2. codegen: ddpc-codegen codegen {config} --dataset {runs['collect']['ticks']}")
         gen_root = work / "generated"
-        r = subprocess.run(_py() + ["ddpc_codegen.cli", "codegen", str(config), "--dataset", str(runs["collect"]["ticks"]),
+        r = subprocess.run(_py() + ["ddpc_codegen.cli.main", "codegen", str(config), "--dataset", str(runs["collect"]["ticks"]),
                                     "--out", str(gen_root)], env=_env(), capture_output=True, text=True, timeout=600)
         if r.returncode != 0:
             raise RuntimeError(f"codegen failed:\n{r.stderr}")
@@ -225,7 +225,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     log("5. in-process reference (simulate, same solver)")
     ip = in_process(solver, flight_s, seed + 1)
 
-    from .ticklog import load_ticklog
+    from firmware_bridge.ticklog import load_ticklog
 
     lat, sent, dur, missed, ticks = [], 0, 0.0, 0, 0
     for name, rr in runs.items():
@@ -282,7 +282,7 @@ def _pin_args(pin: bool, who: str) -> list[str]:
 
 def probe_machine(seconds: float, rt_priority: int, cpu_latency_us: int, log=print) -> list[dict]:
     """Wake-up latency of a 1 kHz SCHED_FIFO sleeper per CPU, without and with the PM QoS request."""
-    from .realtime import probe_cpus
+    from firmware_bridge.realtime import probe_cpus
 
     log(f"0. machine: kernel {os.uname().release}, preemption {kernel_preemption()}")
     log(f"   wake-up latency of a real-time sleeper, {seconds:g} s per CPU, without / with PM QoS")

@@ -3,8 +3,8 @@
 MAVLink (PX4 and ArduPilot alike) speaks NED / FRD: LOCAL_POSITION_NED (x north, y east,
 z down), ATTITUDE (Z-Y-X Euler of body FRD w.r.t. NED), ATTITUDE_QUATERNION and ODOMETRY
 (quaternion w, x, y, z rotating NED into FRD, i.e. body FRD -> world NED), body rates FRD.
-The companion controller (:mod:`ddpc_codegen.control`) is z-up: world ENU, body FLU. The
-conversions here are the MAVROS ones and agree with :func:`ddpc_codegen.control.enu_flu_to_ned_frd`::
+The companion controller (:mod:`ddpc_codegen.robot.controller`) is z-up: world ENU, body FLU. The
+conversions here are the MAVROS ones and agree with :func:`ddpc_codegen.robot.controller.enu_flu_to_ned_frd`::
 
     p_ENU = (p_N..E swapped) = (y_ned, x_ned, -z_ned)        (same for velocities)
     roll_FLU = roll_FRD, pitch_ENU = -pitch_NED, yaw_ENU = pi/2 - yaw_NED
@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ddpc_codegen.control import MeasuredState, euler_from_quat, quat_from_euler, quat_multiply
+from ddpc_codegen.robot.controller import MeasuredState
+from ddpc_codegen.robot.frames import euler_from_quat, quat_from_euler, quat_multiply
 
 __all__ = [
     "swap_frames",
@@ -56,7 +57,7 @@ _S = math.sqrt(0.5)
 def swap_frames(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float]:
     """Attitude quaternion body FLU -> world ENU to body FRD -> world NED, or back (the map is an
     involution): closed form of q_(ENU->NED) * q * q_(FRD->FLU), as
-    :func:`ddpc_codegen.control.enu_flu_to_ned_frd` computes it, without numpy (tick path)."""
+    :func:`ddpc_codegen.robot.controller.enu_flu_to_ned_frd` computes it, without numpy (tick path)."""
     return (-_S * (w + z), -_S * (x + y), _S * (y - x), _S * (z - w))
 
 

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.data import IODataset
+from ddpc_codegen.design.data import IODataset
 
 __all__ = ["TickRecorder", "TickLog", "load_ticklog", "REASONS", "reason_code", "TICK_FIELDS"]
 

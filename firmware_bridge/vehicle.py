@@ -46,15 +46,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.control import enu_flu_to_ned_frd, euler_from_quat, ned_frd_to_enu_flu, quat_from_euler
+from ddpc_codegen.robot.frames import enu_flu_to_ned_frd, euler_from_quat, ned_frd_to_enu_flu, quat_from_euler
 from ddpc_codegen.sim.flight_controller import PX4LikeFlightController
 from ddpc_codegen.sim.params import PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import STANCE, PogoXPlant
 from ddpc_codegen.sim.scenarios import get_scenario
 
-from .link import MavLink, mavlink
-from .realtime import setup_realtime
-from .profiles import (
+from firmware_bridge.link import MavLink, mavlink
+from firmware_bridge.realtime import setup_realtime
+from firmware_bridge.profiles import (
     ARDUCOPTER_MODES,
     MAV_AUTOPILOT_ARDUPILOTMEGA,
     MAV_AUTOPILOT_PX4,
@@ -66,7 +66,7 @@ from .profiles import (
     px4_custom_mode,
     px4_mode_name,
 )
-from .telemetry import euler_enu_to_ned
+from firmware_bridge.telemetry import euler_enu_to_ned
 
 __all__ = ["VehicleConfig", "SimVehicle", "MODE_OFFBOARD", "MODE_HOLD", "MODE_LAND"]
 

@@ -7,11 +7,12 @@ import json
 import time
 from pathlib import Path
 
-from ..errors import CodegenError
-from ..problem import SteeringProblem
-from .build import compile_extension
-from .emit import BACKENDS, DEFAULTS, auto_rho, check_name, emit_sources
-from .manifest import build_manifest, read_manifest, write_manifest
+from ddpc_codegen.errors import CodegenError
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.codegen.build import compile_extension
+from ddpc_codegen.codegen.emit import BACKENDS, DEFAULTS, auto_rho, check_name, emit_sources
+from ddpc_codegen.codegen.manifest import build_manifest, write_manifest
+from ddpc_codegen.runtime.manifest import read_manifest
 
 __all__ = ["generate", "BACKENDS", "read_manifest"]
 

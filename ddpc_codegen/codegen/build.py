@@ -13,7 +13,7 @@ from pathlib import Path
 import casadi
 import cffi
 
-from ..errors import CodegenError
+from ddpc_codegen.errors import CodegenError
 
 PORTABLE_FLAGS = ["-O3", "-std=c99", "-fno-strict-aliasing", "-Wno-unused-function", "-Wno-unused-variable"]
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import platform
 from pathlib import Path
@@ -11,19 +10,13 @@ import casadi
 import numpy as np
 import osqp
 
-from .. import __version__
-from ..errors import ManifestError
+from ddpc_codegen import __version__
+from ddpc_codegen.runtime.manifest import FORMAT, VERSION, sha256_file
 
-FORMAT = "ddpc-codegen-solver"
-VERSION = 1
 
 
 def _inf_list(a) -> list:
     return [None if not np.isfinite(x) else float(x) for x in np.ravel(a)]
-
-
-def sha256_file(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def build_manifest(problem, name: str, backend: str, module: str, extension: Path, sources: list[Path],
@@ -55,21 +48,6 @@ def build_manifest(problem, name: str, backend: str, module: str, extension: Pat
         "sources": {str(p.relative_to(out_dir)): sha256_file(p) for p in sorted(sources)},
         "extension_sha256": sha256_file(extension),
     }
-
-
-def read_manifest(folder: Path) -> dict:
-    path = Path(folder) / "manifest.json"
-    if not path.exists():
-        raise ManifestError(f"{folder} has no manifest.json: not a generated solver (run `ddpc-codegen codegen` first)")
-    try:
-        man = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise ManifestError(f"{path} is not valid JSON: {e}") from e
-    if man.get("format") != FORMAT or man.get("format_version") != VERSION:
-        raise ManifestError(
-            f"{path}: format {man.get('format')!r} v{man.get('format_version')} is not {FORMAT!r} v{VERSION}; regenerate the solver"
-        )
-    return man
 
 
 def write_manifest(folder: Path, manifest: dict) -> Path:

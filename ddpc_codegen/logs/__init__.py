@@ -7,10 +7,10 @@ Bad logs raise :class:`~ddpc_codegen.errors.DataError` naming the topic and time
 warn (:class:`LogImportWarning`) saying what was dropped; nothing is silently invented.
 """
 
-from .frames import down_to_up, euler_to_quat, ned_to_enu, quat_to_euler, yaw_ned_to_enu
-from .resample import RESAMPLING_RULE, ChannelSpec, LogImportWarning, parse_channel_spec
-from .tlog import TLOG_PRESETS, import_tlog, list_tlog_messages, read_tlog
-from .ulog import ULOG_PRESETS, import_ulog, list_ulog_topics
+from ddpc_codegen.logs.frames import down_to_up, euler_to_quat, ned_to_enu, quat_to_euler, yaw_ned_to_enu
+from ddpc_codegen.logs.resample import RESAMPLING_RULE, ChannelSpec, LogImportWarning, parse_channel_spec
+from ddpc_codegen.logs.tlog import TLOG_PRESETS, import_tlog, list_tlog_messages, read_tlog
+from ddpc_codegen.logs.ulog import ULOG_PRESETS, import_ulog, list_ulog_topics
 
 __all__ = [
     "import_ulog",

@@ -17,7 +17,7 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import DataError
+from ddpc_codegen.errors import DataError
 
 __all__ = [
     "quat_to_euler",

@@ -32,8 +32,8 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 from scipy.interpolate import CubicSpline, make_interp_spline
 
-from ..errors import DataError
-from .frames import unwrap_angle
+from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.frames import unwrap_angle
 
 __all__ = [
     "RULES",
@@ -580,7 +580,7 @@ def assemble(
     ``per_file`` holds (file metadata, segments, time origin µs) per log file; segment time
     ranges are recorded in seconds since that file's origin.
     """
-    from ..data import IODataset  # local: keep `logs` importable without the data layer loaded
+    from ddpc_codegen.design.data import IODataset  # local: keep `logs` importable without the data layer loaded
 
     u, y, segs_meta = [], [], []
     for fi, (fmeta, segs, origin) in enumerate(per_file):

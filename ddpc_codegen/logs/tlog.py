@@ -27,10 +27,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..data import IODataset
-from ..errors import DataError
-from .frames import ANGLE_FIELDS, derive_field
-from .resample import (
+from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
+from ddpc_codegen.logs.resample import (
     ChannelSpec,
     Notes,
     Series,

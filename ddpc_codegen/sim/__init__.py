@@ -1,12 +1,12 @@
 """PogoX flying-hopping simulator: hybrid plant, PX4-like inner loops, closed loop at 200 Hz.
 
-The companion-side controller it drives is :mod:`ddpc_codegen.control` (no simulator imports).
+The companion-side controller it drives is :mod:`ddpc_codegen.robot.controller` (no simulator imports).
 """
 
-from .loop import Excitation, Push, SimResult, TickContext, simulate
-from .params import FlightControllerGains, PogoXParams, SensorNoise
-from .plant import PogoXPlant
-from .scenarios import FlyingScenario, HoppingScenario, get_scenario
+from ddpc_codegen.sim.loop import Excitation, Push, SimResult, TickContext, simulate
+from ddpc_codegen.sim.params import FlightControllerGains, PogoXParams, SensorNoise
+from ddpc_codegen.sim.plant import PogoXPlant
+from ddpc_codegen.sim.scenarios import FlyingScenario, HoppingScenario, get_scenario
 
 __all__ = [
     "simulate",

@@ -16,7 +16,7 @@ mc_att_control + mc_rate_control + control allocator, simplified):
 
 Normalized thrust -> newtons: T = thrust * max_thrust, max_thrust = 4 k_F w_max^2 =
 thrust_to_weight * m g (see :mod:`ddpc_codegen.sim.params`). The frame here is ENU/FLU like the
-rest of the simulator; PX4 proper works in NED/FRD (use :func:`ddpc_codegen.control.enu_flu_to_ned_frd`).
+rest of the simulator; PX4 proper works in NED/FRD (use :func:`ddpc_codegen.robot.controller.enu_flu_to_ned_frd`).
 
 The controller uses the *true* attitude and rates (PX4's own estimator is assumed good); the
 companion computer sees a delayed, noisy state (see :mod:`ddpc_codegen.sim.loop`).
@@ -29,9 +29,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..control import quat_multiply
-from .params import PogoXParams
-from .plant import rotor_geometry
+from ddpc_codegen.robot.frames import quat_multiply
+from ddpc_codegen.sim.params import PogoXParams
+from ddpc_codegen.sim.plant import rotor_geometry
 
 __all__ = ["PX4LikeFlightController", "normalized_thrust_to_newton", "newton_to_normalized_thrust"]
 

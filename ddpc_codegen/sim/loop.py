@@ -26,21 +26,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..control import (
-    ASCENT,
-    DESCENT,
-    GROUND,
-    PHASE_NAMES,
-    ControllerConfig,
-    HeightLegAngleController,
-    MeasuredState,
-    euler_from_quat,
-)
-from ..data import IODataset, prbs
-from .flight_controller import PX4LikeFlightController
-from .params import PogoXParams, SensorNoise
-from .plant import STANCE, HybridEventError, PogoXPlant
-from .scenarios import FlyingScenario, Scenario, get_scenario
+from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, PHASE_NAMES
+from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController, MeasuredState
+from ddpc_codegen.robot.frames import euler_from_quat
+from ddpc_codegen.design.data import IODataset, prbs
+from ddpc_codegen.sim.flight_controller import PX4LikeFlightController
+from ddpc_codegen.sim.params import PogoXParams, SensorNoise
+from ddpc_codegen.sim.plant import STANCE, HybridEventError, PogoXPlant
+from ddpc_codegen.sim.scenarios import FlyingScenario, Scenario, get_scenario
 
 __all__ = ["simulate", "SimResult", "TickContext", "Push", "Excitation"]
 
@@ -219,7 +212,7 @@ class SimResult:
 
     def metrics(self) -> dict[str, Any]:
         """Tracking metrics (see :mod:`ddpc_codegen.sim.metrics`)."""
-        from .metrics import compute_metrics
+        from ddpc_codegen.sim.metrics import compute_metrics
 
         return compute_metrics(self)
 
@@ -269,7 +262,7 @@ class SimResult:
         else:
             raise ValueError(f"split must be 'auto', 'none', 'hops' or 'aerial'; got {split!r}")
         if not segments:
-            from ..errors import DataError
+            from ddpc_codegen.errors import DataError
 
             raise DataError(
                 f"no {split!r} segments in this {self.scenario} run of {self.t[-1] if n else 0:.2f} s "

@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..control import GROUND
+from ddpc_codegen.design.phases import GROUND
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .loop import SimResult
+    from ddpc_codegen.sim.loop import SimResult
 
 __all__ = ["compute_metrics", "rmse", "hop_apexes"]
 

@@ -46,7 +46,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import brentq
 
-from .params import PogoXParams
+from ddpc_codegen.sim.params import PogoXParams
 
 __all__ = ["AIR", "STANCE", "PogoXPlant", "PlantEvent", "HybridEventError", "rotor_geometry"]
 

@@ -11,12 +11,12 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..control import GROUND
+from ddpc_codegen.design.phases import GROUND
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from .loop import SimResult
+    from ddpc_codegen.sim.loop import SimResult
 
 __all__ = ["plot_result", "plot_xz", "plot_tracking", "save_figure"]
 

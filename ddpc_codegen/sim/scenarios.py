@@ -6,7 +6,7 @@
   rest from the apex. Inputs u = [z_ref, roll_ref, pitch_ref], outputs y = [z, roll, pitch].
 
 The trajectory math itself (ellipse, ballistic arcs, nominal hop cycle) lives in
-:mod:`ddpc_codegen.control`, because the companion computer needs it too; a scenario only binds
+:mod:`ddpc_codegen.robot.controller`, because the companion computer needs it too; a scenario only binds
 it to the simulated robot's parameters.
 """
 
@@ -15,8 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..control import ControllerConfig, EllipseTrajectory, HeightLegAngleController
-from .params import PogoXParams
+from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController
+from ddpc_codegen.robot.trajectory import EllipseTrajectory
+from ddpc_codegen.sim.params import PogoXParams
 
 __all__ = ["FlyingScenario", "HoppingScenario", "Scenario", "get_scenario", "EllipseTrajectory"]
 

@@ -10,10 +10,12 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import nnls
 
-from conftest import random_lti
+from support.lti import random_lti
 from ddpc_codegen import (DataError, IODataset, ManifestError, SteeringConfig, SteeringProblem, fit_predictor,
                           generate, load_solver)
-from ddpc_codegen.cli import main as cli_main
+from ddpc_codegen.cli.main import main as cli_main
+
+pytestmark = pytest.mark.compiler
 
 TI, TF, M, P = 10, 8, 2, 2
 

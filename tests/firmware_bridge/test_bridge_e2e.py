@@ -13,7 +13,8 @@ from firmware_bridge.demo import in_process, truth_rmse
 from firmware_bridge.ticklog import load_ticklog
 
 from bridge_helpers import Procs, free_port, read_json
-from bridge_helpers import flying_solver, procs  # noqa: F401 (fixtures)
+
+pytestmark = [pytest.mark.e2e, pytest.mark.compiler, pytest.mark.realtime]
 
 FLIGHT = 8.0  # s of off-board flight per run (RMSE over t >= 3 s)
 
@@ -115,7 +116,7 @@ def test_ardupilot_profile_guided_nogps_with_both_thrust_semantics(procs, tmp_pa
 def test_frame_start_keeps_heading_and_position_world_turns_east(procs, tmp_path):
     # The robot is 3.6 m from the trajectory's start point, heading 60 deg (ENU). "start" (default)
     # flies the ellipse from there along that heading; "world" turns it east and flies to the origin.
-    from ddpc_codegen.control import euler_from_quat
+    from ddpc_codegen.robot.frames import euler_from_quat
 
     runs = {}
     for fr in ("start", "world"):

@@ -10,10 +10,11 @@ import time
 import numpy as np
 import pytest
 from bridge_helpers import FakeVehicle, Procs, free_port, read_json
-from bridge_helpers import fake_vehicle_factory, flying_solver, procs  # noqa: F401 (fixtures)
 
 from firmware_bridge.link import mavlink
 from firmware_bridge.ticklog import REASONS, load_ticklog
+
+pytestmark = [pytest.mark.e2e, pytest.mark.compiler]
 
 R = {r: i for i, r in enumerate(REASONS)}
 MAX_AGE_MS = 50.0

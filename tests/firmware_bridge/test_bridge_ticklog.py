@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from bridge_helpers import ROOT, free_port, read_json
-from bridge_helpers import procs  # noqa: F401 (fixtures)
 
 from ddpc_codegen import IODataset, SteeringConfig
 from firmware_bridge.ticklog import REASONS, TickRecorder, load_ticklog
+
+pytestmark = pytest.mark.e2e
 
 R = {r: i for i, r in enumerate(REASONS)}
 
@@ -46,7 +47,7 @@ def test_collect_log_reloads_as_an_iodataset(procs, tmp_path):
     assert np.any(t["reason"] == R["inactive"]) and np.all(np.isfinite(t["latency_us"][t["event"]]))
 
     # ... and the codegen front end fits a steering predictor on it as is.
-    from ddpc_codegen.codegen.cli import build_from_config
+    from ddpc_codegen.cli.codegen import build_from_config
 
     cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml").replace(predictor={"method": "lsq"})
     prob = build_from_config(cfg, log)

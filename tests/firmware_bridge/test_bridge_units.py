@@ -11,7 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from ddpc_codegen.control import enu_flu_to_ned_frd, euler_from_quat, quat_from_euler
+from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.robot.frames import enu_flu_to_ned_frd, euler_from_quat, quat_from_euler
 from firmware_bridge.bridge import gap_statistics
 from firmware_bridge.link import CommandTracker, MavLink, mavlink, parse_url
 from firmware_bridge.profiles import (
@@ -112,7 +113,7 @@ def test_frame_helpers_agree_with_the_controller_conventions():
 
 # ----------------------------------------------------------------------------- link
 def test_trajectory_frame_start_maps_heading_and_start_point():
-    from ddpc_codegen.control import MeasuredState
+    from ddpc_codegen.robot.controller import MeasuredState
 
     yaw0 = math.radians(60.0)
     fr = TrajectoryFrame("start", anchor=(0.5, 0.0))
@@ -132,7 +133,7 @@ def test_trajectory_frame_start_maps_heading_and_start_point():
 
 
 def test_trajectory_frame_world_is_the_identity():
-    from ddpc_codegen.control import MeasuredState
+    from ddpc_codegen.robot.controller import MeasuredState
 
     fr = TrajectoryFrame("world", anchor=(0.5, 0.0))
     fr.capture(np.array([3.0, -2.0, 1.0]), 1.0)  # ignored
@@ -348,7 +349,7 @@ def test_controller_toml_overrides_the_model(tmp_path):
     assert cfg.trajectory.period == 12.0 and cfg.trajectory.radii == (0.5, 0.2)
     assert cfg.max_step is None and cfg.max_age == pytest.approx(0.05)
     f.write_text("[controller]\nmodel_mas = 3.3\n")
-    with pytest.raises(ValueError, match="unknown \\[controller\\] keys"):
+    with pytest.raises(ConfigError, match=r"\[controller\] model_mas is not a known key"):
         bridge_config_from_args(build_bridge_parser().parse_args(["--mode", "passthrough", "--controller", str(f)]))
 
 

@@ -6,12 +6,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 from bridge_helpers import free_port
-from bridge_helpers import procs  # noqa: F401 (fixtures)
 
 from firmware_bridge.link import MavLink, mavlink
 from firmware_bridge.profiles import PX4Profile, px4_decode
 from firmware_bridge.telemetry import swap_frames
+
+pytestmark = pytest.mark.e2e
 
 ACK = {v.name: k for k, v in mavlink.enums["MAV_RESULT"].items()}
 

@@ -15,6 +15,8 @@ from firmware_bridge.cli import build_bridge_parser, build_vehicle_parser
 from firmware_bridge.realtime import main as rtcheck_main
 from firmware_bridge.realtime import kernel_preemption, measure_wakeup_latency, setup_realtime
 
+pytestmark = pytest.mark.realtime
+
 
 def test_best_effort_does_nothing(tmp_path):
     qos = tmp_path / "qos"

@@ -9,7 +9,7 @@ from tlog_writer import SyntheticMavlinkFlight
 from ulog_writer import SyntheticFlight, write_ulog
 
 from ddpc_codegen import IODataset
-from ddpc_codegen.logs.cli import register
+from ddpc_codegen.cli.logs import register
 
 
 def _run(argv):
@@ -61,7 +61,7 @@ def test_import_tlog_and_npz_passthrough(tmp_path, capsys):
 
 
 def test_errors_are_clean_messages_with_exit_code_2(ulg, tmp_path, capsys):
-    from ddpc_codegen.cli import main
+    from ddpc_codegen.cli.main import main
 
     rc = main(["import-ulog", str(ulg), "--input", "trajectory_setpoint.z_up", "--output", "vehicle_attitude.nope",
                "-o", str(tmp_path / "x.npz")])

@@ -10,8 +10,8 @@ from ddpc_codegen import prbs
 from ddpc_codegen.logs import import_ulog
 from ddpc_codegen.logs.frames import euler_to_quat
 
-hankel = pytest.importorskip("ddpc_codegen.hankel")
-predictor = pytest.importorskip("ddpc_codegen.predictor")
+hankel = pytest.importorskip("ddpc_codegen.design.hankel")
+predictor = pytest.importorskip("ddpc_codegen.design.predictor")
 
 pytestmark = pytest.mark.filterwarnings("ignore::ddpc_codegen.logs.LogImportWarning")
 

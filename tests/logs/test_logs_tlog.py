@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 from pymavlink import mavutil
-from tlog_writer import UNIX_T0_US, SyntheticMavlinkFlight, TlogWriter
+from tlog_writer import UNIX_T0_US, SyntheticMavlinkFlight
 
 from ddpc_codegen import IODataset
 from ddpc_codegen.errors import DataError

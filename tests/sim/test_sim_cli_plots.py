@@ -10,7 +10,7 @@ import pytest
 
 from ddpc_codegen import IODataset
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.sim import cli as sim_cli
+from ddpc_codegen.cli import sim as sim_cli
 from ddpc_codegen.sim import simulate
 from ddpc_codegen.sim.plots import plot_result, plot_tracking, save_figure
 
@@ -28,9 +28,9 @@ def _run(argv):
 
 
 def test_cli_is_registered_in_the_main_command():
-    import ddpc_codegen.cli as main_cli
+    import ddpc_codegen.cli.main as main_cli
 
-    assert "ddpc_codegen.sim.cli" in main_cli._COMMAND_MODULES
+    assert "ddpc_codegen.cli.sim" in main_cli._COMMAND_MODULES
 
 
 def test_simulate_json(capsys, tmp_path):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen import IODataset
-from ddpc_codegen.control import ASCENT, DESCENT, FLYING, GROUND
+from ddpc_codegen.design.phases import ASCENT, DESCENT, FLYING, GROUND
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory
 
@@ -126,7 +126,7 @@ def test_hopping_desired_outputs_are_available_ahead(hopping):
 
 
 def test_prbs_excited_data_is_persistently_exciting():
-    from ddpc_codegen.hankel import persistency_of_excitation
+    from ddpc_codegen.design.hankel import persistency_of_excitation
 
     r = simulate("flying", 25.0, excitation=Excitation(amplitude=(0.05, 0.03), min_hold=4), seed=3)
     assert not r.crashed

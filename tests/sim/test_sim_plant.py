@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from ddpc_codegen.control import quat_from_euler
+from ddpc_codegen.robot.frames import quat_from_euler
 from ddpc_codegen.sim.params import PogoXParams
 from ddpc_codegen.sim.plant import AIR, STANCE, PogoXPlant
 

@@ -1,0 +1,288 @@
+"""Steering configuration: horizons, weights, bounds, predictor and codegen options.
+
+Loaded from TOML and validated on load; every message names the offending key and value.
+See ``configs/flying.toml`` for an annotated example.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ddpc_codegen.errors import ConfigError
+
+__all__ = ["SteeringConfig", "R_MODES", "BACKENDS"]
+
+R_MODES = ("absolute", "offset", "increment")
+BACKENDS = ("daqp", "osqp")
+_PREDICTOR_METHODS = ("pem", "lsq")
+
+# section -> allowed keys (unknown keys are errors: a typo must not silently fall back to a default)
+_SCHEMA: dict[str, tuple[str, ...]] = {
+    "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data"),
+    "horizon": ("t_ini", "t_f", "dt"),
+    "signals": ("inputs", "outputs", "input_units", "output_units"),
+    "cost": ("Q", "R", "R_mode", "R_du", "lambda_sigma"),
+    "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
+    "predictor": ("method", "slack_weight", "ridge", "rcond"),
+    "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
+    "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online"),
+    "data": ("dataset",),
+}
+# [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.
+_ART_INT_MIN = {"t_d": 1, "t_a": 1, "t_d_online": 0, "min_ascent": 1, "ground_margin": 0}
+
+
+def _err(src: str, key: str, msg: str) -> ConfigError:
+    return ConfigError(f"{src}: {key} {msg}")
+
+
+def _weight(value: Any, n: int, key: str, src: str) -> np.ndarray:
+    """Diagonal (n,) or full (n, n) weight -> symmetric PSD (n, n) matrix."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise _err(src, key, f"must be a list of numbers or a matrix; got {value!r}") from None
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.ndim == 1:
+        if a.shape[0] != n:
+            raise _err(src, key, f"must have {n} entries (one per channel) or be a {n}x{n} matrix; got {a.shape[0]} entries {a.tolist()}")
+        if np.any(a < 0) or not np.all(np.isfinite(a)):
+            raise _err(src, key, f"diagonal entries must be finite and >= 0; got {a.tolist()}")
+        return np.diag(a)
+    if a.shape != (n, n):
+        raise _err(src, key, f"must be {n} entries or a {n}x{n} matrix; got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or not np.allclose(a, a.T, atol=1e-12):
+        raise _err(src, key, "must be a finite symmetric matrix")
+    if np.linalg.eigvalsh(a).min() < -1e-12:
+        raise _err(src, key, f"must be positive semidefinite; smallest eigenvalue {np.linalg.eigvalsh(a).min():.3g}")
+    return a
+
+
+def _bound(value: Any, n: int, key: str, src: str, default: float) -> np.ndarray:
+    if value is None:
+        return np.full(n, default)
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise _err(src, key, f"must be a number or a list of {n} numbers; got {value!r}") from None
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.shape != (n,):
+        raise _err(src, key, f"must have {n} entries (one per channel); got {a.size}: {np.ravel(a).tolist()}")
+    if np.any(np.isnan(a)):
+        raise _err(src, key, f"must not contain NaN; got {a.tolist()}")
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class SteeringConfig:
+    """Validated steering configuration.
+
+    Shapes: Q (p, p), R (m, m) per time step (expanded block-diagonally over Tf);
+    u_min/u_max/du_max (m,), y_min/y_max (p,) in the signals' units (±inf = unbounded).
+    ``R_mode``: ``absolute`` penalises ||u||_R (the paper), ``offset`` ||u - u_nom||_R,
+    ``increment`` ||Δu||_R with Δu_0 = u_0 - u_ini[-1]. ``R_du`` (m, m; default 0) adds a rate
+    penalty ||Δu||_R_du on top of any mode, e.g. a smooth *and* small steering offset.
+    """
+
+    t_ini: int
+    t_f: int
+    m: int
+    p: int
+    Q: np.ndarray
+    R: np.ndarray
+    lambda_sigma: float = 1e3
+    R_mode: str = "offset"
+    R_du: np.ndarray | None = None
+    u_min: np.ndarray | None = None
+    u_max: np.ndarray | None = None
+    y_min: np.ndarray | None = None
+    y_max: np.ndarray | None = None
+    du_max: np.ndarray | None = None
+    dt: float = 0.005
+    name: str = "steering"
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+    input_units: tuple[str, ...] = ()
+    output_units: tuple[str, ...] = ()
+    predictor: dict = field(default_factory=dict)
+    codegen: dict = field(default_factory=dict)
+    artificial_io: dict = field(default_factory=dict)
+    dataset: str | None = None
+    source: str = "<config>"
+
+    def __post_init__(self) -> None:
+        src = self.source
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        for key in ("t_ini", "t_f", "m", "p"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise _err(src, key, f"must be a positive integer; got {v!r}")
+            set_(key, int(v))
+        m, p = self.m, self.p
+        set_("Q", _weight(self.Q, p, "[cost] Q", src))
+        set_("R", _weight(self.R, m, "[cost] R", src))
+        set_("R_du", np.zeros((m, m)) if self.R_du is None else _weight(self.R_du, m, "[cost] R_du", src))
+        if self.R_mode not in R_MODES:
+            raise _err(src, "[cost] R_mode", f"must be one of {list(R_MODES)}; got {self.R_mode!r}")
+        ls = self.lambda_sigma
+        if isinstance(ls, bool) or not isinstance(ls, (int, float)) or not np.isfinite(ls) or ls < 0:
+            raise _err(src, "[cost] lambda_sigma", f"must be a number >= 0; got {ls!r}")
+        set_("lambda_sigma", float(ls))
+        set_("u_min", _bound(self.u_min, m, "[bounds] u_min", src, -np.inf))
+        set_("u_max", _bound(self.u_max, m, "[bounds] u_max", src, np.inf))
+        set_("y_min", _bound(self.y_min, p, "[bounds] y_min", src, -np.inf))
+        set_("y_max", _bound(self.y_max, p, "[bounds] y_max", src, np.inf))
+        set_("du_max", _bound(self.du_max, m, "[bounds] du_max", src, np.inf))
+        for lo, hi in (("u_min", "u_max"), ("y_min", "y_max")):
+            bad = np.nonzero(getattr(self, lo) > getattr(self, hi))[0]
+            if bad.size:
+                i = int(bad[0])
+                raise _err(src, f"[bounds] {lo}/{hi}", f"channel {i}: lower {getattr(self, lo)[i]} > upper {getattr(self, hi)[i]}")
+        if np.any(self.du_max <= 0):
+            raise _err(src, "[bounds] du_max", f"must be > 0 (per step); got {self.du_max.tolist()}")
+        if not (isinstance(self.dt, (int, float)) and np.isfinite(self.dt) and self.dt > 0):
+            raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
+        set_("dt", float(self.dt))
+        for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
+            v = tuple(getattr(self, key) or ())
+            if v and len(v) != n:
+                raise _err(src, f"[signals] {key}", f"must have {n} entries; got {len(v)}: {list(v)}")
+            set_(key, v)
+        pred = dict(self.predictor)
+        pred.setdefault("method", "pem")
+        if pred["method"] not in _PREDICTOR_METHODS:
+            raise _err(src, "[predictor] method", f"must be one of {list(_PREDICTOR_METHODS)}; got {pred['method']!r}")
+        for k, lo in (("slack_weight", 0.0), ("ridge", -1e-300), ("rcond", 0.0)):
+            if k in pred and not (isinstance(pred[k], (int, float)) and np.isfinite(pred[k]) and pred[k] > lo):
+                raise _err(src, f"[predictor] {k}", f"must be a positive number; got {pred[k]!r}")
+        set_("predictor", pred)
+        cg = dict(self.codegen)
+        cg.setdefault("backend", "daqp")
+        if cg["backend"] not in BACKENDS:
+            raise _err(src, "[codegen] backend", f"must be one of {list(BACKENDS)}; got {cg['backend']!r}")
+        if "max_iter" in cg and not (isinstance(cg["max_iter"], int) and cg["max_iter"] > 0):
+            raise _err(src, "[codegen] max_iter", f"must be a positive integer; got {cg['max_iter']!r}")
+        if "eps" in cg and not (isinstance(cg["eps"], (int, float)) and 0 < cg["eps"] < 1):
+            raise _err(src, "[codegen] eps", f"must be a number in (0, 1); got {cg['eps']!r}")
+        if "rho" in cg and not (isinstance(cg["rho"], (int, float)) and cg["rho"] > 0):
+            raise _err(src, "[codegen] rho", f"must be a positive number; got {cg['rho']!r}")
+        if "march_native" in cg and not isinstance(cg["march_native"], bool):
+            raise _err(src, "[codegen] march_native", f"must be true or false; got {cg['march_native']!r}")
+        set_("codegen", cg)
+        art = dict(self.artificial_io)
+        for k, v in art.items():
+            if k in _ART_INT_MIN:
+                if isinstance(v, bool) or not isinstance(v, int) or v < _ART_INT_MIN[k]:
+                    raise _err(src, f"[artificial_io] {k}", f"must be an integer >= {_ART_INT_MIN[k]}; got {v!r}")
+            elif k in _SCHEMA["artificial_io"]:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+                    raise _err(src, f"[artificial_io] {k}", f"must be a number >= 0; got {v!r}")
+            else:
+                raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
+        set_("artificial_io", art)
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "SteeringConfig":
+        """Load and validate a TOML config; a relative [data] dataset is resolved against its folder."""
+        path = Path(path)
+        if not path.exists():
+            raise ConfigError(f"config file {path} does not exist")
+        try:
+            raw = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{path}: not valid TOML: {e}") from e
+        cfg = cls.from_dict(raw, source=str(path))
+        if cfg.dataset and not Path(cfg.dataset).is_absolute():
+            object.__setattr__(cfg, "dataset", str((path.parent / cfg.dataset).resolve()))
+        return cfg
+
+    @classmethod
+    def from_dict(cls, raw: dict, source: str = "<config>") -> "SteeringConfig":
+        """Validate a nested dict with the TOML layout (sections horizon, signals, cost, ...)."""
+        for key in raw:
+            if key not in _SCHEMA[""]:
+                raise _err(source, repr(key), f"is not a known top-level key; allowed: {list(_SCHEMA[''])}")
+        for sec, keys in _SCHEMA.items():
+            if not sec or sec == "name":
+                continue
+            body = raw.get(sec, {})
+            if not isinstance(body, dict):
+                raise _err(source, f"[{sec}]", f"must be a table; got {body!r}")
+            for key in body:
+                if key not in keys:
+                    raise _err(source, f"[{sec}] {key}", f"is not a known key; allowed: {list(keys)}")
+        hz, sg, co, bd = (raw.get(k, {}) for k in ("horizon", "signals", "cost", "bounds"))
+        for sec, body, key in (("horizon", hz, "t_ini"), ("horizon", hz, "t_f"), ("signals", sg, "inputs"),
+                               ("signals", sg, "outputs"), ("cost", co, "Q"), ("cost", co, "R")):
+            if key not in body:
+                raise _err(source, f"[{sec}] {key}", "is required but missing")
+        for key in ("inputs", "outputs"):
+            if not isinstance(sg[key], list) or not sg[key] or not all(isinstance(s, str) for s in sg[key]):
+                raise _err(source, f"[signals] {key}", f"must be a non-empty list of channel names; got {sg[key]!r}")
+        return cls(
+            t_ini=hz["t_ini"],
+            t_f=hz["t_f"],
+            dt=hz.get("dt", 0.005),
+            m=len(sg["inputs"]),
+            p=len(sg["outputs"]),
+            input_names=tuple(sg["inputs"]),
+            output_names=tuple(sg["outputs"]),
+            input_units=tuple(sg.get("input_units", ())),
+            output_units=tuple(sg.get("output_units", ())),
+            Q=co["Q"],
+            R=co["R"],
+            R_mode=co.get("R_mode", "offset"),
+            R_du=co.get("R_du"),
+            lambda_sigma=co.get("lambda_sigma", 1e3),
+            u_min=bd.get("u_min"),
+            u_max=bd.get("u_max"),
+            y_min=bd.get("y_min"),
+            y_max=bd.get("y_max"),
+            du_max=bd.get("du_max"),
+            name=str(raw.get("name", Path(source).stem if source != "<config>" else "steering")),
+            predictor=raw.get("predictor", {}),
+            codegen=raw.get("codegen", {}),
+            artificial_io=raw.get("artificial_io", {}),
+            dataset=raw.get("data", {}).get("dataset"),
+            source=source,
+        )
+
+    # ------------------------------------------------------------------ identity
+    def to_dict(self) -> dict:
+        """JSON-friendly dict of the validated values (infinite bounds as null)."""
+        f = lambda a: [None if not np.isfinite(x) else float(x) for x in np.ravel(a)]  # noqa: E731
+        return {
+            "name": self.name, "t_ini": self.t_ini, "t_f": self.t_f, "m": self.m, "p": self.p,
+            "dt": self.dt, "Q": self.Q.tolist(), "R": self.R.tolist(), "R_mode": self.R_mode,
+            "lambda_sigma": self.lambda_sigma, "u_min": f(self.u_min), "u_max": f(self.u_max),
+            "y_min": f(self.y_min), "y_max": f(self.y_max), "du_max": f(self.du_max),
+            "input_names": list(self.input_names), "output_names": list(self.output_names),
+            "predictor": {k: v for k, v in self.predictor.items()},
+            "codegen": {k: v for k, v in self.codegen.items()},
+            # only when used: configs without a rate penalty keep their digest (and their solvers)
+            **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
+            **({"artificial_io": dict(self.artificial_io)} if self.artificial_io else {}),
+        }
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the validated problem-defining values (not of file formatting)."""
+        d = self.to_dict()
+        d.pop("codegen", None)  # how it is compiled does not change what it solves
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+    def replace(self, **changes: Any) -> "SteeringConfig":
+        """A copy with some fields changed (validated again)."""
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        d.update(changes)
+        return SteeringConfig(**d)

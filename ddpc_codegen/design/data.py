@@ -1,0 +1,299 @@
+"""Input/output datasets of a closed loop, and PRBS excitation signals.
+
+Signals are time-major: ``u.shape == (T, m)``, ``y.shape == (T, p)``. A dataset holds one or
+more trajectories (flights, hops); they are never concatenated into one signal, because a
+Hankel matrix across the seam would invent a transition that never happened.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.signal import max_len_seq
+
+from ddpc_codegen.errors import DataError
+
+__all__ = ["IODataset", "prbs"]
+
+
+def _as_signal(x: Any, what: str, index: int) -> np.ndarray:
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 1:
+        a = a[:, None]
+    if a.ndim != 2:
+        raise DataError(
+            f"{what} of trajectory {index} must be a 2-D time-major array (T, channels); "
+            f"got shape {a.shape}"
+        )
+    if a.shape[0] == 0:
+        raise DataError(f"{what} of trajectory {index} is empty (0 samples)")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        t, c = np.argwhere(bad)[0]
+        raise DataError(
+            f"{what} of trajectory {index} has {int(bad.sum())} non-finite value(s) "
+            f"(first at sample {t}, channel {c}: {a[t, c]}); clean or drop them before building a dataset"
+        )
+    return a
+
+
+def _names(names: Sequence[str] | None, n: int, prefix: str, what: str) -> tuple[str, ...]:
+    if names is None:
+        return tuple(f"{prefix}{i}" for i in range(n))
+    names = tuple(str(s) for s in names)
+    if len(names) != n:
+        raise DataError(f"{what} has {len(names)} entries {list(names)} but the data has {n} channels")
+    return names
+
+
+@dataclass(frozen=True, eq=False)
+class IODataset:
+    """One or more input/output trajectories of a closed loop, sampled every ``dt`` seconds.
+
+    Args:
+        u: input array (T, m) or a list of them, one per trajectory (the references sent).
+        y: output array (T, p) or a list of them (what the robot really did).
+        dt: sample time in seconds.
+        input_names / output_names: channel names (default u0.., y0..).
+        input_units / output_units: unit strings per channel (default "").
+        phases: optional integer label array (T,) per trajectory (e.g. hopping phases).
+        metadata: free JSON-serialisable provenance (source file, topics, time ranges...).
+    """
+
+    u: tuple[np.ndarray, ...]
+    y: tuple[np.ndarray, ...]
+    dt: float
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+    input_units: tuple[str, ...] = ()
+    output_units: tuple[str, ...] = ()
+    phases: tuple[np.ndarray, ...] | None = None
+    metadata: dict = field(default_factory=dict)
+
+    def __init__(
+        self,
+        u: np.ndarray | Sequence[np.ndarray],
+        y: np.ndarray | Sequence[np.ndarray],
+        dt: float,
+        *,
+        input_names: Sequence[str] | None = None,
+        output_names: Sequence[str] | None = None,
+        input_units: Sequence[str] | None = None,
+        output_units: Sequence[str] | None = None,
+        phases: np.ndarray | Sequence[np.ndarray] | None = None,
+        metadata: dict | None = None,
+    ) -> None:
+        us = [u] if isinstance(u, np.ndarray) else list(u)
+        ys = [y] if isinstance(y, np.ndarray) else list(y)
+        if len(us) == 0:
+            raise DataError("a dataset needs at least one trajectory; got none")
+        if len(us) != len(ys):
+            raise DataError(f"got {len(us)} input trajectories but {len(ys)} output trajectories")
+        us = [_as_signal(a, "u", i) for i, a in enumerate(us)]
+        ys = [_as_signal(a, "y", i) for i, a in enumerate(ys)]
+        m, p = us[0].shape[1], ys[0].shape[1]
+        for i, (a, b) in enumerate(zip(us, ys)):
+            if a.shape[0] != b.shape[0]:
+                raise DataError(
+                    f"trajectory {i}: u has {a.shape[0]} samples but y has {b.shape[0]}; "
+                    "inputs and outputs must be sampled on the same grid"
+                )
+            if a.shape[1] != m or b.shape[1] != p:
+                raise DataError(
+                    f"trajectory {i} has m={a.shape[1]}, p={b.shape[1]} but trajectory 0 has m={m}, p={p}"
+                )
+        try:
+            dt = float(dt)
+        except (TypeError, ValueError):
+            raise DataError(f"dt must be a positive number of seconds; got {dt!r}") from None
+        if not np.isfinite(dt) or dt <= 0:
+            raise DataError(f"dt must be a positive number of seconds; got {dt}")
+        ph = None
+        if phases is not None:
+            phl = [phases] if isinstance(phases, np.ndarray) else list(phases)
+            if len(phl) != len(us):
+                raise DataError(f"got {len(phl)} phase arrays for {len(us)} trajectories")
+            ph = []
+            for i, (lab, a) in enumerate(zip(phl, us)):
+                lab = np.asarray(lab).astype(np.int8).reshape(-1)
+                if lab.shape[0] != a.shape[0]:
+                    raise DataError(f"trajectory {i}: {lab.shape[0]} phase labels for {a.shape[0]} samples")
+                ph.append(lab)
+            ph = tuple(ph)
+        for a in us + ys:
+            a.setflags(write=False)
+        object.__setattr__(self, "u", tuple(us))
+        object.__setattr__(self, "y", tuple(ys))
+        object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "input_names", _names(input_names, m, "u", "input_names"))
+        object.__setattr__(self, "output_names", _names(output_names, p, "y", "output_names"))
+        object.__setattr__(
+            self, "input_units", _names(input_units, m, "", "input_units") if input_units else ("",) * m
+        )
+        object.__setattr__(
+            self, "output_units", _names(output_units, p, "", "output_units") if output_units else ("",) * p
+        )
+        object.__setattr__(self, "phases", ph)
+        object.__setattr__(self, "metadata", dict(metadata or {}))
+
+    # ------------------------------------------------------------------ shape facts
+    @property
+    def m(self) -> int:
+        """Number of input channels."""
+        return self.u[0].shape[1]
+
+    @property
+    def p(self) -> int:
+        """Number of output channels."""
+        return self.y[0].shape[1]
+
+    @property
+    def n_trajectories(self) -> int:
+        return len(self.u)
+
+    @property
+    def lengths(self) -> tuple[int, ...]:
+        """Samples per trajectory."""
+        return tuple(a.shape[0] for a in self.u)
+
+    @property
+    def n_samples(self) -> int:
+        """Total samples over all trajectories."""
+        return int(sum(self.lengths))
+
+    def __repr__(self) -> str:
+        return (
+            f"IODataset(m={self.m} {list(self.input_names)}, p={self.p} {list(self.output_names)}, "
+            f"trajectories={self.n_trajectories}, samples={self.n_samples}, dt={self.dt})"
+        )
+
+    def trajectories(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """List of (u (T_i, m), y (T_i, p)) pairs."""
+        return list(zip(self.u, self.y))
+
+    def columns(self, depth: int) -> int:
+        """Number of Hankel columns of the given depth over all trajectories (mosaic)."""
+        return int(sum(max(0, T - depth + 1) for T in self.lengths))
+
+    def select(self, indices: Sequence[int]) -> "IODataset":
+        """A dataset with only the given trajectories."""
+        idx = list(indices)
+        return IODataset(
+            [self.u[i] for i in idx],
+            [self.y[i] for i in idx],
+            self.dt,
+            input_names=self.input_names,
+            output_names=self.output_names,
+            input_units=self.input_units,
+            output_units=self.output_units,
+            phases=None if self.phases is None else [self.phases[i] for i in idx],
+            metadata=self.metadata,
+        )
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | Path) -> Path:
+        """Write the dataset as a compressed ``.npz`` (arrays + JSON metadata)."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays: dict[str, np.ndarray] = {}
+        for i, (a, b) in enumerate(zip(self.u, self.y)):
+            arrays[f"u_{i}"] = a
+            arrays[f"y_{i}"] = b
+            if self.phases is not None:
+                arrays[f"phase_{i}"] = self.phases[i]
+        header = {
+            "format": "ddpc-iodataset",
+            "version": 1,
+            "n_trajectories": self.n_trajectories,
+            "dt": self.dt,
+            "input_names": list(self.input_names),
+            "output_names": list(self.output_names),
+            "input_units": list(self.input_units),
+            "output_units": list(self.output_units),
+            "has_phases": self.phases is not None,
+            "metadata": self.metadata,
+        }
+        arrays["header"] = np.frombuffer(json.dumps(header, sort_keys=True).encode(), dtype=np.uint8)
+        np.savez_compressed(path, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "IODataset":
+        """Read a dataset written by :meth:`save` (or by the MAVLink bridge's tick log)."""
+        path = Path(path)
+        if not path.exists():
+            raise DataError(f"dataset file {path} does not exist")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if "header" not in z:
+                    raise DataError(f"{path} is not an IODataset file (no 'header' entry)")
+                header = json.loads(bytes(z["header"]).decode())
+                n = int(header["n_trajectories"])
+                u = [z[f"u_{i}"] for i in range(n)]
+                y = [z[f"y_{i}"] for i in range(n)]
+                ph = [z[f"phase_{i}"] for i in range(n)] if header.get("has_phases") else None
+        except DataError:
+            raise
+        except (OSError, ValueError, KeyError) as e:
+            raise DataError(f"could not read dataset {path}: {e}") from e
+        return cls(
+            u,
+            y,
+            header["dt"],
+            input_names=header["input_names"],
+            output_names=header["output_names"],
+            input_units=header["input_units"],
+            output_units=header["output_units"],
+            phases=ph,
+            metadata=header.get("metadata", {}),
+        )
+
+
+def prbs(
+    n_samples: int,
+    channels: int = 1,
+    *,
+    amplitude: float | Sequence[float] = 1.0,
+    min_hold: int = 1,
+    order: int | None = None,
+    seed: int = 0,
+) -> np.ndarray:
+    """Maximal-length pseudo-random binary sequence(s), values ``±amplitude``.
+
+    Each channel is a maximal-length LFSR sequence (``scipy.signal.max_len_seq``) of the given
+    ``order`` (period 2**order - 1 bits)
+    started from its own seeded nonzero state, each bit held for ``min_hold`` samples.
+
+    Returns:
+        array (n_samples, channels).
+    """
+    if int(n_samples) <= 0:
+        raise DataError(f"prbs needs n_samples > 0; got {n_samples}")
+    if int(channels) <= 0:
+        raise DataError(f"prbs needs channels >= 1; got {channels}")
+    if int(min_hold) < 1:
+        raise DataError(f"prbs min_hold must be >= 1 sample; got {min_hold}")
+    n_samples, channels, min_hold = int(n_samples), int(channels), int(min_hold)
+    n_bits = -(-n_samples // min_hold)
+    if order is None:
+        order = max(7, min(24, int(np.ceil(np.log2(n_bits + 1)))))
+    if not 3 <= int(order) <= 24:
+        raise DataError(f"prbs order must be in 3..24; got {order}")
+    amp = np.broadcast_to(np.asarray(amplitude, dtype=float), (channels,))
+    rng = np.random.default_rng(seed)
+    out = np.empty((n_samples, channels))
+    for c in range(channels):
+        # Different nonzero start states give shifted copies of the m-sequence; a random
+        # shift per channel keeps channels nearly uncorrelated.
+        state = rng.integers(0, 2, int(order))
+        if not state.any():
+            state[0] = 1
+        bits, _ = max_len_seq(int(order), state=state, length=n_bits)
+        out[:, c] = np.repeat(2.0 * bits - 1.0, min_hold)[:n_samples] * amp[c]
+    return out

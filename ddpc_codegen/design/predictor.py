@@ -1,0 +1,277 @@
+"""Multi-step predictors from data: y = Gy_w w + Gy_u u, sigma = Gs_w w + Gs_u u, w = [u_ini; y_ini].
+
+Two methods:
+
+* ``"pem"`` — the paper's PEM-MPC predictor, G = [[Yf, 0], [0, I]] pinv([[Up, 0], [Yp, I], [Uf, 0]]).
+  It solves min ||g||^2 + rho ||sigma||^2 s.t. [Up; Yp; Uf] g + [0; sigma; 0] = [u_ini; y_ini; u];
+  ``slack_weight`` is rho (the paper's equal weighting is rho = 1). Equal weighting biases the
+  prediction even on noise-free data (sigma absorbs part of y_ini), a documented property.
+* ``"lsq"`` — subspace predictive control, y = Yf pinv([Up; Yp; Uf]) [u_ini; y_ini; u], sigma = 0;
+  exact on noise-free LTI data when Tini >= lag and the input is persistently exciting.
+
+Both are computed from an R factor of the data matrix accumulated over blocks of Hankel columns
+(TSQR), so memory does not grow with the number of samples and the condition number is not
+squared as it would be with normal equations.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.errors import DataError, ExcitationError
+from ddpc_codegen.design.hankel import PEReport
+
+__all__ = ["Predictor", "fit_predictor", "min_samples"]
+
+_METHODS = ("pem", "lsq")
+
+
+@dataclass(frozen=True, eq=False)
+class Predictor:
+    """Affine multi-step predictor of horizon ``t_f`` from ``t_ini`` past samples.
+
+    Matrices (stacked, time-major windows; w = [u_ini (m*Tini); y_ini (p*Tini)]):
+        Gy_w (p*Tf, (m+p)*Tini), Gy_u (p*Tf, m*Tf)   -> y     (p*Tf)
+        Gs_w (p*Tini, (m+p)*Tini), Gs_u (p*Tini, m*Tf) -> sigma (p*Tini), zero for "lsq"
+    """
+
+    t_ini: int
+    t_f: int
+    m: int
+    p: int
+    method: str
+    Gy_w: np.ndarray
+    Gy_u: np.ndarray
+    Gs_w: np.ndarray
+    Gs_u: np.ndarray
+    singular_values: np.ndarray
+    rank: int
+    n_columns: int
+    dt: float
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+    options: dict = field(default_factory=dict)
+
+    @property
+    def n_w(self) -> int:
+        """Length of w = [u_ini; y_ini]."""
+        return (self.m + self.p) * self.t_ini
+
+    def predict(
+        self, u_ini: np.ndarray, y_ini: np.ndarray, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Predict outputs over the horizon.
+
+        Args:
+            u_ini: past inputs, (Tini, m) or stacked (m*Tini,).
+            y_ini: past outputs, (Tini, p) or stacked (p*Tini,).
+            u: future inputs, (Tf, m) or stacked (m*Tf,).
+        Returns:
+            y (Tf, p) predicted outputs, sigma (Tini, p) the slack on y_ini.
+        """
+        w = np.concatenate(
+            [
+                _stacked(u_ini, self.m * self.t_ini, "u_ini"),
+                _stacked(y_ini, self.p * self.t_ini, "y_ini"),
+            ]
+        )
+        uu = _stacked(u, self.m * self.t_f, "u")
+        y = self.Gy_w @ w + self.Gy_u @ uu
+        s = self.Gs_w @ w + self.Gs_u @ uu
+        return y.reshape(self.t_f, self.p), s.reshape(self.t_ini, self.p)
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the matrices and horizons: identifies the predictor in manifests."""
+        h = hashlib.sha256()
+        h.update(f"{self.method}:{self.t_ini}:{self.t_f}:{self.m}:{self.p}".encode())
+        for a in (self.Gy_w, self.Gy_u, self.Gs_w, self.Gs_u):
+            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        return h.hexdigest()
+
+    def excitation(self) -> PEReport:
+        """PE report of order Tini+Tf of the inputs used to fit (from the data's R factor)."""
+        return self.options["_pe_report"]
+
+    def __repr__(self) -> str:
+        return (
+            f"Predictor(method={self.method!r}, t_ini={self.t_ini}, t_f={self.t_f}, m={self.m}, "
+            f"p={self.p}, columns={self.n_columns}, rank={self.rank})"
+        )
+
+
+def _stacked(x: np.ndarray, n: int, what: str) -> np.ndarray:
+    a = np.asarray(x, dtype=float).reshape(-1)
+    if a.shape[0] != n:
+        raise DataError(f"{what} must have {n} entries (stacked time-major); got shape {np.shape(x)}")
+    if not np.all(np.isfinite(a)):
+        raise DataError(f"{what} contains NaN or inf")
+    return a
+
+
+def min_samples(t_ini: int, t_f: int, m: int) -> int:
+    """Fewest samples of one trajectory for H_L(u) (L = Tini+Tf) to possibly have full row rank."""
+    L = t_ini + t_f
+    return (m + 1) * L - 1
+
+
+def _row_order(m: int, p: int, t_ini: int, t_f: int) -> np.ndarray:
+    """Indices taking rows of the Hankel of [u y] (time-major, channels u then y)
+    to the order [Up; Yp; Uf; Yf]."""
+    d = m + p
+    L = t_ini + t_f
+    ui = [t * d + c for t in range(L) for c in range(m)]
+    yi = [t * d + m + c for t in range(L) for c in range(p)]
+    up, uf = ui[: m * t_ini], ui[m * t_ini:]
+    yp, yf = yi[: p * t_ini], yi[p * t_ini:]
+    return np.array(up + yp + uf + yf)
+
+
+def _hankel_blocks(dataset: IODataset, depth: int, block: int) -> Iterator[np.ndarray]:
+    """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y]."""
+    for u, y in dataset.trajectories():
+        w = np.hstack([u, y])
+        T, d = w.shape
+        if T < depth:
+            continue
+        win = sliding_window_view(w, (depth, d))[:, 0].reshape(T - depth + 1, depth * d)
+        for s in range(0, win.shape[0], block):
+            yield win[s : s + block]
+
+
+def _accumulate_r(R: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
+    X = rows if R is None else np.vstack([R, rows])
+    return np.linalg.qr(X, mode="r")
+
+
+def fit_predictor(
+    dataset: IODataset,
+    t_ini: int,
+    t_f: int,
+    method: str = "pem",
+    *,
+    slack_weight: float = 1.0,
+    ridge: float = 0.0,
+    rcond: float = 1e-10,
+    block_columns: int = 8192,
+    streaming: bool = True,
+    check_excitation: bool = True,
+) -> Predictor:
+    """Fit a multi-step predictor from a dataset (mosaic Hankel over its trajectories).
+
+    Args:
+        dataset: the IO data; each trajectory contributes its own Hankel columns.
+        t_ini, t_f: past and future horizon (samples).
+        method: ``"pem"`` (paper, DDPC-Flying) or ``"lsq"`` (subspace predictive control).
+        slack_weight: rho in min ||g||^2 + rho ||sigma||^2 (``pem`` only; 1 = the paper).
+        ridge: Tikhonov weight lambda on the predictor (G (ZZ^T + lambda I)^-1 form); 0 = none.
+        rcond: relative singular-value cutoff of the pseudo-inverse (rank decision).
+        block_columns: Hankel columns per streamed block (memory ~ block * rows * 8 bytes).
+        streaming: False forms the whole Hankel and uses numpy's pinv (reference path).
+        check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf.
+    """
+    if method not in _METHODS:
+        raise DataError(f"unknown predictor method {method!r}; choose one of {list(_METHODS)}")
+    t_ini, t_f = int(t_ini), int(t_f)
+    if t_ini < 1 or t_f < 1:
+        raise DataError(f"horizons must be >= 1; got Tini={t_ini}, Tf={t_f}")
+    if not (np.isfinite(slack_weight) and slack_weight > 0):
+        raise DataError(f"slack_weight must be a positive number; got {slack_weight}")
+    if not (np.isfinite(ridge) and ridge >= 0):
+        raise DataError(f"ridge must be >= 0; got {ridge}")
+    m, p = dataset.m, dataset.p
+    L = t_ini + t_f
+    cols = dataset.columns(L)
+    if cols < m * L:
+        need = min_samples(t_ini, t_f, m)
+        raise DataError(
+            f"need at least {need} samples for Tini={t_ini}, Tf={t_f}, m={m}; got {max(dataset.lengths)}"
+            + (f" in the longest of {dataset.n_trajectories} trajectories ({cols} Hankel columns in all, need {m * L})"
+               if dataset.n_trajectories > 1 else "")
+            + ". Record longer data or shorten the horizons."
+        )
+    r = (m + p) * t_ini + m * t_f  # rows of Z = [Up; Yp; Uf]
+    n_up, n_yp = m * t_ini, p * t_ini
+    q_y, q_s = p * t_f, (p * t_ini if method == "pem" else 0)
+    order = _row_order(m, p, t_ini, t_f)
+    inv_sqrt_rho = 1.0 / np.sqrt(slack_weight)
+
+    # Extra rows of X = [Z^T | target^T] for the slack columns of M and for the ridge.
+    extra = []
+    if method == "pem":
+        e = np.zeros((n_yp, r + q_y + q_s))
+        e[:, n_up : n_up + n_yp] = np.eye(n_yp) * inv_sqrt_rho
+        e[:, r + q_y :] = np.eye(n_yp) * inv_sqrt_rho
+        extra.append(e)
+    if ridge > 0:
+        e = np.zeros((r, r + q_y + q_s))
+        e[:, :r] = np.eye(r) * np.sqrt(ridge)
+        extra.append(e)
+
+    def data_rows(blk: np.ndarray) -> np.ndarray:
+        rows = blk[:, order]  # (b, r + q_y) as [Up Yp Uf Yf]
+        if q_s:
+            rows = np.hstack([rows, np.zeros((rows.shape[0], q_s))])
+        return rows
+
+    if streaming:
+        R = None
+        for blk in _hankel_blocks(dataset, L, int(block_columns)):
+            R = _accumulate_r(R, data_rows(blk))
+        # PE of order L from the data-only factor: singular values of the u rows of Z.
+        u_rows = np.r_[0:n_up, n_up + n_yp : r]
+        su = np.linalg.svd(R[:r, u_rows], compute_uv=False)
+        for e in extra:
+            R = _accumulate_r(R, e)
+        R11, R12 = R[:r, :r], R[:r, r:]
+        U, s, Vt = np.linalg.svd(R11, full_matrices=False)
+        keep = s > rcond * s[0]
+        # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
+        G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
+        s_all = s
+    else:
+        X = np.vstack([data_rows(b) for b in _hankel_blocks(dataset, L, 10**9)] + extra)
+        Z, Tg = X[:, :r].T, X[:, r:].T
+        G = Tg @ np.linalg.pinv(Z, rcond=rcond)
+        s_all = np.linalg.svd(Z, compute_uv=False)
+        keep = s_all > rcond * s_all[0]
+        u_rows = np.r_[0:n_up, n_up + n_yp : r]
+        su = np.linalg.svd(Z[u_rows], compute_uv=False)
+
+    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
+    pe = PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
+                  float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols)
+    if check_excitation and not pe.ok:
+        raise ExcitationError(
+            f"inputs are not persistently exciting enough for Tini={t_ini}, Tf={t_f}: {pe.summary()}. "
+            "Excite the references more (e.g. add a PRBS) or record longer data."
+        )
+    nw = (m + p) * t_ini
+    Gy = G[:q_y]
+    Gs = G[q_y:] if q_s else np.zeros((p * t_ini, r))
+    opts = {"slack_weight": float(slack_weight), "ridge": float(ridge), "rcond": float(rcond),
+            "_pe_report": pe}
+    return Predictor(
+        t_ini=t_ini,
+        t_f=t_f,
+        m=m,
+        p=p,
+        method=method,
+        Gy_w=np.ascontiguousarray(Gy[:, :nw]),
+        Gy_u=np.ascontiguousarray(Gy[:, nw:]),
+        Gs_w=np.ascontiguousarray(Gs[:, :nw]),
+        Gs_u=np.ascontiguousarray(Gs[:, nw:]),
+        singular_values=s_all,
+        rank=int(np.sum(keep)),
+        n_columns=cols,
+        dt=dataset.dt,
+        input_names=dataset.input_names,
+        output_names=dataset.output_names,
+        options=opts,
+    )

@@ -1,0 +1,274 @@
+"""The steering QP (DDPC-Flying / DDPC-Hopping), condensed in the steered references u alone.
+
+With the predictor y = Gy_w w + Gy_u u, sigma = Gs_w w + Gs_u u (w = [u_ini; y_ini]) the
+paper's problem becomes a dense QP in u (m*Tf variables):
+
+    min_u  1/2 u' P u + q(theta)' u     s.t.  l(theta) <= A u <= u(theta)
+
+with P and A constant and (q, l, u) affine in the parameters theta = [u_ini; y_ini; y_des
+(; u_nom)]. Everything is formed symbolically in CasADi; P and A are evaluated once, the
+parameter map is a CasADi Function (later exported as C).
+"""
+
+from __future__ import annotations
+
+import time
+
+import casadi as ca
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.errors import ConfigError, DataError
+from ddpc_codegen.design.predictor import Predictor
+from ddpc_codegen.design.result import SteeringResult, stack_window
+
+__all__ = ["SteeringProblem", "SteeringResult"]
+
+_OSQP_OK = {"solved"}
+# DAQP exit flags (daqp/include/constants.h)
+_DAQP_STATUS = {1: "solved", 2: "solved", -1: "infeasible", -2: "cycling", -3: "unbounded",
+                -4: "max_iter", -5: "nonconvex", -6: "overdetermined_initial_active_set"}
+
+
+class SteeringProblem:
+    """Condensed steering QP for a fitted predictor and a steering configuration.
+
+    Attributes:
+        P (n_u, n_u): constant Hessian. lb_u, ub_u (n_u,): constant simple bounds on u.
+        A_g (n_g, n_u): constant general constraint rows (predicted-y bounds, increments);
+        A = [I; A_g] (n_c, n_u) is the OSQP form.
+        param_map: CasADi Function theta (n_theta,) -> (q (n_u,), l_g (n_g,), u_g (n_g,)).
+        n_u = m*Tf, n_theta = (m+p)*Tini + p*Tf (+ m*Tf in R_mode "offset").
+    """
+
+    def __init__(self, predictor: Predictor, config: SteeringConfig) -> None:
+        for key in ("t_ini", "t_f", "m", "p"):
+            if getattr(predictor, key) != getattr(config, key):
+                raise ConfigError(
+                    f"{config.source}: {key}={getattr(config, key)} but the predictor was fitted with "
+                    f"{key}={getattr(predictor, key)}; refit the predictor or fix the config"
+                )
+        self.predictor = predictor
+        self.config = config
+        c, pr = config, predictor
+        m, p, Ti, Tf = c.m, c.p, c.t_ini, c.t_f
+        self.n_u = m * Tf
+        self.n_w = (m + p) * Ti
+        self.has_nominal = c.R_mode == "offset"
+        self.n_theta = self.n_w + p * Tf + (m * Tf if self.has_nominal else 0)
+
+        u = ca.SX.sym("u", self.n_u)
+        theta = ca.SX.sym("theta", self.n_theta)
+        w = theta[: self.n_w]
+        y_des = theta[self.n_w : self.n_w + p * Tf]
+        u_ini = theta[: m * Ti]
+        y = ca.mtimes(ca.DM(pr.Gy_w), w) + ca.mtimes(ca.DM(pr.Gy_u), u)
+        sig = ca.mtimes(ca.DM(pr.Gs_w), w) + ca.mtimes(ca.DM(pr.Gs_u), u)
+        Qb = ca.DM(np.kron(np.eye(Tf), c.Q))
+        Rb = ca.DM(np.kron(np.eye(Tf), c.R))
+        e = y - y_des
+        J = ca.mtimes([e.T, Qb, e]) + c.lambda_sigma * ca.dot(sig, sig)
+        D = np.eye(self.n_u) - np.eye(self.n_u, k=-m)  # stacked differences
+        # Increments du_k = u_k - u_(k-1), the first against the last applied input u_ini[-1].
+        du_expr = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
+        if c.R_mode == "absolute":
+            ru = u
+        elif c.R_mode == "offset":
+            ru = u - theta[self.n_w + p * Tf :]
+        else:
+            ru = du_expr
+        J = J + ca.mtimes([ru.T, Rb, ru])
+        if np.any(c.R_du):
+            J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
+
+        # Simple bounds on u (constant) and general rows: predicted y and increments (only rows that bound something).
+        self.lb_u = np.tile(c.u_min, Tf).astype(float)
+        self.ub_u = np.tile(c.u_max, Tf).astype(float)
+        rows, lo, hi, kinds = [], [], [], []
+        ym = np.tile(c.y_min, Tf), np.tile(c.y_max, Tf)
+        for i in np.nonzero(np.isfinite(ym[0]) | np.isfinite(ym[1]))[0]:
+            rows.append(y[int(i)]); lo.append(ym[0][i]); hi.append(ym[1][i]); kinds.append("y")
+        du = np.tile(c.du_max, Tf)
+        if np.any(np.isfinite(du)):
+            for i in np.nonzero(np.isfinite(du))[0]:
+                rows.append(du_expr[int(i)]); lo.append(-du[i]); hi.append(du[i]); kinds.append("du")
+        self.general_kinds = tuple(kinds)
+        g = ca.vertcat(*rows) if rows else ca.SX(0, 1)
+        self.n_g = int(g.shape[0])
+        self.n_c = self.n_u + self.n_g  # OSQP form: A = [I; A_g]
+
+        H, grad = ca.hessian(J, u)
+        Ag = ca.jacobian(g, u)
+        if ca.depends_on(H, theta) or (self.n_g and ca.depends_on(Ag, theta)):
+            raise AssertionError("steering QP is not a parametric QP with constant P and A")  # pragma: no cover
+        zero = ca.DM.zeros(self.n_u)
+        q_expr = ca.substitute(grad, u, zero)
+        g0 = ca.substitute(g, u, zero) if self.n_g else g
+        lo_v, hi_v = ca.DM(np.asarray(lo, float)), ca.DM(np.asarray(hi, float))
+        l_expr = lo_v - g0 if self.n_g else ca.SX(0, 1)
+        u_expr = hi_v - g0 if self.n_g else ca.SX(0, 1)
+        consts = ca.Function("consts", [theta], [H, Ag])
+        Hn, An = consts(np.zeros(self.n_theta))
+        self.P = np.array(Hn, dtype=float)
+        self.P = 0.5 * (self.P + self.P.T)
+        self.A_g = np.array(An, dtype=float).reshape(self.n_g, self.n_u)
+        self.A = np.vstack([np.eye(self.n_u), self.A_g])
+        # CasADi Functions of the parameters; their generated C is the per-tick parameter map.
+        self.param_map = ca.Function("ddpc_param_map", [theta], [q_expr, l_expr, u_expr],
+                                     ["theta"], ["q", "l_g", "u_g"])
+        self.linear_map = ca.Function("ddpc_linear_map", [theta], [q_expr], ["theta"], ["q"])
+        self.bounds_map = ca.Function("ddpc_bounds_map", [theta], [l_expr, u_expr], ["theta"], ["l_g", "u_g"])
+        self._cost_fn = ca.Function("cost", [u, theta], [J])
+        # q, l_g, u_g are affine in theta: keep dense matrices for numpy evaluation and the gain.
+        jac = ca.Function("param_jacobian", [theta], [ca.jacobian(q_expr, theta),
+                                                      ca.jacobian(l_expr, theta) if self.n_g else ca.DM(0, self.n_theta)])
+        Fq, Fl = jac(np.zeros(self.n_theta))
+        self.F_q = np.array(Fq, dtype=float).reshape(self.n_u, self.n_theta)
+        self.F_g = np.array(Fl, dtype=float).reshape(self.n_g, self.n_theta)  # l_g = lg0 + F_g theta, same for u_g
+        q0, l0, u0 = self.param_map(np.zeros(self.n_theta))
+        self.q0 = np.array(q0, dtype=float).reshape(-1)
+        self.lg0 = np.array(l0, dtype=float).reshape(-1)
+        self.ug0 = np.array(u0, dtype=float).reshape(-1)
+        try:
+            self._P_chol = np.linalg.cholesky(self.P)
+        except np.linalg.LinAlgError:
+            raise ConfigError(
+                f"{c.source}: the steering QP is not strictly convex (P singular); use R > 0 on every input"
+            ) from None
+        # Unconstrained optimum u* = K theta + k0 (exact fast path when it satisfies the bounds).
+        Pinv = np.linalg.inv(self.P)
+        self.K = -Pinv @ self.F_q
+        self.k0 = -Pinv @ self.q0
+        self._osqp = None
+        self._exact = None
+
+    # ------------------------------------------------------------------ parameters
+    def theta(
+        self, u_ini: np.ndarray, y_ini: np.ndarray, y_des: np.ndarray, u_nom: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Stack and validate the parameter vector (n_theta,). Windows may be time-major or stacked."""
+        c = self.config
+        parts = [
+            stack_window(u_ini, c.t_ini, c.m, "u_ini"),
+            stack_window(y_ini, c.t_ini, c.p, "y_ini"),
+            stack_window(y_des, c.t_f, c.p, "y_des"),
+        ]
+        if self.has_nominal:
+            if u_nom is None:
+                raise DataError("R_mode 'offset' needs u_nom, the nominal (unsteered) references over the horizon")
+            parts.append(stack_window(u_nom, c.t_f, c.m, "u_nom"))
+        return np.concatenate(parts)
+
+    def qp_vectors(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, l, u) of the QP in OSQP form (A = [I; A_g]) at theta; unbounded entries are ±inf."""
+        Ft = self.F_g @ theta
+        return (self.q0 + self.F_q @ theta, np.concatenate([self.lb_u, self.lg0 + Ft]),
+                np.concatenate([self.ub_u, self.ug0 + Ft]))
+
+    def is_feasible(self, z: np.ndarray, l: np.ndarray, u: np.ndarray, tol: float = 1e-9) -> bool:
+        """Whether z satisfies l - tol <= A z <= u + tol."""
+        Az = np.concatenate([z, self.A_g @ z])
+        return bool(np.all(Az >= l - tol) and np.all(Az <= u + tol))
+
+    def unconstrained(self, theta: np.ndarray) -> np.ndarray:
+        """Unconstrained optimum K theta + k0, (n_u,)."""
+        return self.K @ theta + self.k0
+
+    def cost(self, u: np.ndarray, theta: np.ndarray) -> float:
+        """Objective J(u; theta) as written (without the 1/2 of the QP form)."""
+        return float(self._cost_fn(u, theta))
+
+    # ------------------------------------------------------------------ solving
+    def solve(
+        self,
+        u_ini: np.ndarray,
+        y_ini: np.ndarray,
+        y_des: np.ndarray,
+        u_nom: np.ndarray | None = None,
+        *,
+        solver: str = "osqp",
+        eps: float = 1e-7,
+        max_iter: int = 20000,
+    ) -> SteeringResult:
+        """Solve the steering QP interpretively.
+
+        solver: ``"osqp"`` (OSQP Python, polished, warm-started), ``"exact"`` (dense active set,
+        CasADi's daqp: exact to round-off), or ``"fast"`` (unconstrained optimum if feasible,
+        exact active set otherwise).
+        """
+        th = self.theta(u_ini, y_ini, y_des, u_nom)
+        return self.solve_theta(th, solver=solver, eps=eps, max_iter=max_iter)
+
+    def solve_theta(self, th: np.ndarray, *, solver: str = "osqp", eps: float = 1e-7,
+                    max_iter: int = 20000) -> SteeringResult:
+        """Like :meth:`solve`, from a stacked parameter vector."""
+        q, l, ub = self.qp_vectors(th)
+        t0 = time.perf_counter()
+        fast = False
+        if solver == "fast":
+            z = self.unconstrained(th)
+            if self.is_feasible(z, l, ub):
+                z, status, it, fast = z, "solved", 0, True
+            else:
+                z, status, it = self._solve_exact(q, l, ub)
+        elif solver == "exact":
+            z, status, it = self._solve_exact(q, l, ub)
+        elif solver == "osqp":
+            z, status, it = self._solve_osqp(q, l, ub, eps, max_iter)
+        else:
+            raise ConfigError(f"unknown solver {solver!r}; choose 'osqp', 'exact' or 'fast'")
+        dt = time.perf_counter() - t0
+        return self.result(z, th, status, it, dt, fast)
+
+    def result(self, z: np.ndarray, th: np.ndarray, status: str, iterations: int = 0,
+               solve_time: float = 0.0, fast_path: bool = False) -> SteeringResult:
+        """Package a solution vector z (n_u,) at theta into a SteeringResult."""
+        c, pr = self.config, self.predictor
+        if status != "solved" or z is None or not np.all(np.isfinite(z)):
+            nan = np.full(self.n_u, np.nan)
+            return SteeringResult(nan.reshape(c.t_f, c.m), np.full((c.t_f, c.p), np.nan),
+                                  np.full((c.t_ini, c.p), np.nan), status if status != "solved" else "nan",
+                                  iterations, solve_time)
+        w = th[: self.n_w]
+        y = pr.Gy_w @ w + pr.Gy_u @ z
+        s = pr.Gs_w @ w + pr.Gs_u @ z
+        return SteeringResult(z.reshape(c.t_f, c.m), y.reshape(c.t_f, c.p), s.reshape(c.t_ini, c.p),
+                              status, int(iterations), solve_time, self.cost(z, th), fast_path)
+
+    def _solve_osqp(self, q, l, ub, eps, max_iter):
+        if self._osqp is None:
+            s = osqp.OSQP()
+            s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, sp.csc_matrix(self.A),
+                    np.maximum(l, -1e30), np.minimum(ub, 1e30), verbose=False,
+                    eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter, warm_starting=True)
+            self._osqp = s
+        else:
+            self._osqp.update(q=q, l=np.maximum(l, -1e30), u=np.minimum(ub, 1e30))
+        r = self._osqp.solve(raise_error=False)
+        status = str(r.info.status).lower()
+        status = "solved" if status in _OSQP_OK else status.replace(" ", "_")
+        return r.x, status, int(r.info.iter)
+
+    def _solve_exact(self, q, l, ub):
+        if self._exact is None:
+            Hs = ca.DM(self.P).sparsity()
+            As = ca.DM(self.A_g).sparsity() if self.n_g else ca.Sparsity(0, self.n_u)
+            self._exact = ca.conic("exact", "daqp", {"h": Hs, "a": As},
+                                   {"error_on_fail": False, "print_problem": False})
+        kw = dict(h=self.P, g=q, lbx=l[: self.n_u], ubx=ub[: self.n_u])
+        if self.n_g:
+            kw.update(a=self.A_g, lba=l[self.n_u :], uba=ub[self.n_u :])
+        r = self._exact(**kw)
+        st = self._exact.stats()
+        ok = bool(st.get("success", False))
+        z = np.array(r["x"], dtype=float).reshape(-1)
+        if ok:
+            return z, "solved", max(0, int(st.get("iter_count", 0) or 0))
+        rs = st.get("return_status", "failed")
+        try:
+            status = _DAQP_STATUS.get(int(rs), f"daqp_{rs}")
+        except (TypeError, ValueError):
+            status = str(rs).lower().replace(" ", "_")
+        return z, status, 0

@@ -1,0 +1,165 @@
+"""Artificial ground-phase IO: exactness on LTI data, bounds, the mosaic of hops (PE), steering in the loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddpc_codegen import IODataset
+from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect, run, split_hopping
+from ddpc_codegen.design.artificial_io import ArtificialIO, HoppingWindow, ground_runs, hop_excitation
+
+
+def _lti_data(sys_, n_traj: int, T: int, seed: int, offset: float = 0.5) -> IODataset:
+    """Noise-free trajectories of an LTI system with a constant output offset (an affine system)."""
+    rng = np.random.default_rng(seed)
+    us, ys = [], []
+    for _ in range(n_traj):
+        u = rng.standard_normal((T, sys_.B.shape[1]))
+        y, _ = sys_.simulate(u, rng.standard_normal(sys_.n))
+        us.append(u)
+        ys.append(y + offset)
+    return IODataset(us, ys, 0.005)
+
+
+def _window(sys_, L: int, seed: int, offset: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((L, sys_.B.shape[1]))
+    y, _ = sys_.simulate(u, rng.standard_normal(sys_.n))
+    return u, y + offset
+
+
+@pytest.mark.parametrize("what, n, m, p, t_g", [("all", 4, 1, 2, 4), ("outputs", 4, 2, 2, 12)])
+def test_artificial_io_reproduces_the_removed_segment(lti_factory, what, n, m, p, t_g):
+    # Unique cases: a whole gap with m*T_g <= n (the end states fix the inputs), or a gap of any
+    # length whose inputs are known (only outputs missing).
+    sys_ = lti_factory(n, m, p, seed=3)
+    t_d = t_a = 6
+    L = t_d + t_g + t_a
+    art = ArtificialIO(_lti_data(sys_, 5, 300, seed=0), L)
+    assert art.rank == m * L + n + 1  # + 1: the constant offset is one more (observable) state
+    u, y = _window(sys_, L, seed=11)
+    miss = np.zeros((L, m + p), dtype=bool)
+    miss[t_d : t_d + t_g, (0 if what == "all" else m):] = True
+    uu, yy = u.copy(), y.copy()
+    uu[miss[:, :m]] = np.nan
+    yy[miss[:, m:]] = np.nan
+    c = art.complete(uu, yy, miss)
+    np.testing.assert_allclose(c.u, u, atol=1e-8)
+    np.testing.assert_allclose(c.y, y, atol=1e-8)
+    assert c.residual < 1e-9 and not c.bounded
+
+
+def test_non_unique_gap_is_still_a_trajectory_of_the_system(lti_factory):
+    # m*T_g > n: the least-norm fill is one of many, but the whole window is an exact trajectory
+    # (y = O x0 + T u + offset for some x0), so the state at the window's end is the true one.
+    n, m, p, t_g = 4, 2, 2, 10
+    sys_ = lti_factory(n, m, p, seed=3)
+    L = 6 + t_g + 6
+    art = ArtificialIO(_lti_data(sys_, 5, 300, seed=0), L)
+    u, y = _window(sys_, L, seed=12)
+    miss = np.zeros(L, dtype=bool)
+    miss[6 : 6 + t_g] = True
+    c = art.complete(np.where(miss[:, None], 0.0, u), np.where(miss[:, None], 0.0, y), miss)
+    assert np.abs(c.u - u).max() > 1e-3  # not the recorded inputs ...
+    # ... yet consistent: fit x0 (and the offset) to the completed window by least squares.
+    O = np.vstack([sys_.C @ np.linalg.matrix_power(sys_.A, k) for k in range(L)])
+    y0, _ = sys_.simulate(c.u, np.zeros(n))  # forced response
+    A = np.hstack([O, np.tile(np.eye(p), (L, 1))])
+    coef, *_ = np.linalg.lstsq(A, (c.y - y0).reshape(-1), rcond=None)
+    assert np.abs(A @ coef - (c.y - y0).reshape(-1)).max() < 1e-8
+    np.testing.assert_allclose(c.y[-6:], y[-6:], atol=1e-9)  # the known ascent is kept
+
+
+def test_bounds_on_the_artificial_samples(lti_factory):
+    sys_ = lti_factory(4, 2, 2, seed=3)
+    L = 22
+    data = _lti_data(sys_, 5, 300, seed=0)
+    u, y = _window(sys_, L, seed=12)
+    miss = np.zeros(L, dtype=bool)
+    miss[6:16] = True
+    free = ArtificialIO(data, L).complete(u, y, miss)
+    hi = 0.5 * np.abs(free.u[miss]).max()
+    art = ArtificialIO(data, L, u_min=[-hi, -hi], u_max=[hi, hi])
+    c = art.complete(u, y, miss)
+    assert c.bounded and c.status == "solved"
+    assert np.abs(c.u[miss]).max() <= hi + 1e-7
+    np.testing.assert_allclose(c.y[~miss], y[~miss], atol=1e-6)  # known samples still matched
+
+
+def test_noise_level_keeps_the_fill_bounded_on_noisy_windows(lti_factory):
+    sys_ = lti_factory(4, 2, 2, seed=3)
+    L = 22
+    data = _lti_data(sys_, 5, 300, seed=0)
+    u, y = _window(sys_, L, seed=12)
+    miss = np.zeros(L, dtype=bool)
+    miss[6:16] = True
+    y_noisy = y + np.random.default_rng(0).normal(0, 1e-3, y.shape)
+    exact = ArtificialIO(data, L).complete(u, y_noisy, miss)
+    reg = ArtificialIO(data, L, noise_level=1e-3).complete(u, y_noisy, miss, replace_known=True)
+    assert reg.g_norm < exact.g_norm
+    assert np.abs(reg.y[~miss] - y[~miss]).max() < 5e-3  # the fitted window stays near the data
+
+
+# ---------------------------------------------------------------------------- simulator hops
+@pytest.fixture(scope="module")
+def hop_raw():
+    return collect("hopping", CollectSpec(duration=60.0, seed=1, noise=False, amplitude=(0.01, 0.02, 0.02)))
+
+
+@pytest.fixture(scope="module")
+def hop_setup(hop_raw, tmp_path_factory):
+    return build_setup("hopping", raw=hop_raw, generate_dir=None, save_data=False)
+
+
+def test_split_into_aerial_segments_and_hops(hop_raw):
+    aerial, hops = split_hopping(hop_raw.to_dataset("none"))
+    assert all(not np.any(ph == GROUND) for ph in aerial.phases)
+    assert all(len(ground_runs(ph)) == 1 for ph in hops.phases)
+    assert hops.n_trajectories >= 60 and aerial.n_trajectories >= hops.n_trajectories
+
+
+def test_mosaic_of_stitched_hops_is_persistently_exciting(hop_setup):
+    ds = hop_setup.dataset  # the hops H_G1..H_Gn with artificial ground phases
+    info = hop_setup.info["artificial_io"]
+    assert info["hops"] == ds.n_trajectories and not info["skipped"]
+    assert info["max_residual"] < 1e-6  # noise-free recording: the fills meet the real samples exactly
+    L = hop_setup.config.t_ini + hop_setup.config.t_f
+    pe = hop_excitation(ds, L + 10)  # order L + n with a generous state dimension
+    assert pe.ok, pe.summary()
+    assert pe.rank == ds.m * (L + 10) and pe.singular_values[-1] > 1e3 * pe.tol
+
+
+def test_stitched_hops_keep_the_aerial_samples(hop_raw, hop_setup):
+    _, hops = split_hopping(hop_raw.to_dataset("none"))
+    ds = hop_setup.dataset
+    for i in range(3):
+        air = hops.phases[i] != GROUND
+        np.testing.assert_array_equal(ds.y[i][air], hops.y[i][air])
+        assert not np.allclose(ds.y[i][~air], hops.y[i][~air])  # the ground samples were replaced
+
+
+def test_online_window_fills_ground_only_after_min_ascent(hop_raw, hop_setup):
+    ds = hop_raw.to_dataset("none")
+    u, y, ph = ds.u[0], ds.y[0], ds.phases[0]
+    g0, g1 = ground_runs(ph)[5]
+    win = HoppingWindow(hop_setup.art, 20, t_d=0, min_ascent=10, noise_level=0.0)
+    assert win.window(u[: g0 - 30], y[: g0 - 30], ph[: g0 - 30]) is None  # clean aerial window
+    assert win.window(u[: g1 + 3], y[: g1 + 3], ph[: g1 + 3]) == "early_ascent"  # too soon after liftoff
+    w = win.window(u[: g1 + 12], y[: g1 + 12], ph[: g1 + 12])
+    assert isinstance(w, tuple) and w[0].shape == (20, 3) and w[1].shape == (20, 3)
+    np.testing.assert_allclose(w[1][-12:], y[g1 : g1 + 12], atol=1e-9)  # the real ascent is kept
+    assert np.all(np.isfinite(w[0])) and np.abs(w[1][:8, 0] - 0.4).max() < 0.3  # plausible heights
+
+
+def test_steering_cuts_the_apex_error_3x(hop_setup):
+    base = run(None, "hopping", 8.0, steer=False)
+    steered = run(hop_setup, "hopping", 8.0, interpreted=True)
+    b, s = base.metrics["apex_err_mean"], steered.metrics["apex_err_mean"]
+    assert b > 0.02  # the -200 g model mass error leaves ~3 cm
+    assert s * 3 <= b, (b, s)
+    assert not steered.metrics["crashed"]
+    st = steered.steering
+    assert st["fallbacks"] == 0 and st["artificial_io"]["filled"] > 0
+    assert steered.metrics["rmse_pitch"] <= base.metrics["rmse_pitch"] * 1.05  # leg angles not worse

@@ -1,0 +1,119 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ddpc_codegen import ConfigError, SteeringConfig
+
+ROOT = Path(__file__).resolve().parents[2]
+
+BASE = """
+name = "t"
+[horizon]
+t_ini = 4
+t_f = 3
+[signals]
+inputs = ["a", "b"]
+outputs = ["c"]
+[cost]
+Q = [1.0]
+R = [0.1, 0.2]
+"""
+
+
+def _load(tmp_path, text):
+    f = tmp_path / "c.toml"
+    f.write_text(text)
+    return SteeringConfig.from_toml(f)
+
+
+def test_shipped_flying_config_loads():
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml")
+    assert (cfg.t_ini, cfg.t_f, cfg.m, cfg.p) == (20, 15, 2, 2)
+    assert cfg.R_mode == "offset" and cfg.codegen["backend"] == "daqp"
+    assert cfg.Q.shape == (2, 2) and cfg.Q[0, 0] == 1000.0
+    assert cfg.dataset.endswith("data/flying.npz") and Path(cfg.dataset).is_absolute()
+
+
+def test_minimal_config_defaults(tmp_path):
+    cfg = _load(tmp_path, BASE)
+    assert cfg.m == 2 and cfg.p == 1 and cfg.R_mode == "offset"
+    assert np.all(np.isinf(cfg.u_min)) and np.all(np.isinf(cfg.du_max))
+    assert cfg.predictor["method"] == "pem"
+
+
+def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_path):
+    a = _load(tmp_path, BASE)
+    assert np.array_equal(a.R_du, np.zeros((2, 2))) and "R_du" not in a.to_dict()
+    b = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_du = [0.0, 0.0]"))
+    c = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_du = [0.5, 0.0]"))
+    assert a.digest == b.digest != c.digest
+    assert c.to_dict()["R_du"] == [[0.5, 0.0], [0.0, 0.0]]
+
+
+def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
+    from ddpc_codegen.experiments.pipeline import ArtificialIOSpec
+
+    cfg = _load(tmp_path, BASE + "\n[artificial_io]\nt_a = 24\nmin_ascent = 6\nnoise_level_online = 0.002\n")
+    spec = ArtificialIOSpec(**cfg.artificial_io)
+    assert (spec.t_a, spec.min_ascent, spec.noise_level_online) == (24, 6, 0.002)
+    assert spec.t_d == ArtificialIOSpec().t_d  # unset keys keep their defaults
+    assert _load(tmp_path, BASE).digest != cfg.digest
+
+
+def test_full_matrix_weight(tmp_path):
+    cfg = _load(tmp_path, BASE.replace("R = [0.1, 0.2]", "R = [[1.0, 0.1], [0.1, 2.0]]"))
+    assert cfg.R[0, 1] == 0.1
+
+
+def test_digest_ignores_codegen_but_not_weights(tmp_path):
+    a = _load(tmp_path, BASE)
+    b = _load(tmp_path, BASE + '\n[codegen]\nbackend = "osqp"\n')
+    c = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [2.0]"))
+    assert a.digest == b.digest != c.digest
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (("Q = [1.0]", "Q = [1.0, 2.0]"), "[cost] Q must have 1 entries"),
+        (("R = [0.1, 0.2]", "R = [0.1, -0.2]"), "[cost] R diagonal entries must be finite and >= 0"),
+        (("t_f = 3", "t_f = 0"), "t_f must be a positive integer; got 0"),
+        (("t_f = 3", "t_f = 2.5"), "t_f must be a positive integer; got 2.5"),
+        (("t_ini = 4\n", ""), "[horizon] t_ini is required but missing"),
+        (("Q = [1.0]", 'Q = [1.0]\nR_mode = "abs"'), "R_mode must be one of ['absolute', 'offset', 'increment']; got 'abs'"),
+        (("Q = [1.0]", "Q = [1.0]\nlamda_sigma = 3"), "[cost] lamda_sigma is not a known key"),
+        (("[cost]", "[bounds]\nu_min = [1, 0]\nu_max = [0, 1]\n[cost]"), "channel 0: lower 1.0 > upper 0.0"),
+        (("[cost]", "[bounds]\ndu_max = [0, 1]\n[cost]"), "du_max must be > 0"),
+        (("[cost]", "[bounds]\nu_min = [1, 0, 2]\n[cost]"), "u_min must have 2 entries (one per channel); got 3"),
+        (('name = "t"', 'name = "t"\n[codegen]\nbackend = "cvx"'), "[codegen] backend must be one of ['daqp', 'osqp']; got 'cvx'"),
+        (('name = "t"', 'name = "t"\n[predictor]\nmethod = "dmd"'), "[predictor] method must be one of ['pem', 'lsq']; got 'dmd'"),
+        (('outputs = ["c"]', "outputs = []"), "[signals] outputs must be a non-empty list"),
+        (("[cost]", "[costs]"), "'costs' is not a known top-level key"),
+        (("Q = [1.0]", "Q = [1.0]\nR_du = [1.0]"), "[cost] R_du must have 2 entries"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nt_a = 0'), "[artificial_io] t_a must be an integer >= 1; got 0"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nmin_ascent = 2.5'), "[artificial_io] min_ascent must be an integer >= 1; got 2.5"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nnoise_level = -1e-3'), "[artificial_io] noise_level must be a number >= 0"),
+        (('name = "t"', 'name = "t"\n[artificial_io]\nt_dd = 3'), "[artificial_io] t_dd is not a known key"),
+    ],
+)
+def test_bad_config_messages_name_key_and_value(tmp_path, edit, message):
+    with pytest.raises(ConfigError) as e:
+        _load(tmp_path, BASE.replace(*edit))
+    assert message in str(e.value)
+    assert "c.toml" in str(e.value)
+
+
+def test_missing_file_and_bad_toml(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        SteeringConfig.from_toml(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        _load(tmp_path, "name = ")
+
+
+def test_nonsymmetric_and_indefinite_weights():
+    kw = dict(t_ini=2, t_f=2, m=1, p=2, R=[1.0])
+    with pytest.raises(ConfigError, match="symmetric"):
+        SteeringConfig(Q=[[1, 2], [0, 1]], **kw)
+    with pytest.raises(ConfigError, match="positive semidefinite"):
+        SteeringConfig(Q=[[1, 2], [2, 1]], **kw)

@@ -1,0 +1,43 @@
+"""Random discrete-time LTI systems with exactly known responses (scipy.signal is the simulator)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import dlsim
+
+__all__ = ["LTI", "random_lti"]
+
+
+@dataclass
+class LTI:
+    """x[k+1] = A x[k] + B u[k], y[k] = C x[k] + D u[k] (time step 1)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+    def simulate(self, u: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Exact response to u (T, m) from x0 (n,): (y (T, p), x[T] (n,))."""
+        u = np.asarray(u, dtype=float)
+        _, y, x = dlsim((self.A, self.B, self.C, self.D, 1.0), u, x0=np.asarray(x0, dtype=float))
+        y = np.asarray(y).reshape(u.shape[0], self.C.shape[0])
+        x_last = np.asarray(x).reshape(u.shape[0], self.n)[-1]
+        return y, self.A @ x_last + self.B @ u[-1]
+
+
+def random_lti(n: int, m: int, p: int, seed: int, radius: float = 0.9, feedthrough: bool = False) -> LTI:
+    """A random stable system: spectral radius ``radius``, D = 0 unless ``feedthrough``."""
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((n, n))
+    A *= radius / np.max(np.abs(np.linalg.eigvals(A)))
+    B = rng.standard_normal((n, m))
+    C = rng.standard_normal((p, n))
+    D = rng.standard_normal((p, m)) if feedthrough else np.zeros((p, m))
+    return LTI(A, B, C, D)
