@@ -55,14 +55,14 @@ import numpy as np
 from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController
 from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
-from ddpc_codegen.robot.frames import quat_from_euler
+from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
 from firmware_bridge.link import CommandTracker, MavLink, mavlink
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
-from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, swap_frames
+from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
@@ -729,7 +729,7 @@ class Bridge:
 
     def _level_setpoint(self) -> tuple[tuple, float, float]:
         """Level attitude at the trajectory frame's heading and hover thrust / zero climb rate."""
-        q = swap_frames(*self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
+        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
         thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
         return q, thrust, self.profile.hover_field(thrust)
 
@@ -750,7 +750,7 @@ class Bridge:
         if thrust < lo or thrust > hi:
             self.counts["thrust_clamped"] += 1
             thrust = min(max(thrust, lo), hi)
-        return swap_frames(*self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
+        return quat_ned_frd_from_enu_flu(self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
 
     def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
         lk = self.link

@@ -46,7 +46,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.robot.frames import enu_flu_to_ned_frd, euler_from_quat, ned_frd_to_enu_flu, quat_from_euler
+from ddpc_codegen.robot.frames import (
+    euler_from_quat,
+    euler_ned_from_enu,
+    quat_enu_flu_from_ned_frd,
+    quat_from_euler,
+    quat_ned_frd_from_enu_flu,
+    rotate_inverse,
+)
 from ddpc_codegen.sim.flight_controller import PX4LikeFlightController
 from ddpc_codegen.sim.params import PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import STANCE, PogoXPlant
@@ -66,7 +73,6 @@ from firmware_bridge.profiles import (
     px4_custom_mode,
     px4_mode_name,
 )
-from firmware_bridge.telemetry import euler_enu_to_ned
 
 __all__ = ["VehicleConfig", "SimVehicle", "MODE_OFFBOARD", "MODE_HOLD", "MODE_LAND"]
 
@@ -311,7 +317,7 @@ class SimVehicle:
         if not (math.isfinite(n) and n > 1e-6 and math.isfinite(msg.thrust)):
             self.stats["setpoints_ignored"] += 1  # PX4 drops invalid setpoints
             return False
-        q_enu = ned_frd_to_enu_flu(q / n)
+        q_enu = np.array(quat_enu_flu_from_ned_frd(q / n))
         self.sp_stamp = int(msg.time_boot_ms)
         self.last_sp_time = self.t
         self.stats["setpoints"] += 1
@@ -495,15 +501,15 @@ class SimVehicle:
             nd = self._next_due[name] + iv
             self._next_due[name] = nd if nd > t else t + iv
             if name == "ATTITUDE":
-                r, p, y = euler_enu_to_ned(*eul)
+                r, p, y = euler_ned_from_enu(eul)
                 msg = mav.attitude_encode(ms, r, p, y, *w_frd)
             elif name in ("ATTITUDE_QUATERNION", "ODOMETRY"):
                 if q_ned is None:
-                    q_ned = enu_flu_to_ned_frd(quat_from_euler(*eul))
+                    q_ned = quat_ned_frd_from_enu_flu(quat_from_euler(*eul))
                 if name == "ATTITUDE_QUATERNION":
                     msg = mav.attitude_quaternion_encode(ms, *(float(v) for v in q_ned), *w_frd, (0.0, 0.0, 0.0, 0.0))
                 else:
-                    v_body = _rotate_inv(q_ned, v_ned)
+                    v_body = rotate_inverse(q_ned, v_ned)
                     nan21 = [math.nan] * 21
                     msg = mav.odometry_encode(ms * 1000, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
                                               *p_ned, [float(v) for v in q_ned], *v_body, *w_frd, nan21, nan21,
@@ -687,15 +693,3 @@ class SimVehicle:
                             offboard=a[:, 21].astype(bool), fc_q_sp=a[:, 22:26], fc_thrust_sp=a[:, 26],
                             dt=self.dt)
 
-
-def _rotate_inv(q, v) -> tuple[float, float, float]:
-    """R(q)^T v for a unit quaternion q (w, x, y, z): a world vector in the body frame."""
-    w, x, y, z = (float(a) for a in q)
-    return tuple(float(c) for c in _rot(w, -x, -y, -z, v))
-
-
-def _rot(w, x, y, z, v):
-    vx, vy, vz = v
-    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
-    dx, dy, dz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
-    return (vx + 2 * (w * cx + dx), vy + 2 * (w * cy + dy), vz + 2 * (w * cz + dz))

@@ -11,7 +11,7 @@ from bridge_helpers import free_port
 
 from firmware_bridge.link import MavLink, mavlink
 from firmware_bridge.profiles import PX4Profile, px4_decode
-from firmware_bridge.telemetry import swap_frames
+from ddpc_codegen.robot.frames import quat_ned_frd_from_enu_flu
 
 pytestmark = pytest.mark.e2e
 
@@ -34,7 +34,7 @@ class Companion:
                 if m.get_type() == "HEARTBEAT":
                     self.mode = PX4Profile().decode(m.base_mode, m.custom_mode)
             if setpoints and self.link.peer is not None:
-                q = swap_frames(1.0, 0.0, 0.0, 0.0)
+                q = quat_ned_frd_from_enu_flu((1.0, 0.0, 0.0, 0.0))
                 self.link.send(self.link.mav.set_attitude_target_encode(k, 1, 1, 7, list(q), 0, 0, 0, 0.7))
                 k += 5
             if until is not None and until():
