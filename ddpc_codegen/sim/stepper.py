@@ -114,6 +114,8 @@ class Stepper:
         noise: sensor noise (:class:`SensorNoise`, True for the defaults, None/False for none).
         seed: seeds the noise generator (normal draws in the order position, velocity, angle, rate).
         pushes: :class:`Push` objects or tuples, in plant time [s].
+        history: keep this many extra physics steps of measurement history [s] (for
+            :meth:`measure` of samples older than now; 0: only what the delay needs).
     """
 
     def __init__(
@@ -125,6 +127,7 @@ class Stepper:
         noise: SensorNoise | bool | None = None,
         seed: int = 0,
         pushes: Sequence[Push | tuple] | None = None,
+        history: float = 0.0,
     ) -> None:
         self.params = params
         self.h = params.physics_dt
@@ -137,9 +140,10 @@ class Stepper:
         self.noise = as_noise(noise)
         self.rng = np.random.default_rng(seed)
         self.pushes = as_pushes(pushes)
-        # Delayed measurements: ring of (t, state list, mode), one per physics step; the oldest
-        # entry is the state params.meas_delay ago.
-        self._buf: deque = deque(maxlen=int(round(params.meas_delay / self.h)) + 1)
+        # Delayed measurements: ring of (t, state list, mode), one per physics step; entry
+        # -(delay_steps + 1) is the state params.meas_delay ago.
+        self.delay_steps = int(round(params.meas_delay / self.h))
+        self._buf: deque = deque(maxlen=self.delay_steps + int(round(history / self.h)) + 1)
         self._buf.append((0.0, self.plant.state.tolist(), self.plant.mode))
         self._cmd: list[float] = [params.hover_omega] * 4
         self.step_count = 0
@@ -148,9 +152,14 @@ class Stepper:
         self.stuck = ""
 
     # ------------------------------------------------------------------ measurement
-    def measure(self, t: float) -> MeasuredState:
-        """The companion's view at time t [s]: the state ``meas_delay`` ago, plus noise."""
-        _tm, sm, mode_m = self._buf[0]
+    def measure(self, t: float, age: float = 0.0) -> MeasuredState:
+        """The companion's view at time t [s]: the state ``meas_delay`` before t, plus noise.
+
+        age: the sample is this much older than the newest physics step [s] (whole steps,
+        at most the ``history`` asked for; the oldest kept state before that).
+        """
+        back = self.delay_steps + (int(round(age / self.h)) if age > 0.0 else 0)
+        _tm, sm, mode_m = self._buf[max(0, len(self._buf) - 1 - back)]
         pos = np.array(sm[0:3])
         vel = np.array(sm[3:6])
         eul = euler_from_quat(sm[6:10])
