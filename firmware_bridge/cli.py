@@ -212,7 +212,7 @@ def format_summary(s: dict) -> str:
     if "steering" in s:
         st = s["steering"]
         lines.append(f"  steering: steered {st['steered']} warmup {st['warmup']} fallbacks {st['fallbacks']}  "
-                     f"solve us median {f(st['solve_us']['median'], '{:.1f}')} p99 {f(st['solve_us']['p99'], '{:.1f}')}")
+                     f"solve us median {f(st['solve_us']['p50'], '{:.1f}')} p99 {f(st['solve_us']['p99'], '{:.1f}')}")
     return "\n".join(lines)
 
 
