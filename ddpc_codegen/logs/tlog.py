@@ -20,12 +20,14 @@ them as they are (several are merged as separate trajectories).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import struct
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from pymavlink import mavutil
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
@@ -46,7 +48,8 @@ from ddpc_codegen.logs.resample import (
     state_windows,
 )
 
-__all__ = ["import_tlog", "read_tlog", "list_tlog_messages", "TLOG_PRESETS", "PX4_MAIN_MODES"]
+__all__ = ["import_tlog", "read_tlog", "list_tlog_messages", "mavlink_unit", "TLOG_PRESETS", "PX4_MAIN_MODES",
+           "ARDUPILOT_OFFBOARD_MODES"]
 
 TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # PogoX flying: the companion's height + pitch references as sent on the link
@@ -76,6 +79,9 @@ TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 PX4_MAIN_MODES = {1: "manual", 2: "altctl", 3: "posctl", 4: "auto", 5: "acro", 6: "offboard",
                   7: "stabilized", 8: "rattitude", 9: "termination"}
 PX4_MAIN_MODE_OFFBOARD = 6
+# ArduPilot's off-board modes (setpoints from a companion computer), by name in every vehicle type's map
+ARDUPILOT_OFFBOARD_MODES = ("GUIDED", "GUIDED_NOGPS")
+_MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 _MAV_MODE_FLAG_SAFETY_ARMED = 128
 _MAV_AUTOPILOT_INVALID = 8
@@ -169,7 +175,7 @@ def read_tlog(
             try:
                 msg = mav.decode(bytearray(data[pos + 8: pos + 8 + total]))
             except Exception:  # pymavlink raises MAVError and, on odd payloads, struct errors
-                crc_bad.append((pos, t_us))
+                crc_bad.append((pos, t_us, mod.mavlink_map[msgid].msgname))
             else:
                 out.setdefault(msg.get_type(), []).append((t_us, sysid, compid, msg))
         pos += 8 + total
@@ -182,12 +188,52 @@ def read_tlog(
         notes.warn(f"{path.name}: skipped {sum(nb for _, nb, _ in skipped)} corrupt byte(s) in "
                    f"{len(skipped)} place(s): {where}{' ...' if len(skipped) > 3 else ''}")
     if crc_bad:
-        where = ", ".join(f"offset {off} at {fmt_t(t, o)}" for off, t in crc_bad[:3])
-        notes.warn(f"{path.name}: dropped {len(crc_bad)} packet(s) failing the MAVLink CRC/decode: "
+        names = sorted({nm for _, _, nm in crc_bad})
+        per = ", ".join(f"{nm} x{sum(1 for *_, x in crc_bad if x == nm)}" for nm in names)
+        where = ", ".join(f"{nm} at offset {off}, {fmt_t(t, o)}" for off, t, nm in crc_bad[:3])
+        notes.warn(f"{path.name}: dropped {len(crc_bad)} packet(s) failing the MAVLink CRC/decode ({per}): "
                    f"{where}{' ...' if len(crc_bad) > 3 else ''}")
     if origin is None:
         raise DataError(f"{path}: no MAVLink record found; is it a tlog (8-byte timestamp + packet records)?")
     return out, origin
+
+
+# Unit spellings that mean the same (MAVLink XML writes m/s/s)
+_SAME_UNIT = {"m/s/s": "m/s^2", "rad/s/s": "rad/s^2", "m/s2": "m/s^2"}
+
+
+def mavlink_unit(cls, field: str) -> str | None:
+    """Unit of a raw or derived field of MAVLink message class ``cls`` from its XML definition
+    (pymavlink's ``fieldunits_by_name``): "" when the definition gives none, None when ``field``
+    is not a field of the message (derived Euler angles of ``q`` are "rad"; ``F_up`` has F's unit).
+    """
+    base = field[:-3] if field.endswith("_up") and len(field) > 3 else field
+    raw = base.split("[")[0]
+    if raw in cls.fieldnames:
+        return getattr(cls, "fieldunits_by_name", {}).get(raw, "")
+    if base in ANGLE_FIELDS and "q" in cls.fieldnames:
+        return "rad"  # derived here from the quaternion (frames.quat_to_euler)
+    return None
+
+
+def _with_mavlink_units(specs: list[ChannelSpec], mod) -> list[ChannelSpec]:
+    """Specs with units from the MAVLink definitions; a stated unit that contradicts them is an error."""
+    classes = {c.msgname: c for c in mod.mavlink_map.values()}
+    out = []
+    for s in specs:
+        cls = classes.get(s.source)
+        unit = mavlink_unit(cls, s.field) if cls is not None else None
+        if unit is None:  # unknown message or field: reported with the fields when the data is read
+            out.append(s if s.unit_given else dataclasses.replace(s, unit=""))
+        elif not s.unit_given:
+            out.append(dataclasses.replace(s, unit=unit))
+        elif unit and _SAME_UNIT.get(unit, unit) != _SAME_UNIT.get(s.unit, s.unit):
+            raise DataError(f"channel {s.text!r}: {s.source}.{s.field} is in {unit!r} by the MAVLink definition, "
+                            f"not {s.unit!r}; the importer does not convert units: drop ':{s.unit}' "
+                            f"(or state ':{unit}') and convert in the config / data")
+        else:
+            out.append(s)
+    return out
 
 
 def _flatten(msgs: Sequence[object]) -> dict[str, np.ndarray]:
@@ -230,6 +276,27 @@ def _pick_source(rows: list, msgname: str, sysid: int | None, path: Path, what: 
     return rows
 
 
+def _mode(msg) -> tuple[int, str, bool]:
+    """(state code, mode name, is off-board) of one autopilot HEARTBEAT.
+
+    ArduPilot (MAV_AUTOPILOT_ARDUPILOTMEGA): custom_mode is the mode number of the vehicle type
+    (pymavlink's per-type maps: ArduCopter, ArduPlane, ArduSub, Rover...); off-board = GUIDED or
+    GUIDED_NOGPS. PX4 and others: PX4's main mode in bits 16..23 (6 = offboard). Code -1 = no
+    custom mode reported.
+    """
+    if not msg.base_mode & _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return -1, "no_custom_mode", False
+    v = int(msg.custom_mode)
+    if msg.autopilot == _MAV_AUTOPILOT_ARDUPILOTMEGA:
+        name = (mavutil.mode_mapping_bynumber(msg.type) or {}).get(v, f"mode_{v}")
+        return v, name, name in ARDUPILOT_OFFBOARD_MODES
+    mm, sub = (v >> 16) & 0xFF, (v >> 24) & 0xFF
+    if mm == 0:
+        return -1, "no_custom_mode", False
+    name = PX4_MAIN_MODES.get(mm, f"main_mode_{mm}")
+    return v, f"{name}.{sub}" if mm == 4 else name, mm == PX4_MAIN_MODE_OFFBOARD
+
+
 def _heartbeat_windows(rows, path: Path, origin: int, sysid: int | None, *, offboard_only: bool,
                        armed_only: bool, split_on_mode: bool):
     what = "--offboard-only" if offboard_only else "--armed-only" if armed_only else "--split-on-mode"
@@ -242,26 +309,23 @@ def _heartbeat_windows(rows, path: Path, origin: int, sysid: int | None, *, offb
     ap = _pick_source(ap, "HEARTBEAT (autopilot)", None, path, what)
     t = np.array([r[0] for r in ap], dtype=np.int64)
     base = np.array([r[3].base_mode for r in ap], dtype=np.int64)
-    custom = np.array([r[3].custom_mode for r in ap], dtype=np.int64)
-    main = np.where(base & _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, (custom >> 16) & 0xFF, 0)
+    modes = [_mode(r[3]) for r in ap]
+    code = np.array([c for c, _, _ in modes], dtype=np.int64)
+    label = {c: n for c, n, _ in modes}
+    offboard = {c: o for c, _, o in modes}
     t_end = int(t[-1])
-
-    def label(v: int) -> str:
-        mm, sub = (v >> 16) & 0xFF, (v >> 24) & 0xFF
-        name = PX4_MAIN_MODES.get(mm, f"main_mode_{mm}")
-        return f"{name}.{sub}" if mm == 4 else name
 
     wins = None
     # heartbeats come at ~1 Hz: a mode is only trusted from its first to its last report
     if offboard_only or split_on_mode:
-        code = np.where(main > 0, custom, -1)
-        keep = (lambda v: v >= 0 and ((v >> 16) & 0xFF) == PX4_MAIN_MODE_OFFBOARD) if offboard_only else None
-        wins = [(a, b, label(v) if v >= 0 else "no_custom_mode")
-                for a, b, v in state_windows(t, code, t_end_us=t_end, keep=keep, until_next=False)]
+        keep = (lambda v: offboard[v]) if offboard_only else None
+        wins = [(a, b, label[v]) for a, b, v in state_windows(t, code, t_end_us=t_end, keep=keep, until_next=False)]
         if offboard_only and not wins:
-            seen = sorted({label(int(v)) for v in custom})
-            raise DataError(f"--offboard-only: {path} never reports PX4 offboard mode "
-                            f"({fmt_t(t[0], origin)}..{fmt_t(t_end, origin)}; modes seen: {', '.join(seen)})")
+            ardu = ap[0][3].autopilot == _MAV_AUTOPILOT_ARDUPILOTMEGA
+            which = "ArduPilot GUIDED / GUIDED_NOGPS" if ardu else "PX4 offboard"
+            raise DataError(f"--offboard-only: {path} never reports {which} mode "
+                            f"({fmt_t(t[0], origin)}..{fmt_t(t_end, origin)}; modes seen: "
+                            f"{', '.join(sorted(set(label.values())))})")
     if armed_only:
         armed = (base & _MAV_MODE_FLAG_SAFETY_ARMED) > 0
         arm = [(a, b, "armed") for a, b, _ in
@@ -327,8 +391,10 @@ def import_tlog(
         time_source: "log" (tlog receive timestamps) or "boot" (messages' time_boot_ms).
         dialect: pymavlink dialect module for decoding ("common", "development", "all"...).
         time_range: (start, end) in s since the first record ("log") or since boot ("boot").
-    Mode filters read the autopilot's HEARTBEAT (PX4 custom main mode 6 = offboard, base_mode
+    Mode filters read the autopilot's HEARTBEAT (PX4: custom main mode 6 = offboard; ArduPilot:
+    the mode number of the vehicle type's map, GUIDED / GUIDED_NOGPS = off-board; base_mode
     armed flag); heartbeats come at ~1 Hz, so a mode counts from its first to its last report.
+    Units: from the MAVLink message definitions (:func:`mavlink_unit`), never guessed from names.
     ``.npz`` files (the bridge's own IODataset logs) are returned as they are.
     """
     path_list = [Path(paths)] if isinstance(paths, (str, Path)) else [Path(p) for p in paths]
@@ -348,6 +414,8 @@ def import_tlog(
     check_rule(input_rule, "input")
     check_rule(output_rule, "output")
     ins, outs = resolve_channels(preset, inputs, outputs, TLOG_PRESETS, "tlog")
+    mod = _dialect(dialect)
+    ins, outs = _with_mavlink_units(ins, mod), _with_mavlink_units(outs, mod)
     modes = offboard_only or armed_only or split_on_mode
     if modes and time_source == "boot":
         raise DataError("mode filters need time_source='log': HEARTBEAT carries no time_boot_ms")

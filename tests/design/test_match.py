@@ -131,7 +131,7 @@ def test_unknown_mapped_name(uy, tmp_path):
 
 
 def test_cli_reports_mismatch_and_bad_flags(uy, tmp_path, capsys):
-    cfg = _cfg(tmp_path)
+    _cfg(tmp_path)  # writes m.toml
     _, path = _ds(uy, tmp_path, outputs=("pos_z", "att_pitch"))
     out = tmp_path / "gen"
     assert main(["codegen", str(tmp_path / "m.toml"), "--dataset", str(path), "--out", str(out), "--quiet"]) == 2
