@@ -164,8 +164,9 @@ class SteeringConfig:
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
         for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
-            raw = getattr(self, key) or ()
-            if isinstance(raw, str) or not all(isinstance(x, str) for x in raw):
+            raw = getattr(self, key)
+            raw = () if raw is None else raw
+            if not isinstance(raw, (list, tuple)) or not all(isinstance(x, str) for x in raw):
                 raise _err(src, f"[signals] {key}", f"must be a list of {n} strings; got {raw!r}")
             v = tuple(raw)
             if v and len(v) != n:
@@ -261,8 +262,8 @@ class SteeringConfig:
             p=len(sg["outputs"]),
             input_names=tuple(sg["inputs"]),
             output_names=tuple(sg["outputs"]),
-            input_units=tuple(sg.get("input_units", ())),
-            output_units=tuple(sg.get("output_units", ())),
+            input_units=sg.get("input_units", ()),
+            output_units=sg.get("output_units", ()),
             Q=co["Q"],
             R=co["R"],
             R_mode=co.get("R_mode", "offset"),

@@ -106,7 +106,8 @@ class DeePCProblem:
         r = self._solver(h=self._Pd, g=q, a=self._Ad, lba=lo, uba=hi)
         dt = time.perf_counter() - t0
         st = self._solver.stats()
-        status = "solved" if st.get("success") else str(st.get("return_status", "failed")).lower().replace(" ", "_")
+        status = ("solved" if st.get("success")
+                  else str(st.get("return_status", "failed")).lower().rstrip(".").replace(" ", "_"))
         x = np.array(r["x"], dtype=float).reshape(-1)
         if status == "solved":  # verified like every interpreted answer: finite, u, du, y inside the bounds
             u, y = x[N : N + nu], x[N + nu : N + nu + ny]

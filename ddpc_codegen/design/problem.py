@@ -238,6 +238,11 @@ class SteeringProblem:
         return float(self._cost_fn(u, theta))
 
     # ------------------------------------------------------------------ solving
+    def reset(self) -> None:
+        """Back to the post-construction state: OSQP's warm start and the DAQP workspace are dropped."""
+        self._osqp = None
+        self._exact = None
+
     def solve(
         self,
         u_ini: np.ndarray,

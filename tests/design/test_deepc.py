@@ -88,3 +88,23 @@ def test_deepc_failed_status_gives_nan_never_a_guess(plant):
     r = deepc.solve(np.full((TI, M), 5.0), np.zeros((TI, P)), np.zeros((TF, P)), np.zeros((TF, M)))
     assert r.status != "solved" and not r.ok
     assert np.all(np.isnan(r.u)) and np.all(np.isnan(r.y_pred)) and np.all(np.isnan(r.info["g"]))
+
+
+@pytest.mark.parametrize("lambda_g, lambda_sigma", [(1e-9, 1e9), (1e-9, 1e3), (1e3, 1e9)])
+def test_extreme_weights_give_a_verified_answer_or_nan(plant, lambda_g, lambda_sigma):
+    # lambda_sigma = 1e9, lambda_g = 1e-9 made qpOASES fail while a finite u was returned
+    sys_, ds = plant
+    c = _cfg(lambda_sigma)
+    deepc = DeePCProblem(ds, c, lambda_g=lambda_g)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        u_ini = rng.uniform(-0.3, 0.3, (TI, M))
+        y_ini, _ = sys_.simulate(u_ini, 0.3 * rng.standard_normal(3))
+        r = deepc.solve(u_ini, y_ini, 2.0 * rng.standard_normal((TF, P)), np.zeros((TF, M)))
+        if not r.ok:
+            assert np.all(np.isnan(r.u)) and "." not in r.status
+            continue
+        tol = 1e-8 * np.maximum(1.0, np.abs(c.u_max))
+        assert np.all(np.abs(r.u) <= c.u_max + tol) and np.all(np.abs(r.y_pred) <= c.y_max + 1e-8)
+        du = np.diff(np.vstack([u_ini[-1:], r.u]), axis=0)
+        assert np.all(np.abs(du) <= c.du_max + 1e-8)

@@ -85,6 +85,8 @@ def test_every_answer_is_inside_the_bounds_or_nan(setup, solver, ticks):
     assert again.status == fresh.status
     if fresh.ok:
         np.testing.assert_allclose(again.u, fresh.u, atol=1e-6 if solver == "osqp" else 1e-9)
+    prob.reset()  # and reset() is the post-construction state: the same answer to round-off
+    np.testing.assert_allclose(prob.solve_theta(th, solver=solver).u, fresh.u, atol=1e-12, equal_nan=True)
 
 
 def test_extreme_and_nan_ticks_are_refused_with_nan(setup):
@@ -140,3 +142,49 @@ def test_unknown_solver_is_refused_before_anything_else(setup):
     _, _, prob = setup
     with pytest.raises(ConfigError, match=r"unknown solver 'daqp'; choose one of \['osqp', 'exact', 'fast'\]"):
         prob.solve(None, None, None, solver="daqp")
+
+
+_weights = st.sampled_from([0.0, 1e-12, 1e-6, 0.1, 1e3])
+
+
+@pytest.mark.slow
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(r=st.tuples(_weights, _weights), r_du=st.tuples(_weights, _weights),
+       mode=st.sampled_from(["absolute", "offset", "increment"]), seed=st.integers(0, 10**6))
+def test_any_weights_are_refused_or_solved_soundly(setup, r, r_du, mode, seed):
+    sys_, _, prob = setup
+    cfg = prob.config.replace(R=list(r), R_du=list(r_du), R_mode=mode)
+    try:
+        p = SteeringProblem(prob.predictor, cfg)
+    except ConfigError as e:
+        assert "[cost] R = " in str(e) and "not strictly convex" in str(e)
+        assert min(r) + min(r_du) < 1e-3  # only nearly semidefinite weights are refused
+        return
+    rng = np.random.default_rng(seed)
+    th = p.theta(rng.uniform(-0.5, 0.5, (TI, M)), 0.5 * rng.standard_normal((TI, P)), 3 * rng.standard_normal((TF, P)),
+                 0.1 * rng.standard_normal((TF, M)))[: p.n_theta]
+    for solver in ("fast", "exact", "osqp"):
+        _assert_sound(p, th, p.solve_theta(th, solver=solver))
+
+
+_value = st.recursive(
+    st.one_of(st.none(), st.booleans(), st.integers(-10**20, 10**20), st.floats(allow_nan=True), st.text(max_size=5)),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=2), max_leaves=6)
+_KEYS = [("horizon", "t_ini"), ("horizon", "t_f"), ("horizon", "dt"), ("signals", "inputs"), ("signals", "outputs"),
+         ("signals", "input_units"), ("cost", "Q"), ("cost", "R"), ("cost", "R_mode"), ("cost", "R_du"),
+         ("cost", "lambda_sigma"), ("bounds", "u_min"), ("bounds", "du_max"), ("predictor", "method"),
+         ("predictor", "ridge"), ("codegen", "backend"), ("codegen", "max_iter"), ("codegen", "eps"),
+         ("data", "dataset"), ("", "name"), ("artificial_io", "t_a")]
+
+
+@settings(max_examples=100, deadline=None)
+@given(edits=st.lists(st.tuples(st.sampled_from(_KEYS), _value), min_size=1, max_size=3))
+def test_any_config_value_is_accepted_or_a_config_error(edits):
+    raw = {"name": "fz", "horizon": {"t_ini": 2, "t_f": 2}, "signals": {"inputs": ["a", "b"], "outputs": ["c"]},
+           "cost": {"Q": [1.0], "R": [1.0, 1.0]}}
+    for (sec, key), v in edits:
+        (raw if not sec else raw.setdefault(sec, {}))[key] = v
+    try:
+        SteeringConfig.from_dict(raw, source="fz.toml")
+    except ConfigError as e:
+        assert "fz.toml" in str(e)
