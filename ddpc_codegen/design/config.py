@@ -163,24 +163,7 @@ class SteeringConfig:
         if not (_is_num(self.dt) and np.isfinite(self.dt) and self.dt > 0):
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
-        for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
-            raw = getattr(self, key)
-            raw = () if raw is None else raw
-            if not isinstance(raw, (list, tuple)) or not all(isinstance(x, str) for x in raw):
-                raise _err(src, f"[signals] {key}", f"must be a list of {n} strings; got {raw!r}")
-            v = tuple(raw)
-            if v and len(v) != n:
-                raise _err(src, f"[signals] {key}", f"must have {n} entries; got {len(v)}: {list(v)}")
-            set_(key, v)
-        names = self.input_names + self.output_names
-        dup = sorted({x for x in names if names.count(x) > 1})
-        if dup:
-            raise _err(src, "[signals] inputs/outputs", f"channel names must be unique; {dup} appear more than once "
-                       f"in inputs {list(self.input_names)} / outputs {list(self.output_names)}")
-        if not isinstance(self.name, str) or not self.name:
-            raise _err(src, "name", f"must be a non-empty string; got {self.name!r}")
-        if self.dataset is not None and not isinstance(self.dataset, str):
-            raise _err(src, "[data] dataset", f"must be a path string; got {self.dataset!r}")
+        self._check_signals()
         pred = dict(self.predictor)
         pred.setdefault("method", "pem")
         if pred["method"] not in _PREDICTOR_METHODS:
@@ -214,6 +197,30 @@ class SteeringConfig:
             else:
                 raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
         set_("artificial_io", art)
+
+    def _check_signals(self) -> None:
+        """Names and units: lists of strings of the right length, channel names unique; name and dataset strings."""
+        src, set_ = self.source, lambda k, v: object.__setattr__(self, k, v)
+        m, p = self.m, self.p
+        for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
+            raw = getattr(self, key)
+            raw = () if raw is None else raw
+            if not isinstance(raw, (list, tuple)) or not all(isinstance(x, str) for x in raw):
+                raise _err(src, f"[signals] {key}", f"must be a list of {n} strings; got {raw!r}")
+            v = tuple(raw)
+            if v and len(v) != n:
+                raise _err(src, f"[signals] {key}", f"must have {n} entries; got {len(v)}: {list(v)}")
+            set_(key, v)
+        names = self.input_names + self.output_names
+        dup = sorted({x for x in names if names.count(x) > 1})
+        if dup:
+            raise _err(src, "[signals] inputs/outputs", f"channel names must be unique; {dup} appear more than once "
+                       f"in inputs {list(self.input_names)} / outputs {list(self.output_names)}")
+        if not isinstance(self.name, str) or not self.name:
+            raise _err(src, "name", f"must be a non-empty string; got {self.name!r}")
+        if self.dataset is not None and not isinstance(self.dataset, str):
+            raise _err(src, "[data] dataset", f"must be a path string; got {self.dataset!r}")
+
 
     # ------------------------------------------------------------------ loading
     @classmethod

@@ -219,25 +219,14 @@ def fit_predictor(
     scale = np.array([sd if n not in near else (r if r > 0 else 1.0) for n, sd, r in zip(names, std, rms)])
     G, s_all, keep, su, lam = _fit_scaled(dataset, t_ini, t_f, method, slack_weight, ridge, rcond,
                                           int(block_columns), streaming, scale)
-    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
-    pe = PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
-                  float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols,
-                  near_constant_inputs=tuple(n for n in near if n in dataset.input_names),
-                  near_constant_outputs=tuple(n for n in near if n in dataset.output_names),
-                  channel_std={n: float(v) for n, v in zip(names, std)})
+    pe = _pe_report(su, L, m, cols, near, dataset, std)
     if check_excitation and not pe.ok:
         raise ExcitationError(
             f"inputs are not persistently exciting enough for Tini={t_ini}, Tf={t_f}: {pe.summary()}. "
             "Excite the references more (e.g. add a PRBS) or record longer data."
         )
-    # Undo the scaling: G maps [u_ini; y_ini; u] to [y; sigma] in the data's units.
-    su_, sy_ = scale[:m], scale[m:]
-    s_in = np.concatenate([np.tile(su_, t_ini), np.tile(sy_, t_ini), np.tile(su_, t_f)])
-    s_out = np.concatenate([np.tile(sy_, t_f), np.tile(sy_, t_ini) if method == "pem" else np.zeros(0)])
-    G = (s_out[:, None] * G) / s_in[None, :]
-    nw, q_y = (m + p) * t_ini, p * t_f
-    Gy = G[:q_y]
-    Gs = G[q_y:] if method == "pem" else np.zeros((p * t_ini, s_in.size))
+    Gy, Gs = _unscale(G, scale, m, p, t_ini, t_f, method)
+    nw = (m + p) * t_ini
     opts = {"slack_weight": float(slack_weight), "ridge": float(ridge), "rcond": float(rcond),
             "ridge_effective": float(lam), "channel_scale": scale.tolist(), "_pe_report": pe}
     return Predictor(
@@ -254,6 +243,28 @@ def fit_predictor(
         output_names=dataset.output_names,
         options=opts,
     )
+
+
+def _pe_report(su: np.ndarray, L: int, m: int, cols: int, near: tuple[str, ...], dataset: IODataset,
+               std: np.ndarray) -> PEReport:
+    """PE of order L from the singular values su of the (scaled) input rows, with near-constant channels named."""
+    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
+    return PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
+                    float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols,
+                    near_constant_inputs=tuple(n for n in near if n in dataset.input_names),
+                    near_constant_outputs=tuple(n for n in near if n in dataset.output_names),
+                    channel_std={n: float(v) for n, v in zip(dataset.input_names + dataset.output_names, std)})
+
+
+def _unscale(G: np.ndarray, scale: np.ndarray, m: int, p: int, t_ini: int, t_f: int,
+             method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(Gy (p*Tf, r), Gs (p*Tini, r)) in the data's units from G fitted on channels divided by ``scale`` (m+p,)."""
+    su_, sy_ = scale[:m], scale[m:]
+    s_in = np.concatenate([np.tile(su_, t_ini), np.tile(sy_, t_ini), np.tile(su_, t_f)])
+    s_out = np.concatenate([np.tile(sy_, t_f), np.tile(sy_, t_ini) if method == "pem" else np.zeros(0)])
+    G = (s_out[:, None] * G) / s_in[None, :]
+    q_y = p * t_f
+    return G[:q_y], (G[q_y:] if method == "pem" else np.zeros((p * t_ini, s_in.size)))
 
 
 def _fit_scaled(dataset: IODataset, t_ini: int, t_f: int, method: str, slack_weight: float, ridge: float,

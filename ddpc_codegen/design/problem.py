@@ -142,16 +142,20 @@ class SteeringProblem:
         self.lg0 = np.array(l0, dtype=float).reshape(-1)
         self.ug0 = np.array(u0, dtype=float).reshape(-1)
         self._check_hessian()
+        self._precompute(D)
+        self._osqp = None
+        self._exact = None
+
+    def _precompute(self, D: np.ndarray) -> None:
+        """The unconstrained gain and the bounds in their own units (for check())."""
+        c, Tf = self.config, self.config.t_f
         # Unconstrained optimum u* = K theta + k0 (exact fast path when it satisfies the bounds).
         chol = sla.cho_factor(self.P)
         self.K = -sla.cho_solve(chol, self.F_q)
         self.k0 = -sla.cho_solve(chol, self.q0)
-        # Bounds in their own units for the verification of every answer (check()).
         self._y_lo, self._y_hi = np.tile(c.y_min, Tf).astype(float), np.tile(c.y_max, Tf).astype(float)
         self._du_max = np.tile(c.du_max, Tf).astype(float)
-        self._D = D
-        self._osqp = None
-        self._exact = None
+        self._D = D  # stacked differences (n_u, n_u)
 
     def _check_hessian(self) -> None:
         """ConfigError naming [cost] R when P is not numerically positive definite (cond > P_COND_MAX)."""

@@ -20,18 +20,25 @@ them as they are (several are merged as separate trajectories).
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import struct
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from pymavlink import mavutil
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
+from ddpc_codegen.logs.mavlink_defs import (  # noqa: F401 (PX4_MAIN_MODES, ARDUPILOT_OFFBOARD_MODES re-exported)
+    ARDUPILOT_OFFBOARD_MODES,
+    MAV_AUTOPILOT_ARDUPILOTMEGA,
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    PX4_MAIN_MODES,
+    heartbeat_mode,
+    mavlink_unit,
+    with_mavlink_units,
+)
 from ddpc_codegen.logs.resample import (
     ChannelSpec,
     Notes,
@@ -76,14 +83,6 @@ TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     ),
 }
 
-PX4_MAIN_MODES = {1: "manual", 2: "altctl", 3: "posctl", 4: "auto", 5: "acro", 6: "offboard",
-                  7: "stabilized", 8: "rattitude", 9: "termination"}
-PX4_MAIN_MODE_OFFBOARD = 6
-# ArduPilot's off-board modes (setpoints from a companion computer), by name in every vehicle type's map
-ARDUPILOT_OFFBOARD_MODES = ("GUIDED", "GUIDED_NOGPS")
-_MAV_AUTOPILOT_ARDUPILOTMEGA = 3
-_MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-_MAV_MODE_FLAG_SAFETY_ARMED = 128
 _MAV_AUTOPILOT_INVALID = 8
 _MAV_TYPE_GCS = 6
 
@@ -198,44 +197,6 @@ def read_tlog(
     return out, origin
 
 
-# Unit spellings that mean the same (MAVLink XML writes m/s/s)
-_SAME_UNIT = {"m/s/s": "m/s^2", "rad/s/s": "rad/s^2", "m/s2": "m/s^2"}
-
-
-def mavlink_unit(cls, field: str) -> str | None:
-    """Unit of a raw or derived field of MAVLink message class ``cls`` from its XML definition
-    (pymavlink's ``fieldunits_by_name``): "" when the definition gives none, None when ``field``
-    is not a field of the message (derived Euler angles of ``q`` are "rad"; ``F_up`` has F's unit).
-    """
-    base = field[:-3] if field.endswith("_up") and len(field) > 3 else field
-    raw = base.split("[")[0]
-    if raw in cls.fieldnames:
-        return getattr(cls, "fieldunits_by_name", {}).get(raw, "")
-    if base in ANGLE_FIELDS and "q" in cls.fieldnames:
-        return "rad"  # derived here from the quaternion (frames.quat_to_euler)
-    return None
-
-
-def _with_mavlink_units(specs: list[ChannelSpec], mod) -> list[ChannelSpec]:
-    """Specs with units from the MAVLink definitions; a stated unit that contradicts them is an error."""
-    classes = {c.msgname: c for c in mod.mavlink_map.values()}
-    out = []
-    for s in specs:
-        cls = classes.get(s.source)
-        unit = mavlink_unit(cls, s.field) if cls is not None else None
-        if unit is None:  # unknown message or field: reported with the fields when the data is read
-            out.append(s if s.unit_given else dataclasses.replace(s, unit=""))
-        elif not s.unit_given:
-            out.append(dataclasses.replace(s, unit=unit))
-        elif unit and _SAME_UNIT.get(unit, unit) != _SAME_UNIT.get(s.unit, s.unit):
-            raise DataError(f"channel {s.text!r}: {s.source}.{s.field} is in {unit!r} by the MAVLink definition, "
-                            f"not {s.unit!r}; the importer does not convert units: drop ':{s.unit}' "
-                            f"(or state ':{unit}') and convert in the config / data")
-        else:
-            out.append(s)
-    return out
-
-
 def _flatten(msgs: Sequence[object]) -> dict[str, np.ndarray]:
     """field name -> (N,) float array, arrays as ``q[0]``..; text fields left out."""
     cls = type(msgs[0])
@@ -276,27 +237,6 @@ def _pick_source(rows: list, msgname: str, sysid: int | None, path: Path, what: 
     return rows
 
 
-def _mode(msg) -> tuple[int, str, bool]:
-    """(state code, mode name, is off-board) of one autopilot HEARTBEAT.
-
-    ArduPilot (MAV_AUTOPILOT_ARDUPILOTMEGA): custom_mode is the mode number of the vehicle type
-    (pymavlink's per-type maps: ArduCopter, ArduPlane, ArduSub, Rover...); off-board = GUIDED or
-    GUIDED_NOGPS. PX4 and others: PX4's main mode in bits 16..23 (6 = offboard). Code -1 = no
-    custom mode reported.
-    """
-    if not msg.base_mode & _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-        return -1, "no_custom_mode", False
-    v = int(msg.custom_mode)
-    if msg.autopilot == _MAV_AUTOPILOT_ARDUPILOTMEGA:
-        name = (mavutil.mode_mapping_bynumber(msg.type) or {}).get(v, f"mode_{v}")
-        return v, name, name in ARDUPILOT_OFFBOARD_MODES
-    mm, sub = (v >> 16) & 0xFF, (v >> 24) & 0xFF
-    if mm == 0:
-        return -1, "no_custom_mode", False
-    name = PX4_MAIN_MODES.get(mm, f"main_mode_{mm}")
-    return v, f"{name}.{sub}" if mm == 4 else name, mm == PX4_MAIN_MODE_OFFBOARD
-
-
 def _heartbeat_windows(rows, path: Path, origin: int, sysid: int | None, *, offboard_only: bool,
                        armed_only: bool, split_on_mode: bool):
     what = "--offboard-only" if offboard_only else "--armed-only" if armed_only else "--split-on-mode"
@@ -309,7 +249,7 @@ def _heartbeat_windows(rows, path: Path, origin: int, sysid: int | None, *, offb
     ap = _pick_source(ap, "HEARTBEAT (autopilot)", None, path, what)
     t = np.array([r[0] for r in ap], dtype=np.int64)
     base = np.array([r[3].base_mode for r in ap], dtype=np.int64)
-    modes = [_mode(r[3]) for r in ap]
+    modes = [heartbeat_mode(r[3]) for r in ap]
     code = np.array([c for c, _, _ in modes], dtype=np.int64)
     label = {c: n for c, n, _ in modes}
     offboard = {c: o for c, _, o in modes}
@@ -321,13 +261,13 @@ def _heartbeat_windows(rows, path: Path, origin: int, sysid: int | None, *, offb
         keep = (lambda v: offboard[v]) if offboard_only else None
         wins = [(a, b, label[v]) for a, b, v in state_windows(t, code, t_end_us=t_end, keep=keep, until_next=False)]
         if offboard_only and not wins:
-            ardu = ap[0][3].autopilot == _MAV_AUTOPILOT_ARDUPILOTMEGA
+            ardu = ap[0][3].autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA
             which = "ArduPilot GUIDED / GUIDED_NOGPS" if ardu else "PX4 offboard"
             raise DataError(f"--offboard-only: {path} never reports {which} mode "
                             f"({fmt_t(t[0], origin)}..{fmt_t(t_end, origin)}; modes seen: "
                             f"{', '.join(sorted(set(label.values())))})")
     if armed_only:
-        armed = (base & _MAV_MODE_FLAG_SAFETY_ARMED) > 0
+        armed = (base & MAV_MODE_FLAG_SAFETY_ARMED) > 0
         arm = [(a, b, "armed") for a, b, _ in
                state_windows(t, armed, t_end_us=t_end, keep=lambda v: v == 1, until_next=False)]
         if not arm:
@@ -415,7 +355,7 @@ def import_tlog(
     check_rule(output_rule, "output")
     ins, outs = resolve_channels(preset, inputs, outputs, TLOG_PRESETS, "tlog")
     mod = _dialect(dialect)
-    ins, outs = _with_mavlink_units(ins, mod), _with_mavlink_units(outs, mod)
+    ins, outs = with_mavlink_units(ins, mod), with_mavlink_units(outs, mod)
     modes = offboard_only or armed_only or split_on_mode
     if modes and time_source == "boot":
         raise DataError("mode filters need time_source='log': HEARTBEAT carries no time_boot_ms")
