@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import pytest
@@ -35,10 +34,3 @@ def generated(problems, tmp_path_factory) -> dict[tuple[str, str], Path]:
     root = tmp_path_factory.mktemp("solvers")
     return {(s, b): generate(problems[s], root / f"{s}_{b}", backend=b, name=f"{s}_{b}")
             for s in SIZES for b in BACKENDS}
-
-
-def tool(name: str) -> str | None:
-    """Path of an executable on PATH or in this interpreter's environment (pip-installed cmake)."""
-    import sys
-
-    return shutil.which(name) or shutil.which(name, path=str(Path(sys.prefix) / "bin"))

@@ -13,21 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import BACKENDS, SIZES, tool
+from conftest import BACKENDS, SIZES
 from ddpc_codegen import load_solver
 from ddpc_codegen.codegen import vectors as test_vectors
+from ddpc_codegen.codegen.standalone import relocated_copy, tool
 
 pytestmark = pytest.mark.compiler
 
 LIBC_LIBM = {"calloc", "malloc", "free", "memcpy", "memmove", "memset", "sqrt", "fmax", "fabs", "clock_gettime",
              "printf", "__stack_chk_fail", "__memcpy_chk", "__memset_chk", "_GLOBAL_OFFSET_TABLE_"}
-
-
-def _copy(folder: Path, dst: Path) -> Path:
-    """A relocated copy of a generated folder (without its Python extension and any build output)."""
-    out = dst / folder.name
-    shutil.copytree(folder, out, ignore=shutil.ignore_patterns("_ddpc_*", "build*", "__pycache__"))
-    return out
 
 
 def _make(folder: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -47,7 +41,7 @@ def made(generated, tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("make")
     out = {}
     for key, folder in generated.items():
-        copy = _copy(folder, root)
+        copy = relocated_copy(folder, root)
         res = _make(copy)
         assert res.returncode == 0, res.stderr[-3000:]
         out[key] = copy
@@ -129,7 +123,7 @@ def test_several_solvers_in_one_c_and_one_cxx_program_via_add_subdirectory(gener
     shutil.copytree(src, proj)
     shutil.copy(proj / "multi_main.c", proj / "multi_main.cpp")
     names = [f"{s}_{b}" for s in SIZES for b in BACKENDS]
-    dirs = [_copy(generated[(s, b)], tmp_path) for s in SIZES for b in BACKENDS]
+    dirs = [relocated_copy(generated[(s, b)], tmp_path) for s in SIZES for b in BACKENDS]
     (proj / "solvers.h").write_text("".join(f'#include "{n}_solver.h"\n' for n in names) + "#define FOR_EACH_SOLVER(X) "
                                     + " ".join(f"X({n}, {n.upper()})" for n in names) + "\n")
     build = tmp_path / "build"
@@ -155,7 +149,7 @@ def test_standalone_cmake_build_and_ctest(generated, tmp_path):
     cmake, ctest = tool("cmake"), tool("ctest")
     if cmake is None or ctest is None:
         pytest.skip("cmake/ctest not found (.ci/run installs cmake)")
-    folder = _copy(generated[("flying", "daqp")], tmp_path)
+    folder = relocated_copy(generated[("flying", "daqp")], tmp_path)
     build = tmp_path / "b"
     for cmd in ([cmake, "-S", str(folder), "-B", str(build)], [cmake, "--build", str(build), "-j", "2"],
                 [ctest, "--test-dir", str(build), "--output-on-failure"]):
