@@ -185,8 +185,8 @@ def _import_extension(folder: Path, man: dict, ext: Path):
     spec = importlib.util.spec_from_file_location(man["module"], ext)
     if spec is None or spec.loader is None:
         raise ManifestError(f"{ext} is not a loadable extension module; regenerate the solver")
-    module = importlib.util.module_from_spec(spec)
-    try:
+    try:  # a foreign or damaged .so fails in create_module (no PyInit_<module>) or in exec_module
+        module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
     except ImportError as e:
         raise ManifestError(f"{ext} does not load on this machine or is not solver {man['name']!r} ({e}); "
