@@ -22,6 +22,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -272,10 +273,13 @@ def _condition_row(sc_name: str, c: dict, setup: SteeringSetup, policies: dict, 
 
 def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str, float],
                        ilc_iterations: dict[str, int] | None = None, reuse: dict | None = None,
-                       interpreted: bool | str = False, seed: int = 3, quiet: bool = False) -> dict[str, Any]:
+                       interpreted: bool | str = False, seed: int = 3, quiet: bool = False,
+                       out_dir: str | Path | None = None) -> dict[str, Any]:
     """Every condition x method per scenario; the summary.json ``baselines`` section (SI units).
 
     ``reuse``: {scenario: {condition: {method: metrics}}} already computed (:func:`reuse_from_summary`).
+    ``out_dir``: also write ``prefilter_<scenario>.json`` and ``ilc_<scenario>.npz`` there (what
+    :meth:`PrefilterPolicy.load` / :meth:`FeedforwardPolicy.load` read, e.g. on the bridge).
     """
     out: dict[str, Any] = {}
     iters = {**ILC_ITERATIONS, **(ilc_iterations or {})}
@@ -288,6 +292,11 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
                   f"{np.round(pf.offset, 4).tolist()}, lead {list(pf.lead)} ticks", file=sys.stderr)
         ilc = learn_ilc(setup, pf, duration=dur, iterations=iters[sc_name], seed=seed, quiet=quiet)
         policies = {"passthrough": PassthroughPolicy(), "prefilter": PrefilterPolicy(pf), "ilc": ilc.policy}
+        files = []
+        if out_dir is not None:
+            Path(out_dir).mkdir(parents=True, exist_ok=True)
+            files = [str(pf.save(Path(out_dir) / f"prefilter_{sc_name}.json")),
+                     str(ilc.policy.save(Path(out_dir) / f"ilc_{sc_name}.npz"))]
         rows: dict[str, Any] = {}
         for cname, c in conditions(sc_name).items():
             reused = (reuse or {}).get(sc_name, {}).get(cname, {})
@@ -306,6 +315,7 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
                            "Butterworth Q-filter at 1 Hz"},
             "conditions": rows,
             "duration_s": dur,
+            "files": files,
             "wall_s": round(time.perf_counter() - t0, 1),
         }
     return out

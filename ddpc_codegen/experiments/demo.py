@@ -281,7 +281,7 @@ def run_demo(
 
         _say("baselines: prefilter, ILC, non-repeating trajectories ...", quiet)
         summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
-                                                  interpreted=interpreted, quiet=quiet)
+                                                  interpreted=interpreted, quiet=quiet, out_dir=out / "baselines")
     wall = time.perf_counter() - t0
     summary["meta"] = {
         "units": "SI (m, rad, m/s); solve times in microseconds",

@@ -37,10 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.robot.trajectory import SampledTrajectory
+from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
 from ddpc_codegen.tomlconfig import check_keys, load_toml
 
-__all__ = ["load_trajectory", "save_trajectory_csv", "COLUMNS"]
+__all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS"]
 
 COLUMNS = ("t", "x", "z")
 MAX_SAMPLES = 1_000_000
@@ -59,6 +59,23 @@ def load_trajectory(path: str | Path) -> SampledTrajectory:
     else:
         raise ConfigError(f"trajectory file {path}: unknown format {path.suffix!r}; use .csv or .toml")
     return _build(rows, str(path))
+
+
+def trajectory_from_arg(text: str):
+    """A trajectory from a command-line value (e.g. the bridge's ``--trajectory``): ``ellipse`` (the
+    default ellipse), ``random`` or ``random:SEED`` (:class:`RandomSmoothTrajectory`), or a .csv /
+    .toml file path (:func:`load_trajectory`)."""
+    name = text.strip()
+    if name == "ellipse":
+        return EllipseTrajectory()
+    if name == "random" or name.startswith("random:"):
+        seed = name.partition(":")[2] or "0"
+        if not seed.lstrip("-").isdigit():
+            raise ConfigError(f"trajectory {text!r}: the seed after 'random:' must be an integer; got {seed!r}")
+        return RandomSmoothTrajectory(seed=int(seed))
+    if Path(name).suffix.lower() in (".csv", ".toml") or Path(name).exists():
+        return load_trajectory(name)
+    raise ConfigError(f"trajectory {text!r}: expected 'ellipse', 'random[:SEED]' or a .csv / .toml file")
 
 
 def save_trajectory_csv(path: str | Path, trajectory, t_end: float, dt: float = 0.05) -> Path:

@@ -9,7 +9,7 @@ import pytest
 
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
-from ddpc_codegen.robot.trajectory_files import load_trajectory, save_trajectory_csv
+from ddpc_codegen.robot.trajectory_files import load_trajectory, save_trajectory_csv, trajectory_from_arg
 
 DT = 0.005
 
@@ -144,3 +144,17 @@ def test_new_trajectories_fly_in_the_simulator(tmp_path):
         np.testing.assert_allclose(ahead[:, 0], tr.sample(t + DT * np.arange(15))["z"], atol=1e-12)
         # The height loop's offset (mass error, no integrator) dominates the error, not the path.
         assert 0.02 < res.metrics()["rmse_z"] < 0.2
+
+
+def test_trajectory_from_a_command_line_value(tmp_path):
+    assert trajectory_from_arg("ellipse") == EllipseTrajectory()
+    assert trajectory_from_arg("random:4") == RandomSmoothTrajectory(seed=4)
+    assert trajectory_from_arg("random") == RandomSmoothTrajectory(seed=0)
+    path = save_trajectory_csv(tmp_path / "p.csv", EllipseTrajectory(), 3.0)
+    assert isinstance(trajectory_from_arg(str(path)), SampledTrajectory)
+    with pytest.raises(ConfigError, match=r"seed after 'random:' must be an integer; got 'x'"):
+        trajectory_from_arg("random:x")
+    with pytest.raises(ConfigError, match=r"trajectory 'spiral': expected 'ellipse', 'random\[:SEED\]'"):
+        trajectory_from_arg("spiral")
+    with pytest.raises(ConfigError, match="does not exist"):
+        trajectory_from_arg(str(tmp_path / "missing.csv"))
