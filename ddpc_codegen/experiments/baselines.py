@@ -322,7 +322,8 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
 
 
 def format_baselines(b: dict[str, Any]) -> str:
-    """The baselines table: key metric per condition and method [mm], and DDPC's ratio to the best simple one."""
+    """The baselines table: key metric per condition and method [mm], and the best of passthrough,
+    prefilter and ILC divided by DDPC's (> 1: steering is better)."""
     head = ("scenario", "condition", "metric", *METHODS, "best simple / ddpc")
     rows = []
     for sc, blk in b.items():
@@ -336,7 +337,8 @@ def format_baselines(b: dict[str, Any]) -> str:
                 if mm == "ilc" and not row["ilc_learned_here"]:
                     txt += "*"
                 cells.append(txt)
-            simple = [vals[mm] for mm in ("prefilter", "ilc") if vals[mm] is not None and np.isfinite(vals[mm])]
+            simple = [vals[mm] for mm in ("passthrough", "prefilter", "ilc")
+                      if vals[mm] is not None and np.isfinite(vals[mm]) and not row[mm].get("crashed")]
             d = vals["ddpc"]
             ratio = f"{min(simple) / d:.1f}x" if simple and d and np.isfinite(d) else "-"
             rows.append((sc, cname, label, *cells, ratio))

@@ -96,3 +96,12 @@ def test_scheduled_apex_changes_per_hop():
         k = int(np.searchsorted(res.t, t_lo)) + 3
         seg = res.y_des[k : k + 150, 0]
         assert np.max(seg) == pytest.approx(sched.apex(j), abs=2e-3)
+
+
+def test_long_horizon_flying_config_loads():
+    """configs/flying_tf30.toml: the measured alternative for disturbances (see its header)."""
+    from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.experiments.pipeline import ROOT
+
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying_tf30.toml")
+    assert (cfg.t_ini, cfg.t_f, cfg.name) == (20, 30, "flying_tf30") and cfg.R[1, 1] == 10.0
