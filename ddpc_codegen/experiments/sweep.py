@@ -1,9 +1,9 @@
 """``ddpc-codegen sweep SPEC.toml``: tuning sweeps of the steering config over simulated conditions.
 
 Each point (configuration overrides x condition x seed; see :mod:`.sweep_spec`) is one task: fit
-the predictor (cached per worker when its inputs repeat), generate and compile the solver (cached
-on disk per configuration, shared by the workers of a node under a file lock), one closed-loop run,
-its metrics. Tasks run serially (``workers=1``) or on Ray (:mod:`ddpc_codegen.cluster`).
+the predictor and generate + compile the solver (both cached when their inputs repeat: in the
+worker's memory, and on disk, shared by the workers of a node under file locks), one closed-loop
+run, its metrics. Tasks run serially (``workers=1``) or on Ray (:mod:`ddpc_codegen.cluster`).
 
 Output folder::
 
@@ -13,7 +13,7 @@ Output folder::
     best.toml     the best configuration, ready for ``ddpc-codegen codegen best.toml``
     best_data.npz the dataset best.toml's predictor is fitted on
     pareto.png    per-configuration means of the spec's Pareto metrics
-    solvers/      the generated solvers (one folder per configuration)
+    solvers/      the generated solvers (one folder per configuration) and fitted predictors (fits/)
 
 An interrupted sweep resumes from results.csv (``resume=True``): finished points are not redone.
 A point that fails (an infeasible config, a fit error, a crash of the simulator) is a row with
@@ -26,11 +26,13 @@ import csv
 import fcntl
 import hashlib
 import json
+import pickle
 import sys
 import time
 from collections import OrderedDict
 from contextlib import closing, contextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -80,19 +82,6 @@ def _remember(cache: OrderedDict, key: str, value: Any) -> Any:
     return value
 
 
-def _cached_fit(cfg: SteeringConfig, ds: IODataset) -> Predictor:
-    """fit_predictor with the config's options, memoised on (data, horizons, predictor options)."""
-    h = hashlib.sha256(json.dumps([cfg.t_ini, cfg.t_f, cfg.predictor], sort_keys=True).encode())
-    for a in (*ds.u, *ds.y):
-        h.update(np.ascontiguousarray(a).tobytes())
-    key = h.hexdigest()
-    if key in _FITS:
-        _FITS.move_to_end(key)
-        return _FITS[key]
-    opts = {k: v for k, v in cfg.predictor.items() if k != "method"}
-    return _remember(_FITS, key, fit_predictor(ds, cfg.t_ini, cfg.t_f, cfg.predictor["method"], **opts))
-
-
 @contextmanager
 def _locked(path: Path) -> Iterator[None]:
     """An exclusive lock file: two workers on one node never build the same solver folder at once."""
@@ -103,6 +92,31 @@ def _locked(path: Path) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _cached_fit(cfg: SteeringConfig, ds: IODataset, cache_dir: str) -> Predictor:
+    """fit_predictor with the config's options, memoised on (data, horizons, predictor options):
+    in this process, then on disk (the first worker of a node fits, the others read its result)."""
+    h = hashlib.sha256(json.dumps([cfg.t_ini, cfg.t_f, cfg.predictor], sort_keys=True).encode())
+    for a in (*ds.u, *ds.y):
+        h.update(np.ascontiguousarray(a).tobytes())
+    key = h.hexdigest()[:24]
+    if key in _FITS:
+        _FITS.move_to_end(key)
+        return _FITS[key]
+    path = Path(cache_dir) / "fits" / f"{key}.pkl"
+    with _locked(path.with_suffix(".lock")):
+        if path.exists():
+            with open(path, "rb") as f:
+                pred = pickle.load(f)  # written by this sweep's own workers (same cache folder)
+        else:
+            opts = {k: v for k, v in cfg.predictor.items() if k != "method"}
+            pred = fit_predictor(ds, cfg.t_ini, cfg.t_f, cfg.predictor["method"], **opts)
+            tmp = path.with_suffix(".tmp")
+            with open(tmp, "wb") as f:
+                pickle.dump(pred, f)
+            tmp.replace(path)
+    return _remember(_FITS, key, pred)
 
 
 def _attach_solver(setup: SteeringSetup, cache_dir: str) -> None:
@@ -126,7 +140,7 @@ def _setup(ctx: SweepContext, point: Point) -> SteeringSetup:
         _SETUPS.move_to_end(cfg.digest)
         return _SETUPS[cfg.digest]
     setup = build_setup(ctx.spec.scenario, config=cfg, raw=ctx.raw, generate_dir=None, save_data=False,
-                        fit=_cached_fit)
+                        fit=partial(_cached_fit, cache_dir=ctx.cache_dir))
     if ctx.spec.solver == "generated":
         _attach_solver(setup, ctx.cache_dir)
     return _remember(_SETUPS, cfg.digest, setup)
