@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -68,6 +69,7 @@ def sweep_scaling(workers: int = 2, log=print) -> dict[str, Any]:
             tables.append([{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in rows])
             out[f"{name}_errors"] = s["errors"]
         out["workers"] = workers
+        out["load_avg_1min_after"] = round(os.getloadavg()[0], 1)  # the machine is shared: context for the speedup
         out["speedup"] = round(out["serial_s"] / out["parallel_s"], 2)
         out["identical"] = tables[0] == tables[1]
         out["note"] = ("wall time of the whole sweep incl. fits, codegen, runs and (parallel) Ray start-up; "

@@ -49,7 +49,7 @@ from ddpc_codegen.experiments.sweep_spec import METRICS, Point, SweepSpec
 __all__ = ["SweepContext", "evaluate_point", "run_sweep", "read_results", "columns", "TIMING_COLUMNS"]
 
 # Columns that measure this machine's speed: they differ between any two runs of the same point.
-TIMING_COLUMNS = ("solve_us_median", "solve_us_p99", "setup_s", "wall_s")
+TIMING_COLUMNS = ("solve_us_p50", "solve_us_p99", "setup_s", "wall_s")
 _RUN_COLUMNS = ("crashed", "fallbacks", "solver_failures", "steered_ticks", "solver")
 _CACHE = 4  # setups (predictor + loaded solver) kept per worker process
 
@@ -155,7 +155,7 @@ def _run_row(res: Any, scenario: str) -> dict[str, Any]:
                solver_failures=sum(v for k, v in reasons.items()
                                    if k.startswith(("solver_", "exception", "nonfinite_solution"))),
                steered_ticks=st.get("steered", 0), solver=st.get("solver", ""),
-               solve_us_median=st.get("solve_us", {}).get("median"), solve_us_p99=st.get("solve_us", {}).get("p99"),
+               solve_us_p50=st.get("solve_us", {}).get("p50"), solve_us_p99=st.get("solve_us", {}).get("p99"),
                wall_s=res.metrics.get("wall_s"))
     return row
 

@@ -54,11 +54,11 @@ __all__ = ["Condition", "Point", "SweepSpec", "METRICS"]
 # Per-run metrics of scenario_metrics (SI units, radians) that a sweep table carries.
 METRICS: dict[str, tuple[str, ...]] = {
     "flying": ("rmse_z", "rmse_pitch", "rmse_x", "mean_z_error"),
-    "hopping": ("apex_err_mean", "apex_err_signed", "apex_err_max", "rmse_pitch", "rmse_roll", "rmse_z",
-                "vx_err_mean", "n_hops"),
+    "hopping": ("apex_error_mean_abs", "apex_error_mean_signed", "apex_error_max_abs", "rmse_pitch", "rmse_roll",
+                "rmse_z", "vx_error_mean_abs", "n_hops"),
 }
 _DEFAULTS = {"flying": ("rmse_z", ["rmse_z", "rmse_pitch"]),
-             "hopping": ("apex_err_mean", ["apex_err_mean", "rmse_pitch", "vx_err_mean"])}
+             "hopping": ("apex_error_mean_abs", ["apex_error_mean_abs", "rmse_pitch", "vx_error_mean_abs"])}
 _SWEEP_KEYS = ("scenario", "config", "search", "samples", "seed", "seeds", "duration", "solver", "baseline",
                "objective", "pareto")
 _DISTRIBUTIONS = ("uniform", "log_uniform", "int_uniform", "choice")

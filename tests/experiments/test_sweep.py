@@ -51,7 +51,7 @@ def _table(path: Path) -> list[dict[str, str]]:
     ('[sweep]\nsearch = "random"\n[space]\n"predictor.ridge" = {log_uniform = [0.0, 1.0]}', "low > 0"),
     ('[conditions.windy]\npushes = [[1.0, 2.0]]', "[conditions.windy] pushes"),
     ('[conditions.heavy]\nmass_error = "lots"', "[conditions.heavy] mass_error"),
-    ('[sweep]\nobjective = "apex_err_mean"', "not a flying metric"),
+    ('[sweep]\nobjective = "apex_error_mean_abs"', "not a flying metric"),
     ('[data]\nduraton = 3.0', "[data] duraton"),
 ])
 def test_spec_errors_name_the_file_key_and_value(tmp_path, body, where):
@@ -77,6 +77,16 @@ def test_grid_and_random_points(tmp_path):
 def test_pareto_mask():
     v = np.array([[1.0, 5.0], [2.0, 2.0], [3.0, 3.0], [5.0, 1.0], [np.nan, 0.0]])
     assert pareto_mask(v).tolist() == [True, True, False, True, False]
+
+
+@pytest.mark.parametrize("scenario, duration", [("flying", 3.5), ("hopping", 1.5)])
+def test_table_metrics_are_the_runs_metrics(scenario, duration):
+    """The table's metric names are scenario_metrics' (a rename there must show up here)."""
+    from ddpc_codegen.experiments.pipeline import run
+    from ddpc_codegen.experiments.sweep_spec import METRICS
+
+    res = run(None, scenario, duration, steer=False)
+    assert set(METRICS[scenario]) <= set(res.metrics), set(METRICS[scenario]) - set(res.metrics)
 
 
 def test_cli_registers_sweep():
@@ -116,7 +126,7 @@ def test_bad_point_is_recorded_and_the_sweep_goes_on(serial):
     assert [r["status"] for r in rows] == ["ok", "ok", "ok", "error"] and summary["errors"] == 1
     assert "ConfigError" in rows[3]["error"] and "[cost] R" in rows[3]["error"] and "-1.0" in rows[3]["error"]
     base, steered = float(rows[0]["rmse_z"]), float(rows[2]["rmse_z"])
-    assert steered * 3 < base and rows[2]["solver"] == "generated:daqp"
+    assert steered * 3 < base and rows[2]["solver"] == "generated:daqp" and float(rows[2]["solve_us_p50"]) > 0
     # the best configuration is a codegen-ready TOML next to its dataset
     from ddpc_codegen.design.config import SteeringConfig
 
