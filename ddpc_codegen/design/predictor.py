@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -27,7 +27,8 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError, ExcitationError
 from ddpc_codegen.design.hankel import PEReport
 
-__all__ = ["Predictor", "fit_predictor", "min_samples"]
+__all__ = ["Predictor", "fit_predictor", "min_samples", "FitLayout", "hankel_r_factor", "stack_r_factors",
+           "predictor_from_r"]
 
 _METHODS = ("pem", "lsq")
 
@@ -133,9 +134,10 @@ def _row_order(m: int, p: int, t_ini: int, t_f: int) -> np.ndarray:
     return np.array(up + yp + uf + yf)
 
 
-def _hankel_blocks(dataset: IODataset, depth: int, block: int) -> Iterator[np.ndarray]:
+def _hankel_blocks(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], depth: int, block: int
+                   ) -> Iterator[np.ndarray]:
     """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y]."""
-    for u, y in dataset.trajectories():
+    for u, y in trajectories:
         w = np.hstack([u, y])
         T, d = w.shape
         if T < depth:
@@ -148,6 +150,127 @@ def _hankel_blocks(dataset: IODataset, depth: int, block: int) -> Iterator[np.nd
 def _accumulate_r(R: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
     X = rows if R is None else np.vstack([R, rows])
     return np.linalg.qr(X, mode="r")
+
+
+@dataclass(frozen=True)
+class FitLayout:
+    """Columns of the TSQR data matrix X = [Z^T | target^T] of a fit (one row per Hankel column).
+
+    Z = [Up; Yp; Uf] has r = (m+p) Tini + m Tf rows; the targets are Yf (q_y = p Tf rows) and, for
+    ``pem``, the slack (q_s = p Tini rows, zero on data). R factors of X are (width, width) or fewer
+    rows, width = r + q_y + q_s.
+    """
+
+    m: int
+    p: int
+    t_ini: int
+    t_f: int
+    method: str
+
+    @property
+    def depth(self) -> int:
+        return self.t_ini + self.t_f
+
+    @property
+    def r(self) -> int:
+        return (self.m + self.p) * self.t_ini + self.m * self.t_f
+
+    @property
+    def q_y(self) -> int:
+        return self.p * self.t_f
+
+    @property
+    def q_s(self) -> int:
+        return self.p * self.t_ini if self.method == "pem" else 0
+
+    @property
+    def width(self) -> int:
+        return self.r + self.q_y + self.q_s
+
+    def data_rows(self, blk: np.ndarray) -> np.ndarray:
+        """Hankel column block (b, depth*(m+p)) -> rows (b, width) of X as [Up Yp Uf Yf (0)]."""
+        rows = blk[:, _row_order(self.m, self.p, self.t_ini, self.t_f)]
+        if self.q_s:
+            rows = np.hstack([rows, np.zeros((rows.shape[0], self.q_s))])
+        return rows
+
+
+def hankel_r_factor(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], layout: FitLayout,
+                    block_columns: int = 8192, R: np.ndarray | None = None) -> np.ndarray | None:
+    """R factor (<= width, width) of the data rows of X over the trajectories' Hankel columns (each
+    trajectory its own columns; shorter than Tini+Tf: none), accumulated onto ``R``; None if no column.
+
+    The map step of a fit: R factors of disjoint sets of columns combine with :func:`stack_r_factors`.
+    Memory: one block, ~ block_columns * width * 8 bytes (times a few for the QR's workspace).
+    """
+    for blk in _hankel_blocks(trajectories, layout.depth, int(block_columns)):
+        R = _accumulate_r(R, layout.data_rows(blk))
+    return R
+
+
+def stack_r_factors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The R factor of [A; B] from those of A and B (the reduce step: one QR of the stacked factors)."""
+    return _accumulate_r(a, b)
+
+
+def _solve_r(R: np.ndarray, layout: FitLayout, slack_weight: float, ridge: float, rcond: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Data-only R factor -> G (q_y + q_s, r), singular values of the regularised Z (and which are
+    kept), singular values of the u rows of Z (the PE check)."""
+    r, m, p = layout.r, layout.m, layout.p
+    n_up, n_yp = m * layout.t_ini, p * layout.t_ini
+    # PE of order L from the data-only factor: singular values of the u rows of Z.
+    u_rows = np.r_[0:n_up, n_up + n_yp : r]
+    su = np.linalg.svd(R[:r, u_rows], compute_uv=False)
+    for e in _extra_rows(layout, slack_weight, ridge):
+        R = _accumulate_r(R, e)
+    R11, R12 = R[:r, :r], R[:r, r:]
+    U, s, Vt = np.linalg.svd(R11, full_matrices=False)
+    keep = s > rcond * s[0]
+    # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
+    G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
+    return G, s, keep, su
+
+
+def _extra_rows(layout: FitLayout, slack_weight: float, ridge: float) -> list[np.ndarray]:
+    """Extra rows of X = [Z^T | target^T] for the slack columns of M (pem) and for the ridge."""
+    r, q_y, width = layout.r, layout.q_y, layout.width
+    n_up, n_yp = layout.m * layout.t_ini, layout.p * layout.t_ini
+    extra = []
+    if layout.method == "pem":
+        inv_sqrt_rho = 1.0 / np.sqrt(slack_weight)
+        e = np.zeros((n_yp, width))
+        e[:, n_up : n_up + n_yp] = np.eye(n_yp) * inv_sqrt_rho
+        e[:, r + q_y :] = np.eye(n_yp) * inv_sqrt_rho
+        extra.append(e)
+    if ridge > 0:
+        e = np.zeros((r, width))
+        e[:, :r] = np.eye(r) * np.sqrt(ridge)
+        extra.append(e)
+    return extra
+
+
+def _check_options(method: str, t_ini: int, t_f: int, slack_weight: float, ridge: float) -> None:
+    if method not in _METHODS:
+        raise DataError(f"unknown predictor method {method!r}; choose one of {list(_METHODS)}")
+    if t_ini < 1 or t_f < 1:
+        raise DataError(f"horizons must be >= 1; got Tini={t_ini}, Tf={t_f}")
+    if not (np.isfinite(slack_weight) and slack_weight > 0):
+        raise DataError(f"slack_weight must be a positive number; got {slack_weight}")
+    if not (np.isfinite(ridge) and ridge >= 0):
+        raise DataError(f"ridge must be >= 0; got {ridge}")
+
+
+def _check_columns(layout: FitLayout, cols: int, lengths: Sequence[int]) -> None:
+    m, L = layout.m, layout.depth
+    if cols < m * L:
+        need = min_samples(layout.t_ini, layout.t_f, m)
+        raise DataError(
+            f"need at least {need} samples for Tini={layout.t_ini}, Tf={layout.t_f}, m={m}; got {max(lengths)}"
+            + (f" in the longest of {len(lengths)} trajectories ({cols} Hankel columns in all, need {m * L})"
+               if len(lengths) > 1 else "")
+            + ". Record longer data or shorten the horizons."
+        )
 
 
 def fit_predictor(
@@ -176,74 +299,46 @@ def fit_predictor(
         streaming: False forms the whole Hankel and uses numpy's pinv (reference path).
         check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf.
     """
-    if method not in _METHODS:
-        raise DataError(f"unknown predictor method {method!r}; choose one of {list(_METHODS)}")
     t_ini, t_f = int(t_ini), int(t_f)
-    if t_ini < 1 or t_f < 1:
-        raise DataError(f"horizons must be >= 1; got Tini={t_ini}, Tf={t_f}")
-    if not (np.isfinite(slack_weight) and slack_weight > 0):
-        raise DataError(f"slack_weight must be a positive number; got {slack_weight}")
-    if not (np.isfinite(ridge) and ridge >= 0):
-        raise DataError(f"ridge must be >= 0; got {ridge}")
-    m, p = dataset.m, dataset.p
-    L = t_ini + t_f
-    cols = dataset.columns(L)
-    if cols < m * L:
-        need = min_samples(t_ini, t_f, m)
-        raise DataError(
-            f"need at least {need} samples for Tini={t_ini}, Tf={t_f}, m={m}; got {max(dataset.lengths)}"
-            + (f" in the longest of {dataset.n_trajectories} trajectories ({cols} Hankel columns in all, need {m * L})"
-               if dataset.n_trajectories > 1 else "")
-            + ". Record longer data or shorten the horizons."
-        )
-    r = (m + p) * t_ini + m * t_f  # rows of Z = [Up; Yp; Uf]
-    n_up, n_yp = m * t_ini, p * t_ini
-    q_y, q_s = p * t_f, (p * t_ini if method == "pem" else 0)
-    order = _row_order(m, p, t_ini, t_f)
-    inv_sqrt_rho = 1.0 / np.sqrt(slack_weight)
-
-    # Extra rows of X = [Z^T | target^T] for the slack columns of M and for the ridge.
-    extra = []
-    if method == "pem":
-        e = np.zeros((n_yp, r + q_y + q_s))
-        e[:, n_up : n_up + n_yp] = np.eye(n_yp) * inv_sqrt_rho
-        e[:, r + q_y :] = np.eye(n_yp) * inv_sqrt_rho
-        extra.append(e)
-    if ridge > 0:
-        e = np.zeros((r, r + q_y + q_s))
-        e[:, :r] = np.eye(r) * np.sqrt(ridge)
-        extra.append(e)
-
-    def data_rows(blk: np.ndarray) -> np.ndarray:
-        rows = blk[:, order]  # (b, r + q_y) as [Up Yp Uf Yf]
-        if q_s:
-            rows = np.hstack([rows, np.zeros((rows.shape[0], q_s))])
-        return rows
-
+    _check_options(method, t_ini, t_f, slack_weight, ridge)
+    layout = FitLayout(dataset.m, dataset.p, t_ini, t_f, method)
+    cols = dataset.columns(layout.depth)
+    _check_columns(layout, cols, dataset.lengths)
     if streaming:
-        R = None
-        for blk in _hankel_blocks(dataset, L, int(block_columns)):
-            R = _accumulate_r(R, data_rows(blk))
-        # PE of order L from the data-only factor: singular values of the u rows of Z.
-        u_rows = np.r_[0:n_up, n_up + n_yp : r]
-        su = np.linalg.svd(R[:r, u_rows], compute_uv=False)
-        for e in extra:
-            R = _accumulate_r(R, e)
-        R11, R12 = R[:r, :r], R[:r, r:]
-        U, s, Vt = np.linalg.svd(R11, full_matrices=False)
-        keep = s > rcond * s[0]
-        # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
-        G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
-        s_all = s
+        R = hankel_r_factor(dataset.trajectories(), layout, block_columns)
+        G, s_all, keep, su = _solve_r(R, layout, slack_weight, ridge, rcond)
     else:
-        X = np.vstack([data_rows(b) for b in _hankel_blocks(dataset, L, 10**9)] + extra)
+        r = layout.r
+        X = np.vstack([layout.data_rows(b) for b in _hankel_blocks(dataset.trajectories(), layout.depth, 10**9)]
+                      + _extra_rows(layout, slack_weight, ridge))
         Z, Tg = X[:, :r].T, X[:, r:].T
         G = Tg @ np.linalg.pinv(Z, rcond=rcond)
         s_all = np.linalg.svd(Z, compute_uv=False)
         keep = s_all > rcond * s_all[0]
+        n_up, n_yp = dataset.m * t_ini, dataset.p * t_ini
         u_rows = np.r_[0:n_up, n_up + n_yp : r]
         su = np.linalg.svd(Z[u_rows], compute_uv=False)
+    return _predictor(layout, G, s_all, keep, su, cols, dataset.dt, dataset.input_names, dataset.output_names,
+                      slack_weight=slack_weight, ridge=ridge, rcond=rcond, check_excitation=check_excitation)
 
+
+def predictor_from_r(R: np.ndarray, layout: FitLayout, cols: int, dt: float, input_names: tuple[str, ...] = (),
+                     output_names: tuple[str, ...] = (), *, slack_weight: float = 1.0, ridge: float = 0.0,
+                     rcond: float = 1e-10, check_excitation: bool = True) -> Predictor:
+    """The predictor from the data-only R factor of all ``cols`` Hankel columns (what
+    :func:`fit_predictor` computes after its map, for an R reduced elsewhere, e.g. over many files)."""
+    _check_options(layout.method, layout.t_ini, layout.t_f, slack_weight, ridge)
+    _check_columns(layout, cols, [cols + layout.depth - 1])
+    G, s_all, keep, su = _solve_r(R, layout, slack_weight, ridge, rcond)
+    return _predictor(layout, G, s_all, keep, su, cols, dt, input_names, output_names,
+                      slack_weight=slack_weight, ridge=ridge, rcond=rcond, check_excitation=check_excitation)
+
+
+def _predictor(layout: FitLayout, G: np.ndarray, s_all: np.ndarray, keep: np.ndarray, su: np.ndarray, cols: int,
+               dt: float, input_names: tuple[str, ...], output_names: tuple[str, ...], *, slack_weight: float,
+               ridge: float, rcond: float, check_excitation: bool) -> Predictor:
+    """G on the stacked rows -> the Predictor (PE report checked)."""
+    m, p, t_ini, t_f, L = layout.m, layout.p, layout.t_ini, layout.t_f, layout.depth
     tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
     pe = PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
                   float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols)
@@ -253,8 +348,9 @@ def fit_predictor(
             "Excite the references more (e.g. add a PRBS) or record longer data."
         )
     nw = (m + p) * t_ini
+    q_y, q_s = layout.q_y, layout.q_s
     Gy = G[:q_y]
-    Gs = G[q_y:] if q_s else np.zeros((p * t_ini, r))
+    Gs = G[q_y:] if q_s else np.zeros((p * t_ini, layout.r))
     opts = {"slack_weight": float(slack_weight), "ridge": float(ridge), "rcond": float(rcond),
             "_pe_report": pe}
     return Predictor(
@@ -262,7 +358,7 @@ def fit_predictor(
         t_f=t_f,
         m=m,
         p=p,
-        method=method,
+        method=layout.method,
         Gy_w=np.ascontiguousarray(Gy[:, :nw]),
         Gy_u=np.ascontiguousarray(Gy[:, nw:]),
         Gs_w=np.ascontiguousarray(Gs[:, :nw]),
@@ -270,8 +366,8 @@ def fit_predictor(
         singular_values=s_all,
         rank=int(np.sum(keep)),
         n_columns=cols,
-        dt=dataset.dt,
-        input_names=dataset.input_names,
-        output_names=dataset.output_names,
+        dt=dt,
+        input_names=input_names,
+        output_names=output_names,
         options=opts,
     )
