@@ -174,8 +174,12 @@ def plan_pieces(infos: Sequence[FileInfo], depth: int, chunk_columns: int) -> li
 # ----------------------------------------------------------------------------- map and reduce
 def piece_r_factor(shared: tuple[FitLayout, int], piece: Piece) -> tuple[np.ndarray, int, float]:
     """Map task: (R factor of the piece's Hankel rows, its columns, this process's peak RSS in MiB)."""
+    from threadpoolctl import threadpool_limits
+
     layout, block = shared
-    with zipfile.ZipFile(piece.path) as z:
+    # One BLAS thread, as a Ray task has one CPU: the serial path then measures the same work, and
+    # threaded BLAS on (block x ~10^2) QRs only adds contention on a loaded machine.
+    with threadpool_limits(1), zipfile.ZipFile(piece.path) as z:
         trajs = ((_read_rows(z, f"u_{k}.npy", a, b), _read_rows(z, f"y_{k}.npy", a, b)) for k, a, b in piece.ranges)
         R = hankel_r_factor(trajs, layout, block)
     cols = sum(b - a - layout.depth + 1 for _, a, b in piece.ranges)
@@ -237,16 +241,21 @@ def fit_files(paths: Sequence[str | Path], t_ini: int, t_f: int, method: str = "
     layout = FitLayout(ref.m, ref.p, layout.t_ini, layout.t_f, method)
     pieces = plan_pieces(infos, layout.depth, int(chunk_columns))
     t_plan = time.perf_counter() - t0
+    from threadpoolctl import threadpool_limits
+
     red, cols, peak = _TreeReducer(), 0, 0.0
-    with engine(workers, address, quiet=True) as eng:
+    # The driver's QRs of stacked factors are small too: one BLAS thread (threaded, each took ~0.4 s
+    # instead of ~10 ms on this loaded machine).
+    with engine(workers, address, quiet=True) as eng, threadpool_limits(1):
         t1 = time.perf_counter()
         for i, (R, c, mib) in eng.imap_unordered(piece_r_factor, pieces, shared=(layout, int(block_columns))):
             red.add(i, R)
             cols, peak = cols + c, max(peak, mib)
         n_workers = eng.workers
-    t_map = time.perf_counter() - t1
-    pred = predictor_from_r(red.result(), layout, cols, ref.dt, ref.input_names, ref.output_names,
-                            slack_weight=slack_weight, ridge=ridge, rcond=rcond, check_excitation=check_excitation)
+        t_map = time.perf_counter() - t1
+        pred = predictor_from_r(red.result(), layout, cols, ref.dt, ref.input_names, ref.output_names,
+                                slack_weight=slack_weight, ridge=ridge, rcond=rcond,
+                                check_excitation=check_excitation)
     if n_workers == 1:  # the map ran in this process: its peak is the driver's
         peak = max(peak, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     fit = FleetFit(pred, len(paths), len(infos), skipped, len(pieces), sum(sum(i.lengths) for i in infos), cols,
