@@ -3,10 +3,13 @@
 The fit is a TSQR over Hankel columns (:mod:`ddpc_codegen.design.predictor`): R factors of
 disjoint sets of columns combine by stacking and one more QR. Here:
 
+* **statistics** (a cheap first map): per piece the count, mean, squared deviations and squares of
+  every channel, combined in piece order (Chan et al.) into the global RMS and std, hence the
+  same per-channel scales as the serial fit's (the fit is unit-free: channels divided by their std).
 * **map** (one task per *piece*: one file, or a slice of a long trajectory, or several short
   trajectories of one file packed together): read only the piece's samples from the ``.npz``
-  (:class:`~ddpc_codegen.design.data.IODataset` files) and return the R factor of its Hankel
-  rows, :func:`~ddpc_codegen.design.predictor.hankel_r_factor`, the serial fit's own primitive.
+  (:class:`~ddpc_codegen.design.data.IODataset` files) and return the R factor of its scaled
+  Hankel rows, :func:`~ddpc_codegen.design.predictor.hankel_r_factor`, the serial fit's own primitive.
   A slice of a trajectory carries Tini+Tf-1 samples of overlap, so the slices' columns are exactly
   the trajectory's columns, each once. Trajectories are never joined, within or across files.
 * **reduce**: a binary tree of QRs of stacked factors, in piece order (the result does not depend
@@ -36,10 +39,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from ddpc_codegen.cluster import engine
-from ddpc_codegen.design.predictor import FitLayout, Predictor, hankel_r_factor, predictor_from_r, stack_r_factors
+from ddpc_codegen.design.predictor import (FitLayout, Predictor, channel_scale, hankel_r_factor, predictor_from_r,
+                                           stack_r_factors)
 from ddpc_codegen.errors import ConfigError, DataError
 
-__all__ = ["FileInfo", "Piece", "FleetFit", "scan_files", "plan_pieces", "fit_files"]
+__all__ = ["FileInfo", "Piece", "FleetFit", "scan_files", "plan_pieces", "plan_stat_pieces", "combine_stats",
+           "fit_files"]
 
 
 @dataclass(frozen=True)
@@ -171,17 +176,50 @@ def plan_pieces(infos: Sequence[FileInfo], depth: int, chunk_columns: int) -> li
     return pieces
 
 
+def plan_stat_pieces(infos: Sequence[FileInfo], chunk_samples: int) -> list[Piece]:
+    """Pieces of the statistics pass: every sample of every trajectory of the used files once
+    (short trajectories included, as in the serial fit's statistics), no overlap."""
+    pieces: list[Piece] = []
+    for info in infos:
+        for k, T in enumerate(info.lengths):
+            for a in range(0, T, chunk_samples):
+                pieces.append(Piece(len(pieces), info.path, ((k, a, min(a + chunk_samples, T)),)))
+    return pieces
+
+
 # ----------------------------------------------------------------------------- map and reduce
-def piece_r_factor(shared: tuple[FitLayout, int], piece: Piece) -> tuple[np.ndarray, int, float]:
-    """Map task: (R factor of the piece's Hankel rows, its columns, this process's peak RSS in MiB)."""
+def piece_stats(shared: Any, piece: Piece) -> np.ndarray:
+    """Statistics task: (4, m+p) rows count, mean, sum of squared deviations from the mean, sum of squares."""
+    with zipfile.ZipFile(piece.path) as z:
+        k, a, b = piece.ranges[0]
+        w = np.hstack([_read_rows(z, f"u_{k}.npy", a, b), _read_rows(z, f"y_{k}.npy", a, b)])
+    mean = w.sum(axis=0) / w.shape[0]
+    return np.vstack([np.full(w.shape[1], float(w.shape[0])), mean, ((w - mean) ** 2).sum(axis=0), (w**2).sum(axis=0)])
+
+
+def combine_stats(parts: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel (RMS, std) over all pieces from their (count, mean, M2, sum of squares), in order
+    (pairwise update: no cancellation of a small std on a large offset, as in the two-pass serial)."""
+    n, mean, m2, sq = parts[0].copy()
+    for nb, mb, m2b, sqb in parts[1:]:
+        tot = n + nb
+        delta = mb - mean
+        mean = mean + delta * (nb / tot)
+        m2 = m2 + m2b + delta**2 * (n * nb / tot)
+        sq, n = sq + sqb, tot
+    return np.sqrt(sq / n), np.sqrt(m2 / n)
+
+
+def piece_r_factor(shared: tuple[FitLayout, np.ndarray, int], piece: Piece) -> tuple[np.ndarray, int, float]:
+    """Map task: (R factor of the piece's scaled Hankel rows, its columns, this process's peak RSS in MiB)."""
     from threadpoolctl import threadpool_limits
 
-    layout, block = shared
+    layout, scale, block = shared
     # One BLAS thread, as a Ray task has one CPU: the serial path then measures the same work, and
     # threaded BLAS on (block x ~10^2) QRs only adds contention on a loaded machine.
     with threadpool_limits(1), zipfile.ZipFile(piece.path) as z:
         trajs = ((_read_rows(z, f"u_{k}.npy", a, b), _read_rows(z, f"y_{k}.npy", a, b)) for k, a, b in piece.ranges)
-        R = hankel_r_factor(trajs, layout, block)
+        R = hankel_r_factor(trajs, layout, scale, block)
     cols = sum(b - a - layout.depth + 1 for _, a, b in piece.ranges)
     return R, cols, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
 
@@ -244,22 +282,27 @@ def fit_files(paths: Sequence[str | Path], t_ini: int, t_f: int, method: str = "
     from threadpoolctl import threadpool_limits
 
     red, cols, peak = _TreeReducer(), 0, 0.0
+    names = ref.input_names + ref.output_names
     # The driver's QRs of stacked factors are small too: one BLAS thread (threaded, each took ~0.4 s
     # instead of ~10 ms on this loaded machine).
     with engine(workers, address, quiet=True) as eng, threadpool_limits(1):
         t1 = time.perf_counter()
-        for i, (R, c, mib) in eng.imap_unordered(piece_r_factor, pieces, shared=(layout, int(block_columns))):
+        stats = dict(eng.imap_unordered(piece_stats, plan_stat_pieces(infos, int(chunk_columns))))
+        rms, std = combine_stats([stats[i] for i in range(len(stats))])
+        scale, _ = channel_scale(rms, std, names)
+        t_stats = time.perf_counter() - t1
+        for i, (R, c, mib) in eng.imap_unordered(piece_r_factor, pieces, shared=(layout, scale, int(block_columns))):
             red.add(i, R)
             cols, peak = cols + c, max(peak, mib)
         n_workers = eng.workers
-        t_map = time.perf_counter() - t1
-        pred = predictor_from_r(red.result(), layout, cols, ref.dt, ref.input_names, ref.output_names,
+        t_map = time.perf_counter() - t1 - t_stats
+        pred = predictor_from_r(red.result(), layout, cols, rms, std, ref.dt, ref.input_names, ref.output_names,
                                 slack_weight=slack_weight, ridge=ridge, rcond=rcond,
                                 check_excitation=check_excitation)
     if n_workers == 1:  # the map ran in this process: its peak is the driver's
         peak = max(peak, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     fit = FleetFit(pred, len(paths), len(infos), skipped, len(pieces), sum(sum(i.lengths) for i in infos), cols,
                    n_workers, time.perf_counter() - t0, peak,
-                   {"scan_s": round(t_plan, 3), "map_reduce_s": round(t_map, 3)})
+                   {"scan_s": round(t_plan, 3), "stats_s": round(t_stats, 3), "map_reduce_s": round(t_map, 3)})
     log(f"  fit: {fit.summary()}")
     return fit

@@ -12,6 +12,14 @@ Two methods:
 Both are computed from an R factor of the data matrix accumulated over blocks of Hankel columns
 (TSQR), so memory does not grow with the number of samples and the condition number is not
 squared as it would be with normal equations.
+
+Unit-free: every channel is divided by its standard deviation over the dataset (its RMS if it is
+near-constant) before the fit and G is
+rescaled afterwards, so changing the units of any input or output channel rescales the
+predictions and nothing else (``pem``'s slack weighting, the ridge and the rank cutoff all act
+on the scaled data). The ridge is relative to the data: ``ridge`` times the mean eigenvalue of
+Z Z^T of the scaled data matrix Z = [Up; Yp; Uf] (about the number of Hankel columns), so it
+means the same for 200 or 200 000 samples.
 """
 
 from __future__ import annotations
@@ -25,10 +33,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError, ExcitationError
-from ddpc_codegen.design.hankel import PEReport
+from ddpc_codegen.design.hankel import PEReport, channel_stats, near_constant_channels
 
-__all__ = ["Predictor", "fit_predictor", "min_samples", "FitLayout", "hankel_r_factor", "stack_r_factors",
-           "predictor_from_r"]
+__all__ = ["Predictor", "fit_predictor", "min_samples", "FitLayout", "channel_scale", "hankel_r_factor",
+           "stack_r_factors", "predictor_from_r"]
 
 _METHODS = ("pem", "lsq")
 
@@ -134,11 +142,11 @@ def _row_order(m: int, p: int, t_ini: int, t_f: int) -> np.ndarray:
     return np.array(up + yp + uf + yf)
 
 
-def _hankel_blocks(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], depth: int, block: int
-                   ) -> Iterator[np.ndarray]:
-    """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y]."""
+def _hankel_blocks(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], depth: int, block: int,
+                   scale: np.ndarray) -> Iterator[np.ndarray]:
+    """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y] / scale."""
     for u, y in trajectories:
-        w = np.hstack([u, y])
+        w = np.hstack([u, y]) / scale
         T, d = w.shape
         if T < depth:
             continue
@@ -157,8 +165,8 @@ class FitLayout:
     """Columns of the TSQR data matrix X = [Z^T | target^T] of a fit (one row per Hankel column).
 
     Z = [Up; Yp; Uf] has r = (m+p) Tini + m Tf rows; the targets are Yf (q_y = p Tf rows) and, for
-    ``pem``, the slack (q_s = p Tini rows, zero on data). R factors of X are (width, width) or fewer
-    rows, width = r + q_y + q_s.
+    ``pem``, the slack (q_s = p Tini rows, zero on data). R factors of X are at most (width, width),
+    width = r + q_y + q_s.
     """
 
     m: int
@@ -187,23 +195,38 @@ class FitLayout:
     def width(self) -> int:
         return self.r + self.q_y + self.q_s
 
+    @property
+    def u_rows(self) -> np.ndarray:
+        """Rows of Z holding inputs ([Up; Uf]): the PE check's."""
+        n_up, n_yp = self.m * self.t_ini, self.p * self.t_ini
+        return np.r_[0:n_up, n_up + n_yp : self.r]
+
     def data_rows(self, blk: np.ndarray) -> np.ndarray:
         """Hankel column block (b, depth*(m+p)) -> rows (b, width) of X as [Up Yp Uf Yf (0)]."""
         rows = blk[:, _row_order(self.m, self.p, self.t_ini, self.t_f)]
-        if self.q_s:
-            rows = np.hstack([rows, np.zeros((rows.shape[0], self.q_s))])
-        return rows
+        return np.hstack([rows, np.zeros((rows.shape[0], self.q_s))]) if self.q_s else rows
 
 
-def hankel_r_factor(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], layout: FitLayout,
+def channel_scale(rms: np.ndarray, std: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(scale (m+p,), near-constant channel names) from the channels' RMS and std over all the data.
+
+    Unit std per channel (its variation, offsets kept: the predictor has no intercept); a
+    near-constant channel is scaled by its RMS instead (1 if all zero) so its noise is not blown up.
+    """
+    near = near_constant_channels(std, rms, names)
+    return np.array([sd if n not in near else (r if r > 0 else 1.0) for n, sd, r in zip(names, std, rms)]), near
+
+
+def hankel_r_factor(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], layout: FitLayout, scale: np.ndarray,
                     block_columns: int = 8192, R: np.ndarray | None = None) -> np.ndarray | None:
-    """R factor (<= width, width) of the data rows of X over the trajectories' Hankel columns (each
-    trajectory its own columns; shorter than Tini+Tf: none), accumulated onto ``R``; None if no column.
+    """R factor (<= width, width) of the data rows of X over the trajectories' Hankel columns of the
+    channels divided by ``scale`` (each trajectory its own columns; shorter than Tini+Tf: none),
+    accumulated onto ``R``; None if there is no column.
 
     The map step of a fit: R factors of disjoint sets of columns combine with :func:`stack_r_factors`.
-    Memory: one block, ~ block_columns * width * 8 bytes (times a few for the QR's workspace).
+    Memory: one block, ~ block_columns * width * 8 bytes (times a few for copies and the QR).
     """
-    for blk in _hankel_blocks(trajectories, layout.depth, int(block_columns)):
+    for blk in _hankel_blocks(trajectories, layout.depth, int(block_columns), scale):
         R = _accumulate_r(R, layout.data_rows(blk))
     return R
 
@@ -211,43 +234,6 @@ def hankel_r_factor(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], layou
 def stack_r_factors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The R factor of [A; B] from those of A and B (the reduce step: one QR of the stacked factors)."""
     return _accumulate_r(a, b)
-
-
-def _solve_r(R: np.ndarray, layout: FitLayout, slack_weight: float, ridge: float, rcond: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Data-only R factor -> G (q_y + q_s, r), singular values of the regularised Z (and which are
-    kept), singular values of the u rows of Z (the PE check)."""
-    r, m, p = layout.r, layout.m, layout.p
-    n_up, n_yp = m * layout.t_ini, p * layout.t_ini
-    # PE of order L from the data-only factor: singular values of the u rows of Z.
-    u_rows = np.r_[0:n_up, n_up + n_yp : r]
-    su = np.linalg.svd(R[:r, u_rows], compute_uv=False)
-    for e in _extra_rows(layout, slack_weight, ridge):
-        R = _accumulate_r(R, e)
-    R11, R12 = R[:r, :r], R[:r, r:]
-    U, s, Vt = np.linalg.svd(R11, full_matrices=False)
-    keep = s > rcond * s[0]
-    # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
-    G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
-    return G, s, keep, su
-
-
-def _extra_rows(layout: FitLayout, slack_weight: float, ridge: float) -> list[np.ndarray]:
-    """Extra rows of X = [Z^T | target^T] for the slack columns of M (pem) and for the ridge."""
-    r, q_y, width = layout.r, layout.q_y, layout.width
-    n_up, n_yp = layout.m * layout.t_ini, layout.p * layout.t_ini
-    extra = []
-    if layout.method == "pem":
-        inv_sqrt_rho = 1.0 / np.sqrt(slack_weight)
-        e = np.zeros((n_yp, width))
-        e[:, n_up : n_up + n_yp] = np.eye(n_yp) * inv_sqrt_rho
-        e[:, r + q_y :] = np.eye(n_yp) * inv_sqrt_rho
-        extra.append(e)
-    if ridge > 0:
-        e = np.zeros((r, width))
-        e[:, :r] = np.eye(r) * np.sqrt(ridge)
-        extra.append(e)
-    return extra
 
 
 def _check_options(method: str, t_ini: int, t_f: int, slack_weight: float, ridge: float) -> None:
@@ -288,86 +274,151 @@ def fit_predictor(
 ) -> Predictor:
     """Fit a multi-step predictor from a dataset (mosaic Hankel over its trajectories).
 
+    The fit runs on channels scaled to unit standard deviation and G is rescaled back (predictions do not
+    depend on the units of u or y).
+
     Args:
         dataset: the IO data; each trajectory contributes its own Hankel columns.
         t_ini, t_f: past and future horizon (samples).
         method: ``"pem"`` (paper, DDPC-Flying) or ``"lsq"`` (subspace predictive control).
-        slack_weight: rho in min ||g||^2 + rho ||sigma||^2 (``pem`` only; 1 = the paper).
-        ridge: Tikhonov weight lambda on the predictor (G (ZZ^T + lambda I)^-1 form); 0 = none.
-        rcond: relative singular-value cutoff of the pseudo-inverse (rank decision).
+        slack_weight: rho in min ||g||^2 + rho ||sigma||^2, sigma in std-scaled output units
+            (``pem`` only; 1 = the paper).
+        ridge: relative Tikhonov weight: the fit minimises ||G Z - T||^2 + lam ||G||^2 (scaled
+            data) with lam = ridge * trace(Z Z^T) / rows(Z), the mean eigenvalue of the data Gram
+            matrix; 0 = none. Unitless, independent of the amount of data.
+        rcond: relative singular-value cutoff of the pseudo-inverse (rank decision, scaled data).
         block_columns: Hankel columns per streamed block (memory ~ block * rows * 8 bytes).
         streaming: False forms the whole Hankel and uses numpy's pinv (reference path).
-        check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf.
+        check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf
+            (near-constant input channels included).
     """
     t_ini, t_f = int(t_ini), int(t_f)
     _check_options(method, t_ini, t_f, slack_weight, ridge)
     layout = FitLayout(dataset.m, dataset.p, t_ini, t_f, method)
     cols = dataset.columns(layout.depth)
     _check_columns(layout, cols, dataset.lengths)
+    rms, std = channel_stats([np.hstack(t) for t in dataset.trajectories()])
     if streaming:
-        R = hankel_r_factor(dataset.trajectories(), layout, block_columns)
-        G, s_all, keep, su = _solve_r(R, layout, slack_weight, ridge, rcond)
-    else:
-        r = layout.r
-        X = np.vstack([layout.data_rows(b) for b in _hankel_blocks(dataset.trajectories(), layout.depth, 10**9)]
-                      + _extra_rows(layout, slack_weight, ridge))
-        Z, Tg = X[:, :r].T, X[:, r:].T
-        G = Tg @ np.linalg.pinv(Z, rcond=rcond)
-        s_all = np.linalg.svd(Z, compute_uv=False)
-        keep = s_all > rcond * s_all[0]
-        n_up, n_yp = dataset.m * t_ini, dataset.p * t_ini
-        u_rows = np.r_[0:n_up, n_up + n_yp : r]
-        su = np.linalg.svd(Z[u_rows], compute_uv=False)
-    return _predictor(layout, G, s_all, keep, su, cols, dataset.dt, dataset.input_names, dataset.output_names,
-                      slack_weight=slack_weight, ridge=ridge, rcond=rcond, check_excitation=check_excitation)
+        scale, _ = channel_scale(rms, std, dataset.input_names + dataset.output_names)
+        R = hankel_r_factor(dataset.trajectories(), layout, scale, block_columns)
+        return predictor_from_r(R, layout, cols, rms, std, dataset.dt, dataset.input_names, dataset.output_names,
+                                slack_weight=slack_weight, ridge=ridge, rcond=rcond,
+                                check_excitation=check_excitation)
+    return _predictor(layout, _fit_unstreamed(dataset, layout, slack_weight, ridge, rcond, rms, std), cols, rms,
+                      std, dataset.dt, dataset.input_names, dataset.output_names, check_excitation)
 
 
-def predictor_from_r(R: np.ndarray, layout: FitLayout, cols: int, dt: float, input_names: tuple[str, ...] = (),
-                     output_names: tuple[str, ...] = (), *, slack_weight: float = 1.0, ridge: float = 0.0,
-                     rcond: float = 1e-10, check_excitation: bool = True) -> Predictor:
-    """The predictor from the data-only R factor of all ``cols`` Hankel columns (what
-    :func:`fit_predictor` computes after its map, for an R reduced elsewhere, e.g. over many files)."""
+def predictor_from_r(R: np.ndarray, layout: FitLayout, cols: int, rms: np.ndarray, std: np.ndarray, dt: float,
+                     input_names: tuple[str, ...], output_names: tuple[str, ...], *, slack_weight: float = 1.0,
+                     ridge: float = 0.0, rcond: float = 1e-10, check_excitation: bool = True) -> Predictor:
+    """The predictor from the data-only R factor of all ``cols`` Hankel columns of the channels
+    divided by ``channel_scale(rms, std, names)`` (what :func:`fit_predictor` computes after its
+    map; here for an R reduced elsewhere, e.g. over many files). rms, std: (m+p,) over all samples."""
     _check_options(layout.method, layout.t_ini, layout.t_f, slack_weight, ridge)
     _check_columns(layout, cols, [cols + layout.depth - 1])
-    G, s_all, keep, su = _solve_r(R, layout, slack_weight, ridge, rcond)
-    return _predictor(layout, G, s_all, keep, su, cols, dt, input_names, output_names,
-                      slack_weight=slack_weight, ridge=ridge, rcond=rcond, check_excitation=check_excitation)
+    fitted = _solve_r(R, layout, slack_weight, ridge, rcond)
+    return _predictor(layout, fitted, cols, rms, std, dt, input_names, output_names, check_excitation)
 
 
-def _predictor(layout: FitLayout, G: np.ndarray, s_all: np.ndarray, keep: np.ndarray, su: np.ndarray, cols: int,
-               dt: float, input_names: tuple[str, ...], output_names: tuple[str, ...], *, slack_weight: float,
-               ridge: float, rcond: float, check_excitation: bool) -> Predictor:
-    """G on the stacked rows -> the Predictor (PE report checked)."""
-    m, p, t_ini, t_f, L = layout.m, layout.p, layout.t_ini, layout.t_f, layout.depth
-    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
-    pe = PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
-                  float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols)
+def _extra_rows(layout: FitLayout, slack_weight: float, lam: float) -> list[np.ndarray]:
+    """Rows of X = [Z^T | target^T] for the slack columns of M (pem) and for the ridge."""
+    r, q_y, width = layout.r, layout.q_y, layout.width
+    n_up, n_yp = layout.m * layout.t_ini, layout.p * layout.t_ini
+    extra = []
+    if layout.method == "pem":
+        e = np.zeros((n_yp, width))
+        e[:, n_up : n_up + n_yp] = np.eye(n_yp) / np.sqrt(slack_weight)
+        e[:, r + q_y :] = np.eye(n_yp) / np.sqrt(slack_weight)
+        extra.append(e)
+    if lam > 0:
+        e = np.zeros((r, width))
+        e[:, :r] = np.eye(r) * np.sqrt(lam)
+        extra.append(e)
+    return extra
+
+
+def _solve_r(R: np.ndarray, layout: FitLayout, slack_weight: float, ridge: float, rcond: float) -> dict:
+    """Data-only R factor -> G (q_y + q_s, r) on the scaled data, the singular values s of Z (and
+    which are kept), the singular values su of the u rows (PE), the effective ridge lam."""
+    r = layout.r
+    su = np.linalg.svd(R[:r, layout.u_rows], compute_uv=False)  # PE from the data-only factor
+    lam = ridge * float(np.sum(R[:, :r] ** 2)) / r  # ||Z||_F^2 = ||R[:, :r]||_F^2
+    for e in _extra_rows(layout, slack_weight, lam):
+        R = _accumulate_r(R, e)
+    R11, R12 = R[:r, :r], R[:r, r:]
+    U, s, Vt = np.linalg.svd(R11, full_matrices=False)
+    keep = s > rcond * s[0]
+    # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
+    G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
+    return {"G": G, "s": s, "keep": keep, "su": su, "lam": lam, "slack_weight": slack_weight, "ridge": ridge,
+            "rcond": rcond}
+
+
+def _fit_unstreamed(dataset: IODataset, layout: FitLayout, slack_weight: float, ridge: float, rcond: float,
+                    rms: np.ndarray, std: np.ndarray) -> dict:
+    """The reference path: the whole scaled Hankel in memory and numpy's pinv (same outputs as _solve_r)."""
+    r = layout.r
+    scale, _ = channel_scale(rms, std, dataset.input_names + dataset.output_names)
+    Xd = np.vstack([layout.data_rows(b) for b in _hankel_blocks(dataset.trajectories(), layout.depth, 10**9, scale)])
+    su = np.linalg.svd(Xd[:, layout.u_rows], compute_uv=False)
+    lam = ridge * float(np.sum(Xd[:, :r] ** 2)) / r
+    X = np.vstack([Xd] + _extra_rows(layout, slack_weight, lam))
+    Z, Tg = X[:, :r].T, X[:, r:].T
+    G = Tg @ np.linalg.pinv(Z, rcond=rcond)
+    s = np.linalg.svd(Z, compute_uv=False)
+    return {"G": G, "s": s, "keep": s > rcond * s[0], "su": su, "lam": lam, "slack_weight": slack_weight,
+            "ridge": ridge, "rcond": rcond}
+
+
+def _predictor(layout: FitLayout, fitted: dict, cols: int, rms: np.ndarray, std: np.ndarray, dt: float,
+               input_names: tuple[str, ...], output_names: tuple[str, ...], check_excitation: bool) -> Predictor:
+    """G on the scaled data -> the Predictor in the data's units (PE report checked)."""
+    m, p, t_ini, t_f = layout.m, layout.p, layout.t_ini, layout.t_f
+    scale, near = channel_scale(rms, std, input_names + output_names)
+    pe = _pe_report(fitted["su"], layout.depth, m, cols, near, input_names, output_names, std)
     if check_excitation and not pe.ok:
         raise ExcitationError(
             f"inputs are not persistently exciting enough for Tini={t_ini}, Tf={t_f}: {pe.summary()}. "
             "Excite the references more (e.g. add a PRBS) or record longer data."
         )
+    Gy, Gs = _unscale(fitted["G"], scale, m, p, t_ini, t_f, layout.method)
     nw = (m + p) * t_ini
-    q_y, q_s = layout.q_y, layout.q_s
-    Gy = G[:q_y]
-    Gs = G[q_y:] if q_s else np.zeros((p * t_ini, layout.r))
-    opts = {"slack_weight": float(slack_weight), "ridge": float(ridge), "rcond": float(rcond),
+    opts = {"slack_weight": float(fitted["slack_weight"]), "ridge": float(fitted["ridge"]),
+            "rcond": float(fitted["rcond"]), "ridge_effective": float(fitted["lam"]), "channel_scale": scale.tolist(),
             "_pe_report": pe}
     return Predictor(
-        t_ini=t_ini,
-        t_f=t_f,
-        m=m,
-        p=p,
-        method=layout.method,
+        t_ini=t_ini, t_f=t_f, m=m, p=p, method=layout.method,
         Gy_w=np.ascontiguousarray(Gy[:, :nw]),
         Gy_u=np.ascontiguousarray(Gy[:, nw:]),
         Gs_w=np.ascontiguousarray(Gs[:, :nw]),
         Gs_u=np.ascontiguousarray(Gs[:, nw:]),
-        singular_values=s_all,
-        rank=int(np.sum(keep)),
+        singular_values=fitted["s"],
+        rank=int(np.sum(fitted["keep"])),
         n_columns=cols,
         dt=dt,
         input_names=input_names,
         output_names=output_names,
         options=opts,
     )
+
+
+def _pe_report(su: np.ndarray, L: int, m: int, cols: int, near: tuple[str, ...], input_names: tuple[str, ...],
+               output_names: tuple[str, ...], std: np.ndarray) -> PEReport:
+    """PE of order L from the singular values su of the (scaled) input rows, with near-constant channels named."""
+    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
+    return PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
+                    float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols,
+                    near_constant_inputs=tuple(n for n in near if n in input_names),
+                    near_constant_outputs=tuple(n for n in near if n in output_names),
+                    channel_std={n: float(v) for n, v in zip(input_names + output_names, std)})
+
+
+def _unscale(G: np.ndarray, scale: np.ndarray, m: int, p: int, t_ini: int, t_f: int,
+             method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(Gy (p*Tf, r), Gs (p*Tini, r)) in the data's units from G fitted on channels divided by ``scale`` (m+p,)."""
+    su_, sy_ = scale[:m], scale[m:]
+    s_in = np.concatenate([np.tile(su_, t_ini), np.tile(sy_, t_ini), np.tile(su_, t_f)])
+    s_out = np.concatenate([np.tile(sy_, t_f), np.tile(sy_, t_ini) if method == "pem" else np.zeros(0)])
+    G = (s_out[:, None] * G) / s_in[None, :]
+    q_y = p * t_f
+    return G[:q_y], (G[q_y:] if method == "pem" else np.zeros((p * t_ini, s_in.size)))

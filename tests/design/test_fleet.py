@@ -9,7 +9,9 @@ import pytest
 
 from ddpc_codegen.cli.main import build_parser
 from ddpc_codegen.design.data import IODataset, prbs
-from ddpc_codegen.design.fleet import _read_rows, _TreeReducer, fit_files, plan_pieces, scan_files
+from ddpc_codegen.design.fleet import (_read_rows, _TreeReducer, combine_stats, fit_files, piece_stats, plan_pieces,
+                                       plan_stat_pieces, scan_files)
+from ddpc_codegen.design.hankel import channel_stats
 from ddpc_codegen.design.predictor import FitLayout, fit_predictor, hankel_r_factor, stack_r_factors
 from ddpc_codegen.errors import ConfigError, DataError
 
@@ -19,9 +21,9 @@ NAMES = dict(input_names=["z_ref", "pitch_ref"], output_names=["z", "pitch"])
 
 def _trajectory(lti, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """PRBS through a random stable LTI (m = p = 2) with a little output noise."""
-    u = prbs(n, 2, amplitude=0.5, min_hold=2, seed=seed)
+    u = prbs(n, 2, amplitude=[0.05, 2.0], min_hold=2, seed=seed)  # channels in very different units
     y, _ = lti.simulate(u, np.zeros(lti.n))
-    return u, y + 1e-3 * np.random.default_rng(seed).standard_normal(y.shape)
+    return u, y * [1.0, 300.0] + [1.5, 0.0] + 1e-3 * np.random.default_rng(seed).standard_normal(y.shape)
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +60,7 @@ def test_fleet_fit_equals_the_serial_fit(fleet, method, ridge):
     fit = fit_files(paths, T_INI, T_F, method, ridge=ridge, chunk_columns=97, block_columns=64, log=msgs.append)
     assert _rel(serial, fit.predictor) <= 1e-10
     assert fit.columns == serial.n_columns and fit.predictor.rank == serial.rank
+    np.testing.assert_allclose(fit.predictor.options["channel_scale"], serial.options["channel_scale"], rtol=1e-13)
     assert fit.pieces > len(paths) - 3  # long trajectories were sliced
     skipped = {p for p, _ in fit.skipped}
     assert skipped == {str(paths[i]) for i in (1, 4, 6)}
@@ -86,7 +89,7 @@ def test_partial_reads_and_tree_order(fleet, tmp_path):
     with zipfile.ZipFile(paths[3]) as z:
         np.testing.assert_array_equal(_read_rows(z, "y_0.npy", 123, 456), ds.y[0][123:456])
     layout = FitLayout(2, 2, T_INI, T_F, "pem")
-    factors = [hankel_r_factor([t], layout) for t in ref.trajectories() if t[0].shape[0] >= layout.depth]
+    factors = [hankel_r_factor([t], layout, np.ones(4)) for t in ref.trajectories() if t[0].shape[0] >= layout.depth]
     results = []
     for order in (range(len(factors)), reversed(range(len(factors))), np.random.default_rng(0).permutation(len(factors))):
         red = _TreeReducer()
@@ -98,6 +101,17 @@ def test_partial_reads_and_tree_order(fleet, tmp_path):
     for f in factors[1:]:
         seq = stack_r_factors(seq, f)
     np.testing.assert_allclose(np.abs(np.diag(results[0])), np.abs(np.diag(seq)), rtol=1e-10)
+
+
+def test_statistics_pass_equals_the_serial_statistics(fleet):
+    paths, ref = fleet
+    infos, _ = scan_files(paths, T_INI + T_F)
+    for chunk in (3, 50, 10**6):
+        parts = [piece_stats(None, piece) for piece in plan_stat_pieces(infos, chunk)]
+        rms, std = combine_stats(parts)
+        rms0, std0 = channel_stats([np.hstack(t) for t in ref.trajectories()])
+        np.testing.assert_allclose(rms, rms0, rtol=1e-13)
+        np.testing.assert_allclose(std, std0, rtol=1e-12)
 
 
 def test_mismatched_files_are_refused_by_name(fleet, tmp_path):
