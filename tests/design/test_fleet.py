@@ -147,3 +147,21 @@ def test_fleet_fit_on_local_ray_equals_serial(fleet):
     assert par.workers == 2 and _rel(serial.predictor, par.predictor) <= 1e-12
     assert _rel(fit_predictor(ref, T_INI, T_F, "lsq", ridge=1e-3), par.predictor) <= 1e-10
     assert 0 < par.peak_mib_per_worker < 1024
+
+
+def test_cli_fit_over_a_folder(fleet, tmp_path, capsys):
+    import json
+
+    from ddpc_codegen.cli.main import main
+
+    paths, ref = fleet
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text(f'name = "fleet"\n[horizon]\nt_ini = {T_INI}\nt_f = {T_F}\n[signals]\ninputs = ["z_ref", "pitch_ref"]\n'
+                   'outputs = ["z", "pitch"]\n[cost]\nQ = [1.0, 1.0]\nR = [1.0, 1.0]\n[predictor]\nmethod = "lsq"\n'
+                   'ridge = 1e-3\n')
+    assert main(["fit", str(cfg), str(paths[0].parent), "--no-codegen", "--json", "--quiet"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["used"] == len(paths) - 3 and len(rep["skipped"]) == 3 and rep["workers"] == 1
+    assert rep["columns"] == ref.columns(T_INI + T_F) and rep["rank"] == fit_predictor(ref, T_INI, T_F, "lsq", ridge=1e-3).rank
+    assert main(["fit", str(cfg), str(tmp_path / "nowhere")]) == 2  # a ConfigError, named
+    assert "nowhere does not exist" in capsys.readouterr().err
