@@ -222,6 +222,14 @@ print(json.dumps(out))
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def scale_entry(log=print) -> dict:
+    """The ``scale`` entry: fleet fit (10^7 samples, 100 files) and a 64-point sweep, serial vs 2 Ray
+    workers (:mod:`ddpc_codegen.experiments.bench_scale`; ~10-15 min on a loaded 2-core machine)."""
+    from ddpc_codegen.experiments.bench_scale import scale_report
+
+    return scale_report(log)
+
+
 def _bench_cvxpygen(problem: SteeringProblem, thetas: np.ndarray, ref: np.ndarray, workdir: Path, size: str,
                     log, active: np.ndarray) -> dict:
     """The same condensed QP through CVXPY + CVXPYgen (OSQP, its default settings), called from Python."""
@@ -304,6 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ticks", type=int, default=2000, help="ticks per size (default 2000)")
     ap.add_argument("--out", default="reports/bench.json")
     ap.add_argument("--skip-predictor", action="store_true", help="skip the 10^6-sample predictor fit")
+    ap.add_argument("--skip-scale", action="store_true", help="skip the fleet-fit and sweep scaling (Ray)")
     args = ap.parse_args(argv)
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
     report: dict = {}
@@ -314,6 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     if not args.skip_predictor:
         log("predictor fit on 10^6 samples (fresh process) ...")
         report["predictor_1e6"] = predictor_scaling()
+    if not args.skip_scale:
+        report["scale"] = scale_entry(log)
     report["meta"] = {"ticks": args.ticks, "machine": platform.machine(), "python": platform.python_version(),
                       "date": time.strftime("%Y-%m-%d")}
     out = Path(args.out)
