@@ -57,6 +57,7 @@ from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
 from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from ddpc_codegen.stats import percentiles
 
@@ -312,14 +313,10 @@ class Bridge:
         if c.inject_solver_failure:
             start, count, *kind = c.inject_solver_failure
             solver = FaultInjectingSolver(solver, int(start), int(count), kind[0] if kind else "fail")
-        b = man.get("bounds", {})
-        nan_none = lambda v: np.array([np.inf if x is None else x for x in v]) if v else None  # noqa: E731
-        u_min, u_max = nan_none(b.get("u_min")), nan_none(b.get("u_max"))
-        if u_min is not None:
-            u_min = np.where(np.isinf(u_min), -np.inf, u_min)
         self.solver = solver
         self.steerer = ReferenceSteerer.for_solver(
-            solver, u_min=u_min, u_max=u_max, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
+            solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
+        self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill)
         self.t_f = d["t_f"]
         self._ahead = self.period * np.arange(self.t_f)
 
@@ -582,7 +579,7 @@ class Bridge:
                 if 1 <= n <= c.max_gap_fill and abs(r - round(r)) < 0.4:
                     fill = n  # a few samples lost: bridge them (below, once this tick's y is known)
                 elif self.steerer is not None:
-                    self.steerer.reset()  # a long hole, or time went backwards: refill before steering again
+                    self.policy.reset()  # a long hole, or time went backwards: refill before steering again
             self._last_stamp = stamp
         # ---- engagement and the trajectory clock
         if engaged and not self._engaged:
@@ -616,18 +613,13 @@ class Bridge:
             if self.steerer is not None:
                 self.steerer.reset()
         elif c.mode == "steer":
-            if fill:
-                self.steerer.fill_gap(fill, y)
-            y_des = ctrl.desired_outputs(t_traj + self._ahead)
-            u_nom = y_des.copy()  # flying: the nominal references ahead are the desired outputs ahead ...
-            u_nom[0] = r_nom      # ... and exactly r_nom now
-            out = self.steerer.step(y_des, u_nom)
+            self.policy.lost(fill, y)
+            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             u = out.u
             reason = out.reason
             solve_us = out.solve_us
             if out.steered:
                 u_st = u
-            self.steerer.observe(u, y)
         elif c.mode == "collect":
             exc = self._excitation()
             u = r_nom + exc

@@ -153,22 +153,15 @@ def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
 def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)) -> dict:
     """Baseline and steered flights in-process (simulate + ReferenceSteerer, the same solver)."""
     from ddpc_codegen import ReferenceSteerer, load_solver
+    from ddpc_codegen.runtime.policy import SteeringPolicy
     from ddpc_codegen.sim import simulate
 
     solver = load_solver(solver_dir)
-    b = solver.manifest["bounds"]
-    arr = lambda v, d: np.array([d if x is None else x for x in v])  # noqa: E731
-    st = ReferenceSteerer.for_solver(solver, u_min=arr(b["u_min"], -np.inf), u_max=arr(b["u_max"], np.inf),
-                                     max_step=np.asarray(max_step, float))
-    tf = solver.manifest["dims"]["t_f"]
+    st = ReferenceSteerer.for_solver(solver, max_step=np.asarray(max_step, float))
+    policy = SteeringPolicy(st)
 
     def hook(ctx):
-        y_des = ctx.desired_ahead(tf)
-        u_nom = y_des.copy()
-        u_nom[0] = ctx.r_nom
-        out = st.step(y_des, u_nom)
-        st.observe(out.u, ctx.y)
-        return out.u
+        return policy.decide(ctx.y, ctx.r_nom, ctx.desired_ahead(policy.t_f)).u
 
     res = {}
     for name, h in (("baseline", None), ("steered", hook)):

@@ -57,6 +57,7 @@ from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.stats import percentiles
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
+from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
 __all__ = [
@@ -317,10 +318,10 @@ class InterpretedSolver:
 
 
 class SteeringHook:
-    """Adapts a :class:`ReferenceSteerer` to the simulator's per-tick ``reference_hook``.
+    """The :class:`SteeringPolicy` as the simulator's per-tick ``reference_hook``.
 
-    Flying: y_des and u_nom over the horizon are ``ctx.desired_ahead(Tf)`` (z of the ellipse, the
-    pitch of the horizontal PD with its current correction held; row 0 equals r_nom).
+    Flying: y_des over the horizon is ``ctx.desired_ahead(Tf)`` (z of the ellipse, the pitch of
+    the horizontal PD with its current correction held); u_nom is y_des with row 0 = r_nom.
     Hopping: no steering on the ground (r_nom = measured outputs keeps the spring's natural
     dynamics); in the air, a window whose ground part is filled with artificial IO, and the
     desired arc continued ballistically past the predicted touchdown (the aerial predictor knows
@@ -333,6 +334,7 @@ class SteeringHook:
     def __init__(self, steerer: ReferenceSteerer, scenario: str, *, window: HoppingWindow | None = None,
                  g_eff: float | None = None) -> None:
         self.steerer = steerer
+        self.policy = SteeringPolicy(steerer, max_gap_fill=0)  # the simulator never loses a sample
         self.scenario = scenario
         self.window = window
         self.g_eff = g_eff
@@ -344,46 +346,40 @@ class SteeringHook:
         self.counts[key] = self.counts.get(key, 0) + 1
 
     def __call__(self, ctx: TickContext) -> np.ndarray | None:
-        st = self.steerer
+        pol = self.policy
         self._count("ticks")
-        if ctx.k > 0:
-            st.observe(ctx.u_log[-1], ctx.y_log[-2])
         if self.scenario == "flying":
-            yd = ctx.desired_ahead(st.t_f)
-            un = yd.copy()
-            un[0] = ctx.r_nom  # the fallback is exactly the nominal reference
-            return self._step(yd, un)
+            return self._decide(ctx, ctx.desired_ahead(pol.t_f))
         # ---- hopping
         if ctx.phase == GROUND:
             self._count("ground")
+            pol.observe(ctx.r_nom, ctx.y)
             return None
         if self.window is not None:
             w = self.window.window(ctx.u_log, ctx.y_log[:-1], ctx.phase_log[:-1])
             if isinstance(w, str):
                 self._count(f"no_window:{w}")
+                pol.observe(ctx.r_nom, ctx.y)
                 return None
             if w is not None:
-                st.set_window(*w)
+                pol.steerer.set_window(*w)
                 self._count("filled")
             else:
                 # A clean aerial window: the real samples (a fitted window of an earlier tick may
                 # still sit in the ring buffer otherwise).
-                Ti = st.t_ini
-                st.set_window(ctx.u_log[-Ti:], ctx.y_log[-Ti - 1 : -1])
-        yd = self._arc_horizon(ctx)
-        un = yd.copy()
-        un[0] = ctx.r_nom
-        return self._step(yd, un)
+                Ti = pol.steerer.t_ini
+                pol.steerer.set_window(ctx.u_log[-Ti:], ctx.y_log[-Ti - 1 : -1])
+        return self._decide(ctx, self._arc_horizon(ctx))
 
-    def _step(self, yd: np.ndarray, un: np.ndarray) -> np.ndarray:
-        out = self.steerer.step(yd, un)
+    def _decide(self, ctx: TickContext, y_des: np.ndarray) -> np.ndarray:
+        out = self.policy.decide(ctx.y, ctx.r_nom, y_des)
         if out.result is not None and np.isfinite(out.result.solve_time) and out.result.solve_time > 0:
             self.solver_us.append(out.result.solve_time * 1e6)
         return out.u
 
     def _arc_horizon(self, ctx: TickContext) -> np.ndarray:
         """(Tf, p) desired outputs with z continued on the current ballistic arc after touchdown."""
-        n = self.steerer.t_f
+        n = self.policy.t_f
         yd = np.array(ctx.desired_ahead(n), dtype=float)
         ph = np.asarray(ctx.phases_ahead(n))
         g = self.g_eff
@@ -496,7 +492,7 @@ def run(
         else:
             solver = setup.solver
             solver.reset()
-        steerer = ReferenceSteerer.for_solver(solver, u_min=cfg.u_min, u_max=cfg.u_max)
+        steerer = ReferenceSteerer.for_solver(solver)
         window = None
         if scenario == "hopping":
             if setup.art is None:

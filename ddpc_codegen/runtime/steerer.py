@@ -19,7 +19,20 @@ import numpy as np
 from ddpc_codegen.design.result import BOUND_TOL, SteeringResult
 from ddpc_codegen.stats import percentiles
 
-__all__ = ["ReferenceSteerer", "SteerOutcome", "SolverLike"]
+__all__ = ["ReferenceSteerer", "SteerOutcome", "SolverLike", "solver_input_bounds"]
+
+
+def solver_input_bounds(solver) -> tuple[np.ndarray, np.ndarray]:
+    """(u_min, u_max), (m,) each, ±inf where unbounded, of a generated solver (what it reports
+    itself, else its manifest, where null means unbounded) or of a SteeringProblem (its config)."""
+    if hasattr(solver, "input_bounds"):
+        lo, hi = solver.input_bounds()
+        return np.asarray(lo, float), np.asarray(hi, float)
+    if hasattr(solver, "manifest"):
+        b = solver.manifest["bounds"]
+        return (np.array([-np.inf if v is None else v for v in b["u_min"]], float),
+                np.array([np.inf if v is None else v for v in b["u_max"]], float))
+    return np.asarray(solver.config.u_min, float), np.asarray(solver.config.u_max, float)
 
 
 class SolverLike(Protocol):
@@ -73,12 +86,17 @@ class ReferenceSteerer:
 
     @classmethod
     def for_solver(cls, solver, **kw) -> "ReferenceSteerer":
-        """Build from a generated solver's (or SteeringProblem's) own dimensions."""
+        """Build from a generated solver's (or SteeringProblem's) own dimensions and, unless
+        ``u_min`` / ``u_max`` are given, its own input bounds (:func:`solver_input_bounds`)."""
         if hasattr(solver, "manifest"):
             d = solver.manifest["dims"]
-            return cls(solver, d["t_ini"], d["t_f"], d["m"], d["p"], has_nominal=solver.has_nominal, **kw)
-        c = solver.config
-        return cls(solver, c.t_ini, c.t_f, c.m, c.p, has_nominal=solver.has_nominal, **kw)
+            dims = d["t_ini"], d["t_f"], d["m"], d["p"]
+        else:
+            c = solver.config
+            dims = c.t_ini, c.t_f, c.m, c.p
+        if "u_min" not in kw and "u_max" not in kw:
+            kw["u_min"], kw["u_max"] = solver_input_bounds(solver)
+        return cls(solver, *dims, has_nominal=solver.has_nominal, **kw)
 
     @property
     def ready(self) -> bool:

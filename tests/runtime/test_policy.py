@@ -1,0 +1,57 @@
+"""ddpc_codegen.runtime.policy.SteeringPolicy: the per-tick decision every loop shares."""
+
+import numpy as np
+
+from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.runtime.policy import SteeringPolicy, nominal_horizon
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
+
+
+class _Recorder:
+    """Returns u = u_nom + 0.01 and records what it was asked."""
+
+    has_nominal = True
+
+    def __init__(self):
+        self.calls = []
+
+    def solve(self, u_ini, y_ini, y_des, u_nom=None):
+        self.calls.append((np.array(u_ini), np.array(y_ini), np.array(y_des), np.array(u_nom)))
+        return SteeringResult(np.asarray(u_nom) + 0.01, status="solved")
+
+
+def _policy(**kw) -> tuple[SteeringPolicy, _Recorder]:
+    rec = _Recorder()
+    return SteeringPolicy(ReferenceSteerer(rec, t_ini=3, t_f=4, m=2, p=2), **kw), rec
+
+
+def test_nominal_horizon_is_y_des_with_r_nom_first():
+    y_des = np.arange(8.0).reshape(4, 2)
+    u_nom = nominal_horizon(y_des, np.array([-1.0, -2.0]))
+    np.testing.assert_array_equal(u_nom[0], [-1.0, -2.0])
+    np.testing.assert_array_equal(u_nom[1:], y_des[1:])
+    assert y_des[0, 0] == 0.0  # not modified in place
+
+
+def test_warmup_then_steered_and_the_window_holds_the_decided_pairs():
+    pol, rec = _policy()
+    y_des = np.ones((4, 2))
+    outs = [pol.decide(np.array([k, -k], float), np.array([0.5, 0.5]), y_des) for k in range(5)]
+    assert [o.reason for o in outs] == ["warmup"] * 3 + ["steered"] * 2
+    np.testing.assert_array_equal(outs[0].u, [0.5, 0.5])  # the fallback is exactly r_nom
+    u_ini, y_ini, yd, un = rec.calls[-1]  # tick 4 saw the pairs of ticks 1..3
+    np.testing.assert_array_equal(y_ini[:, 0], [1, 2, 3])
+    np.testing.assert_allclose(u_ini[-1], [0.51, 0.51])  # tick 3 was steered (r_nom + 0.01): its u is in the history
+    np.testing.assert_array_equal(un[0], [0.5, 0.5])
+    np.testing.assert_array_equal(yd, y_des)
+
+
+def test_a_few_lost_ticks_are_bridged_a_long_hole_resets():
+    pol, _ = _policy(max_gap_fill=2)
+    for k in range(4):
+        pol.decide(np.array([k, k], float), np.zeros(2), np.zeros((4, 2)))
+    pol.lost(2, np.array([6.0, 6.0]))
+    assert pol.steerer.ready and pol.summary()["gap_filled_ticks"] == 2
+    pol.lost(3, np.array([9.0, 9.0]))
+    assert not pol.steerer.ready
+    assert pol.decide(np.zeros(2), np.zeros(2), np.zeros((4, 2))).reason == "warmup"
