@@ -243,8 +243,8 @@ name = "clitest"
 t_ini = {TI}
 t_f = {TF}
 [signals]
-inputs = ["a", "b"]
-outputs = ["c", "d"]
+inputs = ["u0", "u1"]  # the dataset's channel names (codegen checks them)
+outputs = ["y0", "y1"]
 [cost]
 Q = [10.0, 4.0]
 R = [0.2, 0.1]
