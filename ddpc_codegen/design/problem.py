@@ -320,17 +320,27 @@ class SteeringProblem:
     def _solve_osqp(self, q, l, ub, eps, max_iter):
         # OSQP's infinity is 1e30 (finite entries beyond it were refused by qp_finite).
         lo, hi = np.maximum(l, -1e30), np.minimum(ub, 1e30)
-        if self._osqp is None:
-            s = osqp.OSQP()
-            s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, sp.csc_matrix(self.A), lo, hi, verbose=False,
-                    eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter, warm_starting=True)
-            self._osqp = s
-        else:
+        warm = self._osqp is not None
+        if warm:
             self._osqp.update(q=q, l=lo, u=hi)
+        else:
+            self._osqp_setup(q, lo, hi, eps, max_iter)
         r = self._osqp.solve(raise_error=False)
         status = str(r.info.status).lower()
+        if status not in _OSQP_OK and warm:
+            # A first-order method can stall from a far-away warm start (e.g. after an extreme
+            # tick that did solve): the answer must not depend on history, so retry cold once.
+            self._osqp_setup(q, lo, hi, eps, max_iter)
+            r = self._osqp.solve(raise_error=False)
+            status = str(r.info.status).lower()
         status = "solved" if status in _OSQP_OK else status.replace(" ", "_")
         return r.x, status, int(r.info.iter)
+
+    def _osqp_setup(self, q, lo, hi, eps, max_iter) -> None:
+        s = osqp.OSQP()
+        s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, sp.csc_matrix(self.A), lo, hi, verbose=False,
+                eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter, warm_starting=True)
+        self._osqp = s
 
     def _solve_exact(self, q, l, ub):
         if self._exact is None:

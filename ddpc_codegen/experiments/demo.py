@@ -224,6 +224,7 @@ def run_demo(
     generate_dir: str | Path = ROOT / "generated",
     save_data: bool = True,
     quiet: bool = False,
+    baselines: bool = True,
 ) -> dict[str, Any]:
     """Run the demo; returns the summary dict (also written to ``<out_dir>/summary.json``)."""
     t0 = time.perf_counter()
@@ -273,6 +274,14 @@ def run_demo(
                 blk = summary_block(sc, b, s)
                 rob[sc][cond] = {k: blk[k] for k in ("baseline", "steered", "fallbacks", "fallback_reasons", "crashed")}
         summary["robustness"] = rob
+    if baselines:
+        # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines.py);
+        # the runs above that are the same simulations are reused, not repeated.
+        from ddpc_codegen.experiments.baselines import evaluate_baselines, reuse_from_summary
+
+        _say("baselines: prefilter, ILC, non-repeating trajectories ...", quiet)
+        summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
+                                                  interpreted=interpreted, quiet=quiet, out_dir=out / "baselines")
     wall = time.perf_counter() - t0
     summary["meta"] = {
         "units": "SI (m, rad, m/s); solve times in microseconds",
@@ -307,6 +316,7 @@ def _add_demo_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", choices=("flying", "hopping", "both"), default="both")
     p.add_argument("--no-robustness", action="store_true", help="skip the robustness runs")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-baselines", action="store_true", help="skip the prefilter / ILC / non-repeating comparison")
     p.add_argument("--quiet", action="store_true", help="no progress output on stderr")
 
 
@@ -314,11 +324,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     scen = ("flying", "hopping") if args.scenario == "both" else (args.scenario,)
     summary = run_demo(args.out, scenarios=scen, interpreted=args.interpreted, robustness=not args.no_robustness,
-                       figures=not args.no_figures, quiet=args.quiet)
+                       figures=not args.no_figures, quiet=args.quiet, baselines=not args.no_baselines)
     print(format_table(summary))
     if "robustness" in summary:
         print()
         print(format_robustness(summary["robustness"]))
+    if "baselines" in summary:
+        from ddpc_codegen.experiments.baselines import format_baselines
+
+        print()
+        print(format_baselines(summary["baselines"]))
+        print("* ILC's last iteration learned on the periodic case, flown unchanged here")
     print()
     print(f"wrote {Path(args.out) / 'summary.json'}" + (
         f" and {len(summary['meta'].get('figures', []))} figures" if summary["meta"].get("figures") else ""))

@@ -56,7 +56,7 @@ from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.stats import percentiles
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
-from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
+from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario, Scenario
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
@@ -201,7 +201,8 @@ class SteeringSetup:
 
     problem: interpreted SteeringProblem; solver: the generated C solver (None if not compiled);
     dataset: the predictor's data (flying: the PRBS run; hopping: the stitched hops H_G);
-    art: hopping's completion operator; info: provenance (PE summary, held-out prediction error, timings).
+    art: hopping's completion operator; info: provenance (PE summary, held-out prediction error, timings);
+    raw: the recorded data as collected (hopping: with ground phases; what the baselines are fitted on).
     """
 
     scenario: str
@@ -214,6 +215,7 @@ class SteeringSetup:
     art: ArtificialIO | None = None
     art_spec: ArtificialIOSpec = field(default_factory=ArtificialIOSpec)
     info: dict = field(default_factory=dict)
+    raw: IODataset | None = None
 
 
 def _fit(cfg: SteeringConfig, ds: IODataset) -> Predictor:
@@ -282,7 +284,7 @@ def build_setup(
     info["predictor"] = {"method": pred.method, "rank": pred.rank, "columns": pred.n_columns,
                          **{k: v for k, v in pred.options.items() if not k.startswith("_")}}
     prob = SteeringProblem(pred, cfg)
-    setup = SteeringSetup(scenario, cfg, pred, prob, ds, art=art, art_spec=art_spec, info=info)
+    setup = SteeringSetup(scenario, cfg, pred, prob, ds, art=art, art_spec=art_spec, info=info, raw=raw)
     if generate_dir is not None:
         from ddpc_codegen.codegen import generate
         from ddpc_codegen.runtime.loader import load_solver
@@ -459,7 +461,7 @@ def _g_eff(res_params: PogoXParams) -> float:
 
 def run(
     setup: SteeringSetup | None,
-    scenario: str,
+    scenario: str | Scenario,
     duration: float,
     *,
     steer: bool = True,
@@ -471,7 +473,8 @@ def run(
     progress: bool = False,
     label: str = "",
 ) -> RunResult:
-    """Simulate one run of ``scenario``, steered through ``setup`` or not.
+    """Simulate one run of ``scenario`` (a name or a scenario object, e.g. another trajectory),
+    steered through ``setup`` or not.
 
     Args:
         steer: False = the baseline (the model-based controller alone).
@@ -481,6 +484,7 @@ def run(
     (counted by the steerer); a simulator error ends the run as crashed.
     """
     params = params or PogoXParams()
+    sim_scenario, scenario = scenario, scenario if isinstance(scenario, str) else scenario.name
     hook = None
     steerer = None
     if steer:
@@ -502,7 +506,7 @@ def run(
         hook = SteeringHook(steerer, scenario, window=window,
                             g_eff=_g_eff(params) if scenario == "hopping" else None)
     t0 = time.perf_counter()
-    res = simulate(scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
+    res = simulate(sim_scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
                    pushes=pushes, progress=progress)
     wall = time.perf_counter() - t0
     met = scenario_metrics(res)
