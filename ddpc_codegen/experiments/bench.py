@@ -27,6 +27,7 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset, prbs
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.experiments.bench_codegen import aarch64_figures, osqp_accuracy, standalone_figures, table_lines
 
 SIZES = {"flying": dict(m=2, p=2, t_ini=20, t_f=15), "hopping": dict(m=3, p=3, t_ini=20, t_f=25)}
 
@@ -158,6 +159,11 @@ def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
                              "failures": int(len(ok) - sum(ok))}, active)
         if (~active).any():
             results[b]["median_us_fast_path"] = float(np.median(tp[~active]))
+        if b == "osqp":
+            results[b]["accuracy"] = osqp_accuracy(outs, ref, active)
+    log(f"  {size}: standalone C builds (native, aarch64 under qemu) ...")
+    results["standalone"] = {b: standalone_figures(s, thetas, active, log) for b, s in solvers.items()}
+    results["aarch64_qemu"] = aarch64_figures(solvers["daqp"].folder, log)
     # Interpreted OSQP (Python), default settings (adaptive rho, polishing off as embedded), warm-started.
     q0, l0, u0 = problem.qp_vectors(thetas[0])
     for eps in (1e-3, 1e-6):
@@ -286,7 +292,7 @@ def _table(report: dict) -> str:
         for name, r in report[size].items():
             if name == "active_fraction":
                 continue
-            if "median_us" not in r:
+            if not isinstance(r, dict) or "median_us" not in r:
                 rows.append(f"{size:8} {name:18} {r.get('skipped', '')}")
                 continue
             cm = r.get("c_median_us")
@@ -304,7 +310,7 @@ def _table(report: dict) -> str:
                     f"{d['speedup_vs_osqp_interp_1e-6']:.0f}x faster than interpreted osqp eps 1e-6 overall, "
                     f"{d['speedup_active_vs_osqp_interp_1e-6']:.0f}x on active ticks; max |Δu| {d['max_err']:.0e} vs "
                     f"{o6['max_err']:.0e}; osqp backend failures: {report[size]['osqp']['failures']}")
-    return "\n".join(rows)
+    return "\n".join(rows + table_lines(report, SIZES))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -320,6 +326,11 @@ def main(argv: list[str] | None = None) -> int:
         for size in SIZES:
             log(f"bench {size} ...")
             report[size] = bench_size(size, args.ticks, Path(tmp), log)
+            # issue 14's layout: "standalone": {size: ...} (daqp, osqp nested), "aarch64_qemu": {size: ...} or null
+            sa = report[size].pop("standalone")
+            report.setdefault("standalone", {})[size] = {**sa["daqp"], "osqp": sa["osqp"]}
+            arm = report[size].pop("aarch64_qemu")
+            report["aarch64_qemu"] = None if arm is None else {**(report.get("aarch64_qemu") or {}), size: arm}
     if not args.skip_predictor:
         log("predictor fit on 10^6 samples (fresh process) ...")
         report["predictor_1e6"] = predictor_scaling()
