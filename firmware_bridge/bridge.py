@@ -55,15 +55,16 @@ import numpy as np
 from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController
 from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
-from ddpc_codegen.robot.frames import quat_from_euler
+from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from ddpc_codegen.stats import percentiles
 
 from firmware_bridge.link import CommandTracker, MavLink, mavlink
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
-from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, swap_frames
+from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
@@ -237,15 +238,6 @@ def gap_statistics(send_times: np.ndarray, period: float) -> dict:
     dur = float(t[-1] - t[0])
     return {"missed_ticks": int(miss.sum()), "max_gap_ms": float(g.max() * 1e3),
             "rate_hz": float((t.size - 1) / dur) if dur > 0 else math.nan, "duration_s": dur}
-
-
-def _pct(a: np.ndarray) -> dict:
-    a = np.asarray(a, dtype=float)
-    a = a[np.isfinite(a)]
-    if a.size == 0:
-        return {"p50": None, "p99": None, "max": None, "n": 0}
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
-            "n": int(a.size)}
 
 
 class Bridge:
@@ -721,7 +713,7 @@ class Bridge:
 
     def _level_setpoint(self) -> tuple[tuple, float, float]:
         """Level attitude at the trajectory frame's heading and hover thrust / zero climb rate."""
-        q = swap_frames(*self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
+        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
         thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
         return q, thrust, self.profile.hover_field(thrust)
 
@@ -742,7 +734,7 @@ class Bridge:
         if thrust < lo or thrust > hi:
             self.counts["thrust_clamped"] += 1
             thrust = min(max(thrust, lo), hi)
-        return swap_frames(*self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
+        return quat_ned_frd_from_enu_flu(self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
 
     def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
         lk = self.link
@@ -863,7 +855,7 @@ class Bridge:
         out = {
             "mode": c.mode, "autopilot": self.profile.name, "stop_reason": self.stop_reason, "ticks": n,
             "setpoints_sent": len(self._send_times), "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
-            "latency_us": _pct(v["latency_us"]) if n else _pct(np.zeros(0)),
+            "latency_us": percentiles(v["latency_us"]) if n else percentiles(()),
             "missed_ticks": gaps["missed_ticks"], "max_gap_ms": gaps["max_gap_ms"],
             "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
             "event_ticks": int(v["event"].sum()) if n else 0, "activations": self._n_activations,

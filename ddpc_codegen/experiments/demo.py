@@ -73,8 +73,8 @@ def _num(x: Any) -> float | None:
 # ----------------------------------------------------------------------------- summary
 def summary_block(scenario: str, baseline: RunResult, steered: RunResult) -> dict[str, Any]:
     """The stable per-scenario block of reports/summary.json (SI units, radians, µs)."""
-    keys = ("rmse_z", "rmse_pitch") if scenario == "flying" else ("apex_err_mean", "rmse_pitch", "vx_err_mean")
-    extra = ("rmse_x", "mean_z_error") if scenario == "flying" else ("rmse_z", "rmse_roll", "apex_err_signed", "apex_err_max", "n_hops")
+    keys = ("rmse_z", "rmse_pitch") if scenario == "flying" else ("apex_error_mean_abs", "rmse_pitch", "vx_error_mean_abs")
+    extra = ("rmse_x", "mean_z_error") if scenario == "flying" else ("rmse_z", "rmse_roll", "apex_error_mean_signed", "apex_error_max_abs", "n_hops")
     pick = lambda m: {k: (int(m[k]) if k == "n_hops" and k in m else _num(m.get(k))) for k in keys + extra}  # noqa: E731
     st = steered.steering or {}
     reasons = st.get("fallback_reasons", {})
@@ -82,8 +82,8 @@ def summary_block(scenario: str, baseline: RunResult, steered: RunResult) -> dic
     return {
         "baseline": pick(baseline.metrics),
         "steered": pick(steered.metrics),
-        "solve_us": {"median": _num(st.get("solve_us", {}).get("median")), "p99": _num(st.get("solve_us", {}).get("p99")),
-                     "solver_median": _num(st.get("solver_us", {}).get("median")),
+        "solve_us": {"median": _num(st.get("solve_us", {}).get("p50")), "p99": _num(st.get("solve_us", {}).get("p99")),
+                     "solver_median": _num(st.get("solver_us", {}).get("p50")),
                      "solver_p99": _num(st.get("solver_us", {}).get("p99"))},
         "fallbacks": int(st.get("fallbacks", 0)),
         "fallback_reasons": dict(reasons),
@@ -116,8 +116,8 @@ def format_table(summary: dict[str, Any]) -> str:
                 solve = f"{_fmt(s['median'], 1)} / {_fmt(s['p99'], 1)}"
                 fb = str(b["fallbacks"])
             rows.append((sc, run_name, _fmt(m.get("rmse_z"), 1e3), _fmt(m.get("rmse_pitch"), 1e3, 2),
-                         _fmt(m.get("rmse_roll"), 1e3, 2), _fmt(m.get("apex_err_mean"), 1e3, 2),
-                         _fmt(m.get("vx_err_mean"), 1e3), solve, fb))
+                         _fmt(m.get("rmse_roll"), 1e3, 2), _fmt(m.get("apex_error_mean_abs"), 1e3, 2),
+                         _fmt(m.get("vx_error_mean_abs"), 1e3), solve, fb))
     return _grid(head, rows)
 
 
@@ -138,8 +138,8 @@ def format_robustness(rob: dict[str, Any]) -> str:
                 rows.append((sc, cond, "error", r["error"][:40], "", "", ""))
                 continue
             mets = (("RMSE z [mm]", "rmse_z", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3)) if sc == "flying" else (
-                ("mean |apex err| [mm]", "apex_err_mean", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
-                ("mean |vx err| [mm/s]", "vx_err_mean", 1e3))
+                ("mean |apex err| [mm]", "apex_error_mean_abs", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
+                ("mean |vx err| [mm/s]", "vx_error_mean_abs", 1e3))
             for i, (label, key, sc_) in enumerate(mets):
                 b, s = r["baseline"].get(key), r["steered"].get(key)
                 ratio = f"{b / s:.1f}x" if b and s else "-"
@@ -292,9 +292,9 @@ def run_demo(
         "machine": platform.machine(),
         "definitions": {
             "rmse_z, rmse_pitch (flying)": "true output minus desired, after the 3 s settle time",
-            "apex_err_mean": "mean over scored hops of |apex height - target| (first 3 hops skipped)",
+            "apex_error_mean_abs": "mean over scored hops of |apex height - target| (first 3 hops skipped)",
             "rmse_pitch, rmse_roll, rmse_z (hopping)": "true minus desired over the aerial phase of the scored hops",
-            "vx_err_mean": "mean over hops of |average vx touchdown-to-touchdown - target|",
+            "vx_error_mean_abs": "mean over hops of |average vx touchdown-to-touchdown - target|",
             "solve_us": "median / p99 of the wall time of the solver call in the loop (Python -> C and back); "
                         "solver_median / solver_p99 from the solver's own timer",
             "fallbacks": "ticks on which the nominal reference was sent instead (solver failure, bound or step guard)",

@@ -54,6 +54,7 @@ from ddpc_codegen.design.artificial_io import ArtificialIO, HoppingWindow, groun
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.stats import percentiles
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario, Scenario
 from ddpc_codegen.runtime.policy import SteeringPolicy
@@ -421,9 +422,9 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
     """The report's metrics of a run (SI units, radians).
 
     Flying: rmse_z, rmse_pitch (after the settle time), plus rmse_x and mean_z_error.
-    Hopping (after the settle hops): apex_err_mean = mean |apex - target| [m],
-    apex_err_signed = mean (apex - target), rmse_pitch / rmse_roll / rmse_z over the aerial phase,
-    vx_err_mean = mean |per-hop average vx - target| [m/s] (touchdown to touchdown).
+    Hopping (after the settle hops): apex_error_mean_abs = mean |apex - target| [m],
+    apex_error_mean_signed = mean (apex - target), rmse_pitch / rmse_roll / rmse_z over the aerial phase,
+    vx_error_mean_abs = mean |per-hop average vx - target| [m/s] (touchdown to touchdown).
     """
     m = res.metrics()
     out: dict[str, Any] = {"crashed": bool(res.crashed), "duration": m["duration"]}
@@ -441,13 +442,13 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
             vx.append((res.state[ib, 0] - res.state[ia, 0]) / (res.t[ib] - res.t[ia]) - res.config.target_velocity[0])
     vx = np.asarray(vx[settle:])
     out.update(
-        apex_err_mean=float(np.mean(np.abs(ap))) if ap.size else float("nan"),
-        apex_err_signed=float(np.mean(ap)) if ap.size else float("nan"),
-        apex_err_max=float(np.max(np.abs(ap))) if ap.size else float("nan"),
+        apex_error_mean_abs=float(np.mean(np.abs(ap))) if ap.size else float("nan"),
+        apex_error_mean_signed=float(np.mean(ap)) if ap.size else float("nan"),
+        apex_error_max_abs=float(np.max(np.abs(ap))) if ap.size else float("nan"),
         rmse_pitch=m["rmse_pitch_aerial"],
         rmse_roll=m["rmse_roll_aerial"],
         rmse_z=m["rmse_z_aerial"],
-        vx_err_mean=float(np.mean(np.abs(vx))) if vx.size else float("nan"),
+        vx_error_mean_abs=float(np.mean(np.abs(vx))) if vx.size else float("nan"),
         n_hops=int(m["n_hops_scored"]),
     )
     return out
@@ -514,9 +515,7 @@ def run(
     if steerer is not None:
         st = steerer.summary()
         st["hook"] = dict(hook.counts)
-        t = np.asarray(hook.solver_us)
-        st["solver_us"] = {"median": float(np.median(t)) if t.size else None,
-                           "p99": float(np.percentile(t, 99)) if t.size else None}
+        st["solver_us"] = percentiles(hook.solver_us)
         st["solver"] = "interpreted" if isinstance(steerer.solver, InterpretedSolver) else f"generated:{steerer.solver.backend}"
         if hook.window is not None:
             st["artificial_io"] = dict(hook.window.counts)
