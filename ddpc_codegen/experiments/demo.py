@@ -25,15 +25,8 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.errors import ConfigError, DDPCError
-from ddpc_codegen.experiments.pipeline import (
-    ROOT,
-    CollectSpec,
-    RunResult,
-    SteeringSetup,
-    build_setup,
-    prediction_check,
-    run,
-)
+from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup
+from ddpc_codegen.experiments.evaluate import RunResult, prediction_check, run
 from ddpc_codegen.sim import PogoXParams, Push
 
 __all__ = ["run_demo", "format_table", "summary_block", "main", "register", "DURATIONS", "ROBUSTNESS"]

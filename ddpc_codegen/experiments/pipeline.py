@@ -11,10 +11,12 @@ The pipeline of the paper's evaluation, on :mod:`ddpc_codegen.sim`:
   IO (:mod:`ddpc_codegen.design.artificial_io`) and the hops joined into the mosaic H_G the predictor is fitted
   on; online the ground part of u_ini / y_ini is filled the same way; steering in the air only.
 
+Runs, metrics and the steering hook are in :mod:`.evaluate`.
+
 Timing (the steerer's convention, checked against the simulator's logs): the simulator logs
 y[k] = the measurement tick k decided on and u[k] = the reference applied from t_k on, so u[k]
-first shows in y[k+1]. At tick k the hook pushes the pair (u[k-1], y[k-1]) into the steerer's
-ring buffer, so u_ini = u[k-Tini:k], y_ini = y[k-Tini:k], exactly the Hankel columns' pairing,
+first shows in y[k+1]. At tick k the window holds the pairs (u[k-Tini..k-1], y[k-Tini..k-1])
+(the policy records (u[k], y[k]) once tick k is decided), exactly the Hankel columns' pairing,
 and the horizon is ticks k..k+Tf-1 (y_des = ``ctx.desired_ahead(Tf)``). The newest measurement
 y[k] is then not used by the decision at tick k (it is predicted): one tick of information
 latency, the price of a window that matches the data pairing without re-indexing the data.
@@ -42,7 +44,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable
 
 import numpy as np
 
@@ -50,30 +52,20 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.design.artificial_io import ArtificialIO, HoppingWindow, ground_runs, stitch_hops
+from ddpc_codegen.design.artificial_io import ArtificialIO, ground_runs, stitch_hops
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.design.result import SteeringResult
-from ddpc_codegen.stats import percentiles
-from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
-from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario, Scenario
-from ddpc_codegen.runtime.policy import SteeringPolicy
-from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, SimResult, simulate
+from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
 
 __all__ = [
     "ROOT",
     "CollectSpec",
     "ArtificialIOSpec",
     "SteeringSetup",
-    "InterpretedSolver",
-    "SteeringHook",
-    "RunResult",
     "collect",
     "split_hopping",
     "build_setup",
-    "run",
-    "scenario_metrics",
-    "prediction_check",
     "default_config",
 ]
 
@@ -302,253 +294,3 @@ def build_setup(
         info["backend"] = setup.solver.backend
     info["setup_s"] = round(time.perf_counter() - t_start, 2)
     return setup
-
-
-# ----------------------------------------------------------------------------- solvers and hook
-class InterpretedSolver:
-    """A SteeringProblem behind the generated solver's API (``solve(u_ini, y_ini, y_des, u_nom)``).
-
-    method: "fast" (unconstrained optimum if feasible, else CasADi's daqp: the generated daqp
-    solver's algorithm, interpreted), "exact" (always the active-set solve) or "osqp".
-    """
-
-    def __init__(self, problem: SteeringProblem, method: str = "fast") -> None:
-        self.problem = problem
-        self.config = problem.config
-        self.has_nominal = problem.has_nominal
-        self.method = method
-
-    def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
-        return self.problem.solve(u_ini, y_ini, y_des, u_nom, solver=self.method)
-
-
-class SteeringHook:
-    """The :class:`SteeringPolicy` as the simulator's per-tick ``reference_hook``.
-
-    Flying: y_des over the horizon is ``ctx.desired_ahead(Tf)`` (z of the ellipse, the pitch of
-    the horizontal PD with its current correction held); u_nom is y_des with row 0 = r_nom.
-    Hopping: no steering on the ground (r_nom = measured outputs keeps the spring's natural
-    dynamics); in the air, a window whose ground part is filled with artificial IO, and the
-    desired arc continued ballistically past the predicted touchdown (the aerial predictor knows
-    nothing of the ground, so the horizon is scored against the arc the aerial dynamics should
-    fly; the leg angles are held as the controller does).
-
-    Counts (``counts``): ticks, ground, no_window:<reason>, filled (hopping).
-    """
-
-    def __init__(self, steerer: ReferenceSteerer, scenario: str, *, window: HoppingWindow | None = None,
-                 g_eff: float | None = None) -> None:
-        self.steerer = steerer
-        self.policy = SteeringPolicy(steerer, max_gap_fill=0)  # the simulator never loses a sample
-        self.scenario = scenario
-        self.window = window
-        self.g_eff = g_eff
-        self.counts: dict[str, int] = {}
-        self.solver_us: list[float] = []  # the solver's own timer (C for a generated solver)
-        self._v_arc: float | None = None
-
-    def _count(self, key: str) -> None:
-        self.counts[key] = self.counts.get(key, 0) + 1
-
-    def __call__(self, ctx: TickContext) -> np.ndarray | None:
-        pol = self.policy
-        self._count("ticks")
-        if self.scenario == "flying":
-            return self._decide(ctx, ctx.desired_ahead(pol.t_f))
-        # ---- hopping
-        if ctx.phase == GROUND:
-            self._count("ground")
-            pol.observe(ctx.r_nom, ctx.y)
-            return None
-        if self.window is not None:
-            w = self.window.window(ctx.u_log, ctx.y_log[:-1], ctx.phase_log[:-1])
-            if isinstance(w, str):
-                self._count(f"no_window:{w}")
-                pol.observe(ctx.r_nom, ctx.y)
-                return None
-            if w is not None:
-                pol.steerer.set_window(*w)
-                self._count("filled")
-            else:
-                # A clean aerial window: the real samples (a fitted window of an earlier tick may
-                # still sit in the ring buffer otherwise).
-                Ti = pol.steerer.t_ini
-                pol.steerer.set_window(ctx.u_log[-Ti:], ctx.y_log[-Ti - 1 : -1])
-        return self._decide(ctx, self._arc_horizon(ctx))
-
-    def _decide(self, ctx: TickContext, y_des: np.ndarray) -> np.ndarray:
-        out = self.policy.decide(ctx.y, ctx.r_nom, y_des)
-        if out.result is not None and np.isfinite(out.result.solve_time) and out.result.solve_time > 0:
-            self.solver_us.append(out.result.solve_time * 1e6)
-        return out.u
-
-    def _arc_horizon(self, ctx: TickContext) -> np.ndarray:
-        """(Tf, p) desired outputs with z continued on the current ballistic arc after touchdown."""
-        n = self.policy.t_f
-        yd = np.array(ctx.desired_ahead(n), dtype=float)
-        ph = np.asarray(ctx.phases_ahead(n))
-        g = self.g_eff
-        air = np.flatnonzero(ph != GROUND)
-        # The aerial samples before the first predicted ground sample define the arc.
-        first_ground = int(np.argmax(ph == GROUND)) if np.any(ph == GROUND) else n
-        if g is None or first_ground >= n:
-            if first_ground >= n and len(air) >= 2:
-                self._v_arc = (yd[1, 0] - yd[0, 0]) / ctx.dt + 0.5 * (g or 0.0) * ctx.dt
-            return yd
-        tau = ctx.dt * np.arange(n)
-        z0 = yd[0, 0]
-        if first_ground >= 2:
-            v = float(np.mean((yd[1:first_ground, 0] - z0 + 0.5 * g * tau[1:first_ground] ** 2) / tau[1:first_ground]))
-        elif self._v_arc is not None:
-            v = self._v_arc - g * ctx.dt
-        else:
-            v = 0.0
-        self._v_arc = v
-        yd[first_ground:, 0] = z0 + v * tau[first_ground:] - 0.5 * g * tau[first_ground:] ** 2
-        # Leg angles: held at the current aerial command (what the controller does in the air).
-        yd[first_ground:, 1:] = yd[0, 1:]
-        return yd
-
-
-# ----------------------------------------------------------------------------- runs
-@dataclass
-class RunResult:
-    """One simulated run: the SimResult, its summary metrics, and the steering statistics (or None)."""
-
-    sim: SimResult
-    metrics: dict
-    steering: dict | None = None
-    label: str = ""
-
-
-def scenario_metrics(res: SimResult) -> dict[str, Any]:
-    """The report's metrics of a run (SI units, radians).
-
-    Flying: rmse_z, rmse_pitch (after the settle time), plus rmse_x and mean_z_error.
-    Hopping (after the settle hops): apex_error_mean_abs = mean |apex - target| [m],
-    apex_error_mean_signed = mean (apex - target), rmse_pitch / rmse_roll / rmse_z over the aerial phase,
-    vx_error_mean_abs = mean |per-hop average vx - target| [m/s] (touchdown to touchdown).
-    """
-    m = res.metrics()
-    out: dict[str, Any] = {"crashed": bool(res.crashed), "duration": m["duration"]}
-    if res.scenario == "flying":
-        out.update(rmse_z=m["rmse_z"], rmse_pitch=m["rmse_pitch"], rmse_x=m.get("rmse_x", float("nan")),
-                   mean_z_error=m["mean_z_error"])
-        return out
-    settle = int(getattr(res.scenario_obj, "settle_hops", 0))
-    ap = np.asarray(m["apex_errors"][settle:], dtype=float)
-    td = res.touchdowns
-    vx = []
-    for a, b in zip(td[:-1], td[1:]):
-        ia, ib = int(np.searchsorted(res.t, a)), int(np.searchsorted(res.t, b))
-        if ib < res.n and ib > ia:
-            vx.append((res.state[ib, 0] - res.state[ia, 0]) / (res.t[ib] - res.t[ia]) - res.config.target_velocity[0])
-    vx = np.asarray(vx[settle:])
-    out.update(
-        apex_error_mean_abs=float(np.mean(np.abs(ap))) if ap.size else float("nan"),
-        apex_error_mean_signed=float(np.mean(ap)) if ap.size else float("nan"),
-        apex_error_max_abs=float(np.max(np.abs(ap))) if ap.size else float("nan"),
-        rmse_pitch=m["rmse_pitch_aerial"],
-        rmse_roll=m["rmse_roll_aerial"],
-        rmse_z=m["rmse_z_aerial"],
-        vx_error_mean_abs=float(np.mean(np.abs(vx))) if vx.size else float("nan"),
-        n_hops=int(m["n_hops_scored"]),
-    )
-    return out
-
-
-def _g_eff(res_params: PogoXParams) -> float:
-    sc = HoppingScenario()
-    return sc.controller_config(res_params).g_eff
-
-
-def run(
-    setup: SteeringSetup | None,
-    scenario: str | Scenario,
-    duration: float,
-    *,
-    steer: bool = True,
-    interpreted: bool | str = False,
-    params: PogoXParams | None = None,
-    noise: SensorNoise | bool | None = None,
-    pushes: Sequence[Push] | None = None,
-    seed: int = 0,
-    progress: bool = False,
-    label: str = "",
-) -> RunResult:
-    """Simulate one run of ``scenario`` (a name or a scenario object, e.g. another trajectory),
-    steered through ``setup`` or not.
-
-    Args:
-        steer: False = the baseline (the model-based controller alone).
-        interpreted: True / "fast" / "exact" / "osqp": solve in Python (SteeringProblem) instead of
-            the generated C solver (used anyway when the setup has none).
-    The simulator never gets an exception from the steering: solver failures are fallbacks
-    (counted by the steerer); a simulator error ends the run as crashed.
-    """
-    params = params or PogoXParams()
-    sim_scenario, scenario = scenario, scenario if isinstance(scenario, str) else scenario.name
-    hook = None
-    steerer = None
-    if steer:
-        if setup is None:
-            raise DataError("a steered run needs a SteeringSetup")
-        cfg = setup.config
-        if interpreted or setup.solver is None:
-            solver = InterpretedSolver(setup.problem, interpreted if isinstance(interpreted, str) else "fast")
-        else:
-            solver = setup.solver
-            solver.reset()
-        steerer = ReferenceSteerer.for_solver(solver)
-        window = None
-        if scenario == "hopping":
-            if setup.art is None:
-                raise DataError("a hopping setup needs its artificial-IO operator")
-            window = HoppingWindow(setup.art, cfg.t_ini, setup.art_spec.t_d_online, setup.art_spec.min_ascent,
-                                   setup.art_spec.noise_level_online)
-        hook = SteeringHook(steerer, scenario, window=window,
-                            g_eff=_g_eff(params) if scenario == "hopping" else None)
-    t0 = time.perf_counter()
-    res = simulate(sim_scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
-                   pushes=pushes, progress=progress)
-    wall = time.perf_counter() - t0
-    met = scenario_metrics(res)
-    met["wall_s"] = round(wall, 2)
-    st = None
-    if steerer is not None:
-        st = steerer.summary()
-        st["hook"] = dict(hook.counts)
-        st["solver_us"] = percentiles(hook.solver_us)
-        st["solver"] = "interpreted" if isinstance(steerer.solver, InterpretedSolver) else f"generated:{steerer.solver.backend}"
-        if hook.window is not None:
-            st["artificial_io"] = dict(hook.window.counts)
-    return RunResult(res, met, st, label)
-
-
-# ----------------------------------------------------------------------------- checks
-def prediction_check(setup: SteeringSetup, held_out: SimResult, *, stride: int = 5) -> dict[str, list[float]]:
-    """Multi-step prediction error of the setup's predictor on a held-out run (RMSE per output).
-
-    Windows are taken as in the loop (hopping: ground filled with artificial IO, horizons that
-    stay in the air). Returns {"rmse": [per output], "windows": n} against the measured outputs.
-    """
-    pr = setup.predictor
-    Ti, Tf = pr.t_ini, pr.t_f
-    u, y, ph = held_out.u, held_out.y, held_out.phase
-    win = HoppingWindow(setup.art, Ti, setup.art_spec.t_d_online, setup.art_spec.min_ascent,
-                        setup.art_spec.noise_level_online) if setup.art is not None else None
-    errs = []
-    for k in range(max(Ti, 200), held_out.n - Tf, stride):
-        if win is not None:
-            if np.any(ph[k : k + Tf] == GROUND):
-                continue
-            w = win.window(u[:k], y[:k], ph[:k])
-            if isinstance(w, str):
-                continue
-            ui, yi = w if w is not None else (u[k - Ti : k], y[k - Ti : k])
-        else:
-            ui, yi = u[k - Ti : k], y[k - Ti : k]
-        yp, _ = pr.predict(ui, yi, u[k : k + Tf])
-        errs.append(yp - y[k : k + Tf])
-    e = np.asarray(errs)
-    return {"rmse": np.sqrt(np.mean(e**2, axis=(0, 1))).tolist() if e.size else [], "windows": int(len(errs))}

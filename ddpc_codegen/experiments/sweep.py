@@ -43,7 +43,8 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.errors import ConfigError, ManifestError
-from ddpc_codegen.experiments.pipeline import SteeringSetup, build_setup, collect, run
+from ddpc_codegen.experiments.pipeline import SteeringSetup, build_setup, collect
+from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.sweep_spec import METRICS, Point, SweepSpec
 
 __all__ = ["SweepContext", "evaluate_point", "run_sweep", "read_results", "columns", "TIMING_COLUMNS"]

@@ -75,7 +75,7 @@ class Condition:
     pushes: tuple[tuple[float, ...], ...] = ()
 
     def run_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :func:`~ddpc_codegen.experiments.pipeline.run`."""
+        """Keyword arguments of :func:`~ddpc_codegen.experiments.evaluate.run`."""
         pushes = [Push(p[0], tuple(p[1:4]), *([p[4]] if len(p) > 4 else []), *([tuple(p[5:8])] if len(p) > 5 else []))
                   for p in self.pushes]
         return {"params": PogoXParams(controller_mass_error=self.mass_error), "noise": self.noise or None,

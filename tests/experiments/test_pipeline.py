@@ -9,7 +9,8 @@ import pytest
 
 from ddpc_codegen.cli.main import build_parser
 from ddpc_codegen.experiments.demo import format_robustness, format_table, summary_block
-from ddpc_codegen.experiments.pipeline import CollectSpec, InterpretedSolver, SteeringHook, build_setup, collect, run
+from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect
+from ddpc_codegen.experiments.evaluate import InterpretedSolver, SteeringHook, run
 from ddpc_codegen.sim import simulate
 
 pytestmark = [pytest.mark.compiler, pytest.mark.slow]

@@ -82,7 +82,7 @@ def test_pareto_mask():
 @pytest.mark.parametrize("scenario, duration", [("flying", 3.5), ("hopping", 1.5)])
 def test_table_metrics_are_the_runs_metrics(scenario, duration):
     """The table's metric names are scenario_metrics' (a rename there must show up here)."""
-    from ddpc_codegen.experiments.pipeline import run
+    from ddpc_codegen.experiments.evaluate import run
     from ddpc_codegen.experiments.sweep_spec import METRICS
 
     res = run(None, scenario, duration, steer=False)
