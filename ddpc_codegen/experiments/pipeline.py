@@ -26,9 +26,9 @@ Predictor choice (measured; numbers in ``configs/*.toml`` and the report):
 * Training data are recorded without sensor noise (the paper's motion capture is far more precise
   than the simulator's pessimistic default noise). On such data the SPC least-squares predictor
   (``lsq``) is exact to 1e-5 m over 15 steps, but its gains on y_ini reach ~1e4 and the loop goes
-  unstable as soon as the measurements are noisy; a ridge of 1e-2 brings the gain to ~3 at
-  0.9 mm (clean) / 1.6 mm (noisy) 15-step error. The paper's ``pem`` at slack_weight = 1 is
-  biased (3 mm over 15 steps on the same data).
+  unstable as soon as the measurements are noisy; a small relative ridge (``configs/*.toml``
+  document the measured choice) keeps the gains bounded. The paper's ``pem`` at slack_weight = 1
+  is biased (3 mm over 15 steps on the same data).
 * Recording *with* noise instead regularises the fit by itself but biases it (errors in
   variables): on hopping the 25-step height prediction is pulled ~20 mm toward the training
   hops' height. So: clean data, ``lsq`` with a ridge.
