@@ -1,7 +1,7 @@
 """The companion-computer tick loop: telemetry in, steering + height / leg-angle controller,
 SET_ATTITUDE_TARGET out, at 200 Hz (``ddpc-bridge``).
 
-One tick (event-driven: it runs as soon as every telemetry stream has a new sample)::
+One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
 
     newest telemetry (NED/FRD -> ENU/FLU -> trajectory frame) -> MeasuredState (t = trajectory time)
     r_nom = controller.nominal_reference(state)             stage (a)
@@ -11,23 +11,22 @@ One tick (event-driven: it runs as soon as every telemetry stream has a new samp
     sp    = controller.track(u, state)                      stage (b): quaternion + thrust
     clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
 
-Timing. The loop sleeps in ``select`` on the link, drains *everything* pending and folds it
-into the newest state. A tick fires when both streams (attitude, position) have advanced; in
-real time a timer also fires 1.25 periods after the last setpoint if telemetry is late (then
-every period while it stays away): with
-fresh telemetry it repeats the last setpoint ("hold", so a late sample never corrupts the
-steering history), with telemetry older than ``max_age`` it applies the stale action. So the
-setpoint stream continues while the vehicle is silent -- for ``stale_stream_limit`` seconds,
-after which the bridge goes quiet and lets the autopilot's own off-board-loss failsafe
-(PX4 COM_OF_LOSS_T) take over with its own estimator. Latency (logged per event tick) is from
-the kernel receive time of the telemetry message that completed the state to the return of
-the send call. In ``lockstep`` (with ``ddpc-vehicle --lockstep``) only telemetry drives ticks and
-the controller's time is the vehicle's time stamp.
+Timing. Real time: the bridge ticks on its own uniform grid at ``rate_hz`` (:mod:`.clock`);
+between ticks it sleeps in ``select`` on the link and folds *every* pending message into the
+telemetry state (each sample is also kept in the log: a burst of two is two samples). A tick uses
+the newest sample of each stream, held, with its age (receive -> now); a late or missing sample
+is just an older held sample -- it neither resets the steering history nor splits a dataset.
+Telemetry older than ``max_age`` applies the stale action; the setpoint stream continues while
+the vehicle is silent -- for ``stale_stream_limit`` seconds, after which the bridge goes quiet and
+lets the autopilot's own off-board-loss failsafe (PX4 COM_OF_LOSS_T) take over. Latency (per
+tick) is from the kernel receive time of the newest telemetry sample to the return of the send
+call. In ``lockstep`` (with ``ddpc-vehicle --lockstep``) only telemetry drives ticks and the
+controller's time is the vehicle's time stamp (a lost sample there is a ``gap``, bridged in the
+history for up to ``max_gap_fill`` ticks).
 
 Safety:
 * Steering only while the vehicle reports armed and off-board / guided, its heartbeat is
-  recent and telemetry is fresh; the steering history is reset whenever that chain breaks
-  (or a telemetry sample is lost), so the solver never sees a window with a hole.
+  recent and telemetry is fresh; the steering history is reset whenever that chain breaks.
 * Solver failure, NaN, out-of-bounds or too large a step -> the unsteered reference for that
   tick (ReferenceSteerer), counted per reason.
 * Attitude (roll, pitch) and thrust clamped to configured limits before sending.
@@ -60,6 +59,7 @@ from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
+from firmware_bridge.clock import TickClock
 from firmware_bridge.link import CommandTracker, MavLink, mavlink
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
@@ -79,7 +79,6 @@ _MSG_IDS = {
 _TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
               | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
               | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
-_R = {r: i for i, r in enumerate(REASONS)}
 
 
 class NoVehicleError(RuntimeError):
@@ -351,8 +350,10 @@ class Bridge:
         self._link_lost = False
         self._t_offset = math.inf          # receive time - vehicle time stamp (clock sync estimate) [s]
         self._last_seq = (0, 0)            # telemetry sample counts used by the last event tick
+        self.clock = TickClock(self.period)  # real time: the uniform tick grid
+        self._seen_total = 0               # telemetry samples (both streams) up to the last tick
+        self._tick_t = math.nan            # trajectory clock of the last tick (grid time / stamp) [s]
         self._last_send = -math.inf
-        self._last_was_event = True
         self._last_msg = None              # last SET_ATTITUDE_TARGET (repeated by hold ticks)
         self._stream_since = math.inf      # start of the current uninterrupted setpoint stream [s]
         self._stream_since_stamp = math.nan
@@ -468,6 +469,8 @@ class Bridge:
                 kind = self._tick_kind(now)
                 if kind:
                     self._tick(kind, now)
+                    if kind == "grid":
+                        self.clock.advance(time.monotonic())
                 # ---- housekeeping, after the tick (never delays a setpoint)
                 now = time.monotonic()
                 if now >= next_hb:
@@ -513,27 +516,21 @@ class Bridge:
             for msg, rx in self.link.drain():
                 self._on_message(msg, rx)
 
-    def _deadline(self) -> float:
-        """When a timer tick is due: 1.25 periods after an event tick (late telemetry gets a
-        chance), then every period while telemetry stays away (a steady 200 Hz stream)."""
-        return self._last_send + (1.25 if self._last_was_event else 1.0) * self.period
-
     def _wake_in(self, now: float) -> float:
-        if self.cfg.lockstep or not math.isfinite(self._last_send):
+        if self.cfg.lockstep or not self.clock.started:
             return 0.05
-        return min(0.05, self._deadline() - now)
+        return self.clock.wait_time(now)
 
     def _tick_kind(self, now: float) -> str:
+        """"event" (lock-step: every stream advanced), "grid" (real time: the clock's deadline), or ""."""
         t = self.telem
         if not t.has_data:
             return ""
-        if t.att.seq > self._last_seq[0] and t.pos.seq > self._last_seq[1]:
-            if self.cfg.lockstep or now - self._last_send >= 0.5 * self.period:
-                return "event"
-            return ""
-        if not self.cfg.lockstep and math.isfinite(self._last_send) and now >= self._deadline():
-            return "timer"
-        return ""
+        if self.cfg.lockstep:
+            return "event" if t.att.seq > self._last_seq[0] and t.pos.seq > self._last_seq[1] else ""
+        if not self.clock.started:
+            self.clock.start(now)  # the grid starts with the first complete telemetry
+        return "grid" if self.clock.due(now) else ""
 
     def _vehicle_now(self, now: float) -> float:
         """Vehicle time [s] now: the newest stamp in lockstep, else the clock estimate."""
@@ -543,170 +540,156 @@ class Bridge:
 
     # ------------------------------------------------------------------ one tick
     def _tick(self, kind: str, now: float) -> None:
+        """One control tick: newest telemetry (held, with its age) -> reference -> setpoint -> log."""
         c = self.cfg
         tel = self.telem
         event = kind == "event"
-        self._last_was_event = event
         if c.lockstep:
-            age = tel.newest_stamp() - tel.oldest_stamp()
+            age, tclk = tel.newest_stamp() - tel.oldest_stamp(), tel.newest_stamp()
         else:
-            age = now - tel.oldest_rx()
+            age, tclk = now - tel.oldest_rx(), self.clock.time()  # grid time: uniform, no jitter
         fresh = age <= c.max_age
         hb_ok = now - self.last_hb <= c.link_timeout
         engaged = self.armed and self.offboard and hb_ok
-        stamp = tel.newest_stamp() if event else self._vehicle_now(now)
-        # ---- staleness bookkeeping and the stream limit
-        if fresh:
-            if self._stale_since is not None:
-                self._event(f"telemetry fresh again after {now - self._stale_since:.3f} s")
-            self._stale_since = None
-        else:
-            if self._stale_since is None:
-                self._stale_since = now
-                self._event(f"telemetry stale (age {age * 1e3:.1f} ms > {c.max_age * 1e3:.0f} ms): fallback "
-                            f"'{c.stale_action}'")
-            if c.stale_stream_limit > 0 and now - self._stale_since > c.stale_stream_limit:
-                if event:
-                    self._last_seq = (tel.att.seq, tel.pos.seq)
-                self._last_send = now  # quiet: the autopilot's own failsafe takes over
-                return
-        if not event and fresh:
-            # Late telemetry, still fresh: repeat the last setpoint (zero-order hold), leave the history alone.
-            self._hold_tick(now, age, engaged, stamp)
+        n_new = max(tel.seq_total - self._seen_total, 0)
+        self._seen_total = tel.seq_total
+        if not self._check_staleness(now, age, fresh, event):
             return
-        gap = False
-        fill = 0  # lost ticks to bridge in the steering history
-        if event:
-            self._last_seq = (tel.att.seq, tel.pos.seq)
-            step = stamp - self._last_stamp
-            if math.isfinite(step) and abs(step - self.period) > 0.4 * self.period:
-                gap = True
-                self.counts["telemetry_gaps"] += 1
-                r = step / self.period
-                n = int(round(r)) - 1
-                if 1 <= n <= c.max_gap_fill and abs(r - round(r)) < 0.4:
-                    fill = n  # a few samples lost: bridge them (below, once this tick's y is known)
-                elif self.steerer is not None:
-                    self.policy.reset()  # a long hole, or time went backwards: refill before steering again
-            self._last_stamp = stamp
-        # ---- engagement and the trajectory clock
-        if engaged and not self._engaged:
-            self._traj_t0 = stamp
-            self._n_activations += 1
-            self._was_engaged_ever = True
-            if self.steerer is not None:
-                self.steerer.reset()
-            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {c.mode}; {self.frame.describe()}")
-        elif not engaged and self._engaged:
-            self._traj_t0 = None
-            self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
-        self._engaged = engaged
-        t_traj = stamp - self._traj_t0 if self._traj_t0 is not None else 0.0
+        gap, fill = self._lockstep_gap(tclk) if event else (False, 0)
+        self._update_engagement(engaged, tclk)
+        self._tick_t = tclk
+        t_traj = tclk - self._traj_t0 if self._traj_t0 is not None else 0.0
         if not engaged and fresh:
             self.frame.capture(tel.position, float(tel.euler[2]))  # frozen from the engagement on
         state = self.frame.to_trajectory(tel.measured_state(t_traj))
-        ctrl = self.ctrl
-        r_nom = ctrl.nominal_reference(state)
-        y = ctrl.outputs(state)
-        u = r_nom
-        exc = None
-        u_st = None
-        solve_us = math.nan
-        if not hb_ok:
-            reason = "no_heartbeat"
-        elif not engaged:
-            reason = "inactive"
-        elif not fresh:
-            reason = "stale"
-            if self.steerer is not None:
-                self.steerer.reset()
-        elif c.mode == "steer":
-            self.policy.lost(fill, y)
-            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
-            u = out.u
-            reason = out.reason
-            solve_us = out.solve_us
-            if out.steered:
-                u_st = u
-        elif c.mode == "collect":
-            exc = self._excitation()
-            u = r_nom + exc
-            reason = "collect"
-        else:
-            reason = "passthrough"
-        # ---- stage (b) and the stale action
+        ref = self._reference(state, t_traj, hb_ok, engaged, fresh, fill)
         if not fresh and c.stale_action != "reference":
             q, thrust, field = self._level_setpoint()
             if c.stale_action == "land":
                 self._request_land()
         else:
-            sp = ctrl.track(u, state)
-            q, thrust, _ = self._clamp(sp)
-            field = self.profile.thrust_field(thrust, float(u[0]), float(state.position[2]))
-        stamp_ms = int(round(stamp * 1000.0)) if math.isfinite(stamp) else 0
-        sent = self._send_setpoint(q, field, stamp_ms)
+            q, thrust, _ = self._clamp(self.ctrl.track(ref["u"], state))
+            field = self.profile.thrust_field(thrust, float(ref["u"][0]), float(state.position[2]))
+        t_vehicle = tel.newest_stamp() if event else self._vehicle_now(now)
+        sent = self._send_setpoint(q, field, int(round(t_vehicle * 1000.0)) if math.isfinite(t_vehicle) else 0)
         t_sent = time.monotonic()
-        latency = (t_sent - tel.newest_rx()) * 1e6 if event else math.nan
-        # ---- log
+        self._record(ref, state, now=now, t_sent=t_sent, t_vehicle=t_vehicle,
+                     t_traj=t_traj if self._traj_t0 is not None else math.nan, age=age, q=q, thrust=thrust,
+                     field=field, event=event or n_new > 0, engaged=engaged, fresh=fresh, sent=sent, gap=gap,
+                     n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6)
+
+    def _check_staleness(self, now: float, age: float, fresh: bool, event: bool) -> bool:
+        """Staleness bookkeeping; False when the stream limit says to go quiet (no setpoint)."""
+        c = self.cfg
+        if fresh:
+            if self._stale_since is not None:
+                self._event(f"telemetry fresh again after {now - self._stale_since:.3f} s")
+            self._stale_since = None
+            return True
+        if self._stale_since is None:
+            self._stale_since = now
+            self._event(f"telemetry stale (age {age * 1e3:.1f} ms > {c.max_age * 1e3:.0f} ms): fallback "
+                        f"'{c.stale_action}'")
+        if c.stale_stream_limit > 0 and now - self._stale_since > c.stale_stream_limit:
+            if event:
+                self._last_seq = (self.telem.att.seq, self.telem.pos.seq)
+            self._last_send = now  # quiet: the autopilot's own failsafe takes over
+            return False
+        return True
+
+    def _lockstep_gap(self, stamp: float) -> tuple[bool, int]:
+        """Lock-step only (stamps are the tick clock there): (gap, ticks to bridge in the history)."""
+        tel = self.telem
+        self._last_seq = (tel.att.seq, tel.pos.seq)
+        step = stamp - self._last_stamp
+        self._last_stamp = stamp
+        if not (math.isfinite(step) and abs(step - self.period) > 0.4 * self.period):
+            return False, 0
+        self.counts["telemetry_gaps"] += 1
+        r = step / self.period
+        n = int(round(r)) - 1
+        if 1 <= n <= self.cfg.max_gap_fill and abs(r - round(r)) < 0.4:
+            return True, n  # a few samples lost: bridged once this tick's y is known
+        if self.steerer is not None:
+            self.policy.reset()  # a long hole, or time went backwards: refill before steering again
+        return True, 0
+
+    def _update_engagement(self, engaged: bool, tclk: float) -> None:
+        if engaged and not self._engaged:
+            self._traj_t0 = tclk
+            self._n_activations += 1
+            self._was_engaged_ever = True
+            if self.steerer is not None:
+                self.steerer.reset()
+            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {self.cfg.mode}; "
+                        f"{self.frame.describe()}")
+        elif not engaged and self._engaged:
+            self._traj_t0 = None
+            self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
+        self._engaged = engaged
+
+    def _reference(self, state, t_traj: float, hb_ok: bool, engaged: bool, fresh: bool, fill: int) -> dict:
+        """Stage (a) and the mode's reference: steered / passthrough / collect, or why not."""
+        ctrl = self.ctrl
+        r_nom = ctrl.nominal_reference(state)
+        y = ctrl.outputs(state)
+        ref = {"r_nom": r_nom, "y": y, "u": r_nom, "u_st": None, "exc": None, "solve_us": math.nan}
+        if not hb_ok:
+            ref["reason"] = "no_heartbeat"
+        elif not engaged:
+            ref["reason"] = "inactive"
+        elif not fresh:
+            ref["reason"] = "stale"
+            if self.steerer is not None:
+                self.steerer.reset()
+        elif self.cfg.mode == "steer":
+            self.policy.lost(fill, y)
+            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
+            ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None)
+        elif self.cfg.mode == "collect":
+            ref["exc"] = self._excitation()
+            ref.update(u=r_nom + ref["exc"], reason="collect")
+        else:
+            ref["reason"] = "passthrough"
+        return ref
+
+    def _record(self, ref: dict, state, *, now: float, t_sent: float, t_vehicle: float, t_traj: float, age: float,
+                q, thrust: float, field: float, event: bool, engaged: bool, fresh: bool, sent: bool, gap: bool,
+                n_new: int, latency: float) -> None:
+        """One row of the tick log (see :mod:`.ticklog` for the fields)."""
         i = self.rec.new_row()
         A = self.rec.arrays
         A["t_wall"][i] = now - self.t0
-        A["t_vehicle"][i] = stamp
-        A["t_traj"][i] = t_traj if self._traj_t0 is not None else math.nan
+        A["t_vehicle"][i] = t_vehicle
+        A["t_traj"][i] = t_traj
         A["age_ms"][i] = age * 1e3
         A["position"][i] = state.position
         A["velocity"][i] = state.velocity
         A["euler"][i] = state.euler
         A["rates"][i] = state.body_rates
-        A["y"][i] = y
-        A["y_des"][i] = ctrl.y_des
-        A["r_nom"][i] = r_nom
-        A["u"][i] = u
-        if u_st is not None:
-            A["u_steered"][i] = u_st
-        A["excitation"][i] = exc if exc is not None else 0.0
+        A["y"][i] = ref["y"]
+        A["y_des"][i] = self.ctrl.y_des
+        A["r_nom"][i] = ref["r_nom"]
+        A["u"][i] = ref["u"]
+        if ref["u_st"] is not None:
+            A["u_steered"][i] = ref["u_st"]
+        A["excitation"][i] = ref["exc"] if ref["exc"] is not None else 0.0
         A["sp_q"][i] = q
         A["sp_thrust"][i] = thrust
         A["sp_field"][i] = field
-        A["reason"][i] = reason_code(reason)
-        A["solve_us"][i] = solve_us
+        A["reason"][i] = reason_code(ref["reason"])
+        A["solve_us"][i] = ref["solve_us"]
         A["latency_us"][i] = latency
         A["compute_us"][i] = (t_sent - now) * 1e6
         A["event"][i] = event
+        A["new_samples"][i] = min(n_new, 127)
         A["armed"][i] = self.armed
         A["offboard"][i] = self.offboard
         A["active"][i] = engaged and fresh
         A["fresh"][i] = fresh
         A["sent"][i] = sent
-        A["valid"][i] = event and engaged and fresh
+        A["valid"][i] = event and engaged and fresh if self.cfg.lockstep else engaged and fresh
         A["gap"][i] = gap
-
-    def _hold_tick(self, now: float, age: float, engaged: bool, stamp: float) -> None:
-        """Repeat the last setpoint verbatim (no controller call: its filters see one call per sample)."""
-        msg = self._last_msg
-        sent = False
-        if msg is not None:
-            sent = self.link.send(msg)
-            self._last_send = time.monotonic()
-            if sent:
-                self._send_times.append(self._last_send)
-                self._send_stamps.append(self._vehicle_now(self._last_send))
-                self._stream_mark(self._last_send)
-        i = self.rec.new_row()
-        A = self.rec.arrays
-        prev = i - 1
-        A["t_wall"][i] = now - self.t0
-        A["t_vehicle"][i] = stamp
-        A["t_traj"][i] = A["t_traj"][prev] if prev >= 0 else math.nan
-        A["age_ms"][i] = age * 1e3
-        for k in ("position", "velocity", "euler", "rates", "y", "y_des", "r_nom", "u", "sp_q", "sp_thrust",
-                  "sp_field"):
-            if prev >= 0:
-                A[k][i] = A[k][prev]
-        A["excitation"][i] = 0.0
-        A["reason"][i] = _R["hold"]
-        A["armed"][i], A["offboard"][i], A["fresh"][i], A["sent"][i] = self.armed, self.offboard, True, sent
-        A["active"][i] = engaged
 
     def _excitation(self) -> np.ndarray:
         from ddpc_codegen.design.data import prbs
@@ -791,7 +774,7 @@ class Bridge:
                         f"{streamed:.2f} s of setpoints (--offboard)")
             self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
         if c.duration is not None and self._engaged and self._traj_t0 is not None:
-            if self.telem.newest_stamp() - self._traj_t0 >= c.duration - 1e-9:
+            if self._tick_t - self._traj_t0 >= c.duration - 1e-9:
                 self.stop_reason = f"duration {c.duration:g} s flown"
                 self._stop = True
         if c.timeout is not None and now - self.t0 > c.timeout:
@@ -844,8 +827,11 @@ class Bridge:
                 "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
                                                            "config_hash": self.solver.manifest.get("config_hash"),
                                                            "predictor_hash": self.solver.manifest.get("predictor_hash")}}
+        samples = {name: np.array(s.history, dtype=float).reshape(-1, 2) - np.array([0.0, self.t0])
+                   for name, s in (("attitude", self.telem.att), ("position", self.telem.pos))}
         return self.rec.to_log(dt=self.period, input_names=self.ctrl.input_names, output_names=self.ctrl.output_names,
-                               input_units=self.ctrl.input_units, output_units=self.ctrl.output_units, metadata=meta)
+                               input_units=self.ctrl.input_units, output_units=self.ctrl.output_units, metadata=meta,
+                               samples=samples)
 
     def summary(self) -> dict:
         c = self.cfg
@@ -867,6 +853,7 @@ class Bridge:
             "missed_ticks": gaps["missed_ticks"], "max_gap_ms": gaps["max_gap_ms"],
             "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
             "event_ticks": int(v["event"].sum()) if n else 0, "activations": self._n_activations,
+            "grid_skipped": self.clock.skipped, "telemetry": self._telemetry_summary(),
             "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
             "rmse_samples": int(ez.size), **self.counts,
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
@@ -877,6 +864,20 @@ class Bridge:
             out["steering"] = self.steerer.summary()
             if isinstance(self.solver, FaultInjectingSolver):
                 out["steering"]["injected_failures"] = self.solver.injected
+        return out
+
+    def _telemetry_summary(self) -> dict:
+        """Per stream: samples received (every one is kept in the log), distinct stamps per second,
+        the most common stamp steps [ms: count] -- what the autopilot really delivers."""
+        out = {}
+        for name, s in (("attitude", self.telem.att), ("position", self.telem.pos)):
+            h = np.array(s.history, dtype=float).reshape(-1, 2)
+            st = np.unique(h[:, 0])
+            span = st[-1] - st[0] if st.size > 1 else 0.0
+            steps, cnt = np.unique(np.round(np.diff(h[:, 0]) * 1e3).astype(int), return_counts=True)
+            top = sorted(zip(cnt.tolist(), steps.tolist()), reverse=True)[:4]
+            out[name] = {"samples": int(h.shape[0]), "distinct_per_s": float((st.size - 1) / span) if span > 0 else None,
+                         "step_ms": {str(k): c for c, k in top}}
         return out
 
     def _finish(self) -> None:

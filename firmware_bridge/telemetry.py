@@ -92,6 +92,8 @@ class Sample:
     stamp: float = math.nan
     rx: float = -math.inf
     seq: int = 0
+    # Every sample's (stamp, rx), kept across reboots: a burst of two is two rows, none is dropped.
+    history: list[tuple[float, float]] = field(default_factory=list)
 
 
 @dataclass
@@ -161,6 +163,12 @@ class TelemetryState:
     @staticmethod
     def _tick(s: Sample, stamp: float, rx: float) -> None:
         s.stamp, s.rx, s.seq = stamp, rx, s.seq + 1
+        s.history.append((stamp, rx))
+
+    @property
+    def seq_total(self) -> int:
+        """Samples received on both streams so far (grows by 2 for a burst of two)."""
+        return self.att.seq + self.pos.seq
 
     def newest_stamp(self) -> float:
         """Sender time of the newest sample [s] (nan before any)."""
@@ -182,8 +190,8 @@ class TelemetryState:
                              euler=self.euler.copy(), body_rates=self.rates.copy(), contact=False)
 
     def reset(self) -> None:
-        """Forget everything (vehicle reboot: its clock restarted)."""
-        self.att, self.pos = Sample(), Sample()
+        """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""
+        self.att, self.pos = Sample(history=self.att.history), Sample(history=self.pos.history)
 
 
 def _rotate(q, v) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Any
 
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.codegen import BACKENDS, generate
@@ -29,6 +29,10 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
     if not path:
         raise ConfigError(f"{config.source}: no dataset: give --dataset or set [data] dataset in the config")
     ds = IODataset.load(path)
+    if ds.metadata.get("fit_ok") is False:
+        # A bridge tick log without closed-loop data (firmware_bridge.ticklog): fitting on it
+        # would splice gaps, stale stretches and mode changes into one trajectory.
+        raise DataError(f"{path} is marked unfit for fitting: {ds.metadata.get('unfit_reason', 'no reason given')}")
     if (ds.m, ds.p) != (config.m, config.p):
         raise ConfigError(
             f"{config.source}: the config has {config.m} inputs {list(config.input_names)} and {config.p} outputs "

@@ -90,5 +90,24 @@ def test_a_log_without_closed_loop_data_still_saves_and_says_so(tmp_path):
     log = _log(["inactive"] * 20)
     path = log.save(tmp_path / "idle.npz")
     ds = IODataset.load(path)
-    assert ds.metadata["closed_loop"] is False
+    assert ds.metadata["closed_loop"] is False and ds.metadata["fit_ok"] is False
+    assert "no closed-loop segment of >= 50 ticks" in ds.metadata["unfit_reason"]
     assert load_ticklog(path).n == 20
+
+
+def test_codegen_refuses_a_log_marked_unfit(tmp_path):
+    from ddpc_codegen.cli.codegen import build_from_config
+    from ddpc_codegen.errors import DataError
+
+    path = _log(["inactive"] * 20).save(tmp_path / "idle.npz")
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml")
+    with pytest.raises(DataError, match=r"idle.npz is marked unfit for fitting: the tick log has no closed-loop"):
+        build_from_config(cfg, path)
+
+
+def test_samples_are_saved_and_reloaded(tmp_path):
+    log = _log(["collect"] * 60)
+    log.samples = {"attitude": np.array([[0.004, 1.0], [0.008, 1.0001]]), "position": np.zeros((0, 2))}
+    back = load_ticklog(log.save(tmp_path / "s.npz"))
+    np.testing.assert_array_equal(back.samples["attitude"], log.samples["attitude"])
+    assert back.samples["position"].shape == (0, 2)
