@@ -39,6 +39,7 @@ Safety:
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import json
 import math
@@ -61,13 +62,16 @@ from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
 from firmware_bridge.clock import TickClock
 from firmware_bridge.link import CommandTracker, MavLink, mavlink
+from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
+from firmware_bridge.preflight import (PreflightError, VehicleInfo, check_autopilot, decode_param_value,
+                                       hover_param, params_to_read, resolve_guid_options)
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, swap_frames
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
 
-__all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
-           "gap_statistics"]
+__all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
+           "default_controller_config", "gap_statistics"]
 
 _MSG_IDS = {
     "ATTITUDE": mavlink.MAVLINK_MSG_ID_ATTITUDE,
@@ -85,6 +89,10 @@ class NoVehicleError(RuntimeError):
     """No heartbeat from the target vehicle within the wait time."""
 
 
+class FlightError(RuntimeError):
+    """A flight phase could not be completed (e.g. the vehicle refused arming until the timeout)."""
+
+
 def default_controller_config() -> ControllerConfig:
     """The flying controller of the shipped ``pogox`` profile (what ``ddpc-vehicle`` flies)."""
     return load_profile("pogox").controller
@@ -98,7 +106,9 @@ class BridgeConfig:
         url, baud: MAVLink connection (see :func:`firmware_bridge.link.parse_url`).
         mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS).
         solver: folder of a generated solver (``ddpc-codegen codegen``), steer mode.
-        autopilot: "px4" or "ardupilot"; guid_options: ArduPilot GUID_OPTIONS (None: read it).
+        autopilot: "px4" or "ardupilot" (checked against the vehicle's heartbeat before anything is sent).
+        guid_options: ArduPilot GUID_OPTIONS expected (None: the vehicle's value, read before engaging);
+            force_guid_options: encode for ``guid_options`` even if the vehicle disagrees.
         sysid, compid: our identity; target_system / target_component: the vehicle (0: first seen).
         rate_hz: control rate (must match the solver's dt and the controller's dt).
         attitude_stream / position_stream: telemetry messages to request.
@@ -114,8 +124,17 @@ class BridgeConfig:
         max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
             history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
             instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
-        arm, offboard: explicitly allowed actions: arm the vehicle; switch it to OFFBOARD /
-            GUIDED after ``prestream`` seconds of setpoints (and HOLD at exit / LAND if stale).
+        arm, offboard: explicitly allowed actions: arm the vehicle (once both telemetry streams
+            arrive; retried every 2 s while refused, each refusal reported, :class:`FlightError`
+            after ``arm_timeout`` s); switch it to OFFBOARD / GUIDED after ``prestream`` seconds of
+            setpoints (and HOLD at exit / LAND if stale).
+        takeoff: at the first engagement, ramp the height reference at ``climb_rate`` [m/s] from
+            where the vehicle is to the trajectory's start height, then start the trajectory.
+        land: at exit hand the vehicle back with LAND (and wait up to 60 s for it to disarm)
+            instead of HOLD.
+        blend_rates: bumpless (re-)engagement: the applied references start at the measured
+            outputs and approach the nominal ones at most this fast per channel ((m/s, rad/s) for
+            flying); None: no blending.
         duration: stop after this long in off-board [s] (None: until signalled).
         timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
         lockstep: tick only on telemetry, controller time = vehicle time stamps.
@@ -141,6 +160,7 @@ class BridgeConfig:
     solver: str | None = None
     autopilot: str = "px4"
     guid_options: int | None = None
+    force_guid_options: bool = False
     sysid: int = 1
     compid: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
     target_system: int = 1
@@ -159,6 +179,11 @@ class BridgeConfig:
     max_gap_fill: int = 3
     arm: bool = False
     offboard: bool = False
+    arm_timeout: float = 120.0
+    takeoff: bool = False
+    climb_rate: float = 0.5
+    land: bool = False
+    blend_rates: tuple | None = (0.5, 0.5)
     prestream: float = 1.0
     duration: float | None = None
     timeout: float | None = None
@@ -268,11 +293,8 @@ class Bridge:
         self.ctrl = HeightLegAngleController(self.ctrl_cfg, c.trajectory)
         self.m, self.p = self.ctrl.m, self.ctrl.p
         self.hover_thrust = self.ctrl_cfg.model_mass * self.ctrl_cfg.g / self.ctrl_cfg.max_thrust
-        kw = {"prestream": c.prestream}
-        if c.autopilot == "ardupilot" and c.guid_options is not None:
-            kw["guid_options"] = int(c.guid_options)
-        self.profile: Profile = make_profile(c.autopilot, **kw)
-        self._guid_known = c.autopilot != "ardupilot" or c.guid_options is not None
+        self.profile: Profile = make_profile(c.autopilot, prestream=c.prestream)
+        self.vehicle: VehicleInfo | None = None  # known after the preflight (before the first tick)
         self.steerer: ReferenceSteerer | None = None
         self.solver = None
         if c.mode == "steer":
@@ -345,6 +367,8 @@ class Bridge:
         self.armed = False
         self.offboard = False
         self.mode_name = "?"
+        self.hb_autopilot: int | None = None
+        self.hb_type = 0
         self.last_hb = -math.inf
         self.hb_seen = False
         self._link_lost = False
@@ -365,8 +389,12 @@ class Bridge:
         self._n_activations = 0
         self._offboard_attempts = 0
         self._next_offboard_try = 0.0
-        self._arm_attempts = 0
-        self._next_arm_try = 0.0
+        self.arming = ArmingRetry(timeout=self.cfg.arm_timeout)
+        self.approach: Approach | None = None
+        self.blend = RefBlend(tuple(self.cfg.blend_rates or ()))
+        self._flown = False                # the trajectory has started once: frame and clock are fixed
+        self.failure: str | None = None
+        self._last_text = ""
         self._was_engaged_ever = False
         self._stale_mode_sent = False
         self._k_exc = 0
@@ -394,7 +422,9 @@ class Bridge:
         elif typ == "HEARTBEAT":
             vm = self.profile.decode(msg.base_mode, msg.custom_mode)
             if not self.hb_seen:
-                self._event(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, {vm.name}, armed={vm.armed}")
+                self.hb_autopilot, self.hb_type = int(msg.autopilot), int(msg.type)
+                self._event(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, autopilot {msg.autopilot}, "
+                            f"{vm.name}, armed={vm.armed}")
             elif rx - self.last_hb > self.cfg.link_timeout:
                 self._event("vehicle heartbeat back: link restored, re-requesting streams")
                 self._request_streams()
@@ -405,21 +435,20 @@ class Bridge:
             self.armed, self.offboard, self.mode_name = vm.armed, vm.offboard, vm.name
         elif typ == "COMMAND_ACK":
             pc = self.tracker.on_ack(msg)
-            if pc is not None and (self.cfg.verbose or not pc.accepted):
+            if pc is not None and pc.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and not pc.accepted:
+                self._event(self.arming.refused(mavlink.enums["MAV_RESULT"][pc.result].name, self._last_text))
+            elif pc is not None and (self.cfg.verbose or not pc.accepted):
                 self._event(f"{pc.label}: {mavlink.enums['MAV_RESULT'][pc.result].name}")
         elif typ == "PARAM_VALUE":
             name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
             name = name.rstrip("\x00")
-            self.params[name] = float(msg.param_value)
-            if name == "GUID_OPTIONS" and isinstance(self.profile, ArduPilotProfile) and not self._guid_known:
-                self.profile.guid_options = int(msg.param_value)
-                self._guid_known = True
-                self._event(f"GUID_OPTIONS={int(msg.param_value)}: thrust field is a "
-                            + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
+            self.params[name] = decode_param_value(msg.param_value, msg.param_type, self.hb_autopilot or 0)
             if name == "COM_OF_LOSS_T":
                 self.profile.offboard_loss_timeout = float(msg.param_value)
-        elif typ == "STATUSTEXT" and self.cfg.verbose:
-            self._event(f"vehicle says: {msg.text}")
+        elif typ == "STATUSTEXT":
+            self._last_text = str(msg.text).rstrip("\x00")  # the autopilot's reason for a refusal
+            if self.cfg.verbose:
+                self._event(f"vehicle says: {msg.text}")
 
     def _request_streams(self) -> None:
         us = int(round(1e6 / self.cfg.rate_hz))
@@ -427,10 +456,40 @@ class Bridge:
             self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(_MSG_IDS[name]), float(us)),
                                 f"SET_MESSAGE_INTERVAL {name} {self.cfg.rate_hz:g} Hz")
         self.counts["stream_requests"] += 1
-        if isinstance(self.profile, ArduPilotProfile) and not self._guid_known:
-            self._request_param("GUID_OPTIONS")
-        elif self.profile.name == "px4":
-            self._request_param("COM_OF_LOSS_T")
+
+    def _preflight(self, timeout: float = 3.0) -> None:
+        """Before the first tick: the heartbeat's autopilot, the parameters, the thrust semantics.
+
+        Raises:
+            PreflightError: wrong autopilot, or a required parameter / a consistent GUID_OPTIONS missing.
+        """
+        c = self.cfg
+        check_autopilot(self.hb_autopilot, self.profile)
+        wanted = params_to_read(self.profile)
+        t_end = time.monotonic() + timeout
+        next_ask = 0.0
+        while not self._stop and time.monotonic() < t_end and any(n not in self.params for n in wanted):
+            if time.monotonic() >= next_ask:
+                next_ask = time.monotonic() + 0.5
+                for n in wanted:
+                    if n not in self.params:
+                        self._request_param(n)
+            self.link.wait(0.05)
+            for msg, rx in self.link.drain():
+                self._on_message(msg, rx)
+        missing = [n for n, req in wanted.items() if n not in self.params and not req]
+        if missing:
+            self._event(f"parameters not answered within {timeout:g} s: {', '.join(missing)} (not needed)")
+        hover = self.params.get(hover_param(self.profile))
+        self.vehicle = VehicleInfo(self.hb_autopilot, self.hb_type, dict(self.params), hover)
+        if isinstance(self.profile, ArduPilotProfile):
+            opt = resolve_guid_options(self.params.get("GUID_OPTIONS"), c.guid_options, c.force_guid_options)
+            self.profile.guid_options = opt
+            self._event(f"GUID_OPTIONS={opt}: thrust field is a "
+                        + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
+        self._event(f"vehicle: {self.profile.name}, hover thrust {hover_param(self.profile)}="
+                    + ("?" if hover is None else f"{hover:.3f}")
+                    + f", controller model hover thrust {self.hover_thrust:.3f}")
 
     def _request_param(self, name: str) -> None:
         self.link.send(self.link.mav.param_request_read_encode(self.link.target_system or 0,
@@ -452,6 +511,7 @@ class Bridge:
         gc_was = gc.isenabled()
         try:
             self._wait_for_vehicle()
+            self._preflight()
             self._request_streams()
             gc.collect()
             gc.freeze()  # keep the collector's full passes off the tick path (objects made so far are immortal)
@@ -491,12 +551,17 @@ class Bridge:
         except NoVehicleError:
             self.stop_reason = "no vehicle"
             raise
+        except PreflightError as e:
+            self.stop_reason = f"preflight: {e}"
+            raise
         finally:
             self._rt.release()
             if gc_was:
                 gc.enable()
             gc.unfreeze()
             self._finish()
+        if self.failure:
+            raise FlightError(self.failure)
         return self.summary()
 
     def _wait_for_vehicle(self) -> None:
@@ -556,13 +621,18 @@ class Bridge:
         if not self._check_staleness(now, age, fresh, event):
             return
         gap, fill = self._lockstep_gap(tclk) if event else (False, 0)
-        self._update_engagement(engaged, tclk)
+        if fresh and not self._flown:
+            # Before the trajectory first starts, the frame follows the vehicle (frozen from then
+            # on: no re-anchoring mid-air) and heights count from where it stood disarmed.
+            self.frame.capture(tel.position, float(tel.euler[2]))
+            if not self.armed:
+                self.frame.z0 = float(tel.position[2])
+        state = self.frame.to_trajectory(tel.measured_state(0.0))
+        self._update_engagement(engaged and self.frame.captured, tclk, state)
         self._tick_t = tclk
         t_traj = tclk - self._traj_t0 if self._traj_t0 is not None else 0.0
-        if not engaged and fresh:
-            self.frame.capture(tel.position, float(tel.euler[2]))  # frozen from the engagement on
-        state = self.frame.to_trajectory(tel.measured_state(t_traj))
-        ref = self._reference(state, t_traj, hb_ok, engaged, fresh, fill)
+        state = dataclasses.replace(state, t=t_traj)
+        ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
         if not fresh and c.stale_action != "reference":
             q, thrust, field = self._level_setpoint()
             if c.stale_action == "land":
@@ -575,7 +645,8 @@ class Bridge:
         t_sent = time.monotonic()
         self._record(ref, state, now=now, t_sent=t_sent, t_vehicle=t_vehicle,
                      t_traj=t_traj if self._traj_t0 is not None else math.nan, age=age, q=q, thrust=thrust,
-                     field=field, event=event or n_new > 0, engaged=engaged, fresh=fresh, sent=sent, gap=gap,
+                     field=field, event=event or n_new > 0, engaged=engaged and ref["reason"] not in ("takeoff", "blend"),
+                     fresh=fresh, sent=sent, gap=gap,
                      n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6)
 
     def _check_staleness(self, now: float, age: float, fresh: bool, event: bool) -> bool:
@@ -614,26 +685,53 @@ class Bridge:
             self.policy.reset()  # a long hole, or time went backwards: refill before steering again
         return True, 0
 
-    def _update_engagement(self, engaged: bool, tclk: float) -> None:
+    def _update_engagement(self, engaged: bool, tclk: float, state) -> None:
+        """Engagement edges. The first one starts the trajectory (or the take-off ramp); later ones
+        continue the same trajectory, clock and frame. Each starts a bumpless blend."""
+        c = self.cfg
         if engaged and not self._engaged:
-            self._traj_t0 = tclk
             self._n_activations += 1
             self._was_engaged_ever = True
             if self.steerer is not None:
-                self.steerer.reset()
-            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {self.cfg.mode}; "
-                        f"{self.frame.describe()}")
+                self.policy.reset()
+            if c.blend_rates:
+                self.blend.start(self.ctrl.outputs(state))
+            if not self._flown:
+                self._flown = True
+                self._traj_t0 = tclk
+                if c.takeoff:
+                    self.approach = Approach(self.ctrl.trajectory.start_point()[1], climb_rate=c.climb_rate)
+                    self.approach.start(float(state.position[2]))
+                self._event(f"engaged ({self.mode_name}, armed): "
+                            + (f"take-off to z = {self.approach.target:.2f} m at {c.climb_rate:g} m/s, then "
+                               if self.approach else "")
+                            + f"trajectory starts, {c.mode}; {self.frame.describe()}")
+            else:
+                self._event(f"re-engaged ({self.mode_name}): trajectory continues at t = "
+                            f"{tclk - self._traj_t0:.3f} s, same frame")
         elif not engaged and self._engaged:
-            self._traj_t0 = None
             self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
         self._engaged = engaged
+        if engaged and self.approach is not None:
+            self._traj_t0 = tclk  # the trajectory clock waits at its start until the vehicle is there
 
     def _reference(self, state, t_traj: float, hb_ok: bool, engaged: bool, fresh: bool, fill: int) -> dict:
         """Stage (a) and the mode's reference: steered / passthrough / collect, or why not."""
         ctrl = self.ctrl
         r_nom = ctrl.nominal_reference(state)
         y = ctrl.outputs(state)
+        if engaged and fresh and self.approach is not None:
+            r_nom[0] = self.approach.step(self._tick_t, self.period, float(y[0]))
+        blending = engaged and self.blend.active
+        if blending:
+            r_nom = self.blend.apply(r_nom, self.period)
         ref = {"r_nom": r_nom, "y": y, "u": r_nom, "u_st": None, "exc": None, "solve_us": math.nan}
+        if engaged and fresh and self.approach is not None:
+            ref["reason"] = "takeoff"
+            if self.approach.done:
+                self.approach = None
+                self._event("at the trajectory's start height: trajectory starts")
+            return ref
         if not hb_ok:
             ref["reason"] = "no_heartbeat"
         elif not engaged:
@@ -642,6 +740,12 @@ class Bridge:
             ref["reason"] = "stale"
             if self.steerer is not None:
                 self.steerer.reset()
+        elif blending:
+            # The hand-over is the controller's alone: the solver would pull the reference back to the
+            # trajectory faster than the blend allows. The history fills meanwhile (no extra warm-up).
+            ref["reason"] = "blend"
+            if self.steerer is not None:
+                self.policy.observe(r_nom, y)
         elif self.cfg.mode == "steer":
             self.policy.lost(fill, y)
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
@@ -754,17 +858,12 @@ class Bridge:
         c = self.cfg
         if not self.hb_seen:
             return
-        if c.arm and not self.armed and now >= self._next_arm_try and self._arm_attempts < 3 \
-                and not self.tracker.queues.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM):
-            self._arm_attempts += 1
-            self._next_arm_try = now + 2.0
-            self._event("arming (--arm)")
-            self.tracker.submit(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "ARM")
+        self._supervise_arming(now)
         streaming = math.isfinite(self._stream_since) and now - self._prev_stream_t < 0.1
         # Lockstep: "1 s of setpoints" in vehicle time (wall time runs much faster or slower there).
         streamed = (self.telem.newest_stamp() - self._stream_since_stamp) if c.lockstep else now - self._stream_since
         if (c.offboard and not self.offboard and not self._was_engaged_ever and streaming
-                and streamed >= self.profile.prestream and (self.armed or not c.arm)
+                and streamed >= self.profile.prestream and (self.armed or not c.arm or not self.profile.arm_first)
                 and now >= self._next_offboard_try and self._offboard_attempts < 5
                 and not self.tracker.queues.get(mavlink.MAV_CMD_DO_SET_MODE)):
             self._offboard_attempts += 1
@@ -787,6 +886,24 @@ class Bridge:
         elif now - self.last_hb <= c.link_timeout:
             self._link_lost = False
 
+    def _supervise_arming(self, now: float) -> None:
+        """--arm: once both telemetry streams arrive (and, for ArduPilot, in the guided mode), arm;
+        retry while refused; give up with :class:`FlightError` after ``arm_timeout``."""
+        c = self.cfg
+        if not c.arm or self.armed or self._was_engaged_ever:
+            return
+        if self.arming.gave_up(now):
+            self.failure = self.arming.failure()
+            self.stop_reason = "arming failed"
+            self._stop = True
+            return
+        ready = (self.telem.has_data and (self.profile.arm_first or self.offboard)
+                 and not self.tracker.queues.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM))
+        if self.arming.due(now, ready):
+            self.arming.sent(now)
+            self._event(f"arming (--arm), attempt {self.arming.attempts}")
+            self.tracker.submit(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "ARM")
+
     def _request_land(self) -> None:
         if self.cfg.offboard and not self._stale_mode_sent:
             self._stale_mode_sent = True
@@ -799,12 +916,13 @@ class Bridge:
         c = self.cfg
         if not (c.offboard and self.offboard and self.armed):
             return
-        params = self.profile.hold_command()
+        params = self.profile.land_command() if c.land else self.profile.hold_command()
         self._event(f"exit: requesting {self.profile.mode_command_name(params)}")
         pc = self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
-        t_end = time.monotonic() + 1.5
+        t_end = time.monotonic() + (60.0 if c.land else 1.5)
         self._stop = False
-        while time.monotonic() < t_end and not pc.done:
+        # LAND: until the vehicle has landed and disarmed itself; HOLD: until acknowledged.
+        while time.monotonic() < t_end and not ((not self.armed) if c.land else pc.done):
             now = time.monotonic()
             self.link.wait(max(0.0, min(0.05, self._last_send + self.period - now)))
             for msg, rx in self.link.drain():
@@ -814,6 +932,8 @@ class Bridge:
                 self.link.send(self._last_msg)
                 self._last_send = now
             self.tracker.poll(now)
+        if c.land:
+            self._event("landed and disarmed" if not self.armed else "LAND: still armed after 60 s")
         self._stop = True
 
     # ------------------------------------------------------------------ results
@@ -854,6 +974,8 @@ class Bridge:
             "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
             "event_ticks": int(v["event"].sum()) if n else 0, "activations": self._n_activations,
             "grid_skipped": self.clock.skipped, "telemetry": self._telemetry_summary(),
+            "arming": {"attempts": self.arming.attempts, "refusals": self.arming.refusals[-5:]},
+            "vehicle": None if self.vehicle is None else asdict(self.vehicle),
             "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
             "rmse_samples": int(ez.size), **self.counts,
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},

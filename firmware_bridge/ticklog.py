@@ -52,6 +52,8 @@ REASONS = (
     "step_too_large", # 10 |u - u_nom| above the guard
     "exception",      # 11 the solver raised
     "no_heartbeat",   # 12 link lost (no vehicle heartbeat)
+    "takeoff",        # 13 take-off / approach to the trajectory start (--takeoff): not steered, not data
+    "blend",          # 14 bumpless hand-over after (re-)engagement: reference rate-limited, history filling
 )
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",

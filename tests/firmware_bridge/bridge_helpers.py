@@ -106,6 +106,9 @@ class FakeVehicle(threading.Thread):
         self.stop_flag = threading.Event()
         self.k = 0
         self.pattern = pattern
+        self.armed = True
+        self.arm_refusals = 0  # refuse this many ARM commands (TEMPORARILY_REJECTED) before accepting; -1: always
+        self.commands: list[int] = []  # COMMAND_LONG ids received
         self.sent = {"attitude": 0, "position": 0}
 
     def run(self) -> None:
@@ -130,17 +133,30 @@ class FakeVehicle(threading.Thread):
                     self.setpoints.append((rx, msg))
                     self.first_setpoint.set()
                 elif msg.get_type() == "COMMAND_LONG":
-                    self.link.send(mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_ACCEPTED))
+                    self.commands.append(msg.command)
+                    self.link.send(mav.command_ack_encode(msg.command, self._answer(msg)))
             if self.heartbeat and now >= hb_next:
                 hb_next = now + 0.5
                 self.link.send_heartbeat(mavlink.MAV_TYPE_QUADROTOR, 12,
-                                         MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED,
+                                         MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                                         | (MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0),
                                          px4_custom_mode(6), mavlink.MAV_STATE_ACTIVE)
             if self.telemetry:
                 self._send_telemetry(mav, q_level)
             for f in list(self.extra):
                 f(self)
             self.k += 1
+
+    def _answer(self, msg) -> int:
+        """MAV_RESULT for a command: ARM is refused ``arm_refusals`` times, everything else accepted."""
+        from firmware_bridge.link import mavlink
+
+        if msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and msg.param1 == 1.0:
+            if self.arm_refusals != 0:
+                self.arm_refusals -= 1 if self.arm_refusals > 0 else 0
+                return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+            self.armed = True
+        return mavlink.MAV_RESULT_ACCEPTED
 
     def _send_telemetry(self, mav, q_level) -> None:
         """This 5 ms tick's samples per ``pattern`` (stamps in ms of vehicle time)."""

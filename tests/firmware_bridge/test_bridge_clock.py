@@ -64,13 +64,17 @@ def test_irregular_telemetry_steers_on_the_grid_and_keeps_every_sample(tmp_path,
     # every sample the vehicle sent is in the log (a burst is two samples, not one)
     assert {k: v["samples"] for k, v in s["telemetry"].items()} == sent
     assert log.samples["attitude"].shape == (sent["attitude"], 2)
-    # setpoints on the bridge's grid: 200 Hz within 0.5 %, nothing missed on this machine's scale
-    assert s["rate_hz"] == pytest.approx(200.0, rel=0.005)
-    assert np.median(np.diff(t["t_wall"])) == pytest.approx(0.005, abs=2e-4)
+    # setpoints on the bridge's grid: ticks at multiples of 5 ms; a tick the machine could not run
+    # in time is skipped and counted, never fired late in a burst (a loaded 2-core CI box skips some)
+    grid = (t["t_wall"] - t["t_wall"][0]) / 0.005
+    assert np.median(np.abs(grid - np.round(grid))) < 0.2
+    assert s["ticks"] + s["grid_skipped"] == pytest.approx(np.round(grid[-1]) + 1, abs=2)
+    assert s["rate_hz"] == pytest.approx(200.0, rel=0.05)
     # steering engaged once and its history was never reset by a late or missing sample
     t_ini = read_json(flying_solver / "manifest.json")["dims"]["t_ini"]
-    assert s["activations"] == 1 and s["steering"]["warmup"] == t_ini
-    assert (t["reason"] == R["warmup"]).sum() == t_ini
+    n_blend = int((t["reason"] == R["blend"]).sum())  # hand-over ticks fill the history too
+    assert s["activations"] == 1 and s["steering"]["warmup"] + n_blend == t_ini
+    assert (t["reason"] == R["warmup"]).sum() + n_blend == t_ini
     # the dataset is the grid: one trajectory, all engaged ticks after the warm-up
     assert len(log.segments()) == 1
     assert np.all(t["age_ms"][t["active"]] < 50.0)
