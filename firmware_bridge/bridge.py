@@ -24,6 +24,13 @@ call. In ``lockstep`` (with ``ddpc-vehicle --lockstep``) only telemetry drives t
 controller's time is the vehicle's time stamp (a lost sample there is a ``gap``, bridged in the
 history for up to ``max_gap_fill`` ticks).
 
+Before the first tick (:mod:`.preflight`): the heartbeat's autopilot must match ``autopilot`` (no
+mode command otherwise), parameters are read (hover thrust, GUID_OPTIONS: the thrust semantics),
+the trajectory must lie inside the solver's bounds. Flight phases (:mod:`.phases`): arming once
+telemetry arrives, retried while refused; optional take-off ramp to the trajectory start (heights
+from the take-off point); bumpless (re-)engagement; the trajectory's clock and frame are fixed at
+its first start -- a stall never restarts or re-anchors it.
+
 Safety:
 * Steering only while the vehicle reports armed and off-board / guided, its heartbeat is
   recent and telemetry is fresh; the steering history is reset whenever that chain breaks.
@@ -58,13 +65,13 @@ from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.robot.frames import quat_from_euler
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.runtime.policy import SteeringPolicy
-from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
 from firmware_bridge.clock import TickClock
 from firmware_bridge.link import CommandTracker, MavLink, mavlink
 from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
-from firmware_bridge.preflight import (PreflightError, VehicleInfo, check_autopilot, decode_param_value,
-                                       hover_param, params_to_read, resolve_guid_options)
+from firmware_bridge.preflight import (PreflightError, VehicleInfo, check_autopilot, check_trajectory_bounds,
+                                       decode_param_value, hover_param, params_to_read, resolve_guid_options)
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, swap_frames
@@ -346,6 +353,10 @@ class Bridge:
         self.steerer = ReferenceSteerer.for_solver(
             solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
         self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill)
+        traj = self.ctrl.trajectory
+        t = np.linspace(0.0, traj.t_start + 5 * traj.spin_up + traj.period, 2000)
+        lo, hi = solver_input_bounds(solver)
+        check_trajectory_bounds(traj.sample(t)["z"], float(lo[0]), float(hi[0]))
         self.t_f = d["t_f"]
         self._ahead = self.period * np.arange(self.t_f)
 

@@ -171,3 +171,18 @@ def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path):
     both = act[1:] & act[:-1]
     assert np.max(np.abs(np.diff(t["u"][:, 0]))[both]) < 0.5 * 0.005 + 0.19 * 0.005 * 2
     assert (t["reason"] == REASONS.index("blend")).sum() > 0
+
+
+def test_a_trajectory_outside_the_solver_bounds_is_refused_at_start(flying_solver):
+    from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.robot.trajectory import EllipseTrajectory
+    from firmware_bridge.bridge import Bridge, BridgeConfig
+    from firmware_bridge.preflight import check_trajectory_bounds
+
+    check_trajectory_bounds(np.array([0.9, 1.5]), 0.0, 3.0)
+    high = EllipseTrajectory(center=(0.0, 3.8), radii=(1.0, 0.3))
+    cfg = BridgeConfig(mode="steer", solver=str(flying_solver), controller=load_profile("pogox").controller,
+                       trajectory=high, url=f"udpin:127.0.0.1:{free_port()}")
+    with pytest.raises(ValueError, match=r"the trajectory spans z = 3.500 .. 4.100 m but the solver's z_ref bounds "
+                                         r"are \[0, 3\] m: steering could never engage"):
+        Bridge(cfg)
