@@ -3,10 +3,13 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+# Solver library sources that generated folders copy in (DAQP's sdist from PyPI, MIT): fetched once
+# into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
+LIBS_STAMP := $(VENV)/.solver-sources
 
 .PHONY: install test lint demo codegen bench bridge-demo sitl-demo clean
 
-install: $(STAMP)
+install: $(STAMP) $(LIBS_STAMP)
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,6 +17,10 @@ $(STAMP): pyproject.toml
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev]'
 	@touch $(STAMP)
 	@echo "installed ddpc-codegen into $(VENV)"
+
+$(LIBS_STAMP): ddpc_codegen/codegen/libs.py | $(STAMP)
+	@$(PY) -c "from ddpc_codegen.codegen.libs import main; raise SystemExit(main(['fetch']))"
+	@touch $(LIBS_STAMP)
 
 # Lint first (seconds), then every test tier (markers: e2e, realtime, compiler, sitl, slow; select
 # one with `$(PY) -m pytest -m compiler`).

@@ -56,7 +56,7 @@ import time
 import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
-from ddpc_codegen.robot.frames import quat_from_euler
+from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
@@ -70,7 +70,7 @@ from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.report import Reporting, gap_statistics
 from firmware_bridge.supervisor import Supervisor
-from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, swap_frames
+from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.ticklog import TickRecorder
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
@@ -405,7 +405,7 @@ class Bridge(Supervisor, Reporting):
 
     def _level_setpoint(self) -> tuple[tuple, float, float]:
         """Level attitude at the trajectory frame's heading and hover thrust / zero climb rate."""
-        q = swap_frames(*self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
+        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
         thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
         return q, thrust, self.profile.hover_field(thrust)
 
@@ -426,7 +426,7 @@ class Bridge(Supervisor, Reporting):
         if thrust < lo or thrust > hi:
             self.counts["thrust_clamped"] += 1
             thrust = min(max(thrust, lo), hi)
-        return swap_frames(*self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
+        return quat_ned_frd_from_enu_flu(self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
 
     def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
         lk = self.link

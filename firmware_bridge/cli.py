@@ -59,6 +59,22 @@ def _cpus(s: str) -> tuple[int, ...]:
     return cpus
 
 
+def _push(s: str) -> tuple:
+    """T:FX,FY,FZ[:DUR] -> (t, (fx, fy, fz), duration)."""
+    bad = argparse.ArgumentTypeError(f"expected T:FX,FY,FZ[:DUR] (s, N, s; DUR > 0), got {s!r}")
+    parts = s.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise ValueError
+        t, dur = float(parts[0]), float(parts[2]) if len(parts) == 3 else 0.1
+        force = tuple(float(v) for v in parts[1].split(","))
+    except ValueError:
+        raise bad from None
+    if len(force) != 3 or not all(math.isfinite(v) for v in (*force, t, dur)) or dur <= 0:
+        raise bad
+    return (t, force, dur)
+
+
 def _qos(v: int) -> int | None:
     return None if v < 0 else v
 
@@ -212,7 +228,7 @@ def format_summary(s: dict) -> str:
     if "steering" in s:
         st = s["steering"]
         lines.append(f"  steering: steered {st['steered']} warmup {st['warmup']} fallbacks {st['fallbacks']}  "
-                     f"solve us median {f(st['solve_us']['median'], '{:.1f}')} p99 {f(st['solve_us']['p99'], '{:.1f}')}")
+                     f"solve us median {f(st['solve_us']['p50'], '{:.1f}')} p99 {f(st['solve_us']['p99'], '{:.1f}')}")
     return "\n".join(lines)
 
 
@@ -276,6 +292,15 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
                    help="send nothing during this simulated-time window (repeatable)")
     p.add_argument("--truth-log", default=None, help="write the true state per tick to this .npz")
     p.add_argument("--summary", default=None, help="write the summary JSON here")
+    p.add_argument("--telemetry-pattern", choices=("regular", "px4-sih", "ardupilot"), default="regular",
+                   help="which telemetry samples exist: regular (one per 5 ms tick, stamped with its time); "
+                        "px4-sih (PX4 SITL/SIH defaults: stamps step 4/8/12/16 ms, ~118 distinct samples/s, "
+                        "whole ms); ardupilot (ArduCopter SITL: ~171 samples/s, every ~6th missing, and "
+                        "TCP-like bursts of two samples arriving < 0.5 ms apart)")
+    p.add_argument("--telemetry-seed", type=int, default=0, help="seed of the telemetry pattern")
+    p.add_argument("--push", type=_push, action="append", default=[], metavar="T:FX,FY,FZ[:DUR]",
+                   help="push the robot with force (FX, FY, FZ) [N, world ENU] from plant time T [s] for DUR "
+                        "[s] (default 0.1; repeatable)")
     _add_realtime_args(p, "the vehicle")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -294,7 +319,8 @@ def vehicle_main(argv: list[str] | None = None) -> int:
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
                             rt_priority=a.rt_priority, cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
-                            verbose=a.verbose)
+                            verbose=a.verbose, telemetry_pattern=a.telemetry_pattern,
+                            telemetry_seed=a.telemetry_seed, pushes=list(a.push))
         veh = SimVehicle(cfg)
     except (ValueError, OSError) as e:
         print(f"ddpc-vehicle: error: {e}", file=sys.stderr)

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpc_codegen.stats import percentiles
 from firmware_bridge.realtime import kernel_preemption
 
 __all__ = ["main", "run_demo", "free_udp_port", "truth_rmse"]
@@ -233,8 +234,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     link = {k: truth_rmse(runs[k]["ticks"], runs[k]["truth"]) for k in ("baseline", "steered")}
     report = {
         "rate_hz": sent / dur if dur > 0 else None,
-        "latency_us": {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
-                       "max": float(lat.max())},
+        "latency_us": percentiles(lat),
         "missed_ticks": int(missed),
         "fallbacks": int(runs["steered"]["summary"]["fallbacks"]),
         "rmse_z": {"baseline": link["baseline"]["rmse_z"], "steered": link["steered"]["rmse_z"]},

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpc_codegen.stats import percentiles
+
 from firmware_bridge.config import FaultInjectingSolver
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, _json_default, reason_code
 
@@ -28,14 +30,6 @@ def gap_statistics(send_times: np.ndarray, period: float) -> dict:
     return {"missed_ticks": int(miss.sum()), "max_gap_ms": float(g.max() * 1e3),
             "rate_hz": float((t.size - 1) / dur) if dur > 0 else math.nan, "duration_s": dur}
 
-
-def _pct(a: np.ndarray) -> dict:
-    a = np.asarray(a, dtype=float)
-    a = a[np.isfinite(a)]
-    if a.size == 0:
-        return {"p50": None, "p99": None, "max": None, "n": 0}
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
-            "n": int(a.size)}
 
 
 class Reporting:
@@ -112,7 +106,7 @@ class Reporting:
         out = {
             "mode": c.mode, "autopilot": self.profile.name, "stop_reason": self.stop_reason, "ticks": n,
             "setpoints_sent": len(self._send_times), "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
-            "latency_us": _pct(v["latency_us"]) if n else _pct(np.zeros(0)),
+            "latency_us": percentiles(v["latency_us"]) if n else percentiles(()),
             "missed_ticks": gaps["missed_ticks"], "max_gap_ms": gaps["max_gap_ms"],
             "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
             "event_ticks": int(v["event"].sum()) if n else 0, "activations": self._n_activations,

@@ -4,11 +4,11 @@ MAVLink (PX4 and ArduPilot alike) speaks NED / FRD: LOCAL_POSITION_NED (x north,
 z down), ATTITUDE (Z-Y-X Euler of body FRD w.r.t. NED), ATTITUDE_QUATERNION and ODOMETRY
 (quaternion w, x, y, z rotating NED into FRD, i.e. body FRD -> world NED), body rates FRD.
 The companion controller (:mod:`ddpc_codegen.robot.controller`) is z-up: world ENU, body FLU. The
-conversions here are the MAVROS ones and agree with :func:`ddpc_codegen.robot.controller.enu_flu_to_ned_frd`::
+conversions are :mod:`ddpc_codegen.robot.frames`' scalar path (the MAVROS convention)::
 
-    p_ENU = (p_N..E swapped) = (y_ned, x_ned, -z_ned)        (same for velocities)
-    roll_FLU = roll_FRD, pitch_ENU = -pitch_NED, yaw_ENU = pi/2 - yaw_NED
-    w_FLU = (p, -q, -r) of w_FRD
+    p_ENU = (y_ned, x_ned, -z_ned)                            enu_from_ned (same for velocities)
+    roll_FLU = roll_FRD, pitch_ENU = -pitch_NED, yaw_ENU = pi/2 - yaw_NED     euler_enu_from_ned
+    w_FLU = (p, -q, -r) of w_FRD                              rates_flu_from_frd
 
 :class:`TelemetryState` keeps the newest sample of each stream (attitude, position) with its
 sender time stamp and its receive time, so that a tick always uses the newest telemetry and
@@ -23,62 +23,30 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ddpc_codegen.robot.controller import MeasuredState
-from ddpc_codegen.robot.frames import euler_from_quat, quat_from_euler, quat_multiply
+from ddpc_codegen.robot.frames import (
+    enu_from_ned,
+    euler_enu_from_ned,
+    euler_from_quat,
+    quat_enu_flu_from_ned_frd,
+    quat_from_euler,
+    quat_multiply,
+    rates_flu_from_frd,
+    rotate,
+    wrap_pi,
+)
 
 __all__ = [
-    "swap_frames",
-    "ned_to_enu",
-    "frd_to_flu",
-    "euler_ned_to_enu",
-    "euler_enu_to_ned",
-    "wrap_pi",
     "Sample",
     "TelemetryState",
+    "TrajectoryFrame",
     "STREAMS",
 ]
-
-_HALF_PI = 0.5 * math.pi
 
 # Stream choices: which MAVLink message feeds the attitude part and the position part of the state.
 STREAMS = {
     "attitude": ("ATTITUDE", "ATTITUDE_QUATERNION", "ODOMETRY"),
     "position": ("LOCAL_POSITION_NED", "ODOMETRY"),
 }
-
-
-def wrap_pi(a: float) -> float:
-    """Angle wrapped to (-pi, pi]."""
-    return math.atan2(math.sin(a), math.cos(a))
-
-
-_S = math.sqrt(0.5)
-
-
-def swap_frames(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float]:
-    """Attitude quaternion body FLU -> world ENU to body FRD -> world NED, or back (the map is an
-    involution): closed form of q_(ENU->NED) * q * q_(FRD->FLU), as
-    :func:`ddpc_codegen.robot.controller.enu_flu_to_ned_frd` computes it, without numpy (tick path)."""
-    return (-_S * (w + z), -_S * (x + y), _S * (y - x), _S * (z - w))
-
-
-def ned_to_enu(x: float, y: float, z: float) -> tuple[float, float, float]:
-    """A NED vector as ENU (the map is its own inverse)."""
-    return (y, x, -z)
-
-
-def frd_to_flu(p: float, q: float, r: float) -> tuple[float, float, float]:
-    """Body rates FRD -> FLU (its own inverse)."""
-    return (p, -q, -r)
-
-
-def euler_ned_to_enu(roll: float, pitch: float, yaw: float) -> tuple[float, float, float]:
-    """Z-Y-X Euler angles of FRD w.r.t. NED -> of FLU w.r.t. ENU [rad]."""
-    return (roll, -pitch, wrap_pi(_HALF_PI - yaw))
-
-
-def euler_enu_to_ned(roll: float, pitch: float, yaw: float) -> tuple[float, float, float]:
-    """Inverse of :func:`euler_ned_to_enu`."""
-    return (roll, -pitch, wrap_pi(_HALF_PI - yaw))
 
 
 @dataclass
@@ -132,31 +100,31 @@ class TelemetryState:
             return False
         if typ == "ODOMETRY":
             stamp = msg.time_usec * 1e-6
-            e = euler_from_quat(swap_frames(*msg.q))
+            e = euler_from_quat(quat_enu_flu_from_ned_frd(msg.q))
             vel = (msg.vx, msg.vy, msg.vz)
             if msg.child_frame_id == 12:  # MAV_FRAME_BODY_FRD: velocity in the body frame (PX4 >= 1.14)
-                vel = tuple(_rotate(msg.q, vel))
+                vel = rotate(msg.q, vel)
             if self.attitude_msg == "ODOMETRY":
                 self.euler[:] = e
-                self.rates[:] = frd_to_flu(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+                self.rates[:] = rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))
                 self._tick(self.att, stamp, rx)
             if self.position_msg == "ODOMETRY":
-                self.position[:] = ned_to_enu(msg.x, msg.y, msg.z)
-                self.velocity[:] = ned_to_enu(*vel)
+                self.position[:] = enu_from_ned((msg.x, msg.y, msg.z))
+                self.velocity[:] = enu_from_ned(vel)
                 self._tick(self.pos, stamp, rx)
             return True
         stamp = msg.time_boot_ms * 1e-3
         if typ == "LOCAL_POSITION_NED":
-            self.position[:] = ned_to_enu(msg.x, msg.y, msg.z)
-            self.velocity[:] = ned_to_enu(msg.vx, msg.vy, msg.vz)
+            self.position[:] = enu_from_ned((msg.x, msg.y, msg.z))
+            self.velocity[:] = enu_from_ned((msg.vx, msg.vy, msg.vz))
             self._tick(self.pos, stamp, rx)
         elif typ == "ATTITUDE":
-            self.euler[:] = euler_ned_to_enu(msg.roll, msg.pitch, msg.yaw)
-            self.rates[:] = frd_to_flu(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            self.euler[:] = euler_enu_from_ned((msg.roll, msg.pitch, msg.yaw))
+            self.rates[:] = rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))
             self._tick(self.att, stamp, rx)
         else:  # ATTITUDE_QUATERNION
-            self.euler[:] = euler_from_quat(swap_frames(msg.q1, msg.q2, msg.q3, msg.q4))
-            self.rates[:] = frd_to_flu(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            self.euler[:] = euler_from_quat(quat_enu_flu_from_ned_frd((msg.q1, msg.q2, msg.q3, msg.q4)))
+            self.rates[:] = rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))
             self._tick(self.att, stamp, rx)
         return True
 
@@ -192,16 +160,6 @@ class TelemetryState:
     def reset(self) -> None:
         """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""
         self.att, self.pos = Sample(history=self.att.history), Sample(history=self.pos.history)
-
-
-def _rotate(q, v) -> np.ndarray:
-    """Rotate vector v by the unit quaternion q (w, x, y, z): R(q) v."""
-    w, x, y, z = q
-    vx, vy, vz = v
-    # v' = v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z)
-    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
-    dx, dy, dz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
-    return np.array([vx + 2 * (w * cx + dx), vy + 2 * (w * cy + dy), vz + 2 * (w * cz + dz)])
 
 
 class TrajectoryFrame:

@@ -2,6 +2,10 @@
 
     ddpc-codegen codegen configs/flying.toml
     ddpc-codegen codegen configs/flying.toml --dataset data/flight1.npz --backend osqp --out generated
+    ddpc-codegen codegen cfg.toml --dataset log.npz --map-channels z=pos_z,pitch=att_pitch
+
+Every config is loaded and checked before any fit; the dataset must match the config's channel
+names and order, units and dt (or be mapped explicitly with --map-channels).
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from typing import Any
 
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.match import conform_dataset, parse_channel_map
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
@@ -23,23 +28,24 @@ __all__ = ["register", "build_from_config"]
 
 
 def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
-                      log=lambda msg: None) -> SteeringProblem:
-    """Config + dataset file -> SteeringProblem (predictor fitted with the config's [predictor] options)."""
+                      log=lambda msg: None, channel_map: dict[str, str] | None = None) -> SteeringProblem:
+    """Config + dataset file -> SteeringProblem (predictor fitted with the config's [predictor] options).
+
+    The dataset is checked against the config first (names, order, units, dt; see
+    :func:`~ddpc_codegen.design.match.conform_dataset`); ``channel_map`` maps config channel names to
+    dataset channel names where they differ on purpose.
+    """
     path = dataset or config.dataset
     if not path:
         raise ConfigError(f"{config.source}: no dataset: give --dataset or set [data] dataset in the config")
-    ds = IODataset.load(path)
-    if ds.metadata.get("fit_ok") is False:
+    raw = IODataset.load(path)
+    if raw.metadata.get("fit_ok") is False:
         # A bridge tick log without closed-loop data (firmware_bridge.ticklog): fitting on it
         # would splice gaps, stale stretches and mode changes into one trajectory.
-        raise DataError(f"{path} is marked unfit for fitting: {ds.metadata.get('unfit_reason', 'no reason given')}")
-    if (ds.m, ds.p) != (config.m, config.p):
-        raise ConfigError(
-            f"{config.source}: the config has {config.m} inputs {list(config.input_names)} and {config.p} outputs "
-            f"{list(config.output_names)}, but {path} has m={ds.m} {list(ds.input_names)}, p={ds.p} {list(ds.output_names)}"
-        )
-    if config.input_names and ds.input_names != config.input_names:
-        log(f"  note: dataset inputs {list(ds.input_names)} are used as config inputs {list(config.input_names)}")
+        raise DataError(f"{path} is marked unfit for fitting: {raw.metadata.get('unfit_reason', 'no reason given')}")
+    ds = conform_dataset(config, raw, channel_map, where=f"{config.source} with dataset {path}")
+    if channel_map:
+        log(f"  channels mapped (config=dataset): {channel_map}")
     opts = {k: v for k, v in config.predictor.items() if k != "method"}
     t0 = time.perf_counter()
     pred = fit_predictor(ds, config.t_ini, config.t_f, config.predictor["method"], **opts)
@@ -52,11 +58,12 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
 
 def _cmd_codegen(args: argparse.Namespace) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
-    for cfg_path in args.configs:
-        cfg = SteeringConfig.from_toml(cfg_path)
+    mapping = parse_channel_map(args.map_channels)
+    configs = [SteeringConfig.from_toml(p) for p in args.configs]  # every config refused before any fit
+    for cfg_path, cfg in zip(args.configs, configs):
         backend = args.backend or cfg.codegen["backend"]
         say(f"[{cfg.name}] {cfg_path}: m={cfg.m} p={cfg.p} Tini={cfg.t_ini} Tf={cfg.t_f} backend={backend}")
-        prob = build_from_config(cfg, args.dataset, say)
+        prob = build_from_config(cfg, args.dataset, say, mapping)
         out = Path(args.out) / cfg.name
         t0 = time.perf_counter()
         generate(prob, out, backend, march_native=args.march_native or None)
@@ -75,6 +82,10 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("configs", nargs="+", help="steering config TOML file(s)")
     p.add_argument("--dataset", default=None, help="IODataset .npz (default: the config's [data] dataset)")
+    p.add_argument("--map-channels", default=None, metavar="CFG=DATA,...",
+                   help="use dataset channel DATA as config channel CFG (names that differ on purpose; also "
+                        "allows another order and extra dataset channels). Without it the dataset must have "
+                        "the config's channel names in the config's order")
     p.add_argument("--backend", choices=BACKENDS, default=None, help="override the config's [codegen] backend")
     p.add_argument("--out", default="generated", help="output root (default generated/)")
     p.add_argument("--march-native", action="store_true", help="opt-in -march=native (binary tied to this CPU)")

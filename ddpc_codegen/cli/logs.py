@@ -23,11 +23,14 @@ channel spec: [NAME=]SOURCE[@N].FIELD[:UNIT]
             roll|pitch|yaw  Euler ZYX in rad from the quaternion q / q_d
             F_up            -F: NED/FRD down -> up (z_up, vz_up, thrust_body[2]_up)
   NAME    dataset channel (default: field without _up, plus _ref for inputs: z_up -> z_ref)
-  UNIT    unit string (default: the field's SI unit if known)
+  UNIT    unit string (default: tlog: the unit in the MAVLink message definition, e.g. VFR_HUD.heading
+          deg, GLOBAL_POSITION_INT.vz cm/s, none if it gives none; ulog: the field's SI unit if known).
+          Units are labels, never converted: a tlog UNIT that contradicts the definition is an error
 
 resampling: uniform grid at --rate; inputs held (latest sample <= t, zero-order hold),
 outputs interpolated (scipy); angles unwrapped; split at gaps (never bridged), mode
-changes (--split-on-mode) and to offboard spans (--offboard-only); no extrapolation.
+changes (--split-on-mode) and to offboard spans (--offboard-only: PX4 OFFBOARD, ArduPilot GUIDED /
+GUIDED_NOGPS; ArduPilot modes are decoded with the vehicle type's mode map); no extrapolation.
 """
 
 
@@ -46,13 +49,13 @@ def _common(p: argparse.ArgumentParser, presets: dict) -> None:
     p.add_argument("--preset", choices=sorted(presets), help="named channel set (see below)")
     p.add_argument("--input", action="append", default=[], metavar="SPEC", help="input (setpoint) channel; repeatable")
     p.add_argument("--output", action="append", default=[], metavar="SPEC", help="output (state) channel; repeatable")
-    p.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="controller rate of the grid (default 200)")
+    p.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="controller rate of the grid (default 200; at most 1e6 Hz and 5e7 grid samples in all)")
     p.add_argument("--max-gap", type=float, default=None, metavar="S",
                    help="split at spells longer than S seconds without samples (default: --gap-factor x median interval)")
     p.add_argument("--gap-factor", type=float, default=5.0, metavar="K", help="default gap threshold factor (5)")
     p.add_argument("--min-duration", type=float, default=1.0, metavar="S",
                    help="drop trajectories shorter than S seconds (default 1)")
-    p.add_argument("--offboard-only", action="store_true", help="keep only offboard-mode spans")
+    p.add_argument("--offboard-only", action="store_true", help="keep only offboard-mode spans (PX4 OFFBOARD; ArduPilot GUIDED, GUIDED_NOGPS)")
     p.add_argument("--armed-only", action="store_true", help="keep only armed spans")
     p.add_argument("--split-on-mode", action="store_true", help="split trajectories at every flight-mode change")
     p.add_argument("--time-range", nargs=2, type=float, metavar=("START", "END"),

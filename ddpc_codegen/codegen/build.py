@@ -10,7 +10,6 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-import casadi
 import cffi
 
 from ddpc_codegen.errors import CodegenError
@@ -41,48 +40,38 @@ def _captured_fds():
             text.append(tmp.read().decode(errors="replace"))
 
 
-def casadi_dir() -> Path:
-    return Path(casadi.__file__).resolve().parent
-
-
-def cdef_text() -> str:
-    return """
-int ddpc_init(void);
-int ddpc_step(const double *theta, double *u_out, double *y_out, double *sigma_out, double *info);
-void ddpc_reset(void);
-void ddpc_predict(const double *theta, const double *u, double *y_out, double *sigma_out);
-int ddpc_bench(const double *thetas, int n, double *times_us, int *statuses);
-void ddpc_dims(int *out);
+def cdef_text(name: str) -> str:
+    """The C API of a generated solver, as cffi declares it (the workspace's layout is the compiler's)."""
+    return f"""
+typedef struct {{ int iterations; int fast_path; int raw_status; int refined; double max_violation;
+                 double solve_time_us; }} {name}_info;
+typedef struct {{ ...; }} {name}_workspace;
+int {name}_init({name}_workspace *ws);
+void {name}_reset({name}_workspace *ws);
+int {name}_solve({name}_workspace *ws, const double *theta, double *u_out, {name}_info *info);
+void {name}_predict(const double *theta, const double *u, double *y_out, double *sigma_out);
+void {name}_describe(int *dims, double *bounds);
+int {name}_bench({name}_workspace *ws, const double *thetas, int n, double *u_out, double *times_us, int *statuses);
+const char *{name}_status_string(int status);
 """
+
+
+def include_dirs_of(backend: str) -> list[str]:
+    """Private include directories of a backend's library, relative to the solver folder."""
+    return ["daqp/include"] if backend == "daqp" else ["osqp", "osqp/inc/public", "osqp/inc/private"]
 
 
 def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], backend: str,
                       march_native: bool = False, verbose: bool = False) -> tuple[Path, list[str]]:
-    """Build ``module`` from ``units``; returns (extension path, compiler flags used)."""
+    """Build ``module`` from ``units`` -- the very sources CMake and the Makefile compile, with the same
+    portable flags; returns (extension path, compiler flags used)."""
     flags = list(PORTABLE_FLAGS) + (["-march=native"] if march_native else [])
-    include_dirs = [str(out_dir)]
-    libraries, library_dirs, link_args = ["m"], [], []
-    if backend == "daqp":
-        cd = casadi_dir()
-        if not (cd / "include" / "daqp" / "api.h").exists():
-            raise CodegenError(f"the DAQP headers are missing from the casadi wheel at {cd}; reinstall casadi>=3.6")
-        include_dirs.append(str(cd / "include"))
-        library_dirs.append(str(cd))
-        libraries.append("daqp")
-        link_args.append(f"-Wl,-rpath,{cd}")
-    else:
-        include_dirs += [str(out_dir / "osqp"), str(out_dir / "osqp" / "inc" / "public"),
-                         str(out_dir / "osqp" / "inc" / "private")]
-    # The dims helper lives in the cffi glue so the loader can check the binary against the manifest.
-    glue = f"""
-#include "{name}_solver.h"
-void ddpc_dims(int *out) {{ out[0] = ddpc_N_U; out[1] = ddpc_N_THETA; out[2] = ddpc_N_Y; out[3] = ddpc_N_SIGMA; }}
-"""
+    include_dirs = [str(out_dir)] + [str(out_dir / i) for i in include_dirs_of(backend)]
+    glue = f'#include "{name}_solver.h"\n'
     ffi = cffi.FFI()
-    ffi.cdef(cdef_text())
+    ffi.cdef(cdef_text(name))
     ffi.set_source(module, glue, sources=[str(u) for u in units], include_dirs=include_dirs,
-                   libraries=libraries, library_dirs=library_dirs, extra_compile_args=flags,
-                   extra_link_args=link_args)
+                   libraries=["m"], extra_compile_args=flags)
     # A fresh directory per build: distutils caches the directories it created per process, so
     # reusing a deleted one makes the second build in a process fail.
     build_dir = Path(tempfile.mkdtemp(prefix="build-", dir=out_dir))

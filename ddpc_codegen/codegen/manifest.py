@@ -11,18 +11,28 @@ import numpy as np
 import osqp
 
 from ddpc_codegen import __version__
+from ddpc_codegen.codegen.emit import FEAS_TOL, VECTOR_TOL
+from ddpc_codegen.codegen.libs import DAQP_VERSION
 from ddpc_codegen.runtime.manifest import FORMAT, VERSION, sha256_file
 
 
-
 def _inf_list(a) -> list:
+    """JSON has no infinity: unbounded entries are null."""
     return [None if not np.isfinite(x) else float(x) for x in np.ravel(a)]
 
 
 def build_manifest(problem, name: str, backend: str, module: str, extension: Path, sources: list[Path],
-                   out_dir: Path, settings: dict, flags: list[str]) -> dict:
+                   out_dir: Path, settings: dict, flags: list[str], extra: dict | None = None) -> dict:
+    """Everything about a generated solver (dims and bounds are also compiled into its binary; the
+    runtime takes them from there and refuses a manifest that disagrees)."""
     c, pr = problem.config, problem.predictor
+    library = {"daqp": f"DAQP {DAQP_VERSION} (PyPI source distribution, MIT)",
+               "osqp": f"OSQP {osqp.__version__} embedded code generation (Apache-2.0)"}[backend]
     return {
+        **(extra or {}),
+        "feas_tol": FEAS_TOL,
+        "vector_tol": VECTOR_TOL[backend],
+        "library": library,
         "format": FORMAT,
         "format_version": VERSION,
         "name": name,
@@ -51,6 +61,7 @@ def build_manifest(problem, name: str, backend: str, module: str, extension: Pat
 
 
 def write_manifest(folder: Path, manifest: dict) -> Path:
+    """Write manifest.json (sorted keys: regenerating gives the same bytes)."""
     path = Path(folder) / "manifest.json"
     path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
     return path

@@ -43,9 +43,16 @@ def _err(src: str, key: str, msg: str) -> ConfigError:
     return ConfigError(f"{src}: {key} {msg}")
 
 
+def _is_num(v: Any) -> bool:
+    """A real number as TOML gives it (bool is an int in Python, but `true` is not a weight)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
 def _weight(value: Any, n: int, key: str, src: str) -> np.ndarray:
     """Diagonal (n,) or full (n, n) weight -> symmetric PSD (n, n) matrix."""
     try:
+        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
+            raise TypeError
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise _err(src, key, f"must be a list of numbers or a matrix; got {value!r}") from None
@@ -70,6 +77,8 @@ def _bound(value: Any, n: int, key: str, src: str, default: float) -> np.ndarray
     if value is None:
         return np.full(n, default)
     try:
+        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
+            raise TypeError
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise _err(src, key, f"must be a number or a list of {n} numbers; got {value!r}") from None
@@ -134,7 +143,7 @@ class SteeringConfig:
         if self.R_mode not in R_MODES:
             raise _err(src, "[cost] R_mode", f"must be one of {list(R_MODES)}; got {self.R_mode!r}")
         ls = self.lambda_sigma
-        if isinstance(ls, bool) or not isinstance(ls, (int, float)) or not np.isfinite(ls) or ls < 0:
+        if not _is_num(ls) or not np.isfinite(ls) or ls < 0:
             raise _err(src, "[cost] lambda_sigma", f"must be a number >= 0; got {ls!r}")
         set_("lambda_sigma", float(ls))
         set_("u_min", _bound(self.u_min, m, "[bounds] u_min", src, -np.inf))
@@ -143,37 +152,36 @@ class SteeringConfig:
         set_("y_max", _bound(self.y_max, p, "[bounds] y_max", src, np.inf))
         set_("du_max", _bound(self.du_max, m, "[bounds] du_max", src, np.inf))
         for lo, hi in (("u_min", "u_max"), ("y_min", "y_max")):
-            bad = np.nonzero(getattr(self, lo) > getattr(self, hi))[0]
+            # Equal bounds are refused too: a box without interior is an equality the QP cannot meet soundly.
+            bad = np.nonzero(getattr(self, lo) >= getattr(self, hi))[0]
             if bad.size:
                 i = int(bad[0])
-                raise _err(src, f"[bounds] {lo}/{hi}", f"channel {i}: lower {getattr(self, lo)[i]} > upper {getattr(self, hi)[i]}")
+                raise _err(src, f"[bounds] {lo}/{hi}", f"channel {i}: lower {getattr(self, lo)[i]} >= upper "
+                           f"{getattr(self, hi)[i]}; the lower bound must be strictly below the upper")
         if np.any(self.du_max <= 0):
             raise _err(src, "[bounds] du_max", f"must be > 0 (per step); got {self.du_max.tolist()}")
-        if not (isinstance(self.dt, (int, float)) and np.isfinite(self.dt) and self.dt > 0):
+        if not (_is_num(self.dt) and np.isfinite(self.dt) and self.dt > 0):
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
-        for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
-            v = tuple(getattr(self, key) or ())
-            if v and len(v) != n:
-                raise _err(src, f"[signals] {key}", f"must have {n} entries; got {len(v)}: {list(v)}")
-            set_(key, v)
+        self._check_signals()
         pred = dict(self.predictor)
         pred.setdefault("method", "pem")
         if pred["method"] not in _PREDICTOR_METHODS:
             raise _err(src, "[predictor] method", f"must be one of {list(_PREDICTOR_METHODS)}; got {pred['method']!r}")
         for k, lo in (("slack_weight", 0.0), ("ridge", -1e-300), ("rcond", 0.0)):
-            if k in pred and not (isinstance(pred[k], (int, float)) and np.isfinite(pred[k]) and pred[k] > lo):
-                raise _err(src, f"[predictor] {k}", f"must be a positive number; got {pred[k]!r}")
+            if k in pred and not (_is_num(pred[k]) and np.isfinite(pred[k]) and pred[k] > lo):
+                what = "a number >= 0" if k == "ridge" else "a positive number"
+                raise _err(src, f"[predictor] {k}", f"must be {what}; got {pred[k]!r}")
         set_("predictor", pred)
         cg = dict(self.codegen)
         cg.setdefault("backend", "daqp")
         if cg["backend"] not in BACKENDS:
             raise _err(src, "[codegen] backend", f"must be one of {list(BACKENDS)}; got {cg['backend']!r}")
-        if "max_iter" in cg and not (isinstance(cg["max_iter"], int) and cg["max_iter"] > 0):
+        if "max_iter" in cg and not (_is_num(cg["max_iter"]) and isinstance(cg["max_iter"], int) and cg["max_iter"] > 0):
             raise _err(src, "[codegen] max_iter", f"must be a positive integer; got {cg['max_iter']!r}")
-        if "eps" in cg and not (isinstance(cg["eps"], (int, float)) and 0 < cg["eps"] < 1):
+        if "eps" in cg and not (_is_num(cg["eps"]) and 0 < cg["eps"] < 1):
             raise _err(src, "[codegen] eps", f"must be a number in (0, 1); got {cg['eps']!r}")
-        if "rho" in cg and not (isinstance(cg["rho"], (int, float)) and cg["rho"] > 0):
+        if "rho" in cg and not (_is_num(cg["rho"]) and np.isfinite(cg["rho"]) and cg["rho"] > 0):
             raise _err(src, "[codegen] rho", f"must be a positive number; got {cg['rho']!r}")
         if "march_native" in cg and not isinstance(cg["march_native"], bool):
             raise _err(src, "[codegen] march_native", f"must be true or false; got {cg['march_native']!r}")
@@ -189,6 +197,30 @@ class SteeringConfig:
             else:
                 raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
         set_("artificial_io", art)
+
+    def _check_signals(self) -> None:
+        """Names and units: lists of strings of the right length, channel names unique; name and dataset strings."""
+        src, set_ = self.source, lambda k, v: object.__setattr__(self, k, v)
+        m, p = self.m, self.p
+        for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
+            raw = getattr(self, key)
+            raw = () if raw is None else raw
+            if not isinstance(raw, (list, tuple)) or not all(isinstance(x, str) for x in raw):
+                raise _err(src, f"[signals] {key}", f"must be a list of {n} strings; got {raw!r}")
+            v = tuple(raw)
+            if v and len(v) != n:
+                raise _err(src, f"[signals] {key}", f"must have {n} entries; got {len(v)}: {list(v)}")
+            set_(key, v)
+        names = self.input_names + self.output_names
+        dup = sorted({x for x in names if names.count(x) > 1})
+        if dup:
+            raise _err(src, "[signals] inputs/outputs", f"channel names must be unique; {dup} appear more than once "
+                       f"in inputs {list(self.input_names)} / outputs {list(self.output_names)}")
+        if not isinstance(self.name, str) or not self.name:
+            raise _err(src, "name", f"must be a non-empty string; got {self.name!r}")
+        if self.dataset is not None and not isinstance(self.dataset, str):
+            raise _err(src, "[data] dataset", f"must be a path string; got {self.dataset!r}")
+
 
     # ------------------------------------------------------------------ loading
     @classmethod
@@ -237,8 +269,8 @@ class SteeringConfig:
             p=len(sg["outputs"]),
             input_names=tuple(sg["inputs"]),
             output_names=tuple(sg["outputs"]),
-            input_units=tuple(sg.get("input_units", ())),
-            output_units=tuple(sg.get("output_units", ())),
+            input_units=sg.get("input_units", ()),
+            output_units=sg.get("output_units", ()),
             Q=co["Q"],
             R=co["R"],
             R_mode=co.get("R_mode", "offset"),
@@ -249,7 +281,7 @@ class SteeringConfig:
             y_min=bd.get("y_min"),
             y_max=bd.get("y_max"),
             du_max=bd.get("du_max"),
-            name=str(raw.get("name", Path(source).stem if source != "<config>" else "steering")),
+            name=raw.get("name", Path(source).stem if source != "<config>" else "steering"),
             predictor=raw.get("predictor", {}),
             codegen=raw.get("codegen", {}),
             artificial_io=raw.get("artificial_io", {}),

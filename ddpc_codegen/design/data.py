@@ -8,6 +8,8 @@ Hankel matrix across the seam would invent a transition that never happened.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -225,34 +227,52 @@ class IODataset:
 
     @classmethod
     def load(cls, path: str | Path) -> "IODataset":
-        """Read a dataset written by :meth:`save` (or by the MAVLink bridge's tick log)."""
+        """Read a dataset written by :meth:`save` (or by the MAVLink bridge's tick log).
+
+        Any damaged or foreign file (truncated, bit-flipped, empty, not an IODataset, missing or
+        malformed entries) is a DataError naming the file, never a traceback from zipfile or zlib.
+        """
         path = Path(path)
-        if not path.exists():
+        if not path.is_file():
             raise DataError(f"dataset file {path} does not exist")
         try:
-            with np.load(path, allow_pickle=False) as z:
-                if "header" not in z:
-                    raise DataError(f"{path} is not an IODataset file (no 'header' entry)")
-                header = json.loads(bytes(z["header"]).decode())
-                n = int(header["n_trajectories"])
-                u = [z[f"u_{i}"] for i in range(n)]
-                y = [z[f"y_{i}"] for i in range(n)]
-                ph = [z[f"phase_{i}"] for i in range(n)] if header.get("has_phases") else None
-        except DataError:
-            raise
-        except (OSError, ValueError, KeyError) as e:
-            raise DataError(f"could not read dataset {path}: {e}") from e
-        return cls(
-            u,
-            y,
-            header["dt"],
-            input_names=header["input_names"],
-            output_names=header["output_names"],
-            input_units=header["input_units"],
-            output_units=header["output_units"],
-            phases=ph,
-            metadata=header.get("metadata", {}),
-        )
+            header, u, y, ph = _read_npz(path)
+            return cls(u, y, header["dt"], input_names=header["input_names"], output_names=header["output_names"],
+                       input_units=header["input_units"], output_units=header["output_units"], phases=ph,
+                       metadata=header.get("metadata", {}))
+        except DataError as e:
+            raise DataError(f"dataset {path}: {e}") from e
+        except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile,
+                zlib.error) as e:
+            # damaged: BadZipFile / zlib.error / EOFError; foreign: KeyError / TypeError / AttributeError
+            raise DataError(f"dataset {path} is damaged or not an IODataset file ({type(e).__name__}: {e}); "
+                            "record or export it again") from e
+
+
+_HEADER_KEYS = ("n_trajectories", "dt", "input_names", "output_names", "input_units", "output_units")
+
+
+def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], list[np.ndarray] | None]:
+    """(header, u trajectories, y trajectories, phases or None) of an IODataset .npz; raises on anything else."""
+    with np.load(path, allow_pickle=False) as z:
+        if "header" not in z.files:
+            raise DataError(f"not an IODataset file (no 'header' entry; entries: {sorted(z.files)[:8]})")
+        header = json.loads(bytes(z["header"]).decode())
+        if not isinstance(header, dict) or header.get("format") != "ddpc-iodataset":
+            raise DataError("not an IODataset file (its header is not a ddpc-iodataset header)")
+        missing = [k for k in _HEADER_KEYS if k not in header]
+        if missing:
+            raise DataError(f"header lacks {missing}")
+        n = header["n_trajectories"]
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise DataError(f"header n_trajectories must be a positive integer; got {n!r}")
+        absent = [k for i in range(n) for k in (f"u_{i}", f"y_{i}") if k not in z.files]
+        if absent:
+            raise DataError(f"entries {absent[:6]} are missing")
+        u = [z[f"u_{i}"] for i in range(n)]
+        y = [z[f"y_{i}"] for i in range(n)]
+        ph = [z[f"phase_{i}"] for i in range(n)] if header.get("has_phases") else None
+    return header, u, y, ph
 
 
 def prbs(

@@ -19,7 +19,7 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.hankel import mosaic_hankel
-from ddpc_codegen.design.result import SteeringResult, stack_window
+from ddpc_codegen.design.result import SteeringResult, stack_window, within_bounds
 
 __all__ = ["DeePCProblem"]
 
@@ -27,7 +27,9 @@ __all__ = ["DeePCProblem"]
 class DeePCProblem:
     """DeePC QP from a dataset and a steering config (same weights, modes and bounds).
 
-    lambda_g weighs ||g||^2; the config's lambda_sigma weighs ||sigma||^2.
+    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du)
+    + lambda_g ||g||^2 + lambda_sigma ||sigma||^2 (every term without a 1/2; the QP form
+    1/2 x'Px carries the factor 2 on all of them). g (N,) has one entry per Hankel column.
     """
 
     def __init__(self, dataset: IODataset, config: SteeringConfig, lambda_g: float = 1e-6) -> None:
@@ -51,7 +53,7 @@ class DeePCProblem:
         Ru = D.T @ Rb @ D if c.R_mode == "increment" else Rb
         Rdu = np.kron(np.eye(Tf), c.R_du)
         Ru = Ru + D.T @ Rdu @ D
-        P = sp.block_diag([self.lambda_g * sp.eye(N), 2 * Ru, 2 * Qb, 2 * c.lambda_sigma * sp.eye(ns)], format="csc")
+        P = sp.block_diag([2 * self.lambda_g * sp.eye(N), 2 * Ru, 2 * Qb, 2 * c.lambda_sigma * sp.eye(ns)], format="csc")
         I = sp.eye
         Z = lambda a, b: sp.csc_matrix((a, b))  # noqa: E731
         Aeq = sp.bmat([
@@ -89,6 +91,7 @@ class DeePCProblem:
         if np.any(c.R_du):
             q[N : N + nu] += -2 * self._D.T @ self._Rdu @ d0
         beq = np.concatenate([ui, yi, np.zeros(nu), np.zeros(ny)])
+        n_eq = beq.size
         du = np.tile(c.du_max, Tf)
         lo = np.concatenate([beq, np.tile(c.u_min, Tf), np.tile(c.y_min, Tf), d0 - du])
         hi = np.concatenate([beq, np.tile(c.u_max, Tf), np.tile(c.y_max, Tf), d0 + du])
@@ -103,8 +106,19 @@ class DeePCProblem:
         r = self._solver(h=self._Pd, g=q, a=self._Ad, lba=lo, uba=hi)
         dt = time.perf_counter() - t0
         st = self._solver.stats()
-        status = "solved" if st.get("success") else str(st.get("return_status", "failed")).lower()
+        status = ("solved" if st.get("success")
+                  else str(st.get("return_status", "failed")).lower().rstrip(".").replace(" ", "_"))
         x = np.array(r["x"], dtype=float).reshape(-1)
+        if status == "solved":  # verified like every interpreted answer: finite, u, du, y inside the bounds
+            u, y = x[N : N + nu], x[N + nu : N + nu + ny]
+            if not np.all(np.isfinite(x)):
+                status = "nonfinite"
+            elif not (within_bounds(u, lo[n_eq : n_eq + nu], hi[n_eq : n_eq + nu])
+                      and within_bounds(y, lo[n_eq + nu : n_eq + nu + ny], hi[n_eq + nu : n_eq + nu + ny])
+                      and within_bounds(self._D @ u, lo[n_eq + nu + ny :], hi[n_eq + nu + ny :])):
+                status = "out_of_bounds"
+        if status != "solved":  # never a finite guess: the README promises NaN on failure
+            x = np.full_like(x, np.nan)
         return SteeringResult(x[N : N + nu].reshape(Tf, m), x[N + nu : N + nu + ny].reshape(Tf, p),
                               x[N + nu + ny :].reshape(Ti, p), status, int(st.get("iter_count", 0) or 0), dt,
                               info={"g": x[:N]})

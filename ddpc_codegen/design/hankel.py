@@ -7,7 +7,7 @@ concatenating the signals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -15,7 +15,15 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ddpc_codegen.errors import DataError
 
-__all__ = ["block_hankel", "mosaic_hankel", "persistency_of_excitation", "PEReport"]
+__all__ = ["block_hankel", "mosaic_hankel", "persistency_of_excitation", "PEReport", "channel_stats",
+           "near_constant_channels", "NEAR_CONSTANT_RTOL", "NEAR_CONSTANT_SELF_RTOL"]
+
+# A channel is near-constant when its standard deviation is below NEAR_CONSTANT_RTOL times the
+# largest standard deviation of all channels (compared in the data's own units), or below
+# NEAR_CONSTANT_SELF_RTOL times its own RMS (a constant at an offset, varying at rounding level).
+# Channel scaling would otherwise blow such a channel up to unit size and call it exciting.
+NEAR_CONSTANT_RTOL = 1e-6
+NEAR_CONSTANT_SELF_RTOL = 1e-9
 
 
 def _signal(w: np.ndarray, what: str = "signal") -> np.ndarray:
@@ -70,7 +78,10 @@ class PEReport:
     """Result of a persistency-of-excitation check of order ``order``.
 
     ``ok`` is True when H_order(u) has full row rank ``required_rank = m*order`` numerically,
-    i.e. singular values above ``tol``.
+    i.e. singular values above ``tol``, and no input channel is near-constant. Singular values
+    are those of the Hankel of the channels scaled to unit std (so they do not depend on units).
+    ``near_constant_inputs`` / ``near_constant_outputs`` name near-constant channels (see
+    NEAR_CONSTANT_RTOL); ``channel_std`` maps every channel name to its std in the data's units.
     """
 
     order: int
@@ -80,10 +91,13 @@ class PEReport:
     tol: float
     condition_number: float
     columns: int
+    near_constant_inputs: tuple[str, ...] = ()
+    near_constant_outputs: tuple[str, ...] = ()
+    channel_std: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
-        return self.rank >= self.required_rank
+        return self.rank >= self.required_rank and not self.near_constant_inputs
 
     def __bool__(self) -> bool:
         return self.ok
@@ -92,32 +106,68 @@ class PEReport:
         s = self.singular_values
         smin = s[-1] if s.size else 0.0
         verdict = "persistently exciting" if self.ok else "NOT persistently exciting"
-        return (
+        text = (
             f"{verdict} of order {self.order}: rank {self.rank}/{self.required_rank} "
-            f"({self.columns} Hankel columns), sigma_max={s[0] if s.size else 0.0:.3g}, "
+            f"({self.columns} Hankel columns, channels scaled to unit std), sigma_max={s[0] if s.size else 0.0:.3g}, "
             f"sigma_min={smin:.3g}, tol={self.tol:.3g}, cond={self.condition_number:.3g}"
         )
+        for kind, names in (("input", self.near_constant_inputs), ("output", self.near_constant_outputs)):
+            if names:
+                std = ", ".join(f"{n} (std {self.channel_std.get(n, float('nan')):.3g})" for n in names)
+                text += (f"; near-constant {kind} channel(s): {std} (std below {NEAR_CONSTANT_RTOL:g} x the largest "
+                         f"channel std or {NEAR_CONSTANT_SELF_RTOL:g} x its own RMS)")
+        return text
+
+
+def channel_stats(trajectories: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel (RMS, std) over all samples of all trajectories (each (T_i, d)) -> two (d,) arrays.
+
+    Two passes (mean, then squared deviations) so a small std on a large offset is not lost to cancellation.
+    """
+    n = sum(w.shape[0] for w in trajectories)
+    mean = sum(w.sum(axis=0) for w in trajectories) / n
+    var = sum(((w - mean) ** 2).sum(axis=0) for w in trajectories) / n
+    ms = sum((w**2).sum(axis=0) for w in trajectories) / n
+    return np.sqrt(ms), np.sqrt(var)
+
+
+def near_constant_channels(std: np.ndarray, rms: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
+    """Names of the near-constant channels (see NEAR_CONSTANT_RTOL), in the order given."""
+    ref = float(np.max(std)) if std.size else 0.0
+    bad = (std <= NEAR_CONSTANT_RTOL * ref) | (std <= NEAR_CONSTANT_SELF_RTOL * rms)
+    return tuple(str(n) for n, b in zip(names, bad) if b)
 
 
 def persistency_of_excitation(
-    u: np.ndarray | Sequence[np.ndarray], order: int, tol: float | None = None
+    u: np.ndarray | Sequence[np.ndarray], order: int, tol: float | None = None,
+    names: Sequence[str] | None = None,
 ) -> PEReport:
     """Check that input data is persistently exciting of ``order`` (rank of H_order(u)).
+
+    Channels are scaled to unit std first (the verdict does not depend on units); near-constant
+    channels are named and make the report not ok.
 
     Args:
         u: input (T, m), or a list of trajectories (mosaic Hankel).
         order: Hankel depth, L + n for the fundamental lemma (L = Tini + Tf, n = state dim).
         tol: singular-value threshold; default ``max(shape) * eps * sigma_max`` (numpy's rank rule).
+        names: channel names for the report (default u0, u1, ...).
     """
-    trajs = [u] if isinstance(u, np.ndarray) else list(u)
-    m = _signal(trajs[0], "u").shape[1]
+    trajs = [_signal(w, f"trajectory {i}") for i, w in enumerate([u] if isinstance(u, np.ndarray) else list(u))]
+    m = trajs[0].shape[1]
+    names = tuple(names) if names is not None else tuple(f"u{i}" for i in range(m))
     required = m * int(order)
+    rms, std = channel_stats(trajs) if all(w.shape[1] == m for w in trajs) else (np.ones(m), np.ones(m))
+    near_names = near_constant_channels(std, rms, names)
+    # unit std per channel (as in fit_predictor); a near-constant one by its RMS (1 if all zero)
+    scale = np.where([n in near_names for n in names], np.where(rms > 0, rms, 1.0), std)
+    near = dict(near_constant_inputs=near_names, channel_std={n: float(v) for n, v in zip(names, std)})
     try:
-        H = mosaic_hankel(trajs, order)
+        H = mosaic_hankel([w / scale for w in trajs], order)
     except DataError:
         cols = 0
         s = np.zeros(0)
-        return PEReport(int(order), 0, required, s, float(tol or 0.0), float("inf"), cols)
+        return PEReport(int(order), 0, required, s, float(tol or 0.0), float("inf"), cols, **near)
     s = np.linalg.svd(H, compute_uv=False)
     if tol is None:
         tol = float(max(H.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0))
@@ -125,4 +175,4 @@ def persistency_of_excitation(
     cond = float(s[0] / s[-1]) if s.size and s[-1] > 0 else float("inf")
     if H.shape[1] < required:
         cond = float("inf")
-    return PEReport(int(order), rank, required, s, float(tol), cond, H.shape[1])
+    return PEReport(int(order), rank, required, s, float(tol), cond, H.shape[1], **near)

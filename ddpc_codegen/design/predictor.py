@@ -12,6 +12,14 @@ Two methods:
 Both are computed from an R factor of the data matrix accumulated over blocks of Hankel columns
 (TSQR), so memory does not grow with the number of samples and the condition number is not
 squared as it would be with normal equations.
+
+Unit-free: every channel is divided by its standard deviation over the dataset (its RMS if it is
+near-constant) before the fit and G is
+rescaled afterwards, so changing the units of any input or output channel rescales the
+predictions and nothing else (``pem``'s slack weighting, the ridge and the rank cutoff all act
+on the scaled data). The ridge is relative to the data: ``ridge`` times the mean eigenvalue of
+Z Z^T of the scaled data matrix Z = [Up; Yp; Uf] (about the number of Hankel columns), so it
+means the same for 200 or 200 000 samples.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError, ExcitationError
-from ddpc_codegen.design.hankel import PEReport
+from ddpc_codegen.design.hankel import PEReport, channel_stats, near_constant_channels
 
 __all__ = ["Predictor", "fit_predictor", "min_samples"]
 
@@ -133,10 +141,10 @@ def _row_order(m: int, p: int, t_ini: int, t_f: int) -> np.ndarray:
     return np.array(up + yp + uf + yf)
 
 
-def _hankel_blocks(dataset: IODataset, depth: int, block: int) -> Iterator[np.ndarray]:
-    """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y]."""
+def _hankel_blocks(dataset: IODataset, depth: int, block: int, scale: np.ndarray) -> Iterator[np.ndarray]:
+    """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y] / scale."""
     for u, y in dataset.trajectories():
-        w = np.hstack([u, y])
+        w = np.hstack([u, y]) / scale
         T, d = w.shape
         if T < depth:
             continue
@@ -165,16 +173,23 @@ def fit_predictor(
 ) -> Predictor:
     """Fit a multi-step predictor from a dataset (mosaic Hankel over its trajectories).
 
+    The fit runs on channels scaled to unit standard deviation and G is rescaled back (predictions do not
+    depend on the units of u or y).
+
     Args:
         dataset: the IO data; each trajectory contributes its own Hankel columns.
         t_ini, t_f: past and future horizon (samples).
         method: ``"pem"`` (paper, DDPC-Flying) or ``"lsq"`` (subspace predictive control).
-        slack_weight: rho in min ||g||^2 + rho ||sigma||^2 (``pem`` only; 1 = the paper).
-        ridge: Tikhonov weight lambda on the predictor (G (ZZ^T + lambda I)^-1 form); 0 = none.
-        rcond: relative singular-value cutoff of the pseudo-inverse (rank decision).
+        slack_weight: rho in min ||g||^2 + rho ||sigma||^2, sigma in std-scaled output units
+            (``pem`` only; 1 = the paper).
+        ridge: relative Tikhonov weight: the fit minimises ||G Z - T||^2 + lam ||G||^2 (scaled
+            data) with lam = ridge * trace(Z Z^T) / rows(Z), the mean eigenvalue of the data Gram
+            matrix; 0 = none. Unitless, independent of the amount of data.
+        rcond: relative singular-value cutoff of the pseudo-inverse (rank decision, scaled data).
         block_columns: Hankel columns per streamed block (memory ~ block * rows * 8 bytes).
         streaming: False forms the whole Hankel and uses numpy's pinv (reference path).
-        check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf.
+        check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf
+            (near-constant input channels included).
     """
     if method not in _METHODS:
         raise DataError(f"unknown predictor method {method!r}; choose one of {list(_METHODS)}")
@@ -196,73 +211,26 @@ def fit_predictor(
                if dataset.n_trajectories > 1 else "")
             + ". Record longer data or shorten the horizons."
         )
-    r = (m + p) * t_ini + m * t_f  # rows of Z = [Up; Yp; Uf]
-    n_up, n_yp = m * t_ini, p * t_ini
-    q_y, q_s = p * t_f, (p * t_ini if method == "pem" else 0)
-    order = _row_order(m, p, t_ini, t_f)
-    inv_sqrt_rho = 1.0 / np.sqrt(slack_weight)
-
-    # Extra rows of X = [Z^T | target^T] for the slack columns of M and for the ridge.
-    extra = []
-    if method == "pem":
-        e = np.zeros((n_yp, r + q_y + q_s))
-        e[:, n_up : n_up + n_yp] = np.eye(n_yp) * inv_sqrt_rho
-        e[:, r + q_y :] = np.eye(n_yp) * inv_sqrt_rho
-        extra.append(e)
-    if ridge > 0:
-        e = np.zeros((r, r + q_y + q_s))
-        e[:, :r] = np.eye(r) * np.sqrt(ridge)
-        extra.append(e)
-
-    def data_rows(blk: np.ndarray) -> np.ndarray:
-        rows = blk[:, order]  # (b, r + q_y) as [Up Yp Uf Yf]
-        if q_s:
-            rows = np.hstack([rows, np.zeros((rows.shape[0], q_s))])
-        return rows
-
-    if streaming:
-        R = None
-        for blk in _hankel_blocks(dataset, L, int(block_columns)):
-            R = _accumulate_r(R, data_rows(blk))
-        # PE of order L from the data-only factor: singular values of the u rows of Z.
-        u_rows = np.r_[0:n_up, n_up + n_yp : r]
-        su = np.linalg.svd(R[:r, u_rows], compute_uv=False)
-        for e in extra:
-            R = _accumulate_r(R, e)
-        R11, R12 = R[:r, :r], R[:r, r:]
-        U, s, Vt = np.linalg.svd(R11, full_matrices=False)
-        keep = s > rcond * s[0]
-        # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
-        G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
-        s_all = s
-    else:
-        X = np.vstack([data_rows(b) for b in _hankel_blocks(dataset, L, 10**9)] + extra)
-        Z, Tg = X[:, :r].T, X[:, r:].T
-        G = Tg @ np.linalg.pinv(Z, rcond=rcond)
-        s_all = np.linalg.svd(Z, compute_uv=False)
-        keep = s_all > rcond * s_all[0]
-        u_rows = np.r_[0:n_up, n_up + n_yp : r]
-        su = np.linalg.svd(Z[u_rows], compute_uv=False)
-
-    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
-    pe = PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
-                  float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols)
+    names = dataset.input_names + dataset.output_names
+    rms, std = channel_stats([np.hstack(t) for t in dataset.trajectories()])
+    near = near_constant_channels(std, rms, names)
+    # Unit std per channel (its variation, offsets kept: the predictor has no intercept); a
+    # near-constant channel is scaled by its RMS instead (1 if all zero) so its noise is not blown up.
+    scale = np.array([sd if n not in near else (r if r > 0 else 1.0) for n, sd, r in zip(names, std, rms)])
+    G, s_all, keep, su, lam = _fit_scaled(dataset, t_ini, t_f, method, slack_weight, ridge, rcond,
+                                          int(block_columns), streaming, scale)
+    pe = _pe_report(su, L, m, cols, near, dataset, std)
     if check_excitation and not pe.ok:
         raise ExcitationError(
             f"inputs are not persistently exciting enough for Tini={t_ini}, Tf={t_f}: {pe.summary()}. "
             "Excite the references more (e.g. add a PRBS) or record longer data."
         )
+    Gy, Gs = _unscale(G, scale, m, p, t_ini, t_f, method)
     nw = (m + p) * t_ini
-    Gy = G[:q_y]
-    Gs = G[q_y:] if q_s else np.zeros((p * t_ini, r))
     opts = {"slack_weight": float(slack_weight), "ridge": float(ridge), "rcond": float(rcond),
-            "_pe_report": pe}
+            "ridge_effective": float(lam), "channel_scale": scale.tolist(), "_pe_report": pe}
     return Predictor(
-        t_ini=t_ini,
-        t_f=t_f,
-        m=m,
-        p=p,
-        method=method,
+        t_ini=t_ini, t_f=t_f, m=m, p=p, method=method,
         Gy_w=np.ascontiguousarray(Gy[:, :nw]),
         Gy_u=np.ascontiguousarray(Gy[:, nw:]),
         Gs_w=np.ascontiguousarray(Gs[:, :nw]),
@@ -275,3 +243,79 @@ def fit_predictor(
         output_names=dataset.output_names,
         options=opts,
     )
+
+
+def _pe_report(su: np.ndarray, L: int, m: int, cols: int, near: tuple[str, ...], dataset: IODataset,
+               std: np.ndarray) -> PEReport:
+    """PE of order L from the singular values su of the (scaled) input rows, with near-constant channels named."""
+    tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
+    return PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
+                    float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols,
+                    near_constant_inputs=tuple(n for n in near if n in dataset.input_names),
+                    near_constant_outputs=tuple(n for n in near if n in dataset.output_names),
+                    channel_std={n: float(v) for n, v in zip(dataset.input_names + dataset.output_names, std)})
+
+
+def _unscale(G: np.ndarray, scale: np.ndarray, m: int, p: int, t_ini: int, t_f: int,
+             method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(Gy (p*Tf, r), Gs (p*Tini, r)) in the data's units from G fitted on channels divided by ``scale`` (m+p,)."""
+    su_, sy_ = scale[:m], scale[m:]
+    s_in = np.concatenate([np.tile(su_, t_ini), np.tile(sy_, t_ini), np.tile(su_, t_f)])
+    s_out = np.concatenate([np.tile(sy_, t_f), np.tile(sy_, t_ini) if method == "pem" else np.zeros(0)])
+    G = (s_out[:, None] * G) / s_in[None, :]
+    q_y = p * t_f
+    return G[:q_y], (G[q_y:] if method == "pem" else np.zeros((p * t_ini, s_in.size)))
+
+
+def _fit_scaled(dataset: IODataset, t_ini: int, t_f: int, method: str, slack_weight: float, ridge: float,
+                rcond: float, block: int, streaming: bool, scale: np.ndarray):
+    """G (q_y + q_s, r) on the scaled data, the singular values of Z (and which are kept), the
+    singular values of the u rows (PE) and the effective ridge lam = ridge * ||Z||_F^2 / r."""
+    m, p = dataset.m, dataset.p
+    L = t_ini + t_f
+    r = (m + p) * t_ini + m * t_f  # rows of Z = [Up; Yp; Uf]
+    n_up, n_yp = m * t_ini, p * t_ini
+    q_y, q_s = p * t_f, (p * t_ini if method == "pem" else 0)
+    order = _row_order(m, p, t_ini, t_f)
+    u_rows = np.r_[0:n_up, n_up + n_yp : r]
+
+    def data_rows(blk: np.ndarray) -> np.ndarray:
+        rows = blk[:, order]  # (b, r + q_y) as [Up Yp Uf Yf]
+        return np.hstack([rows, np.zeros((rows.shape[0], q_s))]) if q_s else rows
+
+    def extra_rows(lam: float) -> list[np.ndarray]:
+        """Rows of X = [Z^T | target^T] for the slack columns of M (pem) and for the ridge."""
+        extra = []
+        if method == "pem":
+            e = np.zeros((n_yp, r + q_y + q_s))
+            e[:, n_up : n_up + n_yp] = np.eye(n_yp) / np.sqrt(slack_weight)
+            e[:, r + q_y :] = np.eye(n_yp) / np.sqrt(slack_weight)
+            extra.append(e)
+        if lam > 0:
+            e = np.zeros((r, r + q_y + q_s))
+            e[:, :r] = np.eye(r) * np.sqrt(lam)
+            extra.append(e)
+        return extra
+
+    if streaming:
+        R = None
+        for blk in _hankel_blocks(dataset, L, block, scale):
+            R = _accumulate_r(R, data_rows(blk))
+        su = np.linalg.svd(R[:r, u_rows], compute_uv=False)  # PE from the data-only factor
+        lam = ridge * float(np.sum(R[:, :r] ** 2)) / r  # ||Z||_F^2 = ||R[:, :r]||_F^2
+        for e in extra_rows(lam):
+            R = _accumulate_r(R, e)
+        R11, R12 = R[:r, :r], R[:r, r:]
+        U, s, Vt = np.linalg.svd(R11, full_matrices=False)
+        keep = s > rcond * s[0]
+        # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
+        G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
+        return G, s, keep, su, lam
+    Xd = np.vstack([data_rows(b) for b in _hankel_blocks(dataset, L, 10**9, scale)])
+    su = np.linalg.svd(Xd[:, u_rows], compute_uv=False)
+    lam = ridge * float(np.sum(Xd[:, :r] ** 2)) / r
+    X = np.vstack([Xd] + extra_rows(lam))
+    Z, Tg = X[:, :r].T, X[:, r:].T
+    G = Tg @ np.linalg.pinv(Z, rcond=rcond)
+    s = np.linalg.svd(Z, compute_uv=False)
+    return G, s, s > rcond * s[0], su, lam

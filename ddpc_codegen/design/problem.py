@@ -17,14 +17,24 @@ import time
 import casadi as ca
 import numpy as np
 import osqp
+import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import Predictor
-from ddpc_codegen.design.result import SteeringResult, stack_window
+from ddpc_codegen.design.result import BOUND_TOL, SteeringResult, stack_window, within_bounds
 
-__all__ = ["SteeringProblem", "SteeringResult"]
+__all__ = ["SteeringProblem", "SteeringResult", "SOLVERS", "P_COND_MAX", "DAQP_OPTIONS"]
+
+SOLVERS = ("osqp", "exact", "fast")
+# Largest accepted condition number of the condensed Hessian P. An active-set solve loses about
+# cond(P) * eps of relative accuracy; above BOUND_TOL / eps (4.5e7) no solver can promise answers
+# inside the bounds to BOUND_TOL, and the QP is semidefinite in all but name (R = 0 style configs).
+P_COND_MAX = BOUND_TOL / np.finfo(float).eps
+# DAQP's own acceptance test, set to the package tolerance (the library default is 1e-6); every
+# "solved" answer is checked again against the bounds in their own units by SteeringProblem.check.
+DAQP_OPTIONS = {"primal_tol": BOUND_TOL, "iter_limit": 1000}
 
 _OSQP_OK = {"solved"}
 # DAQP exit flags (daqp/include/constants.h)
@@ -131,18 +141,35 @@ class SteeringProblem:
         self.q0 = np.array(q0, dtype=float).reshape(-1)
         self.lg0 = np.array(l0, dtype=float).reshape(-1)
         self.ug0 = np.array(u0, dtype=float).reshape(-1)
-        try:
-            self._P_chol = np.linalg.cholesky(self.P)
-        except np.linalg.LinAlgError:
-            raise ConfigError(
-                f"{c.source}: the steering QP is not strictly convex (P singular); use R > 0 on every input"
-            ) from None
-        # Unconstrained optimum u* = K theta + k0 (exact fast path when it satisfies the bounds).
-        Pinv = np.linalg.inv(self.P)
-        self.K = -Pinv @ self.F_q
-        self.k0 = -Pinv @ self.q0
+        self._check_hessian()
+        self._precompute(D)
         self._osqp = None
         self._exact = None
+
+    def _precompute(self, D: np.ndarray) -> None:
+        """The unconstrained gain and the bounds in their own units (for check())."""
+        c, Tf = self.config, self.config.t_f
+        # Unconstrained optimum u* = K theta + k0 (exact fast path when it satisfies the bounds).
+        chol = sla.cho_factor(self.P)
+        self.K = -sla.cho_solve(chol, self.F_q)
+        self.k0 = -sla.cho_solve(chol, self.q0)
+        self._y_lo, self._y_hi = np.tile(c.y_min, Tf).astype(float), np.tile(c.y_max, Tf).astype(float)
+        self._du_max = np.tile(c.du_max, Tf).astype(float)
+        self._D = D  # stacked differences (n_u, n_u)
+
+    def _check_hessian(self) -> None:
+        """ConfigError naming [cost] R when P is not numerically positive definite (cond > P_COND_MAX)."""
+        c = self.config
+        ev = np.linalg.eigvalsh(self.P)
+        cond = ev[-1] / ev[0] if ev[0] > 0 else np.inf
+        if not cond <= P_COND_MAX:
+            raise ConfigError(
+                f"{c.source}: [cost] R = {np.diag(c.R).tolist()} (R_mode {c.R_mode!r}"
+                + (f", R_du = {np.diag(c.R_du).tolist()}" if np.any(c.R_du) else "")
+                + f") leaves the steering QP not strictly convex: the condensed Hessian has eigenvalues "
+                f"{ev[0]:.3g} .. {ev[-1]:.3g} (condition number {cond:.3g} > {P_COND_MAX:.3g}); give every input "
+                "a positive R (or R_du), or raise it relative to Q"
+            )
 
     # ------------------------------------------------------------------ parameters
     def theta(
@@ -167,10 +194,44 @@ class SteeringProblem:
         return (self.q0 + self.F_q @ theta, np.concatenate([self.lb_u, self.lg0 + Ft]),
                 np.concatenate([self.ub_u, self.ug0 + Ft]))
 
-    def is_feasible(self, z: np.ndarray, l: np.ndarray, u: np.ndarray, tol: float = 1e-9) -> bool:
-        """Whether z satisfies l - tol <= A z <= u + tol."""
-        Az = np.concatenate([z, self.A_g @ z])
-        return bool(np.all(Az >= l - tol) and np.all(Az <= u + tol))
+    def is_feasible(self, z: np.ndarray, l: np.ndarray, u: np.ndarray, tol: float = BOUND_TOL) -> bool:
+        """Whether z satisfies l - tol*max(1,|l|) <= A z <= u + tol*max(1,|u|) (QP form, shifted bounds)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            Az = np.concatenate([z, self.A_g @ z])
+            return bool(np.all(Az >= l - tol * np.maximum(1.0, np.abs(l)))
+                        and np.all(Az <= u + tol * np.maximum(1.0, np.abs(u))))
+
+    def check(self, z: np.ndarray | None, th: np.ndarray) -> str:
+        """Verify an answer z (n_u,) at theta in the bounds' own units.
+
+        Returns "solved" when z and its predicted y are finite and u, du (against u_ini[-1] first)
+        and y are inside their bounds within BOUND_TOL * max(1, |bound|); else "nonfinite" or
+        "out_of_bounds". This is the one acceptance test of every interpreted answer.
+        """
+        if z is None or not np.all(np.isfinite(z)):
+            return "nonfinite"
+        m, ti, pr = self.config.m, self.config.t_ini, self.predictor
+        with np.errstate(over="ignore", invalid="ignore"):
+            y = pr.Gy_w @ th[: self.n_w] + pr.Gy_u @ z
+            du = self._D @ z
+            du[:m] -= th[m * (ti - 1) : m * ti]  # the first increment is against the last applied input
+            if not np.all(np.isfinite(y)) or not np.all(np.isfinite(du)):
+                return "nonfinite"
+            inside = (within_bounds(z, self.lb_u, self.ub_u) and within_bounds(y, self._y_lo, self._y_hi)
+                      and within_bounds(du, -self._du_max, self._du_max))
+        return "solved" if inside else "out_of_bounds"
+
+    def qp_finite(self, q: np.ndarray, l: np.ndarray, u: np.ndarray) -> bool:
+        """Whether (q, l, u) is a QP a solver can be handed: q finite, no NaN, every finite entry below
+        1e30 in magnitude (OSQP's infinity), no +inf lower or -inf upper bound.
+
+        Extreme parameters (|theta| ~ 1e308) overflow here; they are refused before any solver sees them.
+        """
+        with np.errstate(invalid="ignore"):
+            lu = np.concatenate([l, u])
+            big = np.abs(lu[np.isfinite(lu)])
+            return bool(np.all(np.isfinite(q)) and np.all(np.abs(q) < 1e30) and not np.any(np.isnan(lu))
+                        and np.all(big < 1e30) and not np.any(l == np.inf) and not np.any(u == -np.inf))
 
     def unconstrained(self, theta: np.ndarray) -> np.ndarray:
         """Unconstrained optimum K theta + k0, (n_u,)."""
@@ -181,6 +242,11 @@ class SteeringProblem:
         return float(self._cost_fn(u, theta))
 
     # ------------------------------------------------------------------ solving
+    def reset(self) -> None:
+        """Back to the post-construction state: OSQP's warm start and the DAQP workspace are dropped."""
+        self._osqp = None
+        self._exact = None
+
     def solve(
         self,
         u_ini: np.ndarray,
@@ -198,38 +264,52 @@ class SteeringProblem:
         CasADi's daqp: exact to round-off), or ``"fast"`` (unconstrained optimum if feasible,
         exact active set otherwise).
         """
+        if solver not in SOLVERS:
+            raise ConfigError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
         th = self.theta(u_ini, y_ini, y_des, u_nom)
         return self.solve_theta(th, solver=solver, eps=eps, max_iter=max_iter)
 
     def solve_theta(self, th: np.ndarray, *, solver: str = "osqp", eps: float = 1e-7,
                     max_iter: int = 20000) -> SteeringResult:
-        """Like :meth:`solve`, from a stacked parameter vector."""
-        q, l, ub = self.qp_vectors(th)
+        """Like :meth:`solve`, from a stacked parameter vector.
+
+        Every answer is verified (:meth:`check`): "solved" means inside all bounds within
+        BOUND_TOL; otherwise the status says why ("out_of_bounds", "nonfinite",
+        "nonfinite_parameters" or the solver's own) and u is NaN.
+        """
+        if solver not in SOLVERS:
+            raise ConfigError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
         t0 = time.perf_counter()
+        with np.errstate(over="ignore", invalid="ignore"):
+            q, l, ub = self.qp_vectors(th)
+        if not self.qp_finite(q, l, ub):
+            return self.result(None, th, "nonfinite_parameters", 0, time.perf_counter() - t0)
         fast = False
         if solver == "fast":
-            z = self.unconstrained(th)
-            if self.is_feasible(z, l, ub):
-                z, status, it, fast = z, "solved", 0, True
+            with np.errstate(over="ignore", invalid="ignore"):
+                z = self.unconstrained(th)
+            if self.check(z, th) == "solved":
+                status, it, fast = "solved", 0, True
             else:
                 z, status, it = self._solve_exact(q, l, ub)
         elif solver == "exact":
             z, status, it = self._solve_exact(q, l, ub)
-        elif solver == "osqp":
-            z, status, it = self._solve_osqp(q, l, ub, eps, max_iter)
         else:
-            raise ConfigError(f"unknown solver {solver!r}; choose 'osqp', 'exact' or 'fast'")
-        dt = time.perf_counter() - t0
-        return self.result(z, th, status, it, dt, fast)
+            z, status, it = self._solve_osqp(q, l, ub, eps, max_iter)
+        if status == "solved":
+            status = self.check(z, th)
+        if status != "solved" and solver == "osqp":
+            self._osqp = None  # a failed solve leaves no warm start behind
+        return self.result(z, th, status, it, time.perf_counter() - t0, fast)
 
-    def result(self, z: np.ndarray, th: np.ndarray, status: str, iterations: int = 0,
+    def result(self, z: np.ndarray | None, th: np.ndarray, status: str, iterations: int = 0,
                solve_time: float = 0.0, fast_path: bool = False) -> SteeringResult:
-        """Package a solution vector z (n_u,) at theta into a SteeringResult."""
+        """Package a solution vector z (n_u,) at theta into a SteeringResult (NaN unless "solved")."""
         c, pr = self.config, self.predictor
         if status != "solved" or z is None or not np.all(np.isfinite(z)):
             nan = np.full(self.n_u, np.nan)
             return SteeringResult(nan.reshape(c.t_f, c.m), np.full((c.t_f, c.p), np.nan),
-                                  np.full((c.t_ini, c.p), np.nan), status if status != "solved" else "nan",
+                                  np.full((c.t_ini, c.p), np.nan), status if status != "solved" else "nonfinite",
                                   iterations, solve_time)
         w = th[: self.n_w]
         y = pr.Gy_w @ w + pr.Gy_u @ z
@@ -238,25 +318,36 @@ class SteeringProblem:
                               status, int(iterations), solve_time, self.cost(z, th), fast_path)
 
     def _solve_osqp(self, q, l, ub, eps, max_iter):
-        if self._osqp is None:
-            s = osqp.OSQP()
-            s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, sp.csc_matrix(self.A),
-                    np.maximum(l, -1e30), np.minimum(ub, 1e30), verbose=False,
-                    eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter, warm_starting=True)
-            self._osqp = s
+        # OSQP's infinity is 1e30 (finite entries beyond it were refused by qp_finite).
+        lo, hi = np.maximum(l, -1e30), np.minimum(ub, 1e30)
+        warm = self._osqp is not None
+        if warm:
+            self._osqp.update(q=q, l=lo, u=hi)
         else:
-            self._osqp.update(q=q, l=np.maximum(l, -1e30), u=np.minimum(ub, 1e30))
+            self._osqp_setup(q, lo, hi, eps, max_iter)
         r = self._osqp.solve(raise_error=False)
         status = str(r.info.status).lower()
+        if status not in _OSQP_OK and warm:
+            # A first-order method can stall from a far-away warm start (e.g. after an extreme
+            # tick that did solve): the answer must not depend on history, so retry cold once.
+            self._osqp_setup(q, lo, hi, eps, max_iter)
+            r = self._osqp.solve(raise_error=False)
+            status = str(r.info.status).lower()
         status = "solved" if status in _OSQP_OK else status.replace(" ", "_")
         return r.x, status, int(r.info.iter)
+
+    def _osqp_setup(self, q, lo, hi, eps, max_iter) -> None:
+        s = osqp.OSQP()
+        s.setup(sp.triu(sp.csc_matrix(self.P), format="csc"), q, sp.csc_matrix(self.A), lo, hi, verbose=False,
+                eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter, warm_starting=True)
+        self._osqp = s
 
     def _solve_exact(self, q, l, ub):
         if self._exact is None:
             Hs = ca.DM(self.P).sparsity()
             As = ca.DM(self.A_g).sparsity() if self.n_g else ca.Sparsity(0, self.n_u)
             self._exact = ca.conic("exact", "daqp", {"h": Hs, "a": As},
-                                   {"error_on_fail": False, "print_problem": False})
+                                   {"error_on_fail": False, "print_problem": False, "daqp": dict(DAQP_OPTIONS)})
         kw = dict(h=self.P, g=q, lbx=l[: self.n_u], ubx=ub[: self.n_u])
         if self.n_g:
             kw.update(a=self.A_g, lba=l[self.n_u :], uba=ub[self.n_u :])
@@ -271,4 +362,5 @@ class SteeringProblem:
             status = _DAQP_STATUS.get(int(rs), f"daqp_{rs}")
         except (TypeError, ValueError):
             status = str(rs).lower().replace(" ", "_")
-        return z, status, 0
+        return None, status, 0
+

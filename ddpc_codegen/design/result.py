@@ -7,7 +7,7 @@ import numpy as np
 
 from ddpc_codegen.errors import DataError
 
-__all__ = ["SteeringResult", "stack_window", "BOUND_TOL"]
+__all__ = ["SteeringResult", "stack_window", "within_bounds", "BOUND_TOL"]
 
 # The one feasibility tolerance of the package: a result may say "solved" only when every bound
 # holds within BOUND_TOL * max(1, |bound|) (u, du and y bounds; the generated C, the fast path,
@@ -85,3 +85,13 @@ def stack_window(x, T: int, c: int, what: str, check_finite: bool = True) -> np.
     if check_finite and not np.all(np.isfinite(a)):
         raise DataError(f"{what} contains NaN or inf; refusing to steer on it")
     return a
+
+
+def within_bounds(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """lo - BOUND_TOL*max(1,|lo|) <= x <= hi + BOUND_TOL*max(1,|hi|) elementwise; ±inf bounds never bind.
+
+    The acceptance test of every "solved" answer (x, lo, hi of one shape, in the bounds' own units).
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        return bool(np.all(x >= lo - BOUND_TOL * np.maximum(1.0, np.abs(lo)))
+                    and np.all(x <= hi + BOUND_TOL * np.maximum(1.0, np.abs(hi))))

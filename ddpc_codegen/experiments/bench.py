@@ -151,7 +151,7 @@ def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
         s.reset()
         tp, outs = _time_python(s.solve_theta, thetas)
         s.reset()
-        tc, st = s.bench(thetas)
+        tc, st, _ = s.bench(thetas)
         ok = [o.ok for o in outs]
         results[b] = _stats(tp, err_of([o.u.ravel() for o in outs if o.ok]), np.mean([o.fast_path for o in outs]),
                             {"c_median_us": float(np.median(tc)), "c_p99_us": float(np.percentile(tc, 99)),

@@ -73,8 +73,8 @@ def _num(x: Any) -> float | None:
 # ----------------------------------------------------------------------------- summary
 def summary_block(scenario: str, baseline: RunResult, steered: RunResult) -> dict[str, Any]:
     """The stable per-scenario block of reports/summary.json (SI units, radians, µs)."""
-    keys = ("rmse_z", "rmse_pitch") if scenario == "flying" else ("apex_err_mean", "rmse_pitch", "vx_err_mean")
-    extra = ("rmse_x", "mean_z_error") if scenario == "flying" else ("rmse_z", "rmse_roll", "apex_err_signed", "apex_err_max", "n_hops")
+    keys = ("rmse_z", "rmse_pitch") if scenario == "flying" else ("apex_error_mean_abs", "rmse_pitch", "vx_error_mean_abs")
+    extra = ("rmse_x", "mean_z_error") if scenario == "flying" else ("rmse_z", "rmse_roll", "apex_error_mean_signed", "apex_error_max_abs", "n_hops")
     pick = lambda m: {k: (int(m[k]) if k == "n_hops" and k in m else _num(m.get(k))) for k in keys + extra}  # noqa: E731
     st = steered.steering or {}
     reasons = st.get("fallback_reasons", {})
@@ -82,8 +82,8 @@ def summary_block(scenario: str, baseline: RunResult, steered: RunResult) -> dic
     return {
         "baseline": pick(baseline.metrics),
         "steered": pick(steered.metrics),
-        "solve_us": {"median": _num(st.get("solve_us", {}).get("median")), "p99": _num(st.get("solve_us", {}).get("p99")),
-                     "solver_median": _num(st.get("solver_us", {}).get("median")),
+        "solve_us": {"median": _num(st.get("solve_us", {}).get("p50")), "p99": _num(st.get("solve_us", {}).get("p99")),
+                     "solver_median": _num(st.get("solver_us", {}).get("p50")),
                      "solver_p99": _num(st.get("solver_us", {}).get("p99"))},
         "fallbacks": int(st.get("fallbacks", 0)),
         "fallback_reasons": dict(reasons),
@@ -116,8 +116,8 @@ def format_table(summary: dict[str, Any]) -> str:
                 solve = f"{_fmt(s['median'], 1)} / {_fmt(s['p99'], 1)}"
                 fb = str(b["fallbacks"])
             rows.append((sc, run_name, _fmt(m.get("rmse_z"), 1e3), _fmt(m.get("rmse_pitch"), 1e3, 2),
-                         _fmt(m.get("rmse_roll"), 1e3, 2), _fmt(m.get("apex_err_mean"), 1e3, 2),
-                         _fmt(m.get("vx_err_mean"), 1e3), solve, fb))
+                         _fmt(m.get("rmse_roll"), 1e3, 2), _fmt(m.get("apex_error_mean_abs"), 1e3, 2),
+                         _fmt(m.get("vx_error_mean_abs"), 1e3), solve, fb))
     return _grid(head, rows)
 
 
@@ -138,8 +138,8 @@ def format_robustness(rob: dict[str, Any]) -> str:
                 rows.append((sc, cond, "error", r["error"][:40], "", "", ""))
                 continue
             mets = (("RMSE z [mm]", "rmse_z", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3)) if sc == "flying" else (
-                ("mean |apex err| [mm]", "apex_err_mean", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
-                ("mean |vx err| [mm/s]", "vx_err_mean", 1e3))
+                ("mean |apex err| [mm]", "apex_error_mean_abs", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
+                ("mean |vx err| [mm/s]", "vx_error_mean_abs", 1e3))
             for i, (label, key, sc_) in enumerate(mets):
                 b, s = r["baseline"].get(key), r["steered"].get(key)
                 ratio = f"{b / s:.1f}x" if b and s else "-"
@@ -224,6 +224,7 @@ def run_demo(
     generate_dir: str | Path = ROOT / "generated",
     save_data: bool = True,
     quiet: bool = False,
+    baselines: bool = True,
 ) -> dict[str, Any]:
     """Run the demo; returns the summary dict (also written to ``<out_dir>/summary.json``)."""
     t0 = time.perf_counter()
@@ -273,6 +274,14 @@ def run_demo(
                 blk = summary_block(sc, b, s)
                 rob[sc][cond] = {k: blk[k] for k in ("baseline", "steered", "fallbacks", "fallback_reasons", "crashed")}
         summary["robustness"] = rob
+    if baselines:
+        # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines.py);
+        # the runs above that are the same simulations are reused, not repeated.
+        from ddpc_codegen.experiments.baselines import evaluate_baselines, reuse_from_summary
+
+        _say("baselines: prefilter, ILC, non-repeating trajectories ...", quiet)
+        summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
+                                                  interpreted=interpreted, quiet=quiet, out_dir=out / "baselines")
     wall = time.perf_counter() - t0
     summary["meta"] = {
         "units": "SI (m, rad, m/s); solve times in microseconds",
@@ -283,9 +292,9 @@ def run_demo(
         "machine": platform.machine(),
         "definitions": {
             "rmse_z, rmse_pitch (flying)": "true output minus desired, after the 3 s settle time",
-            "apex_err_mean": "mean over scored hops of |apex height - target| (first 3 hops skipped)",
+            "apex_error_mean_abs": "mean over scored hops of |apex height - target| (first 3 hops skipped)",
             "rmse_pitch, rmse_roll, rmse_z (hopping)": "true minus desired over the aerial phase of the scored hops",
-            "vx_err_mean": "mean over hops of |average vx touchdown-to-touchdown - target|",
+            "vx_error_mean_abs": "mean over hops of |average vx touchdown-to-touchdown - target|",
             "solve_us": "median / p99 of the wall time of the solver call in the loop (Python -> C and back); "
                         "solver_median / solver_p99 from the solver's own timer",
             "fallbacks": "ticks on which the nominal reference was sent instead (solver failure, bound or step guard)",
@@ -307,6 +316,7 @@ def _add_demo_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", choices=("flying", "hopping", "both"), default="both")
     p.add_argument("--no-robustness", action="store_true", help="skip the robustness runs")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-baselines", action="store_true", help="skip the prefilter / ILC / non-repeating comparison")
     p.add_argument("--quiet", action="store_true", help="no progress output on stderr")
 
 
@@ -314,11 +324,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     scen = ("flying", "hopping") if args.scenario == "both" else (args.scenario,)
     summary = run_demo(args.out, scenarios=scen, interpreted=args.interpreted, robustness=not args.no_robustness,
-                       figures=not args.no_figures, quiet=args.quiet)
+                       figures=not args.no_figures, quiet=args.quiet, baselines=not args.no_baselines)
     print(format_table(summary))
     if "robustness" in summary:
         print()
         print(format_robustness(summary["robustness"]))
+    if "baselines" in summary:
+        from ddpc_codegen.experiments.baselines import format_baselines
+
+        print()
+        print(format_baselines(summary["baselines"]))
+        print("* ILC's last iteration learned on the periodic case, flown unchanged here")
     print()
     print(f"wrote {Path(args.out) / 'summary.json'}" + (
         f" and {len(summary['meta'].get('figures', []))} figures" if summary["meta"].get("figures") else ""))

@@ -54,8 +54,9 @@ from ddpc_codegen.design.artificial_io import ArtificialIO, HoppingWindow, groun
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.stats import percentiles
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
-from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
+from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario, Scenario
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
@@ -200,7 +201,8 @@ class SteeringSetup:
 
     problem: interpreted SteeringProblem; solver: the generated C solver (None if not compiled);
     dataset: the predictor's data (flying: the PRBS run; hopping: the stitched hops H_G);
-    art: hopping's completion operator; info: provenance (PE summary, held-out prediction error, timings).
+    art: hopping's completion operator; info: provenance (PE summary, held-out prediction error, timings);
+    raw: the recorded data as collected (hopping: with ground phases; what the baselines are fitted on).
     """
 
     scenario: str
@@ -213,6 +215,7 @@ class SteeringSetup:
     art: ArtificialIO | None = None
     art_spec: ArtificialIOSpec = field(default_factory=ArtificialIOSpec)
     info: dict = field(default_factory=dict)
+    raw: IODataset | None = None
 
 
 def _fit(cfg: SteeringConfig, ds: IODataset) -> Predictor:
@@ -281,7 +284,7 @@ def build_setup(
     info["predictor"] = {"method": pred.method, "rank": pred.rank, "columns": pred.n_columns,
                          **{k: v for k, v in pred.options.items() if not k.startswith("_")}}
     prob = SteeringProblem(pred, cfg)
-    setup = SteeringSetup(scenario, cfg, pred, prob, ds, art=art, art_spec=art_spec, info=info)
+    setup = SteeringSetup(scenario, cfg, pred, prob, ds, art=art, art_spec=art_spec, info=info, raw=raw)
     if generate_dir is not None:
         from ddpc_codegen.codegen import generate
         from ddpc_codegen.runtime.loader import load_solver
@@ -419,9 +422,9 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
     """The report's metrics of a run (SI units, radians).
 
     Flying: rmse_z, rmse_pitch (after the settle time), plus rmse_x and mean_z_error.
-    Hopping (after the settle hops): apex_err_mean = mean |apex - target| [m],
-    apex_err_signed = mean (apex - target), rmse_pitch / rmse_roll / rmse_z over the aerial phase,
-    vx_err_mean = mean |per-hop average vx - target| [m/s] (touchdown to touchdown).
+    Hopping (after the settle hops): apex_error_mean_abs = mean |apex - target| [m],
+    apex_error_mean_signed = mean (apex - target), rmse_pitch / rmse_roll / rmse_z over the aerial phase,
+    vx_error_mean_abs = mean |per-hop average vx - target| [m/s] (touchdown to touchdown).
     """
     m = res.metrics()
     out: dict[str, Any] = {"crashed": bool(res.crashed), "duration": m["duration"]}
@@ -439,13 +442,13 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
             vx.append((res.state[ib, 0] - res.state[ia, 0]) / (res.t[ib] - res.t[ia]) - res.config.target_velocity[0])
     vx = np.asarray(vx[settle:])
     out.update(
-        apex_err_mean=float(np.mean(np.abs(ap))) if ap.size else float("nan"),
-        apex_err_signed=float(np.mean(ap)) if ap.size else float("nan"),
-        apex_err_max=float(np.max(np.abs(ap))) if ap.size else float("nan"),
+        apex_error_mean_abs=float(np.mean(np.abs(ap))) if ap.size else float("nan"),
+        apex_error_mean_signed=float(np.mean(ap)) if ap.size else float("nan"),
+        apex_error_max_abs=float(np.max(np.abs(ap))) if ap.size else float("nan"),
         rmse_pitch=m["rmse_pitch_aerial"],
         rmse_roll=m["rmse_roll_aerial"],
         rmse_z=m["rmse_z_aerial"],
-        vx_err_mean=float(np.mean(np.abs(vx))) if vx.size else float("nan"),
+        vx_error_mean_abs=float(np.mean(np.abs(vx))) if vx.size else float("nan"),
         n_hops=int(m["n_hops_scored"]),
     )
     return out
@@ -458,7 +461,7 @@ def _g_eff(res_params: PogoXParams) -> float:
 
 def run(
     setup: SteeringSetup | None,
-    scenario: str,
+    scenario: str | Scenario,
     duration: float,
     *,
     steer: bool = True,
@@ -470,7 +473,8 @@ def run(
     progress: bool = False,
     label: str = "",
 ) -> RunResult:
-    """Simulate one run of ``scenario``, steered through ``setup`` or not.
+    """Simulate one run of ``scenario`` (a name or a scenario object, e.g. another trajectory),
+    steered through ``setup`` or not.
 
     Args:
         steer: False = the baseline (the model-based controller alone).
@@ -480,6 +484,7 @@ def run(
     (counted by the steerer); a simulator error ends the run as crashed.
     """
     params = params or PogoXParams()
+    sim_scenario, scenario = scenario, scenario if isinstance(scenario, str) else scenario.name
     hook = None
     steerer = None
     if steer:
@@ -501,7 +506,7 @@ def run(
         hook = SteeringHook(steerer, scenario, window=window,
                             g_eff=_g_eff(params) if scenario == "hopping" else None)
     t0 = time.perf_counter()
-    res = simulate(scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
+    res = simulate(sim_scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
                    pushes=pushes, progress=progress)
     wall = time.perf_counter() - t0
     met = scenario_metrics(res)
@@ -510,9 +515,7 @@ def run(
     if steerer is not None:
         st = steerer.summary()
         st["hook"] = dict(hook.counts)
-        t = np.asarray(hook.solver_us)
-        st["solver_us"] = {"median": float(np.median(t)) if t.size else None,
-                           "p99": float(np.percentile(t, 99)) if t.size else None}
+        st["solver_us"] = percentiles(hook.solver_us)
         st["solver"] = "interpreted" if isinstance(steerer.solver, InterpretedSolver) else f"generated:{steerer.solver.backend}"
         if hook.window is not None:
             st["artificial_io"] = dict(hook.window.counts)

@@ -7,10 +7,16 @@ Bad logs raise :class:`~ddpc_codegen.errors.DataError` naming the topic and time
 warn (:class:`LogImportWarning`) saying what was dropped; nothing is silently invented.
 """
 
-from ddpc_codegen.logs.frames import down_to_up, euler_to_quat, ned_to_enu, quat_to_euler, yaw_ned_to_enu
 from ddpc_codegen.logs.resample import RESAMPLING_RULE, ChannelSpec, LogImportWarning, parse_channel_spec
 from ddpc_codegen.logs.tlog import TLOG_PRESETS, import_tlog, list_tlog_messages, read_tlog
 from ddpc_codegen.logs.ulog import ULOG_PRESETS, import_ulog, list_ulog_topics
+from ddpc_codegen.robot.frames import (  # the log importers' frame math, re-exported
+    enu_from_ned_array,
+    euler_from_quat_array,
+    quat_from_euler_array,
+    up_from_down_array,
+    yaw_enu_from_ned_array,
+)
 
 __all__ = [
     "import_ulog",
@@ -24,9 +30,9 @@ __all__ = [
     "parse_channel_spec",
     "LogImportWarning",
     "RESAMPLING_RULE",
-    "quat_to_euler",
-    "euler_to_quat",
-    "ned_to_enu",
-    "down_to_up",
-    "yaw_ned_to_enu",
+    "euler_from_quat_array",
+    "quat_from_euler_array",
+    "enu_from_ned_array",
+    "up_from_down_array",
+    "yaw_enu_from_ned_array",
 ]

@@ -136,7 +136,9 @@ class ChannelSpec:
       down-pointing NED/FRD field F: ``z_up``, ``vz_up``, ``thrust_body[2]_up``).
     - NAME: the dataset channel name (default: the field, ``_up`` dropped, ``_ref`` appended for
       inputs: ``trajectory_setpoint.z_up`` -> ``z_ref``, ``vehicle_attitude.pitch`` -> ``pitch``).
-    - UNIT: the unit string (default: known SI unit of the field, else "").
+    - UNIT: the unit string (default: known SI unit of the field, else ""; MAVLink logs take
+      the unit from the message definition instead, see ``logs.tlog.mavlink_unit``).
+    ``unit_given``: the spec stated the unit (``:UNIT``).
     """
 
     name: str
@@ -145,6 +147,7 @@ class ChannelSpec:
     field: str
     unit: str
     text: str
+    unit_given: bool = False
 
     @property
     def where(self) -> str:
@@ -171,6 +174,7 @@ def parse_channel_spec(text: str | ChannelSpec, role: str) -> ChannelSpec:
         field=fld,
         unit=unit,
         text=str(text).strip(),
+        unit_given=m["unit"] is not None,
     )
 
 
@@ -415,6 +419,24 @@ def gap_threshold_us(s: Series, max_gap_s: float | None, gap_factor: float) -> f
     return gap_factor * s.median_interval_us if s.t_us.size > 1 else math.inf
 
 
+# Memory bound of a resampled dataset: grid samples over all segments (x channels x 8 bytes, plus the
+# grid itself). 5e7 samples is 69 hours at 200 Hz; a --rate typo (1e9) would otherwise allocate GiBs.
+MAX_GRID_SAMPLES = 50_000_000
+MAX_RATE_HZ = 1e6
+
+
+def _check_grid_size(pieces: Sequence[tuple[int, int, str]], rate_hz: float, n_channels: int, what: str) -> None:
+    """DataError before allocating when the grid would exceed MAX_GRID_SAMPLES."""
+    span_s = sum(max(0, b - a) for a, b, _ in pieces) / 1e6
+    n = span_s * rate_hz
+    if n > MAX_GRID_SAMPLES:
+        gib = n * (n_channels + 1) * 8 / 2**30
+        raise DataError(
+            f"--rate {rate_hz:g} Hz over {span_s:.1f} s of {Path(what).name} would make {n:.3g} grid samples "
+            f"(~{gib:.3g} GiB for {n_channels} channels), above the limit of {MAX_GRID_SAMPLES:.3g}; use the "
+            "controller rate (e.g. --rate 200) or cut the log with --time-range")
+
+
 def build_segments(
     inputs: Sequence[Series],
     outputs: Sequence[Series],
@@ -444,6 +466,9 @@ def build_segments(
     """
     if not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise DataError(f"rate must be a positive number of Hz; got {rate_hz}")
+    if rate_hz > MAX_RATE_HZ:
+        raise DataError(f"--rate {rate_hz:g} Hz is above {MAX_RATE_HZ:g} Hz: log time stamps are whole microseconds; "
+                        "use the controller rate (e.g. --rate 200)")
     chans = list(inputs) + list(outputs)
     for s in chans:
         if s.t_us.size > 1:
@@ -472,6 +497,7 @@ def build_segments(
                 pieces.append((lo, hi, lab))
     else:
         pieces = [(a, b, "") for a, b in cover]
+    _check_grid_size(pieces, rate_hz, len(chans), what)
     min_n = max(2, int(math.ceil(min_duration_s * rate_hz)))
     segs: list[Segment] = []
     short: list[str] = []

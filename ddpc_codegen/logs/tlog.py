@@ -30,6 +30,15 @@ import numpy as np
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
+from ddpc_codegen.logs.mavlink_defs import (  # noqa: F401 (PX4_MAIN_MODES, ARDUPILOT_OFFBOARD_MODES re-exported)
+    ARDUPILOT_OFFBOARD_MODES,
+    MAV_AUTOPILOT_ARDUPILOTMEGA,
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    PX4_MAIN_MODES,
+    heartbeat_mode,
+    mavlink_unit,
+    with_mavlink_units,
+)
 from ddpc_codegen.logs.resample import (
     ChannelSpec,
     Notes,
@@ -46,7 +55,8 @@ from ddpc_codegen.logs.resample import (
     state_windows,
 )
 
-__all__ = ["import_tlog", "read_tlog", "list_tlog_messages", "TLOG_PRESETS", "PX4_MAIN_MODES"]
+__all__ = ["import_tlog", "read_tlog", "list_tlog_messages", "mavlink_unit", "TLOG_PRESETS", "PX4_MAIN_MODES",
+           "ARDUPILOT_OFFBOARD_MODES"]
 
 TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # PogoX flying: the companion's height + pitch references as sent on the link
@@ -73,11 +83,6 @@ TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     ),
 }
 
-PX4_MAIN_MODES = {1: "manual", 2: "altctl", 3: "posctl", 4: "auto", 5: "acro", 6: "offboard",
-                  7: "stabilized", 8: "rattitude", 9: "termination"}
-PX4_MAIN_MODE_OFFBOARD = 6
-_MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-_MAV_MODE_FLAG_SAFETY_ARMED = 128
 _MAV_AUTOPILOT_INVALID = 8
 _MAV_TYPE_GCS = 6
 
@@ -169,7 +174,7 @@ def read_tlog(
             try:
                 msg = mav.decode(bytearray(data[pos + 8: pos + 8 + total]))
             except Exception:  # pymavlink raises MAVError and, on odd payloads, struct errors
-                crc_bad.append((pos, t_us))
+                crc_bad.append((pos, t_us, mod.mavlink_map[msgid].msgname))
             else:
                 out.setdefault(msg.get_type(), []).append((t_us, sysid, compid, msg))
         pos += 8 + total
@@ -182,8 +187,10 @@ def read_tlog(
         notes.warn(f"{path.name}: skipped {sum(nb for _, nb, _ in skipped)} corrupt byte(s) in "
                    f"{len(skipped)} place(s): {where}{' ...' if len(skipped) > 3 else ''}")
     if crc_bad:
-        where = ", ".join(f"offset {off} at {fmt_t(t, o)}" for off, t in crc_bad[:3])
-        notes.warn(f"{path.name}: dropped {len(crc_bad)} packet(s) failing the MAVLink CRC/decode: "
+        names = sorted({nm for _, _, nm in crc_bad})
+        per = ", ".join(f"{nm} x{sum(1 for *_, x in crc_bad if x == nm)}" for nm in names)
+        where = ", ".join(f"{nm} at offset {off}, {fmt_t(t, o)}" for off, t, nm in crc_bad[:3])
+        notes.warn(f"{path.name}: dropped {len(crc_bad)} packet(s) failing the MAVLink CRC/decode ({per}): "
                    f"{where}{' ...' if len(crc_bad) > 3 else ''}")
     if origin is None:
         raise DataError(f"{path}: no MAVLink record found; is it a tlog (8-byte timestamp + packet records)?")
@@ -242,28 +249,25 @@ def _heartbeat_windows(rows, path: Path, origin: int, sysid: int | None, *, offb
     ap = _pick_source(ap, "HEARTBEAT (autopilot)", None, path, what)
     t = np.array([r[0] for r in ap], dtype=np.int64)
     base = np.array([r[3].base_mode for r in ap], dtype=np.int64)
-    custom = np.array([r[3].custom_mode for r in ap], dtype=np.int64)
-    main = np.where(base & _MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, (custom >> 16) & 0xFF, 0)
+    modes = [heartbeat_mode(r[3]) for r in ap]
+    code = np.array([c for c, _, _ in modes], dtype=np.int64)
+    label = {c: n for c, n, _ in modes}
+    offboard = {c: o for c, _, o in modes}
     t_end = int(t[-1])
-
-    def label(v: int) -> str:
-        mm, sub = (v >> 16) & 0xFF, (v >> 24) & 0xFF
-        name = PX4_MAIN_MODES.get(mm, f"main_mode_{mm}")
-        return f"{name}.{sub}" if mm == 4 else name
 
     wins = None
     # heartbeats come at ~1 Hz: a mode is only trusted from its first to its last report
     if offboard_only or split_on_mode:
-        code = np.where(main > 0, custom, -1)
-        keep = (lambda v: v >= 0 and ((v >> 16) & 0xFF) == PX4_MAIN_MODE_OFFBOARD) if offboard_only else None
-        wins = [(a, b, label(v) if v >= 0 else "no_custom_mode")
-                for a, b, v in state_windows(t, code, t_end_us=t_end, keep=keep, until_next=False)]
+        keep = (lambda v: offboard[v]) if offboard_only else None
+        wins = [(a, b, label[v]) for a, b, v in state_windows(t, code, t_end_us=t_end, keep=keep, until_next=False)]
         if offboard_only and not wins:
-            seen = sorted({label(int(v)) for v in custom})
-            raise DataError(f"--offboard-only: {path} never reports PX4 offboard mode "
-                            f"({fmt_t(t[0], origin)}..{fmt_t(t_end, origin)}; modes seen: {', '.join(seen)})")
+            ardu = ap[0][3].autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA
+            which = "ArduPilot GUIDED / GUIDED_NOGPS" if ardu else "PX4 offboard"
+            raise DataError(f"--offboard-only: {path} never reports {which} mode "
+                            f"({fmt_t(t[0], origin)}..{fmt_t(t_end, origin)}; modes seen: "
+                            f"{', '.join(sorted(set(label.values())))})")
     if armed_only:
-        armed = (base & _MAV_MODE_FLAG_SAFETY_ARMED) > 0
+        armed = (base & MAV_MODE_FLAG_SAFETY_ARMED) > 0
         arm = [(a, b, "armed") for a, b, _ in
                state_windows(t, armed, t_end_us=t_end, keep=lambda v: v == 1, until_next=False)]
         if not arm:
@@ -327,8 +331,10 @@ def import_tlog(
         time_source: "log" (tlog receive timestamps) or "boot" (messages' time_boot_ms).
         dialect: pymavlink dialect module for decoding ("common", "development", "all"...).
         time_range: (start, end) in s since the first record ("log") or since boot ("boot").
-    Mode filters read the autopilot's HEARTBEAT (PX4 custom main mode 6 = offboard, base_mode
+    Mode filters read the autopilot's HEARTBEAT (PX4: custom main mode 6 = offboard; ArduPilot:
+    the mode number of the vehicle type's map, GUIDED / GUIDED_NOGPS = off-board; base_mode
     armed flag); heartbeats come at ~1 Hz, so a mode counts from its first to its last report.
+    Units: from the MAVLink message definitions (:func:`mavlink_unit`), never guessed from names.
     ``.npz`` files (the bridge's own IODataset logs) are returned as they are.
     """
     path_list = [Path(paths)] if isinstance(paths, (str, Path)) else [Path(p) for p in paths]
@@ -348,6 +354,8 @@ def import_tlog(
     check_rule(input_rule, "input")
     check_rule(output_rule, "output")
     ins, outs = resolve_channels(preset, inputs, outputs, TLOG_PRESETS, "tlog")
+    mod = _dialect(dialect)
+    ins, outs = with_mavlink_units(ins, mod), with_mavlink_units(outs, mod)
     modes = offboard_only or armed_only or split_on_mode
     if modes and time_source == "boot":
         raise DataError("mode filters need time_source='log': HEARTBEAT carries no time_boot_ms")

@@ -28,7 +28,7 @@ Frames. Everything here is z-up: world ENU (x east, y north, z up), body FLU (x 
 y left, z up; the leg points along body -z). Euler angles are intrinsic Z-Y-X
 (yaw psi, pitch theta, roll phi), R = Rz(psi) Ry(theta) Rx(phi), body -> world. Positive pitch
 tilts the thrust axis towards +x; positive roll tilts it towards -y. Quaternions are (w, x, y, z),
-body -> world. PX4 works in NED / FRD: :func:`enu_flu_to_ned_frd` gives
+body -> world. PX4 works in NED / FRD: :func:`~ddpc_codegen.robot.frames.quat_ned_frd_from_enu_flu` gives
 q_NED_FRD = q_(ENU->NED) * q_ENU_FLU * q_(FRD->FLU) (the MAVROS convention), so roll keeps its
 sign while pitch and the world yaw change sign/offset (yaw_NED = pi/2 - yaw_ENU). Normalized
 thrust is frame independent (PX4 sets thrust_body = [0, 0, -thrust] in FRD).
@@ -59,7 +59,7 @@ from typing import Sequence
 import numpy as np
 
 from ddpc_codegen.design.phases import ASCENT, DESCENT, FLYING, GROUND, PHASE_NAMES
-from ddpc_codegen.robot.frames import enu_flu_to_ned_frd, quat_from_euler
+from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
 __all__ = [
@@ -108,8 +108,8 @@ class AttitudeTarget:
     euler: np.ndarray
 
     def q_ned_frd(self) -> np.ndarray:
-        """The quaternion in PX4's NED/FRD convention."""
-        return enu_flu_to_ned_frd(self.q)
+        """The quaternion (4,) in PX4's NED/FRD convention."""
+        return np.array(quat_ned_frd_from_enu_flu(self.q))
 
 
 @dataclass(frozen=True)

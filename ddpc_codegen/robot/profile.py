@@ -1,6 +1,7 @@
 """Robot profiles: the companion controller's model and gains and the trajectory it flies, as a
 validated TOML file (``[controller]``: :class:`ControllerConfig` fields, ``[trajectory]``:
-:class:`EllipseTrajectory` fields). Shipped profiles live in ``ddpc_codegen/robot/profiles/``
+:class:`EllipseTrajectory` fields, ``[contact]``: :class:`ContactConfig` fields, hopping phase
+detection). Shipped profiles live in ``ddpc_codegen/robot/profiles/``
 and are named by their file stem (``pogox``); any other profile is a path.
 """
 
@@ -11,13 +12,14 @@ from pathlib import Path
 
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
 
 __all__ = ["RobotProfile", "load_profile", "shipped_profiles", "PROFILE_DIR"]
 
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
-_TOP = ("name", "description", "extends", "controller", "trajectory")
+_TOP = ("name", "description", "extends", "controller", "trajectory", "contact")
 
 
 @dataclass(frozen=True)
@@ -29,6 +31,7 @@ class RobotProfile:
         description: one line for logs and ``--help``.
         controller: the model-based controller's model and gains (SI units).
         trajectory: the default desired trajectory (world ENU / trajectory frame, m, s).
+        contact: how hopping phases are detected (``[contact]``; :class:`ContactConfig`).
         source: where it was loaded from.
     """
 
@@ -36,6 +39,7 @@ class RobotProfile:
     description: str
     controller: ControllerConfig
     trajectory: EllipseTrajectory
+    contact: ContactConfig = ContactConfig()
     source: str = "<profile>"
 
 
@@ -72,8 +76,10 @@ def load_profile(name_or_path: str | Path) -> RobotProfile:
                                 base.controller if base else None)
     traj = dataclass_from_table(EllipseTrajectory, raw.get("trajectory", {}), "[trajectory]", src,
                                 base.trajectory if base else None)
+    contact = dataclass_from_table(ContactConfig, raw.get("contact", {}), "[contact]", src,
+                                   base.contact if base else None)
     for key in ("name", "description"):
         if key in raw and not isinstance(raw[key], str):
             raise ConfigError(f"{src}: {key} must be a string; got {raw[key]!r}")
     return RobotProfile(name=raw.get("name", path.stem), description=raw.get("description", ""),
-                        controller=ctrl, trajectory=traj, source=src)
+                        controller=ctrl, trajectory=traj, contact=contact, source=src)

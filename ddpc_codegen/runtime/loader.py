@@ -1,4 +1,9 @@
-"""Load a generated solver and call it with the same API as the interpreted SteeringProblem."""
+"""Load a generated solver and call it with the same API as the interpreted SteeringProblem.
+
+The dims, bounds and tolerance the runtime relies on are read from the compiled binary
+(``<name>_describe``) and cross-checked against manifest.json, so editing the manifest cannot change
+a safety check; a binary of another solver, or one that does not load, is a ManifestError.
+"""
 
 from __future__ import annotations
 
@@ -9,17 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.runtime.manifest import read_manifest, sha256_file
 from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.errors import DataError, ManifestError
 from ddpc_codegen.design.result import SteeringResult, stack_window
+from ddpc_codegen.errors import DataError, ManifestError
+from ddpc_codegen.runtime.manifest import check_files, read_manifest
 
 __all__ = ["GeneratedSolver", "load_solver"]
 
-_STATUS = {0: "solved", -1: "infeasible", -2: "max_iter", -3: "nonfinite", -4: "solver_error"}
-
-
+STATUS = {0: "solved", -1: "infeasible", -2: "max_iter", -3: "nonfinite", -4: "solver_error", -5: "unverified"}
+BACKEND_IDS = {0: "daqp", 1: "osqp"}
 _NAN = float("nan")
+_API = ("init", "reset", "solve", "predict", "describe", "bench", "status_string")
 
 
 class _Prediction:
@@ -37,45 +42,79 @@ class _Prediction:
         return s._predict(self.theta, self.u)
 
 
+def _binary_facts(folder: Path, man: dict, lib, ffi) -> tuple[dict, dict, float]:
+    """(dims, bounds, feas_tol) compiled into the binary, checked against the manifest."""
+    name = man["name"]
+    dims_c = ffi.new("int[10]")
+    d = man["dims"]
+    n_b = 3 * d["m"] + 2 * d["p"] + 1
+    getattr(lib, f"{name}_describe")(dims_c, ffi.NULL)
+    dims = dict(zip(("m", "p", "t_ini", "t_f", "n_u", "n_theta", "n_y", "n_sigma", "n_g"), list(dims_c)[:9]))
+    backend = BACKEND_IDS.get(dims_c[9], f"backend_{dims_c[9]}")
+    if dims != {k: d[k] for k in dims} or backend != man["backend"]:
+        raise ManifestError(f"{folder}: the compiled solver has dims {dims} (backend {backend}) but manifest.json "
+                            f"says {d} (backend {man['backend']}); regenerate the solver")
+    raw = ffi.new(f"double[{n_b}]")
+    getattr(lib, f"{name}_describe")(ffi.NULL, raw)
+    vals = np.array(list(raw))
+    m, p = d["m"], d["p"]
+    cut = np.cumsum([0, m, m, p, p, m])
+    bounds = {k: vals[cut[i] : cut[i + 1]] for i, k in enumerate(("u_min", "u_max", "y_min", "y_max", "du_max"))}
+    for k, v in bounds.items():
+        listed = np.array([np.nan if x is None else x for x in man["bounds"][k]], dtype=float)
+        compiled = np.where(np.isfinite(v), v, np.nan)
+        if listed.shape != compiled.shape or not np.array_equal(listed, compiled, equal_nan=True):
+            raise ManifestError(f"{folder}: manifest.json bounds.{k} = {man['bounds'][k]} differ from the compiled "
+                                f"solver's {v.tolist()} (edited?); the binary's bounds are the ones it enforces")
+    feas_tol = float(vals[-1])
+    if feas_tol != man["feas_tol"]:
+        raise ManifestError(f"{folder}: manifest.json feas_tol {man['feas_tol']} differs from the binary's {feas_tol}")
+    return dims, bounds, feas_tol
+
+
 class GeneratedSolver:
-    """A compiled steering solver. ``solve`` has the signature and result of SteeringProblem.solve."""
+    """A compiled steering solver instance (its own C workspace). ``solve`` has the signature and result
+    of SteeringProblem.solve. Load the same folder twice for two independent instances."""
 
     def __init__(self, folder: Path, manifest: dict, module) -> None:
         self.folder = folder
         self.manifest = manifest
-        self._ffi, self._lib = module.ffi, module.lib
-        d = manifest["dims"]
-        self.m, self.p, self.t_ini, self.t_f = d["m"], d["p"], d["t_ini"], d["t_f"]
-        self.n_u, self.n_theta, self.n_y, self.n_sigma = d["n_u"], d["n_theta"], d["n_y"], d["n_sigma"]
-        self.has_nominal = bool(manifest["has_nominal"])
-        self.backend = manifest["backend"]
         self.name = manifest["name"]
-        dims = self._ffi.new("int[4]")
-        self._lib.ddpc_dims(dims)
-        if tuple(dims) != (self.n_u, self.n_theta, self.n_y, self.n_sigma):
-            raise ManifestError(
-                f"{folder}: the compiled extension has dims {tuple(dims)} but manifest.json says "
-                f"{(self.n_u, self.n_theta, self.n_y, self.n_sigma)}; regenerate the solver"
-            )
-        if self._lib.ddpc_init() != 0:
+        self.backend = manifest["backend"]
+        self._ffi, self._lib = module.ffi, module.lib
+        try:
+            self._fn = {f: getattr(self._lib, f"{self.name}_{f}") for f in _API}
+        except AttributeError as e:
+            raise ManifestError(f"{folder}: {manifest['extension']} is not the binary of solver {self.name!r} "
+                                f"({e}); regenerate the solver") from e
+        dims, self.bounds, self.feas_tol = _binary_facts(folder, manifest, self._lib, self._ffi)
+        self.m, self.p, self.t_ini, self.t_f = dims["m"], dims["p"], dims["t_ini"], dims["t_f"]
+        self.n_u, self.n_theta, self.n_y, self.n_sigma = dims["n_u"], dims["n_theta"], dims["n_y"], dims["n_sigma"]
+        self.has_nominal = bool(manifest["has_nominal"])
+        if self.n_theta != (self.m + self.p) * self.t_ini + self.p * self.t_f + (self.m * self.t_f if self.has_nominal else 0):
+            raise ManifestError(f"{folder}: has_nominal={self.has_nominal} in manifest.json does not match the "
+                                f"binary's n_theta={self.n_theta}")
+        self._ws = self._ffi.new(f"{self.name}_workspace *")
+        if self._fn["init"](self._ws) != 0:
             raise ManifestError(f"{folder}: the solver workspace failed to initialise")
         self._theta = np.empty(self.n_theta)
         self._u = np.empty(self.n_u)
-        self._info = self._ffi.new("double[4]")
+        self._info = self._ffi.new(f"{self.name}_info *")
         fb = self._ffi.from_buffer
-        self._pt, self._pu, self._pi = fb("double[]", self._theta), fb("double[]", self._u), self._info
+        self._pt, self._pu = fb("double[]", self._theta), fb("double[]", self._u)
         self._shape_u = (self.t_f, self.m)
 
     def __repr__(self) -> str:
         return f"GeneratedSolver({self.name!r}, backend={self.backend!r}, n_u={self.n_u}, n_theta={self.n_theta})"
 
     def reset(self) -> None:
-        """Drop the warm start."""
-        self._lib.ddpc_reset()
+        """Drop the warm start: the workspace returns to exactly its post-init state."""
+        self._fn["reset"](self._ws)
 
     def theta(self, u_ini, y_ini, y_des, u_nom=None) -> np.ndarray:
         """Stack and validate the parameters (same layout as SteeringProblem.theta)."""
-        parts = [stack_window(u_ini, self.t_ini, self.m, "u_ini", check_finite=False), stack_window(y_ini, self.t_ini, self.p, "y_ini", check_finite=False),
+        parts = [stack_window(u_ini, self.t_ini, self.m, "u_ini", check_finite=False),
+                 stack_window(y_ini, self.t_ini, self.p, "y_ini", check_finite=False),
                  stack_window(y_des, self.t_f, self.p, "y_des", check_finite=False)]
         if self.has_nominal:
             if u_nom is None:
@@ -91,55 +130,77 @@ class GeneratedSolver:
         """One tick: steered references u (Tf, m), predicted y (Tf, p), status, iterations, time."""
         return self.solve_theta(self.theta(u_ini, y_ini, y_des, u_nom), _checked=True)
 
-    def solve_theta(self, theta: np.ndarray, _checked: bool = False) -> SteeringResult:
-        """Like :meth:`solve`, from a stacked parameter vector (n_theta,)."""
+    def solve_theta(self, theta: np.ndarray, _checked: bool = False, *, raw: bool = False) -> SteeringResult:
+        """Like :meth:`solve`, from a stacked parameter vector (n_theta,). ``raw=True`` hands NaN / inf
+        entries to the C solver (which answers "nonfinite") instead of raising DataError."""
         if not _checked:
             theta = np.asarray(theta, dtype=float)
             if theta.shape != (self.n_theta,):
                 raise DataError(f"theta must have shape ({self.n_theta},); got {theta.shape}")
-            if not math.isfinite(theta.sum()):  # any NaN/inf makes the sum non-finite
+            if not raw and not math.isfinite(theta.sum()):  # any NaN/inf makes the sum non-finite
                 raise DataError("theta contains NaN or inf; refusing to steer on it")
         self._theta[:] = theta
-        st = self._lib.ddpc_step(self._pt, self._pu, self._ffi.NULL, self._ffi.NULL, self._pi)
+        st = self._fn["solve"](self._ws, self._pt, self._pu, self._info)
         info = self._info
-        u = self._u.reshape(self._shape_u)  # a fresh view...
-        u = u.copy()  # ...and its own data: the buffer is reused next tick
+        u = self._u.reshape(self._shape_u).copy()  # its own data: the buffer is reused next tick
         if st == 0:
             predict = _Prediction(self, self._theta.copy(), u)
-            status = "solved"
         else:
             predict = _Prediction(self, None, u)
-            status = _STATUS.get(st, f"status_{st}")
-        return SteeringResult(u, None, None, status, int(info[0]), info[2] * 1e-6, _NAN, info[1] == 1.0,
-                              {"raw_status": int(info[3])}, predict)
+        extra = {"raw_status": int(info.raw_status), "max_violation": float(info.max_violation),
+                 "refined": bool(info.refined)}
+        return SteeringResult(u, None, None, STATUS.get(st, f"status_{st}"), int(info.iterations),
+                              info.solve_time_us * 1e-6, _NAN, bool(info.fast_path), extra, predict)
 
     def _predict(self, theta: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         y = np.empty(self.n_y)
         s = np.empty(max(1, self.n_sigma))
         fb = self._ffi.from_buffer
-        self._lib.ddpc_predict(fb("double[]", theta), fb("double[]", np.ascontiguousarray(u, dtype=float)),
-                               fb("double[]", y), fb("double[]", s))
+        self._fn["predict"](fb("double[]", theta), fb("double[]", np.ascontiguousarray(u, dtype=float)),
+                            fb("double[]", y), fb("double[]", s))
         return y.reshape(self.t_f, self.p), s[: self.n_sigma].reshape(self.t_ini, self.p)
 
     def step_u(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
         """Lowest-overhead call for loops: (status code, u (n_u,) view, valid until the next call).
-        theta must be a float64 array of n_theta finite entries (not checked)."""
+        theta must be a float64 array of n_theta entries (NaN / inf give the status "nonfinite")."""
         self._theta[:] = theta
-        return self._lib.ddpc_step(self._pt, self._pu, self._ffi.NULL, self._ffi.NULL, self._pi), self._u
+        return self._fn["solve"](self._ws, self._pt, self._pu, self._ffi.NULL), self._u
 
-    def bench(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Run every row of ``thetas`` (n, n_theta) in C; returns (times in µs, status codes)."""
+    def bench(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Run every row of ``thetas`` (n, n_theta) in C, each tick timed in C; returns
+        (times in µs, status codes, u (n, n_u))."""
         th = np.ascontiguousarray(thetas, dtype=float)
         n = th.shape[0]
-        times, sts = np.empty(n), np.empty(n, dtype=np.int32)
-        self._lib.ddpc_bench(self._ffi.from_buffer("double[]", th), n, self._ffi.from_buffer("double[]", times),
-                             self._ffi.from_buffer("int[]", sts))
-        return times, sts
+        times, sts, us = np.empty(n), np.empty(n, dtype=np.int32), np.empty((n, self.n_u))
+        fb = self._ffi.from_buffer
+        self._fn["bench"](self._ws, fb("double[]", th), n, fb("double[]", us), fb("double[]", times),
+                          fb("int[]", sts))
+        return times, sts, us
+
+
+def _import_extension(folder: Path, man: dict, ext: Path):
+    module = sys.modules.get(man["module"])
+    if module is not None and getattr(module, "__file__", None) == str(ext):
+        return module
+    spec = importlib.util.spec_from_file_location(man["module"], ext)
+    if spec is None or spec.loader is None:
+        raise ManifestError(f"{ext} is not a loadable extension module; regenerate the solver")
+    try:  # a foreign or damaged .so fails in create_module (no PyInit_<module>) or in exec_module
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    except ImportError as e:
+        raise ManifestError(f"{ext} does not load on this machine or is not solver {man['name']!r} ({e}); "
+                            "regenerate it here") from e
+    if not hasattr(module, "lib") or not hasattr(module, "ffi"):
+        raise ManifestError(f"{ext} is not a ddpc-codegen solver extension; regenerate the solver")
+    sys.modules[man["module"]] = module
+    return module
 
 
 def load_solver(path: str | Path, config: SteeringConfig | str | Path | None = None,
                 predictor_hash: str | None = None) -> GeneratedSolver:
-    """Load a generated solver folder (checks manifest.json, sources and the binary).
+    """Load a generated solver folder (checks manifest.json, sources and the binary); each call returns
+    a new, independent instance.
 
     Args:
         config: when given (a SteeringConfig or a TOML path), its hash must equal the one the
@@ -159,26 +220,5 @@ def load_solver(path: str | Path, config: SteeringConfig | str | Path | None = N
         raise ManifestError(
             f"{folder} was generated from a different predictor ({man['predictor_hash'][:12]}… vs {predictor_hash[:12]}…)"
         )
-    for rel, digest in man["sources"].items():
-        f = folder / rel
-        if not f.exists():
-            raise ManifestError(f"{folder}: source {rel} listed in manifest.json is missing")
-        if sha256_file(f) != digest:
-            raise ManifestError(f"{folder}: source {rel} differs from the one the solver was built from (edited?); regenerate")
-    ext = folder / man["extension"]
-    if not ext.exists():
-        raise ManifestError(f"{folder}: compiled extension {man['extension']} is missing; regenerate (make codegen)")
-    if sha256_file(ext) != man["extension_sha256"]:
-        raise ManifestError(f"{folder}: {man['extension']} is not the binary manifest.json describes; regenerate")
-    module = sys.modules.get(man["module"])
-    if module is None or getattr(module, "__file__", None) != str(ext):
-        spec = importlib.util.spec_from_file_location(man["module"], ext)
-        if spec is None or spec.loader is None:  # pragma: no cover
-            raise ManifestError(f"cannot load {ext}")
-        module = importlib.util.module_from_spec(spec)
-        try:
-            spec.loader.exec_module(module)
-        except ImportError as e:
-            raise ManifestError(f"{ext} does not load on this machine ({e}); regenerate it here") from e
-        sys.modules[man["module"]] = module
-    return GeneratedSolver(folder, man, module)
+    ext = check_files(folder, man)
+    return GeneratedSolver(folder, man, _import_extension(folder, man, ext))

@@ -1,4 +1,8 @@
-"""Reading manifest.json of a generated solver (the robot side: no CasADi, no OSQP)."""
+"""Reading manifest.json of a generated solver (the robot side: no CasADi, no OSQP).
+
+Every way a manifest can be malformed -- not JSON, not an object, another format, a missing or
+mistyped key, listed files missing or edited -- is a ManifestError naming the file and the key.
+"""
 
 from __future__ import annotations
 
@@ -8,10 +12,17 @@ from pathlib import Path
 
 from ddpc_codegen.errors import ManifestError
 
-__all__ = ["FORMAT", "VERSION", "read_manifest", "sha256_file"]
+__all__ = ["FORMAT", "VERSION", "read_manifest", "sha256_file", "check_files"]
 
 FORMAT = "ddpc-codegen-solver"
-VERSION = 1
+VERSION = 2  # 2: per-name C symbols, caller-owned workspace, test vectors, self-contained sources
+
+_DIM_KEYS = ("m", "p", "t_ini", "t_f", "n_u", "n_theta", "n_g", "n_y", "n_sigma")
+_BOUND_KEYS = ("u_min", "u_max", "y_min", "y_max", "du_max")
+# key -> expected JSON type(s) of the value
+_SCHEMA = {"name": str, "backend": str, "module": str, "extension": str, "dims": dict, "bounds": dict,
+           "has_nominal": bool, "sources": dict, "extension_sha256": str, "config_hash": str,
+           "predictor_hash": str, "feas_tol": float, "vectors": dict}
 
 
 def sha256_file(path: Path) -> str:
@@ -19,17 +30,57 @@ def sha256_file(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def _check_schema(path: Path, man: object) -> dict:
+    if not isinstance(man, dict):
+        raise ManifestError(f"{path}: expected a JSON object, got {type(man).__name__}; regenerate the solver")
+    if man.get("format") != FORMAT or man.get("format_version") != VERSION:
+        raise ManifestError(
+            f"{path}: format {man.get('format')!r} v{man.get('format_version')} is not {FORMAT!r} v{VERSION}; "
+            "regenerate the solver"
+        )
+    for key, typ in _SCHEMA.items():
+        if key not in man:
+            raise ManifestError(f"{path}: key {key!r} is missing; regenerate the solver")
+        if not isinstance(man[key], typ) or (typ is not bool and isinstance(man[key], bool)):
+            raise ManifestError(f"{path}: {key!r} must be a {typ.__name__}, got {man[key]!r}")
+    for key in _DIM_KEYS:
+        v = man["dims"].get(key)
+        if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+            raise ManifestError(f"{path}: dims.{key} must be a non-negative integer, got {v!r}")
+    for key in _BOUND_KEYS:
+        v = man["bounds"].get(key)
+        if not isinstance(v, list) or not all(x is None or isinstance(x, (int, float)) for x in v):
+            raise ManifestError(f"{path}: bounds.{key} must be a list of numbers or null, got {v!r}")
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in man["sources"].items()):
+        raise ManifestError(f"{path}: 'sources' must map file names to sha256 strings")
+    return man
+
+
 def read_manifest(folder: Path) -> dict:
-    """manifest.json of a solver folder; ManifestError when missing, not JSON or another format."""
+    """manifest.json of a solver folder, structurally checked; ManifestError otherwise."""
     path = Path(folder) / "manifest.json"
     if not path.exists():
         raise ManifestError(f"{folder} has no manifest.json: not a generated solver (run `ddpc-codegen codegen` first)")
     try:
         man = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ManifestError(f"{path} is not valid JSON: {e}") from e
-    if man.get("format") != FORMAT or man.get("format_version") != VERSION:
-        raise ManifestError(
-            f"{path}: format {man.get('format')!r} v{man.get('format_version')} is not {FORMAT!r} v{VERSION}; regenerate the solver"
-        )
-    return man
+    return _check_schema(path, man)
+
+
+def check_files(folder: Path, man: dict) -> Path:
+    """Every listed source and the extension exist with the recorded hashes; returns the extension path."""
+    folder = Path(folder)
+    for rel, digest in man["sources"].items():
+        f = folder / rel
+        if not f.is_file():
+            raise ManifestError(f"{folder}: source {rel} listed in manifest.json is missing")
+        if sha256_file(f) != digest:
+            raise ManifestError(f"{folder}: source {rel} differs from the one the solver was built from (edited?); "
+                                "regenerate")
+    ext = folder / man["extension"]
+    if not ext.is_file():
+        raise ManifestError(f"{folder}: compiled extension {man['extension']} is missing; regenerate (make codegen)")
+    if sha256_file(ext) != man["extension_sha256"]:
+        raise ManifestError(f"{folder}: {man['extension']} is not the binary manifest.json describes; regenerate")
+    return ext

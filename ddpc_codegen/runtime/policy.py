@@ -13,6 +13,12 @@ Per tick, with the closed loop's input u = the references and output y = what th
 Lost samples: up to ``max_gap_fill`` missing ticks are bridged in the history (reference held,
 outputs interpolated) instead of forgetting it; longer holes reset it (Tini warm-up ticks).
 Hopping adds its ground-phase window on top (``set_window`` before :meth:`decide`).
+
+Bumpless transfer. The steering offset d = u - r_nom is what the robot feels on top of its own
+controller. On (re-)engagement the offset is faded in over ``ramp_ticks`` (u = r_nom + a d, a
+rising linearly from 0 to 1), and when a steered tick is followed by a fallback the last offset
+decays geometrically (``fallback_decay`` per tick) instead of vanishing in one tick. The applied
+u is what enters the history, so the predictor sees exactly what the loop did.
 """
 
 from __future__ import annotations
@@ -45,14 +51,26 @@ class SteeringPolicy:
 
     steerer: ReferenceSteerer
     max_gap_fill: int = 3
+    ramp_ticks: int = 0
+    fallback_decay: float = 0.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.ramp_ticks, bool) or not isinstance(self.ramp_ticks, int) or self.ramp_ticks < 0:
+            raise ValueError(f"ramp_ticks must be an integer >= 0; got {self.ramp_ticks!r}")
+        if not 0.0 <= self.fallback_decay < 1.0:
+            raise ValueError(f"fallback_decay must be in [0, 1); got {self.fallback_decay!r}")
+        self._n_steered = 0  # steered ticks since the last reset (the ramp's clock)
+        self._offset: np.ndarray | None = None  # the last applied steering offset (decays on fallbacks)
 
     @property
     def t_f(self) -> int:
         return self.steerer.t_f
 
     def reset(self) -> None:
-        """Forget the history (mode change, long telemetry hole, re-engagement)."""
+        """Forget the history (mode change, long telemetry hole, re-engagement); the next steered
+        ticks fade in again."""
         self.steerer.reset()
+        self._n_steered = 0
 
     def lost(self, n_missing: int, y_now: np.ndarray) -> None:
         """``n_missing`` ticks had no sample: bridge them if few, else reset the history."""
@@ -67,8 +85,25 @@ class SteeringPolicy:
         """This tick's reference from the measured output ``y`` (p,), the nominal reference
         ``r_nom`` (m,) and the desired outputs ahead ``y_des`` (Tf, p); records (u, y)."""
         out = self.steerer.step(y_des, nominal_horizon(y_des, r_nom))
+        self._blend(out, np.asarray(r_nom, dtype=float))
         self.steerer.observe(out.u, y)
         return out
+
+    def _blend(self, out: SteerOutcome, r_nom: np.ndarray) -> None:
+        """Fade the offset in after a reset and out after a fallback (modifies ``out.u``)."""
+        if out.steered:
+            self._n_steered += 1
+            if self._n_steered <= self.ramp_ticks:
+                out.u = r_nom + (self._n_steered / (self.ramp_ticks + 1)) * (out.u - r_nom)
+            self._offset = out.u - r_nom
+        elif self._offset is not None and self.fallback_decay > 0.0:
+            self._offset = self._offset * self.fallback_decay
+            if np.max(np.abs(self._offset)) < 1e-12:
+                self._offset = None
+            else:
+                out.u = r_nom + self._offset
+        else:
+            self._offset = None
 
     def observe(self, u_applied: np.ndarray, y: np.ndarray) -> None:
         """A tick on which the policy did not decide (e.g. hopping ground phase): keep the history."""

@@ -17,6 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from ddpc_codegen.design.result import BOUND_TOL, SteeringResult
+from ddpc_codegen.stats import percentiles
 
 __all__ = ["ReferenceSteerer", "SteerOutcome", "SolverLike", "solver_input_bounds"]
 
@@ -185,13 +186,10 @@ class ReferenceSteerer:
 
     def summary(self) -> dict:
         """Counts and solve-time statistics (µs, wall clock around the solver call)."""
-        t = np.asarray(self.solve_us)
         return {
             "ticks": self.counts["ticks"], "steered": self.counts["steered"],
             "fallbacks": self.counts["fallbacks"], "warmup": self.counts["warmup"],
             "gap_filled_ticks": self.counts["gap_filled_ticks"],
             "fallback_reasons": {k.split(":", 1)[1]: v for k, v in self.counts.items() if k.startswith("fallback:")},
-            "solve_us": {"median": float(np.median(t)) if t.size else None,
-                         "p99": float(np.percentile(t, 99)) if t.size else None,
-                         "max": float(t.max()) if t.size else None},
+            "solve_us": percentiles(self.solve_us),
         }

@@ -3,10 +3,12 @@
 The companion-side controller it drives is :mod:`ddpc_codegen.robot.controller` (no simulator imports).
 """
 
-from ddpc_codegen.sim.loop import Excitation, Push, SimResult, TickContext, simulate
+from ddpc_codegen.sim.loop import Excitation, TickContext, simulate
 from ddpc_codegen.sim.params import FlightControllerGains, PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import PogoXPlant
+from ddpc_codegen.sim.result import SimResult
 from ddpc_codegen.sim.scenarios import FlyingScenario, HoppingScenario, get_scenario
+from ddpc_codegen.sim.stepper import Push, Stepper
 
 __all__ = [
     "simulate",
@@ -18,6 +20,7 @@ __all__ = [
     "FlightControllerGains",
     "SensorNoise",
     "PogoXPlant",
+    "Stepper",
     "FlyingScenario",
     "HoppingScenario",
     "get_scenario",

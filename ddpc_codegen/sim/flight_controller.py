@@ -16,10 +16,10 @@ mc_att_control + mc_rate_control + control allocator, simplified):
 
 Normalized thrust -> newtons: T = thrust * max_thrust, max_thrust = 4 k_F w_max^2 =
 thrust_to_weight * m g (see :mod:`ddpc_codegen.sim.params`). The frame here is ENU/FLU like the
-rest of the simulator; PX4 proper works in NED/FRD (use :func:`ddpc_codegen.robot.controller.enu_flu_to_ned_frd`).
+rest of the simulator; PX4 proper works in NED/FRD (see :mod:`ddpc_codegen.robot.frames`).
 
 The controller uses the *true* attitude and rates (PX4's own estimator is assumed good); the
-companion computer sees a delayed, noisy state (see :mod:`ddpc_codegen.sim.loop`).
+companion computer sees a delayed, noisy state (see :mod:`ddpc_codegen.sim.stepper`).
 """
 
 from __future__ import annotations

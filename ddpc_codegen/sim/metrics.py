@@ -11,16 +11,40 @@ All errors are realized - desired, in metres / radians / m/s.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from ddpc_codegen.design.phases import GROUND
 
-if TYPE_CHECKING:  # pragma: no cover
-    from ddpc_codegen.sim.loop import SimResult
+__all__ = ["compute_metrics", "rmse", "hop_apexes", "RunLogs"]
 
-__all__ = ["compute_metrics", "rmse", "hop_apexes"]
+
+class RunLogs(Protocol):
+    """What the metrics read of a run (:class:`ddpc_codegen.sim.result.SimResult` has it all;
+    a protocol, so that the result imports the metrics and not the other way round).
+    Shapes as in SimResult: N ticks, p outputs."""
+
+    scenario: str
+    dt: float
+    t: np.ndarray  # (N,) [s]
+    state: np.ndarray  # (N, 19) true plant state
+    y_true: np.ndarray  # (N, p)
+    y_des: np.ndarray  # (N, p)
+    phase: np.ndarray  # (N,) phase labels
+    touchdowns: np.ndarray  # event times [s]
+    liftoffs: np.ndarray
+    config: Any  # ControllerConfig
+    params: Any  # PogoXParams
+    scenario_obj: Any
+    extras: dict[str, np.ndarray]
+    crashed: bool
+    crash_reason: str
+    wall_time: float
+    n_bottom_outs: int
+
+    @property
+    def n(self) -> int: ...
 
 
 def rmse(e: np.ndarray) -> float:
@@ -28,7 +52,7 @@ def rmse(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
 
 
-def hop_apexes(res: "SimResult") -> tuple[np.ndarray, np.ndarray]:
+def hop_apexes(res: RunLogs) -> tuple[np.ndarray, np.ndarray]:
     """(times [s], heights [m]) of the true apex of every aerial phase from a liftoff to the next touchdown."""
     z = res.state[:, 2]
     t = res.t
@@ -58,7 +82,7 @@ def hop_apexes(res: "SimResult") -> tuple[np.ndarray, np.ndarray]:
     return np.array(times), np.array(heights)
 
 
-def compute_metrics(res: "SimResult") -> dict[str, Any]:
+def compute_metrics(res: RunLogs) -> dict[str, Any]:
     """A flat dict of floats/ints (JSON-friendly)."""
     out: dict[str, Any] = {
         "scenario": res.scenario,
@@ -114,12 +138,12 @@ def compute_metrics(res: "SimResult") -> dict[str, Any]:
         n_hops=int(len(td)),
         n_hops_scored=int(len(ap)),
         apex_target=float(cfg.apex_height),
-        apex_error_mean=float(np.mean(ap)) if ap.size else math.nan,
+        apex_error_mean_signed=float(np.mean(ap)) if ap.size else math.nan,
         apex_error_rmse=rmse(ap),
         apex_error_max_abs=float(np.max(np.abs(ap))) if ap.size else math.nan,
         apex_errors=[float(v) for v in apex_err],
         velocity_target=[float(v) for v in cfg.target_velocity],
-        velocity_error_mean=[float(v) for v in (np.mean(ve, axis=0) if len(ve) else [math.nan, math.nan])],
+        velocity_error_mean_signed=[float(v) for v in (np.mean(ve, axis=0) if len(ve) else [math.nan, math.nan])],
         velocity_error_rmse=rmse(ve[:, 0]) if len(ve) else math.nan,
         rmse_z_aerial=rmse(e[:, 0]),
         mean_z_error_aerial=float(np.mean(e[:, 0])) if e.size else math.nan,

@@ -122,8 +122,9 @@ def test_fast_path_is_kkt_with_empty_active_set(problem, plant, solvers):
     assert n_fast > 0
 
 
-def test_osqp_generated_equals_interpreted_osqp_same_settings(problem, plant, solvers):
-    """Same algorithm, same settings, same warm-start sequence: generated C == osqp Python."""
+def test_osqp_backend_runs_interpreted_osqps_admm_then_refines_to_the_exact_optimum(problem, plant, solvers):
+    """Same ADMM (same settings, same warm-start sequence: same iteration counts as osqp-python), then the
+    active-set refinement: answers equal the exact optimum; an unrefined answer is still inside the bounds."""
     s = solvers["osqp"]
     st = s.manifest["settings"]
     s.reset()
@@ -133,7 +134,7 @@ def test_osqp_generated_equals_interpreted_osqp_same_settings(problem, plant, so
               np.maximum(np.r_[problem.lb_u, problem.lg0], -1e30), np.minimum(np.r_[problem.ub_u, problem.ug0], 1e30),
               verbose=False, eps_abs=st["eps"], eps_rel=st["eps"], max_iter=st["max_iter"], rho=st["rho"],
               adaptive_rho=False, polishing=False, warm_starting=True)
-    n_qp = 0
+    n_qp = refined = same_iter = 0
     for th in _draws(problem, plant, 200, 3):
         r = s.solve_theta(th)
         if r.fast_path:
@@ -142,15 +143,17 @@ def test_osqp_generated_equals_interpreted_osqp_same_settings(problem, plant, so
         q, l, u = problem.qp_vectors(th)
         ref.update(q=q, l=np.maximum(l, -1e30), u=np.minimum(u, 1e30))
         x = ref.solve(raise_error=False)
+        same_iter += r.iterations == x.info.iter
+        exact = problem.solve_theta(th, solver="exact")
         if r.ok:
-            assert np.abs(r.u.ravel() - x.x).max() <= 1e-5  # same iterates up to round-off
-            exact = problem.solve_theta(th, solver="exact")
-            assert np.abs(r.u - exact.u).max() <= 5e-3  # documented accuracy at eps=1e-5
+            refined += r.info["refined"]
+            tol = 1e-7 if r.info["refined"] else 5e-3
+            assert np.abs(r.u - exact.u).max() <= tol
+            assert r.info["max_violation"] <= s.feas_tol
         else:
-            assert str(x.info.status).lower() != "solved"
             assert np.isnan(r.u).all()
-            ref.cold_start() if hasattr(ref, "cold_start") else None
-    assert n_qp >= 50
+            ref.warm_start(x=np.zeros(problem.n_u), y=np.zeros(problem.n_c))  # C dropped its warm start
+    assert n_qp >= 50 and same_iter >= 0.9 * n_qp and refined >= 0.9 * n_qp
 
 
 def test_bad_input_refused_before_c(solvers):
@@ -171,7 +174,8 @@ def test_infeasible_returns_status_never_garbage_and_recovers(problem, plant, so
     s = solvers[backend]
     u_ini = np.full((TI, M), 5.0)  # far outside the box with a rate bound: no feasible first step
     r = s.solve(u_ini, np.zeros((TI, P)), np.zeros((TF, P)), np.zeros((TF, M)))
-    assert not r.ok and r.status in ("infeasible", "max_iter") and np.isnan(r.u).all() and np.isnan(r.y_pred).all()
+    assert not r.ok and r.status in ("infeasible", "max_iter", "unverified") and np.isnan(r.u).all()
+    assert np.isnan(r.y_pred).all()
     th = _draws(problem, plant, 3, 4)[1]
     ok = s.solve_theta(th)
     assert ok.ok and np.abs(ok.u - problem.solve_theta(th, solver="exact").u).max() <= (1e-8 if backend == "daqp" else 5e-3)
@@ -243,8 +247,8 @@ name = "clitest"
 t_ini = {TI}
 t_f = {TF}
 [signals]
-inputs = ["a", "b"]
-outputs = ["c", "d"]
+inputs = ["u0", "u1"]  # the dataset's channel names (codegen checks them)
+outputs = ["y0", "y1"]
 [cost]
 Q = [10.0, 4.0]
 R = [0.2, 0.1]

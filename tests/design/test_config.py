@@ -83,7 +83,7 @@ def test_digest_ignores_codegen_but_not_weights(tmp_path):
         (("t_ini = 4\n", ""), "[horizon] t_ini is required but missing"),
         (("Q = [1.0]", 'Q = [1.0]\nR_mode = "abs"'), "R_mode must be one of ['absolute', 'offset', 'increment']; got 'abs'"),
         (("Q = [1.0]", "Q = [1.0]\nlamda_sigma = 3"), "[cost] lamda_sigma is not a known key"),
-        (("[cost]", "[bounds]\nu_min = [1, 0]\nu_max = [0, 1]\n[cost]"), "channel 0: lower 1.0 > upper 0.0"),
+        (("[cost]", "[bounds]\nu_min = [1, 0]\nu_max = [0, 1]\n[cost]"), "channel 0: lower 1.0 >= upper 0.0"),
         (("[cost]", "[bounds]\ndu_max = [0, 1]\n[cost]"), "du_max must be > 0"),
         (("[cost]", "[bounds]\nu_min = [1, 0, 2]\n[cost]"), "u_min must have 2 entries (one per channel); got 3"),
         (('name = "t"', 'name = "t"\n[codegen]\nbackend = "cvx"'), "[codegen] backend must be one of ['daqp', 'osqp']; got 'cvx'"),

@@ -115,9 +115,9 @@ class FakeVehicle(threading.Thread):
         from firmware_bridge.link import mavlink
         from firmware_bridge.profiles import MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, MAV_MODE_FLAG_SAFETY_ARMED, px4_custom_mode
 
-        from firmware_bridge.telemetry import swap_frames
+        from ddpc_codegen.robot.frames import quat_ned_frd_from_enu_flu
 
-        q_level = swap_frames(1.0, 0.0, 0.0, 0.0)  # level, yaw 0 ENU (= 90 deg NED), as PX4 would send it
+        q_level = quat_ned_frd_from_enu_flu((1.0, 0.0, 0.0, 0.0))  # level, yaw 0 ENU (= 90 deg NED), as PX4 would send it
         mav = self.link.mav
         t0 = time.monotonic()
         hb_next = 0.0

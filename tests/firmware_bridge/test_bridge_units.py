@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.robot.frames import enu_flu_to_ned_frd, euler_from_quat, quat_from_euler
+from ddpc_codegen.robot.frames import euler_from_quat, quat_from_euler, quat_ned_frd_from_enu_flu, rotate_inverse
 from firmware_bridge.bridge import gap_statistics
 from firmware_bridge.link import CommandTracker, MavLink, mavlink, parse_url
 from firmware_bridge.profiles import (
@@ -24,8 +24,7 @@ from firmware_bridge.profiles import (
     px4_decode,
     px4_mode_name,
 )
-from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame, euler_enu_to_ned, swap_frames
-from firmware_bridge.vehicle import _rotate_inv
+from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 
 
 # ----------------------------------------------------------------------------- profiles
@@ -71,7 +70,7 @@ def _telemetry(kind: str, q_ned, rates_frd, p_ned, v_ned, ms: int = 1234):
         att = mav.attitude_quaternion_encode(ms, *q_ned, *rates_frd, (0, 0, 0, 0))
     else:
         nan = [math.nan] * 21
-        att = mav.odometry_encode(ms * 1000, 1, 12, *p_ned, list(q_ned), *_rotate_inv(q_ned, v_ned), *rates_frd,
+        att = mav.odometry_encode(ms * 1000, 1, 12, *p_ned, list(q_ned), *rotate_inverse(q_ned, v_ned), *rates_frd,
                                   nan, nan, 0, 0, 0)
     pos = att if kind == "ODOMETRY" else mav.local_position_ned_encode(ms, *p_ned, *v_ned)
     parser = mavlink.MAVLink(None)
@@ -83,7 +82,7 @@ def test_every_telemetry_stream_gives_the_same_enu_flu_state(kind):
     rng = np.random.default_rng(3)
     for _ in range(5):
         e_enu = rng.uniform([-0.5, -0.5, -3.0], [0.5, 0.5, 3.0])
-        q_ned = enu_flu_to_ned_frd(quat_from_euler(*e_enu))
+        q_ned = quat_ned_frd_from_enu_flu(quat_from_euler(*e_enu))
         p_enu, v_enu, w_flu = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)
         p_ned = (p_enu[1], p_enu[0], -p_enu[2])
         v_ned = (v_enu[1], v_enu[0], -v_enu[2])
@@ -99,16 +98,7 @@ def test_every_telemetry_stream_gives_the_same_enu_flu_state(kind):
         assert tel.newest_stamp() == pytest.approx(1.234)
 
 
-def test_frame_helpers_agree_with_the_controller_conventions():
-    rng = np.random.default_rng(0)
-    for _ in range(10):
-        q = rng.normal(size=4)
-        q /= np.linalg.norm(q)
-        np.testing.assert_allclose(swap_frames(*q), enu_flu_to_ned_frd(q), atol=1e-15)
-        np.testing.assert_allclose(swap_frames(*swap_frames(*q)), q, atol=1e-15)
-        e = euler_from_quat(q)
-        np.testing.assert_allclose(np.unwrap(euler_enu_to_ned(*e)), np.unwrap(euler_from_quat(enu_flu_to_ned_frd(q))),
-                                   atol=1e-9)
+# (the frame math itself is tested against scipy in tests/robot/test_frames.py)
 
 
 # ----------------------------------------------------------------------------- link

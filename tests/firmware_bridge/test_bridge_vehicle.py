@@ -11,7 +11,7 @@ from bridge_helpers import free_port
 
 from firmware_bridge.link import MavLink, mavlink
 from firmware_bridge.profiles import PX4Profile, px4_decode
-from firmware_bridge.telemetry import swap_frames
+from ddpc_codegen.robot.frames import quat_ned_frd_from_enu_flu
 
 pytestmark = pytest.mark.e2e
 
@@ -34,7 +34,7 @@ class Companion:
                 if m.get_type() == "HEARTBEAT":
                     self.mode = PX4Profile().decode(m.base_mode, m.custom_mode)
             if setpoints and self.link.peer is not None:
-                q = swap_frames(1.0, 0.0, 0.0, 0.0)
+                q = quat_ned_frd_from_enu_flu((1.0, 0.0, 0.0, 0.0))
                 self.link.send(self.link.mav.set_attitude_target_encode(k, 1, 1, 7, list(q), 0, 0, 0, 0.7))
                 k += 5
             if until is not None and until():
@@ -98,6 +98,30 @@ def test_vehicle_speaks_px4_offboard(procs):
         assert c.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196.0) == ACK["MAV_RESULT_ACCEPTED"]
         c.pump(0.3)
         assert not c.mode.armed
+    finally:
+        c.link.close()
+    assert procs.terminate(veh) == 0
+
+
+@pytest.mark.parametrize("pattern, lo, hi", [("px4-sih", 100, 135), ("ardupilot", 150, 190)])
+def test_vehicle_imitates_real_autopilots_telemetry_stamps(procs, pattern, lo, hi):
+    port = free_port()
+    veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--telemetry-pattern", pattern, name="vehicle")
+    c = Companion(port)
+    try:
+        c.pump(20.0, until=lambda: c.mode is not None)
+        assert c.mode is not None, procs.log(veh)
+        assert c.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 30.0, 5000.0) == ACK["MAV_RESULT_ACCEPTED"]
+        t0 = time.monotonic()
+        c.pump(2.0)
+        stamps = [m.time_boot_ms for rx, m in c.msgs if rx >= t0 and m.get_type() == "ATTITUDE"]
+        span = (stamps[-1] - stamps[0]) * 1e-3
+        assert lo < (len(stamps) - 1) / span < hi  # distinct samples per second of vehicle time
+        steps = set(np.diff(stamps).tolist())
+        if pattern == "px4-sih":
+            assert steps <= {4, 8, 12, 16} and all(s % 4 == 0 for s in stamps)
+        else:
+            assert 10 in steps or 15 in steps  # missing samples
     finally:
         c.link.close()
     assert procs.terminate(veh) == 0

@@ -1,21 +1,14 @@
-"""Frame/unit conversions on hand-checked values, channel specs, and the resampling rule."""
+"""Derived log fields, channel specs, and the resampling rule (the frame math: tests/robot/test_frames.py)."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
 
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.logs.frames import (
-    derive_field,
-    down_to_up,
-    euler_to_quat,
-    ned_to_enu,
-    quat_to_euler,
-    yaw_ned_to_enu,
-)
+from ddpc_codegen.logs.frames import derive_field
+from ddpc_codegen.robot.frames import quat_from_euler_array
 from ddpc_codegen.logs.resample import (
     Notes,
     Series,
@@ -31,60 +24,8 @@ from ddpc_codegen.logs.resample import (
 
 pytestmark = pytest.mark.filterwarnings("ignore::ddpc_codegen.logs.LogImportWarning")
 
-S45 = math.sqrt(0.5)
-
-
-def _rotate(q, v):
-    """v_ned = q ⊗ v_frd ⊗ q* via the rotation matrix of a Hamilton quaternion [w,x,y,z]."""
-    w, x, y, z = q
-    R = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-    return R @ np.asarray(v, float)
-
-
-@pytest.mark.parametrize(
-    "q, rpy",
-    [
-        ([1, 0, 0, 0], (0, 0, 0)),
-        ([S45, 0, 0, S45], (0, 0, math.pi / 2)),            # yaw 90°: nose east
-        ([S45, S45, 0, 0], (math.pi / 2, 0, 0)),            # roll 90°: right wing down
-        ([math.cos(math.pi / 12), 0, math.sin(math.pi / 12), 0], (0, math.pi / 6, 0)),  # pitch 30°
-        ([0, 0, 0, 1], (0, 0, math.pi)),                     # yaw 180°
-        ([2, 0, 0, 0], (0, 0, 0)),                           # not normalised: same attitude
-    ],
-)
-def test_quat_to_euler_hand_values(q, rpy):
-    np.testing.assert_allclose(quat_to_euler(q), rpy, atol=1e-12)
-
-
-def test_pitch_up_means_nose_up_in_ned():
-    # +30° pitch: the body x axis (front) points north and up, i.e. negative NED down
-    q = euler_to_quat(0.0, math.pi / 6, 0.0)
-    np.testing.assert_allclose(_rotate(q, [1, 0, 0]), [math.cos(math.pi / 6), 0, -0.5], atol=1e-12)
-    # +90° yaw: front points east
-    np.testing.assert_allclose(_rotate(euler_to_quat(0, 0, math.pi / 2), [1, 0, 0]), [0, 1, 0], atol=1e-12)
-
-
-def test_euler_roundtrip_and_invalid_quaternions():
-    rng = np.random.default_rng(3)
-    rpy = np.column_stack([rng.uniform(-3, 3, 50), rng.uniform(-1.5, 1.5, 50), rng.uniform(-3, 3, 50)])
-    back = quat_to_euler(euler_to_quat(rpy[:, 0], rpy[:, 1], rpy[:, 2]))
-    np.testing.assert_allclose(back, rpy, atol=1e-12)
-    bad = quat_to_euler([[0, 0, 0, 0], [np.nan, 0, 0, 1]])
-    assert np.isnan(bad).all()  # never a made-up attitude
-
-
-def test_ned_enu_and_up():
-    np.testing.assert_array_equal(ned_to_enu([1.0, 2.0, 3.0]), [2.0, 1.0, -3.0])
-    np.testing.assert_array_equal(down_to_up([-1.5, 2.0]), [1.5, -2.0])
-    np.testing.assert_allclose(yaw_ned_to_enu([0.0, math.pi / 2, math.pi]), [math.pi / 2, 0.0, -math.pi / 2], atol=1e-12)
-
-
 def test_derive_field_rules():
-    q = euler_to_quat(0.1, -0.2, 0.3)[None, :]
+    q = quat_from_euler_array(0.1, -0.2, 0.3)[None, :]
     f = {"timestamp": np.array([1]), "q_d[0]": q[:, 0], "q_d[1]": q[:, 1], "q_d[2]": q[:, 2], "q_d[3]": q[:, 3],
          "position[2]": np.array([-2.5]), "thrust_body[2]": np.array([-0.6])}
     assert derive_field(f, "pitch", "t")[0][0] == pytest.approx(-0.2)

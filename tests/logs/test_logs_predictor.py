@@ -8,7 +8,7 @@ from ulog_writer import write_ulog
 
 from ddpc_codegen import prbs
 from ddpc_codegen.logs import import_ulog
-from ddpc_codegen.logs.frames import euler_to_quat
+from ddpc_codegen.robot.frames import quat_from_euler_array
 
 hankel = pytest.importorskip("ddpc_codegen.design.hankel")
 predictor = pytest.importorskip("ddpc_codegen.design.predictor")
@@ -41,9 +41,9 @@ def test_imported_log_is_exciting_and_fits_an_exact_predictor(tmp_path):
     pos[:, 2] = -u[:, 0]
     topics = {
         "trajectory_setpoint": {"timestamp": t, "position": pos},
-        "vehicle_attitude_setpoint": {"timestamp": t, "q_d": euler_to_quat(0.0, u[:, 1], 0.0)},
+        "vehicle_attitude_setpoint": {"timestamp": t, "q_d": quat_from_euler_array(0.0, u[:, 1], 0.0)},
         "vehicle_local_position": {"timestamp": t, "z": -y[:, 0]},
-        "vehicle_attitude": {"timestamp": t, "q": euler_to_quat(0.0, y[:, 1], 0.0)},
+        "vehicle_attitude": {"timestamp": t, "q": quat_from_euler_array(0.0, y[:, 1], 0.0)},
     }
     ds = import_ulog(write_ulog(tmp_path / "excited.ulg", topics), preset="pogox-flying")
     assert ds.lengths == (N,)

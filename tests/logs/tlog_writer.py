@@ -91,7 +91,7 @@ class SyntheticMavlinkFlight:
         return np.interp(np.asarray(t, dtype=float), np.arange(self.p_knots.size) * 200_000, self.p_knots)
 
     def writer(self, *, mavlink1_attitude: bool = False, ignore_position_at=()) -> TlogWriter:
-        from ddpc_codegen.logs.frames import euler_to_quat
+        from ddpc_codegen.robot.frames import quat_from_euler_array
 
         w = TlogWriter()
         veh, comp = w.encoder(1, 1), w.encoder(1, 191)
@@ -108,7 +108,7 @@ class SyntheticMavlinkFlight:
             ms = (t + self.vehicle_boot_us) // 1000
             w.add(UNIX_T0_US + t, veh.local_position_ned_encode(ms, 0, 0, -float(self.z(t)), 0, 0, 0), 1, 1)
             cms = (t + self.companion_boot_us) // 1000
-            q = euler_to_quat(0.0, float(self.pitch_ref(t)), 0.3).tolist()
+            q = quat_from_euler_array(0.0, float(self.pitch_ref(t)), 0.3).tolist()
             w.add(UNIX_T0_US + t, comp.set_attitude_target_encode(cms, 1, 1, 0b111, q, 0, 0, 0, 0.55), 1, 191)
             mask = self.pos_mask | (0b111 if t in ignore_position_at else 0)
             w.add(UNIX_T0_US + t, comp.set_position_target_local_ned_encode(

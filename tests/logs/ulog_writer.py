@@ -214,7 +214,7 @@ class SyntheticFlight:
 
     # logged topics: name -> {"timestamp": (N,), field: (N,) or (N, k)}
     def topics(self) -> dict[str, dict[str, np.ndarray]]:
-        from ddpc_codegen.logs.frames import euler_to_quat
+        from ddpc_codegen.robot.frames import quat_from_euler_array
 
         def ts(period):
             return np.arange(self.t0, self.t1 + 1, period, dtype=np.int64)
@@ -227,13 +227,13 @@ class SyntheticFlight:
             "trajectory_setpoint": {"timestamp": t_sp, "position": pos, "velocity": np.full((t_sp.size, 3), np.nan)},
             "vehicle_attitude_setpoint": {
                 "timestamp": t_att_sp,
-                "q_d": euler_to_quat(0.0, self.pitch_ref(t_att_sp), 0.3),
+                "q_d": quat_from_euler_array(0.0, self.pitch_ref(t_att_sp), 0.3),
                 "thrust_body": np.tile([0.0, 0.0, -0.55], (t_att_sp.size, 1)),
             },
             "vehicle_local_position": {"timestamp": t_lp, "timestamp_sample": t_lp - 1000, "z": -self.z(t_lp),
                                        "xy_valid": np.ones(t_lp.size, bool), "z_valid": np.ones(t_lp.size, bool)},
             "vehicle_attitude": {"timestamp": t_att, "timestamp_sample": t_att - 500,
-                                 "q": euler_to_quat(self.roll_, self.pitch(t_att), self.yaw(t_att))},
+                                 "q": quat_from_euler_array(self.roll_, self.pitch(t_att), self.yaw(t_att))},
             "vehicle_status": {"timestamp": t_st, "nav_state": np.array([14, 14, 2, 2, 14, 14]),
                                "arming_state": np.full(t_st.size, 2)},
         }

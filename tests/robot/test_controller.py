@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController, MeasuredState
-from ddpc_codegen.robot.frames import enu_flu_to_ned_frd, euler_from_quat, ned_frd_to_enu_flu, quat_from_euler
+from ddpc_codegen.robot.frames import euler_from_quat, quat_from_euler
 from ddpc_codegen.sim.flight_controller import (
     PX4LikeFlightController,
     newton_to_normalized_thrust,
@@ -27,17 +27,6 @@ def test_control_module_does_not_import_the_simulator():
     code = "import sys, ddpc_codegen.robot.controller; print(any(m.startswith('ddpc_codegen.sim') for m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "False"
-
-
-def test_euler_quaternion_round_trip_and_frames():
-    for e in [(0.1, -0.2, 0.3), (-0.3, 0.25, -2.0), (0, 0, 0)]:
-        np.testing.assert_allclose(euler_from_quat(quat_from_euler(*e)), e, atol=1e-12)
-    # ENU yaw 0 faces east = NED yaw +90 deg; FLU roll keeps its sign, FLU pitch flips.
-    q = enu_flu_to_ned_frd(quat_from_euler(0.1, 0.2, 0.0))
-    np.testing.assert_allclose(euler_from_quat(q), [0.1, -0.2, math.pi / 2], atol=1e-12)
-    q0 = quat_from_euler(0.05, -0.1, 0.4)
-    q1 = ned_frd_to_enu_flu(enu_flu_to_ned_frd(q0))
-    assert abs(abs(float(np.dot(q0, q1))) - 1.0) < 1e-12
 
 
 def test_tracking_stage_is_pd_with_model_mass():

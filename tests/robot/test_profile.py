@@ -18,6 +18,7 @@ def test_pogox_profile_is_the_simulated_flying_robot():
     assert prof.controller == FlyingScenario().controller_config(PogoXParams())
     assert prof.trajectory == EllipseTrajectory()
     assert "pogox" in shipped_profiles()
+    assert prof.contact.source == "estimate" and prof.contact.leg_length == PogoXParams().leg_rest_length
 
 
 def test_extends_overrides_only_given_keys(tmp_path):

@@ -1,6 +1,7 @@
 """ddpc_codegen.runtime.policy.SteeringPolicy: the per-tick decision every loop shares."""
 
 import numpy as np
+import pytest
 
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.runtime.policy import SteeringPolicy, nominal_horizon
@@ -55,3 +56,31 @@ def test_a_few_lost_ticks_are_bridged_a_long_hole_resets():
     pol.lost(3, np.array([9.0, 9.0]))
     assert not pol.steerer.ready
     assert pol.decide(np.zeros(2), np.zeros(2), np.zeros((4, 2))).reason == "warmup"
+
+
+def test_offset_fades_in_after_a_reset_and_decays_after_a_fallback():
+    rec = _Recorder()
+    pol = SteeringPolicy(ReferenceSteerer(rec, t_ini=3, t_f=4, m=2, p=2), ramp_ticks=4, fallback_decay=0.5)
+    r_nom, y_des = np.array([1.0, 0.0]), np.zeros((4, 2))
+    us = [pol.decide(np.zeros(2), r_nom, y_des).u - r_nom for _ in range(9)]
+    # warm-up (3 ticks: exactly r_nom), then the solver's +0.01 offset at 1/5, 2/5, ... of its size
+    np.testing.assert_allclose([u[0] for u in us], [0, 0, 0, 0.002, 0.004, 0.006, 0.008, 0.01, 0.01])
+    pol.steerer.max_step = np.array([1e-3, 1e-3])  # every solution now "too large": fallbacks
+    outs = [pol.decide(np.zeros(2), r_nom, y_des) for _ in range(3)]
+    assert [o.reason for o in outs] == ["step_too_large"] * 3
+    np.testing.assert_allclose([o.u[0] - 1.0 for o in outs], [0.005, 0.0025, 0.00125])
+    _, _, _, _ = rec.calls[-1]
+    u_hist, _ = pol.steerer.window()
+    np.testing.assert_allclose(u_hist[-1], outs[-1].u)  # the applied, decayed u is in the history
+    pol.reset()
+    pol.steerer.max_step = None
+    us = [pol.decide(np.zeros(2), r_nom, y_des).u - r_nom for _ in range(4)]
+    assert us[-1][0] == pytest.approx(0.002)  # fades in again after the reset
+
+
+def test_bad_ramp_and_decay_are_refused():
+    st = ReferenceSteerer(_Recorder(), t_ini=3, t_f=4, m=2, p=2)
+    with pytest.raises(ValueError, match="ramp_ticks must be an integer >= 0"):
+        SteeringPolicy(st, ramp_ticks=-1)
+    with pytest.raises(ValueError, match=r"fallback_decay must be in \[0, 1\)"):
+        SteeringPolicy(st, fallback_decay=1.0)

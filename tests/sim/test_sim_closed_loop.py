@@ -52,9 +52,9 @@ def test_unsteered_hopping_is_stable_with_visible_apex_error(hopping):
     assert not m["crashed"]
     assert m["n_hops"] >= 15
     assert m["n_bottom_outs"] == 0
-    assert -0.05 < m["apex_error_mean"] < -0.015  # regression band of the baseline
+    assert -0.05 < m["apex_error_mean_signed"] < -0.015  # regression band of the baseline
     assert m["apex_error_max_abs"] < 0.06
-    assert abs(m["velocity_error_mean"][0]) < 0.05
+    assert abs(m["velocity_error_mean_signed"][0]) < 0.05
     # Events alternate touchdown / liftoff.
     td, lo = hopping.touchdowns, hopping.liftoffs
     assert len(td) - len(lo) in (0, 1)

@@ -1,0 +1,176 @@
+"""Desired trajectories from files (CSV or TOML), for in-process runs and the MAVLink bridge.
+
+Both formats give samples of trajectory time ``t`` [s] (0 = start of the run / of off-board
+flight; strictly increasing, >= 0) and sagittal position ``x``, ``z`` [m] (trajectory frame:
+x forward, z up). Between samples a natural cubic spline (:class:`SampledTrajectory`) gives
+continuous position, velocity and acceleration (the controller uses x'' as its pitch
+feed-forward); before the first sample the first point is held, after the last the last.
+Attitude is not a column: the leg angle (pitch) follows from x through the controller's
+horizontal PD, as in the paper.
+
+CSV: a header row naming the columns (any order, ``t,x,z``), one sample per row; blank lines
+and lines starting with ``#`` are skipped::
+
+    # t [s], x [m], z [m]
+    t,x,z
+    0.0,0.0,1.0
+    0.5,0.1,1.02
+
+TOML: an array of tables ``[[point]]`` with keys t, x, z (optional top-level ``description``)::
+
+    description = "a hop over the table"
+    [[point]]
+    t = 0.0
+    x = 0.0
+    z = 1.0
+
+Every problem is a :class:`~ddpc_codegen.errors.ConfigError` that names the file, the row
+(CSV line number) or the point index and key, and the offending value.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
+from ddpc_codegen.tomlconfig import check_keys, load_toml
+
+__all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS"]
+
+COLUMNS = ("t", "x", "z")
+MAX_SAMPLES = 1_000_000
+
+
+def load_trajectory(path: str | Path) -> SampledTrajectory:
+    """A :class:`SampledTrajectory` from a ``.csv`` or ``.toml`` file (format: module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"trajectory file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        rows = _read_csv(path)
+    elif suffix == ".toml":
+        rows = _read_toml(path)
+    else:
+        raise ConfigError(f"trajectory file {path}: unknown format {path.suffix!r}; use .csv or .toml")
+    return _build(rows, str(path))
+
+
+def trajectory_from_arg(text: str):
+    """A trajectory from a command-line value (e.g. the bridge's ``--trajectory``): ``ellipse`` (the
+    default ellipse), ``random`` or ``random:SEED`` (:class:`RandomSmoothTrajectory`), or a .csv /
+    .toml file path (:func:`load_trajectory`)."""
+    name = text.strip()
+    if name == "ellipse":
+        return EllipseTrajectory()
+    if name == "random" or name.startswith("random:"):
+        seed = name.partition(":")[2] or "0"
+        if not seed.lstrip("-").isdigit():
+            raise ConfigError(f"trajectory {text!r}: the seed after 'random:' must be an integer; got {seed!r}")
+        return RandomSmoothTrajectory(seed=int(seed))
+    if Path(name).suffix.lower() in (".csv", ".toml") or Path(name).exists():
+        return load_trajectory(name)
+    raise ConfigError(f"trajectory {text!r}: expected 'ellipse', 'random[:SEED]' or a .csv / .toml file")
+
+
+def save_trajectory_csv(path: str | Path, trajectory, t_end: float, dt: float = 0.05) -> Path:
+    """Write ``trajectory.sample`` on [0, t_end] every ``dt`` seconds as a trajectory CSV."""
+    if not (dt > 0 and t_end > dt):
+        raise ConfigError(f"save_trajectory_csv needs t_end > dt > 0; got t_end={t_end!r}, dt={dt!r}")
+    t = np.arange(0.0, t_end + 0.5 * dt, dt)
+    d = trajectory.sample(t)
+    path = Path(path)
+    with path.open("w", newline="") as f:
+        f.write(f"# sampled from {type(trajectory).__name__}; t [s], x [m], z [m]\n")
+        w = csv.writer(f)
+        w.writerow(COLUMNS)
+        for row in zip(t, d["x"], d["z"]):
+            w.writerow([repr(float(v)) for v in row])
+    return path
+
+
+# ----------------------------------------------------------------------------- parsing
+def _number(text: object, where: str) -> float:
+    """A finite float from a CSV cell or TOML value; ConfigError naming ``where`` otherwise."""
+    if isinstance(text, bool):
+        raise ConfigError(f"{where}: {text!r} is not a number")
+    try:
+        v = float(text.strip()) if isinstance(text, str) else float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise ConfigError(f"{where}: {text!r} is not a finite number")
+    return v
+
+
+def _read_csv(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
+    """[(where, (t, x, z))] per data row; ``where`` = 'FILE row N' (N = line number)."""
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not a text file ({e})") from None
+    header: list[str] | None = None
+    rows = []
+    for lineno, line in enumerate(lines, start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        cells = next(csv.reader([line]))
+        if header is None:
+            header = [c.strip().lower() for c in cells]
+            missing = [c for c in COLUMNS if c not in header]
+            unknown = [c for c in header if c not in COLUMNS]
+            if unknown or missing or len(set(header)) != len(header):
+                raise ConfigError(f"{path} row {lineno}: the header must name the columns {list(COLUMNS)} once each "
+                                  f"(any order); got {cells!r}" + (f"; unknown {unknown}" if unknown else "")
+                                  + (f"; missing {missing}" if missing else ""))
+            continue
+        if len(cells) != len(header):
+            raise ConfigError(f"{path} row {lineno}: expected {len(header)} values ({','.join(header)}); "
+                              f"got {len(cells)}: {line.strip()!r}")
+        vals = {h: _number(c, f"{path} row {lineno}, column {h!r}") for h, c in zip(header, cells)}
+        rows.append((f"{path} row {lineno}", (vals["t"], vals["x"], vals["z"])))
+        if len(rows) > MAX_SAMPLES:
+            raise ConfigError(f"{path}: more than {MAX_SAMPLES} samples; resample the trajectory")
+    if header is None:
+        raise ConfigError(f"{path}: empty; expected a header row {','.join(COLUMNS)} and samples")
+    return rows
+
+
+def _read_toml(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
+    """[(where, (t, x, z))] per [[point]] table; ``where`` = 'FILE point[i]'."""
+    raw = check_keys(load_toml(path), ("description", "point"), "top level:", str(path))
+    pts = raw.get("point")
+    if not isinstance(pts, list) or not all(isinstance(p, dict) for p in pts):
+        raise ConfigError(f"{path}: expected [[point]] tables with keys {list(COLUMNS)}; got point = {pts!r}")
+    rows = []
+    for i, p in enumerate(pts):
+        where = f"{path} point[{i}]"
+        unknown = [k for k in p if k not in COLUMNS]
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; a point has exactly {list(COLUMNS)} "
+                              "(attitude follows from x through the controller)")
+        missing = [c for c in COLUMNS if c not in p]
+        if missing:
+            raise ConfigError(f"{where}: missing key(s) {missing}; each point needs {list(COLUMNS)}")
+        rows.append((where, tuple(_number(p[c], f"{where} key {c!r}") for c in COLUMNS)))
+    return rows
+
+
+def _build(rows: list[tuple[str, tuple[float, float, float]]], src: str) -> SampledTrajectory:
+    if len(rows) < 2:
+        raise ConfigError(f"{src}: a trajectory needs at least 2 samples; got {len(rows)}")
+    prev_t, prev_where = -math.inf, ""
+    for where, (t, _, _) in rows:
+        if t < 0:
+            raise ConfigError(f"{where}: t = {t!r} is negative; trajectory time starts at 0")
+        if t <= prev_t:
+            raise ConfigError(f"{where}: t = {t!r} is not after t = {prev_t!r} (at {prev_where}); "
+                              "times must be strictly increasing")
+        prev_t, prev_where = t, where
+    t, x, z = (tuple(r[1][i] for r in rows) for i in range(3))
+    return SampledTrajectory(t, x, z, source=src)

@@ -1,0 +1,96 @@
+"""Options of the simulated vehicle ``ddpc-vehicle`` (see :mod:`firmware_bridge.vehicle`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from firmware_bridge.vehicle_telemetry import TELEMETRY_PATTERNS
+
+__all__ = ["VehicleConfig", "MODE_OFFBOARD", "MODE_HOLD", "MODE_LAND"]
+
+MODE_OFFBOARD, MODE_HOLD, MODE_LAND = "offboard", "hold", "land"
+
+
+@dataclass
+class VehicleConfig:
+    """Options of the simulated vehicle (see the module docstring).
+
+    Attributes:
+        url: MAVLink connection string (e.g. ``udpout:127.0.0.1:14540``, the bridge listening);
+            baud: serial baud rate.
+        sysid, compid: the vehicle's MAVLink identity.
+        autopilot: "px4" or "ardupilot".
+        lockstep: advance one tick per setpoint (see module docstring); lockstep_timeout [s wall].
+        scenario: where the vehicle starts (the scenario's start point; "flying").
+        seed, noise: sensor-noise seed and switch (the simulator's SensorNoise defaults).
+        start: "hover" (armed, HOLD at the start point) or "disarmed" (parked at the start point).
+        start_offset: (x, y) added to the scenario's start point [m, local ENU] (a robot that is
+            not where the trajectory starts). start_yaw: initial heading [rad, ENU: 0 = east];
+            the vehicle's own HOLD / LAND keep the heading they start with.
+        com_of_loss_t: off-board setpoint-loss timeout [s] (PX4 COM_OF_LOSS_T).
+        loss_action: failsafe after the loss: "hold" or "land".
+        guid_options: ArduPilot GUID_OPTIONS (bit 3: thrust field is a thrust, else a climb rate).
+        duration: stop after this much simulated time [s] (None: run until signalled).
+        default_rates: telemetry rates [Hz] before anyone asks (message name -> Hz).
+        silence: simulated-time windows [(t0, t1), ...] [s] in which the vehicle sends nothing
+            (a link-drop / vehicle-silent test).
+        truth_log: write the true state per tick to this .npz at exit.
+        params: true robot parameters (a :class:`ddpc_codegen.sim.PogoXParams`; default PogoXParams()).
+        pushes: external force impulses on the robot (:class:`ddpc_codegen.sim.Push` or tuples
+            (t, force(3), duration[, point(3)]); plant time [s], which stands still while parked).
+        telemetry_pattern: which telemetry samples exist: "regular" (one per 5 ms tick),
+            "px4-sih" or "ardupilot" (real autopilots' irregular stamps, see
+            :mod:`firmware_bridge.vehicle_telemetry`); telemetry_seed seeds the pattern.
+        rt_priority: >0: SCHED_FIFO at this priority, memory locked, PM QoS ``cpu_latency_us``
+            held (each if permitted; steadier real-time pacing, see :mod:`.realtime`).
+        cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
+        cpus: pin the vehicle to these CPUs (None: any).
+        verbose: print mode / arming events on stderr.
+    """
+
+    url: str = "udpout:127.0.0.1:14540"
+    baud: int | None = None
+    sysid: int = 1
+    compid: int = 1
+    autopilot: str = "px4"
+    lockstep: bool = False
+    lockstep_timeout: float = 1.0
+    scenario: str = "flying"
+    seed: int = 0
+    noise: bool = True
+    start: str = "hover"
+    start_offset: tuple = (0.0, 0.0)
+    start_yaw: float = 0.0
+    com_of_loss_t: float = 1.0
+    loss_action: str = "hold"
+    guid_options: int = 0
+    duration: float | None = None
+    default_rates: dict = field(default_factory=lambda: {"ATTITUDE": 10.0, "LOCAL_POSITION_NED": 10.0})
+    silence: list = field(default_factory=list)
+    truth_log: str | None = None
+    params: Any = None
+    pushes: list = field(default_factory=list)
+    telemetry_pattern: str = "regular"
+    telemetry_seed: int = 0
+    rt_priority: int = 0
+    cpu_latency_us: int | None = 0
+    cpus: tuple | None = None
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if self.autopilot not in ("px4", "ardupilot"):
+            raise ValueError(f"autopilot must be 'px4' or 'ardupilot'; got {self.autopilot!r}")
+        if self.start not in ("hover", "disarmed"):
+            raise ValueError(f"start must be 'hover' or 'disarmed'; got {self.start!r}")
+        off = tuple(float(v) for v in self.start_offset)
+        if len(off) != 2 or not all(math.isfinite(v) for v in off):
+            raise ValueError(f"start_offset must be two finite numbers (x, y) [m]; got {self.start_offset!r}")
+        if not math.isfinite(self.start_yaw):
+            raise ValueError(f"start_yaw must be finite; got {self.start_yaw!r}")
+        if self.loss_action not in (MODE_HOLD, MODE_LAND):
+            raise ValueError(f"loss_action must be 'hold' or 'land'; got {self.loss_action!r}")
+        if self.telemetry_pattern not in TELEMETRY_PATTERNS:
+            raise ValueError(f"telemetry_pattern must be one of {', '.join(TELEMETRY_PATTERNS)}; "
+                             f"got {self.telemetry_pattern!r}")
