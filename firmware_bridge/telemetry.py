@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ddpc_codegen.robot.controller import MeasuredState
+from ddpc_codegen.robot.state import MeasuredState
 from ddpc_codegen.robot.frames import (
     enu_from_ned,
     euler_enu_from_ned,

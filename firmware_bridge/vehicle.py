@@ -33,7 +33,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ddpc_codegen.robot.controller import MeasuredState
+from ddpc_codegen.robot.state import MeasuredState
 from ddpc_codegen.robot.frames import quat_from_euler
 from ddpc_codegen.sim.params import PogoXParams
 from ddpc_codegen.sim.plant import STANCE

@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from ddpc_codegen.robot.controller import MeasuredState
+from ddpc_codegen.robot.state import MeasuredState
 from ddpc_codegen.robot.frames import (
     euler_ned_from_enu,
     frd_from_flu,

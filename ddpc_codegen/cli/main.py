@@ -17,6 +17,8 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "ddpc_codegen.cli.sim",
     "ddpc_codegen.cli.logs",
     "ddpc_codegen.cli.codegen",
+    "ddpc_codegen.cli.fit",
+    "ddpc_codegen.cli.sweep",
     "ddpc_codegen.experiments.demo",
 )
 

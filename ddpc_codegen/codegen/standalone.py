@@ -49,13 +49,29 @@ def relocated_copy(folder: Path, dst: Path) -> Path:
     return out
 
 
+def solver_name(folder: Path) -> str:
+    """The solver's name (the C prefix), from its public header ``<name>_solver.h``."""
+    headers = sorted(Path(folder).glob("*_solver.h"))
+    if len(headers) != 1:
+        raise CodegenError(f"{folder} is not a generated solver folder (expected one *_solver.h, found {len(headers)})")
+    return headers[0].name[: -len("_solver.h")]
+
+
+def vectors_file(folder: Path) -> Path:
+    """The recorded test vectors of a generated folder."""
+    return Path(folder) / f"{solver_name(folder)}_vectors.txt"
+
+
 def make_example(folder: Path, cc: str | None = None, build: str = "build-make", timeout: float = 900) -> Path:
     """``make`` in the folder (optionally ``CC=cc``); returns the example executable."""
     args = ["make", "-s", f"BUILD={build}"] + ([f"CC={cc}"] if cc else [])
     res = subprocess.run(args, cwd=folder, capture_output=True, text=True, timeout=timeout)
     if res.returncode != 0:
         raise CodegenError(f"`{' '.join(args)}` failed in {folder}:\n{(res.stdout + res.stderr)[-3000:]}")
-    return Path(folder) / build / f"{Path(folder).name}_example"
+    exe = Path(folder) / build / f"{solver_name(folder)}_example"
+    if not exe.is_file():
+        raise CodegenError(f"`{' '.join(args)}` in {folder} built no {exe.name}")
+    return exe
 
 
 def run_example(exe: Path, vectors: Path, *, qemu: str | None = None, dump: Path | None = None,

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -35,7 +35,8 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError, ExcitationError
 from ddpc_codegen.design.hankel import PEReport, channel_stats, near_constant_channels
 
-__all__ = ["Predictor", "fit_predictor", "min_samples"]
+__all__ = ["Predictor", "fit_predictor", "min_samples", "FitLayout", "channel_scale", "hankel_r_factor",
+           "stack_r_factors", "predictor_from_r"]
 
 _METHODS = ("pem", "lsq")
 
@@ -141,9 +142,10 @@ def _row_order(m: int, p: int, t_ini: int, t_f: int) -> np.ndarray:
     return np.array(up + yp + uf + yf)
 
 
-def _hankel_blocks(dataset: IODataset, depth: int, block: int, scale: np.ndarray) -> Iterator[np.ndarray]:
+def _hankel_blocks(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], depth: int, block: int,
+                   scale: np.ndarray) -> Iterator[np.ndarray]:
     """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y] / scale."""
-    for u, y in dataset.trajectories():
+    for u, y in trajectories:
         w = np.hstack([u, y]) / scale
         T, d = w.shape
         if T < depth:
@@ -156,6 +158,105 @@ def _hankel_blocks(dataset: IODataset, depth: int, block: int, scale: np.ndarray
 def _accumulate_r(R: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
     X = rows if R is None else np.vstack([R, rows])
     return np.linalg.qr(X, mode="r")
+
+
+@dataclass(frozen=True)
+class FitLayout:
+    """Columns of the TSQR data matrix X = [Z^T | target^T] of a fit (one row per Hankel column).
+
+    Z = [Up; Yp; Uf] has r = (m+p) Tini + m Tf rows; the targets are Yf (q_y = p Tf rows) and, for
+    ``pem``, the slack (q_s = p Tini rows, zero on data). R factors of X are at most (width, width),
+    width = r + q_y + q_s.
+    """
+
+    m: int
+    p: int
+    t_ini: int
+    t_f: int
+    method: str
+
+    @property
+    def depth(self) -> int:
+        return self.t_ini + self.t_f
+
+    @property
+    def r(self) -> int:
+        return (self.m + self.p) * self.t_ini + self.m * self.t_f
+
+    @property
+    def q_y(self) -> int:
+        return self.p * self.t_f
+
+    @property
+    def q_s(self) -> int:
+        return self.p * self.t_ini if self.method == "pem" else 0
+
+    @property
+    def width(self) -> int:
+        return self.r + self.q_y + self.q_s
+
+    @property
+    def u_rows(self) -> np.ndarray:
+        """Rows of Z holding inputs ([Up; Uf]): the PE check's."""
+        n_up, n_yp = self.m * self.t_ini, self.p * self.t_ini
+        return np.r_[0:n_up, n_up + n_yp : self.r]
+
+    def data_rows(self, blk: np.ndarray) -> np.ndarray:
+        """Hankel column block (b, depth*(m+p)) -> rows (b, width) of X as [Up Yp Uf Yf (0)]."""
+        rows = blk[:, _row_order(self.m, self.p, self.t_ini, self.t_f)]
+        return np.hstack([rows, np.zeros((rows.shape[0], self.q_s))]) if self.q_s else rows
+
+
+def channel_scale(rms: np.ndarray, std: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(scale (m+p,), near-constant channel names) from the channels' RMS and std over all the data.
+
+    Unit std per channel (its variation, offsets kept: the predictor has no intercept); a
+    near-constant channel is scaled by its RMS instead (1 if all zero) so its noise is not blown up.
+    """
+    near = near_constant_channels(std, rms, names)
+    return np.array([sd if n not in near else (r if r > 0 else 1.0) for n, sd, r in zip(names, std, rms)]), near
+
+
+def hankel_r_factor(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], layout: FitLayout, scale: np.ndarray,
+                    block_columns: int = 8192, R: np.ndarray | None = None) -> np.ndarray | None:
+    """R factor (<= width, width) of the data rows of X over the trajectories' Hankel columns of the
+    channels divided by ``scale`` (each trajectory its own columns; shorter than Tini+Tf: none),
+    accumulated onto ``R``; None if there is no column.
+
+    The map step of a fit: R factors of disjoint sets of columns combine with :func:`stack_r_factors`.
+    Memory: one block, ~ block_columns * width * 8 bytes (times a few for copies and the QR).
+    """
+    for blk in _hankel_blocks(trajectories, layout.depth, int(block_columns), scale):
+        R = _accumulate_r(R, layout.data_rows(blk))
+    return R
+
+
+def stack_r_factors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The R factor of [A; B] from those of A and B (the reduce step: one QR of the stacked factors)."""
+    return _accumulate_r(a, b)
+
+
+def _check_options(method: str, t_ini: int, t_f: int, slack_weight: float, ridge: float) -> None:
+    if method not in _METHODS:
+        raise DataError(f"unknown predictor method {method!r}; choose one of {list(_METHODS)}")
+    if t_ini < 1 or t_f < 1:
+        raise DataError(f"horizons must be >= 1; got Tini={t_ini}, Tf={t_f}")
+    if not (np.isfinite(slack_weight) and slack_weight > 0):
+        raise DataError(f"slack_weight must be a positive number; got {slack_weight}")
+    if not (np.isfinite(ridge) and ridge >= 0):
+        raise DataError(f"ridge must be >= 0; got {ridge}")
+
+
+def _check_columns(layout: FitLayout, cols: int, lengths: Sequence[int]) -> None:
+    m, L = layout.m, layout.depth
+    if cols < m * L:
+        need = min_samples(layout.t_ini, layout.t_f, m)
+        raise DataError(
+            f"need at least {need} samples for Tini={layout.t_ini}, Tf={layout.t_f}, m={m}; got {max(lengths)}"
+            + (f" in the longest of {len(lengths)} trajectories ({cols} Hankel columns in all, need {m * L})"
+               if len(lengths) > 1 else "")
+            + ". Record longer data or shorten the horizons."
+        )
 
 
 def fit_predictor(
@@ -191,69 +292,125 @@ def fit_predictor(
         check_excitation: raise ExcitationError when the inputs are not PE of order Tini+Tf
             (near-constant input channels included).
     """
-    if method not in _METHODS:
-        raise DataError(f"unknown predictor method {method!r}; choose one of {list(_METHODS)}")
     t_ini, t_f = int(t_ini), int(t_f)
-    if t_ini < 1 or t_f < 1:
-        raise DataError(f"horizons must be >= 1; got Tini={t_ini}, Tf={t_f}")
-    if not (np.isfinite(slack_weight) and slack_weight > 0):
-        raise DataError(f"slack_weight must be a positive number; got {slack_weight}")
-    if not (np.isfinite(ridge) and ridge >= 0):
-        raise DataError(f"ridge must be >= 0; got {ridge}")
-    m, p = dataset.m, dataset.p
-    L = t_ini + t_f
-    cols = dataset.columns(L)
-    if cols < m * L:
-        need = min_samples(t_ini, t_f, m)
-        raise DataError(
-            f"need at least {need} samples for Tini={t_ini}, Tf={t_f}, m={m}; got {max(dataset.lengths)}"
-            + (f" in the longest of {dataset.n_trajectories} trajectories ({cols} Hankel columns in all, need {m * L})"
-               if dataset.n_trajectories > 1 else "")
-            + ". Record longer data or shorten the horizons."
-        )
-    names = dataset.input_names + dataset.output_names
+    _check_options(method, t_ini, t_f, slack_weight, ridge)
+    layout = FitLayout(dataset.m, dataset.p, t_ini, t_f, method)
+    cols = dataset.columns(layout.depth)
+    _check_columns(layout, cols, dataset.lengths)
     rms, std = channel_stats([np.hstack(t) for t in dataset.trajectories()])
-    near = near_constant_channels(std, rms, names)
-    # Unit std per channel (its variation, offsets kept: the predictor has no intercept); a
-    # near-constant channel is scaled by its RMS instead (1 if all zero) so its noise is not blown up.
-    scale = np.array([sd if n not in near else (r if r > 0 else 1.0) for n, sd, r in zip(names, std, rms)])
-    G, s_all, keep, su, lam = _fit_scaled(dataset, t_ini, t_f, method, slack_weight, ridge, rcond,
-                                          int(block_columns), streaming, scale)
-    pe = _pe_report(su, L, m, cols, near, dataset, std)
+    if streaming:
+        scale, _ = channel_scale(rms, std, dataset.input_names + dataset.output_names)
+        R = hankel_r_factor(dataset.trajectories(), layout, scale, block_columns)
+        return predictor_from_r(R, layout, cols, rms, std, dataset.dt, dataset.input_names, dataset.output_names,
+                                slack_weight=slack_weight, ridge=ridge, rcond=rcond,
+                                check_excitation=check_excitation)
+    return _predictor(layout, _fit_unstreamed(dataset, layout, slack_weight, ridge, rcond, rms, std), cols, rms,
+                      std, dataset.dt, dataset.input_names, dataset.output_names, check_excitation)
+
+
+def predictor_from_r(R: np.ndarray, layout: FitLayout, cols: int, rms: np.ndarray, std: np.ndarray, dt: float,
+                     input_names: tuple[str, ...], output_names: tuple[str, ...], *, slack_weight: float = 1.0,
+                     ridge: float = 0.0, rcond: float = 1e-10, check_excitation: bool = True) -> Predictor:
+    """The predictor from the data-only R factor of all ``cols`` Hankel columns of the channels
+    divided by ``channel_scale(rms, std, names)`` (what :func:`fit_predictor` computes after its
+    map; here for an R reduced elsewhere, e.g. over many files). rms, std: (m+p,) over all samples."""
+    _check_options(layout.method, layout.t_ini, layout.t_f, slack_weight, ridge)
+    _check_columns(layout, cols, [cols + layout.depth - 1])
+    fitted = _solve_r(R, layout, slack_weight, ridge, rcond)
+    return _predictor(layout, fitted, cols, rms, std, dt, input_names, output_names, check_excitation)
+
+
+def _extra_rows(layout: FitLayout, slack_weight: float, lam: float) -> list[np.ndarray]:
+    """Rows of X = [Z^T | target^T] for the slack columns of M (pem) and for the ridge."""
+    r, q_y, width = layout.r, layout.q_y, layout.width
+    n_up, n_yp = layout.m * layout.t_ini, layout.p * layout.t_ini
+    extra = []
+    if layout.method == "pem":
+        e = np.zeros((n_yp, width))
+        e[:, n_up : n_up + n_yp] = np.eye(n_yp) / np.sqrt(slack_weight)
+        e[:, r + q_y :] = np.eye(n_yp) / np.sqrt(slack_weight)
+        extra.append(e)
+    if lam > 0:
+        e = np.zeros((r, width))
+        e[:, :r] = np.eye(r) * np.sqrt(lam)
+        extra.append(e)
+    return extra
+
+
+def _solve_r(R: np.ndarray, layout: FitLayout, slack_weight: float, ridge: float, rcond: float) -> dict:
+    """Data-only R factor -> G (q_y + q_s, r) on the scaled data, the singular values s of Z (and
+    which are kept), the singular values su of the u rows (PE), the effective ridge lam."""
+    r = layout.r
+    su = np.linalg.svd(R[:r, layout.u_rows], compute_uv=False)  # PE from the data-only factor
+    lam = ridge * float(np.sum(R[:, :r] ** 2)) / r  # ||Z||_F^2 = ||R[:, :r]||_F^2
+    for e in _extra_rows(layout, slack_weight, lam):
+        R = _accumulate_r(R, e)
+    R11, R12 = R[:r, :r], R[:r, r:]
+    U, s, Vt = np.linalg.svd(R11, full_matrices=False)
+    keep = s > rcond * s[0]
+    # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
+    G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
+    return {"G": G, "s": s, "keep": keep, "su": su, "lam": lam, "slack_weight": slack_weight, "ridge": ridge,
+            "rcond": rcond}
+
+
+def _fit_unstreamed(dataset: IODataset, layout: FitLayout, slack_weight: float, ridge: float, rcond: float,
+                    rms: np.ndarray, std: np.ndarray) -> dict:
+    """The reference path: the whole scaled Hankel in memory and numpy's pinv (same outputs as _solve_r)."""
+    r = layout.r
+    scale, _ = channel_scale(rms, std, dataset.input_names + dataset.output_names)
+    Xd = np.vstack([layout.data_rows(b) for b in _hankel_blocks(dataset.trajectories(), layout.depth, 10**9, scale)])
+    su = np.linalg.svd(Xd[:, layout.u_rows], compute_uv=False)
+    lam = ridge * float(np.sum(Xd[:, :r] ** 2)) / r
+    X = np.vstack([Xd] + _extra_rows(layout, slack_weight, lam))
+    Z, Tg = X[:, :r].T, X[:, r:].T
+    G = Tg @ np.linalg.pinv(Z, rcond=rcond)
+    s = np.linalg.svd(Z, compute_uv=False)
+    return {"G": G, "s": s, "keep": s > rcond * s[0], "su": su, "lam": lam, "slack_weight": slack_weight,
+            "ridge": ridge, "rcond": rcond}
+
+
+def _predictor(layout: FitLayout, fitted: dict, cols: int, rms: np.ndarray, std: np.ndarray, dt: float,
+               input_names: tuple[str, ...], output_names: tuple[str, ...], check_excitation: bool) -> Predictor:
+    """G on the scaled data -> the Predictor in the data's units (PE report checked)."""
+    m, p, t_ini, t_f = layout.m, layout.p, layout.t_ini, layout.t_f
+    scale, near = channel_scale(rms, std, input_names + output_names)
+    pe = _pe_report(fitted["su"], layout.depth, m, cols, near, input_names, output_names, std)
     if check_excitation and not pe.ok:
         raise ExcitationError(
             f"inputs are not persistently exciting enough for Tini={t_ini}, Tf={t_f}: {pe.summary()}. "
             "Excite the references more (e.g. add a PRBS) or record longer data."
         )
-    Gy, Gs = _unscale(G, scale, m, p, t_ini, t_f, method)
+    Gy, Gs = _unscale(fitted["G"], scale, m, p, t_ini, t_f, layout.method)
     nw = (m + p) * t_ini
-    opts = {"slack_weight": float(slack_weight), "ridge": float(ridge), "rcond": float(rcond),
-            "ridge_effective": float(lam), "channel_scale": scale.tolist(), "_pe_report": pe}
+    opts = {"slack_weight": float(fitted["slack_weight"]), "ridge": float(fitted["ridge"]),
+            "rcond": float(fitted["rcond"]), "ridge_effective": float(fitted["lam"]), "channel_scale": scale.tolist(),
+            "_pe_report": pe}
     return Predictor(
-        t_ini=t_ini, t_f=t_f, m=m, p=p, method=method,
+        t_ini=t_ini, t_f=t_f, m=m, p=p, method=layout.method,
         Gy_w=np.ascontiguousarray(Gy[:, :nw]),
         Gy_u=np.ascontiguousarray(Gy[:, nw:]),
         Gs_w=np.ascontiguousarray(Gs[:, :nw]),
         Gs_u=np.ascontiguousarray(Gs[:, nw:]),
-        singular_values=s_all,
-        rank=int(np.sum(keep)),
+        singular_values=fitted["s"],
+        rank=int(np.sum(fitted["keep"])),
         n_columns=cols,
-        dt=dataset.dt,
-        input_names=dataset.input_names,
-        output_names=dataset.output_names,
+        dt=dt,
+        input_names=input_names,
+        output_names=output_names,
         options=opts,
     )
 
 
-def _pe_report(su: np.ndarray, L: int, m: int, cols: int, near: tuple[str, ...], dataset: IODataset,
-               std: np.ndarray) -> PEReport:
+def _pe_report(su: np.ndarray, L: int, m: int, cols: int, near: tuple[str, ...], input_names: tuple[str, ...],
+               output_names: tuple[str, ...], std: np.ndarray) -> PEReport:
     """PE of order L from the singular values su of the (scaled) input rows, with near-constant channels named."""
     tol_u = max(cols, m * L) * np.finfo(float).eps * su[0] * 10
     return PEReport(L, int(np.sum(su > tol_u)), m * L, su, float(tol_u),
                     float(su[0] / su[-1]) if su[-1] > 0 else float("inf"), cols,
-                    near_constant_inputs=tuple(n for n in near if n in dataset.input_names),
-                    near_constant_outputs=tuple(n for n in near if n in dataset.output_names),
-                    channel_std={n: float(v) for n, v in zip(dataset.input_names + dataset.output_names, std)})
+                    near_constant_inputs=tuple(n for n in near if n in input_names),
+                    near_constant_outputs=tuple(n for n in near if n in output_names),
+                    channel_std={n: float(v) for n, v in zip(input_names + output_names, std)})
 
 
 def _unscale(G: np.ndarray, scale: np.ndarray, m: int, p: int, t_ini: int, t_f: int,
@@ -265,57 +422,3 @@ def _unscale(G: np.ndarray, scale: np.ndarray, m: int, p: int, t_ini: int, t_f: 
     G = (s_out[:, None] * G) / s_in[None, :]
     q_y = p * t_f
     return G[:q_y], (G[q_y:] if method == "pem" else np.zeros((p * t_ini, s_in.size)))
-
-
-def _fit_scaled(dataset: IODataset, t_ini: int, t_f: int, method: str, slack_weight: float, ridge: float,
-                rcond: float, block: int, streaming: bool, scale: np.ndarray):
-    """G (q_y + q_s, r) on the scaled data, the singular values of Z (and which are kept), the
-    singular values of the u rows (PE) and the effective ridge lam = ridge * ||Z||_F^2 / r."""
-    m, p = dataset.m, dataset.p
-    L = t_ini + t_f
-    r = (m + p) * t_ini + m * t_f  # rows of Z = [Up; Yp; Uf]
-    n_up, n_yp = m * t_ini, p * t_ini
-    q_y, q_s = p * t_f, (p * t_ini if method == "pem" else 0)
-    order = _row_order(m, p, t_ini, t_f)
-    u_rows = np.r_[0:n_up, n_up + n_yp : r]
-
-    def data_rows(blk: np.ndarray) -> np.ndarray:
-        rows = blk[:, order]  # (b, r + q_y) as [Up Yp Uf Yf]
-        return np.hstack([rows, np.zeros((rows.shape[0], q_s))]) if q_s else rows
-
-    def extra_rows(lam: float) -> list[np.ndarray]:
-        """Rows of X = [Z^T | target^T] for the slack columns of M (pem) and for the ridge."""
-        extra = []
-        if method == "pem":
-            e = np.zeros((n_yp, r + q_y + q_s))
-            e[:, n_up : n_up + n_yp] = np.eye(n_yp) / np.sqrt(slack_weight)
-            e[:, r + q_y :] = np.eye(n_yp) / np.sqrt(slack_weight)
-            extra.append(e)
-        if lam > 0:
-            e = np.zeros((r, r + q_y + q_s))
-            e[:, :r] = np.eye(r) * np.sqrt(lam)
-            extra.append(e)
-        return extra
-
-    if streaming:
-        R = None
-        for blk in _hankel_blocks(dataset, L, block, scale):
-            R = _accumulate_r(R, data_rows(blk))
-        su = np.linalg.svd(R[:r, u_rows], compute_uv=False)  # PE from the data-only factor
-        lam = ridge * float(np.sum(R[:, :r] ** 2)) / r  # ||Z||_F^2 = ||R[:, :r]||_F^2
-        for e in extra_rows(lam):
-            R = _accumulate_r(R, e)
-        R11, R12 = R[:r, :r], R[:r, r:]
-        U, s, Vt = np.linalg.svd(R11, full_matrices=False)
-        keep = s > rcond * s[0]
-        # G^T = pinv(R11) R12 (min-norm least squares of M^T G^T = T^T)
-        G = ((Vt[keep].T / s[keep]) @ (U[:, keep].T @ R12)).T
-        return G, s, keep, su, lam
-    Xd = np.vstack([data_rows(b) for b in _hankel_blocks(dataset, L, 10**9, scale)])
-    su = np.linalg.svd(Xd[:, u_rows], compute_uv=False)
-    lam = ridge * float(np.sum(Xd[:, :r] ** 2)) / r
-    X = np.vstack([Xd] + extra_rows(lam))
-    Z, Tg = X[:, :r].T, X[:, r:].T
-    G = Tg @ np.linalg.pinv(Z, rcond=rcond)
-    s = np.linalg.svd(Z, compute_uv=False)
-    return G, s, s > rcond * s[0], su, lam

@@ -29,7 +29,7 @@ import numpy as np
 
 from ddpc_codegen.design.baselines import PrefilterModel, fit_prefilter, ilc_update_p
 from ddpc_codegen.design.phases import GROUND
-from ddpc_codegen.experiments.pipeline import RunResult, SteeringSetup, run, scenario_metrics, split_hopping
+from ddpc_codegen.experiments.pipeline import ROOT, RunResult, SteeringSetup, run, scenario_metrics, split_hopping
 from ddpc_codegen.robot.hop_targets import ApexSchedule, ScheduledHoppingController
 from ddpc_codegen.robot.trajectory import RandomSmoothTrajectory
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
@@ -119,16 +119,16 @@ def _policy_run(policy: Any, sc: Any, duration: float, params: PogoXParams, push
 
 # ----------------------------------------------------------------------------- metrics
 def _metric(res: SimResult) -> dict[str, float]:
-    """Flying: rmse_z, rmse_pitch. Hopping: apex_err_mean against each hop's own target, rmse_pitch."""
+    """Flying: rmse_z, rmse_pitch. Hopping: apex_error_mean_abs against each hop's own target, rmse_pitch."""
     if res.crashed:
         return {"crashed": True}
     m = scenario_metrics(res)
     if res.scenario == "flying":
         return {"rmse_z": m["rmse_z"], "rmse_pitch": m["rmse_pitch"], "mean_z_error": m["mean_z_error"]}
-    out = {"apex_err_mean": m["apex_err_mean"], "rmse_pitch": m["rmse_pitch"], "vx_err_mean": m["vx_err_mean"]}
+    out = {"apex_error_mean_abs": m["apex_error_mean_abs"], "rmse_pitch": m["rmse_pitch"], "vx_error_mean_abs": m["vx_error_mean_abs"]}
     sc = res.scenario_obj
     if isinstance(sc, ScheduledHoppingScenario):
-        out["apex_err_mean"] = _scheduled_apex_error(res, sc.schedule, sc.settle_hops)
+        out["apex_error_mean_abs"] = _scheduled_apex_error(res, sc.schedule, sc.settle_hops)
     return out
 
 
@@ -145,7 +145,7 @@ def _scheduled_apex_error(res: SimResult, schedule: ApexSchedule, settle: int) -
 
 
 def _key(scenario: str) -> str:
-    return "rmse_z" if scenario == "flying" else "apex_err_mean"
+    return "rmse_z" if scenario == "flying" else "apex_error_mean_abs"
 
 
 # ----------------------------------------------------------------------------- identification
@@ -295,8 +295,9 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
         files = []
         if out_dir is not None:
             Path(out_dir).mkdir(parents=True, exist_ok=True)
-            files = [str(pf.save(Path(out_dir) / f"prefilter_{sc_name}.json")),
-                     str(ilc.policy.save(Path(out_dir) / f"ilc_{sc_name}.npz"))]
+            files = [pf.save(Path(out_dir) / f"prefilter_{sc_name}.json"),
+                     ilc.policy.save(Path(out_dir) / f"ilc_{sc_name}.npz")]
+            files = [str(f.resolve().relative_to(ROOT)) if f.resolve().is_relative_to(ROOT) else str(f) for f in files]
         rows: dict[str, Any] = {}
         for cname, c in conditions(sc_name).items():
             reused = (reuse or {}).get(sc_name, {}).get(cname, {})
@@ -345,4 +346,11 @@ def format_baselines(b: dict[str, Any]) -> str:
     w = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
     line = lambda r: "| " + " | ".join(c.rjust(w[i]) if i > 2 else c.ljust(w[i]) for i, c in enumerate(r)) + " |"  # noqa: E731
     sep = "|" + "|".join(("-" * (w[i] + 1) + ":") if i > 2 else ("-" * (w[i] + 2)) for i in range(len(head))) + "|"
-    return "\n".join([line(head), sep] + [line(r) for r in rows])
+    notes = ["* ILC's last iteration learned on the periodic case, flown unchanged here"]
+    for sc, blk in b.items():
+        il = blk.get("ilc")
+        if il:
+            per = ", ".join(f"{v * 1e3:.2f}" for v in il["metric_per_iteration"])
+            notes.append(f"ILC {sc}: {per} mm per iteration (0 = unmodified; within 10 % of the best at "
+                         f"iteration {il['iterations_to_settle']}; the last one is flown)")
+    return "\n".join([line(head), sep] + [line(r) for r in rows] + notes)

@@ -27,6 +27,7 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset, prbs
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.experiments.bench_codegen import aarch64_figures, osqp_accuracy, standalone_figures, table_lines
 
 SIZES = {"flying": dict(m=2, p=2, t_ini=20, t_f=15), "hopping": dict(m=3, p=3, t_ini=20, t_f=25)}
 
@@ -158,6 +159,11 @@ def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
                              "failures": int(len(ok) - sum(ok))}, active)
         if (~active).any():
             results[b]["median_us_fast_path"] = float(np.median(tp[~active]))
+        if b == "osqp":
+            results[b]["accuracy"] = osqp_accuracy(outs, ref, active)
+    log(f"  {size}: standalone C builds (native, aarch64 under qemu) ...")
+    results["standalone"] = {b: standalone_figures(s, thetas, active, log) for b, s in solvers.items()}
+    results["aarch64_qemu"] = aarch64_figures(solvers["daqp"].folder, log)
     # Interpreted OSQP (Python), default settings (adaptive rho, polishing off as embedded), warm-started.
     q0, l0, u0 = problem.qp_vectors(thetas[0])
     for eps in (1e-3, 1e-6):
@@ -222,6 +228,14 @@ print(json.dumps(out))
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def scale_entry(log=print) -> dict:
+    """The ``scale`` entry: fleet fit (10^7 samples, 100 files) and a 64-point sweep, serial vs 2 Ray
+    workers (:mod:`ddpc_codegen.experiments.bench_scale`; ~10-15 min on a loaded 2-core machine)."""
+    from ddpc_codegen.experiments.bench_scale import scale_report
+
+    return scale_report(log)
+
+
 def _bench_cvxpygen(problem: SteeringProblem, thetas: np.ndarray, ref: np.ndarray, workdir: Path, size: str,
                     log, active: np.ndarray) -> dict:
     """The same condensed QP through CVXPY + CVXPYgen (OSQP, its default settings), called from Python."""
@@ -278,7 +292,7 @@ def _table(report: dict) -> str:
         for name, r in report[size].items():
             if name == "active_fraction":
                 continue
-            if "median_us" not in r:
+            if not isinstance(r, dict) or "median_us" not in r:
                 rows.append(f"{size:8} {name:18} {r.get('skipped', '')}")
                 continue
             cm = r.get("c_median_us")
@@ -296,7 +310,7 @@ def _table(report: dict) -> str:
                     f"{d['speedup_vs_osqp_interp_1e-6']:.0f}x faster than interpreted osqp eps 1e-6 overall, "
                     f"{d['speedup_active_vs_osqp_interp_1e-6']:.0f}x on active ticks; max |Δu| {d['max_err']:.0e} vs "
                     f"{o6['max_err']:.0e}; osqp backend failures: {report[size]['osqp']['failures']}")
-    return "\n".join(rows)
+    return "\n".join(rows + table_lines(report, SIZES))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -304,6 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ticks", type=int, default=2000, help="ticks per size (default 2000)")
     ap.add_argument("--out", default="reports/bench.json")
     ap.add_argument("--skip-predictor", action="store_true", help="skip the 10^6-sample predictor fit")
+    ap.add_argument("--skip-scale", action="store_true", help="skip the fleet-fit and sweep scaling (Ray)")
     args = ap.parse_args(argv)
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
     report: dict = {}
@@ -311,9 +326,16 @@ def main(argv: list[str] | None = None) -> int:
         for size in SIZES:
             log(f"bench {size} ...")
             report[size] = bench_size(size, args.ticks, Path(tmp), log)
+            # issue 14's layout: "standalone": {size: ...} (daqp, osqp nested), "aarch64_qemu": {size: ...} or null
+            sa = report[size].pop("standalone")
+            report.setdefault("standalone", {})[size] = {**sa["daqp"], "osqp": sa["osqp"]}
+            arm = report[size].pop("aarch64_qemu")
+            report["aarch64_qemu"] = None if arm is None else {**(report.get("aarch64_qemu") or {}), size: arm}
     if not args.skip_predictor:
         log("predictor fit on 10^6 samples (fresh process) ...")
         report["predictor_1e6"] = predictor_scaling()
+    if not args.skip_scale:
+        report["scale"] = scale_entry(log)
     report["meta"] = {"ticks": args.ticks, "machine": platform.machine(), "python": platform.python_version(),
                       "date": time.strftime("%Y-%m-%d")}
     out = Path(args.out)

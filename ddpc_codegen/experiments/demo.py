@@ -334,7 +334,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
         print()
         print(format_baselines(summary["baselines"]))
-        print("* ILC's last iteration learned on the periodic case, flown unchanged here")
     print()
     print(f"wrote {Path(args.out) / 'summary.json'}" + (
         f" and {len(summary['meta'].get('figures', []))} figures" if summary["meta"].get("figures") else ""))

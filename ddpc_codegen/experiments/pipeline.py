@@ -42,7 +42,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -235,6 +235,7 @@ def build_setup(
     backend: str | None = None,
     save_data: bool = True,
     progress: bool = False,
+    fit: Callable[[SteeringConfig, IODataset], Predictor] | None = None,
 ) -> SteeringSetup:
     """Data -> predictor -> steering problem -> generated, compiled, loaded solver.
 
@@ -246,6 +247,8 @@ def build_setup(
         generate_dir: root of the generated solver folder (``<dir>/<solver_name>``); None = do
             not generate (interpreted runs only).
         solver_name: default ``steer_<scenario>``.
+        fit: fits the predictor from (config, dataset) (default: ``fit_predictor`` with the config's
+            [predictor] options); a sweep passes a cached one.
         save_data: write the recorded data (flying: the config's [data] dataset; hopping: the raw
             log next to it as ``hopping_raw.npz`` and the stitched hops as the [data] dataset).
     """
@@ -279,7 +282,7 @@ def build_setup(
             ds.save(cfg.dataset)
     _say(progress, f"[{scenario}] fitting the {cfg.predictor['method']} predictor on {ds.n_trajectories} "
                    f"trajectories, {ds.n_samples} samples ...")
-    pred = _fit(cfg, ds)
+    pred = (fit or _fit)(cfg, ds)
     info["excitation"] = pred.excitation().summary()
     info["predictor"] = {"method": pred.method, "rank": pred.rank, "columns": pred.n_columns,
                          **{k: v for k, v in pred.options.items() if not k.startswith("_")}}

@@ -59,7 +59,9 @@ from typing import Sequence
 import numpy as np
 
 from ddpc_codegen.design.phases import ASCENT, DESCENT, FLYING, GROUND, PHASE_NAMES
-from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
+from ddpc_codegen.robot.frames import quat_from_euler
+from ddpc_codegen.robot.hop_cycle import spring_mass_stance, stance_height
+from ddpc_codegen.robot.state import AttitudeTarget, MeasuredState
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
 __all__ = [
@@ -68,49 +70,6 @@ __all__ = [
     "ControllerConfig",
     "HeightLegAngleController",
 ]
-
-# ----------------------------------------------------------------------------- data types
-@dataclass(frozen=True)
-class MeasuredState:
-    """What the companion computer knows at one control tick (ENU / FLU, SI units).
-
-    Attributes:
-        t: measurement time stamp [s].
-        position: (3,) [m], velocity: (3,) [m/s], world ENU.
-        euler: (3,) roll, pitch, yaw [rad] (Z-Y-X).
-        body_rates: (3,) [rad/s] body FLU.
-        contact: foot-on-ground estimate (contact switch / leg compression), hopping only.
-    """
-
-    t: float
-    position: np.ndarray
-    velocity: np.ndarray
-    euler: np.ndarray
-    body_rates: np.ndarray
-    contact: bool = False
-
-
-@dataclass(frozen=True)
-class AttitudeTarget:
-    """The SET_ATTITUDE_TARGET content, in the controller's ENU/FLU frame.
-
-    Attributes:
-        q: (4,) attitude setpoint (w, x, y, z), body FLU -> world ENU.
-        thrust: normalized collective thrust in [0, 1].
-        thrust_newton: the collective thrust [N] the controller *believes* it asks for
-            (thrust * max_thrust of its model).
-        euler: (3,) commanded roll, pitch, yaw [rad] (for logs).
-    """
-
-    q: np.ndarray
-    thrust: float
-    thrust_newton: float
-    euler: np.ndarray
-
-    def q_ned_frd(self) -> np.ndarray:
-        """The quaternion (4,) in PX4's NED/FRD convention."""
-        return np.array(quat_ned_frd_from_enu_flu(self.q))
-
 
 @dataclass(frozen=True)
 class ControllerConfig:
@@ -176,19 +135,6 @@ class ControllerConfig:
     def g_eff(self) -> float:
         """Hopping: the reduced gravity of the aerial arcs [m/s^2]."""
         return (1.0 - self.thrust_fraction) * self.g if self.mode == "hopping" else self.g
-
-
-def _spring_mass_stance(v_td: float, m: float, k: float, g_eff: float) -> tuple[float, float]:
-    """Stance duration and compression amplitude of an undamped vertical spring-mass.
-
-    m z'' = k (L0 - z) - m g_eff, entering at z = L0 with speed v_td (downwards). Returns
-    (duration [s], equilibrium offset m g_eff / k [m]).
-    """
-    w = math.sqrt(k / m)
-    a = m * g_eff / k
-    b = -v_td / w
-    delta = math.atan2(b, a)
-    return (2.0 * math.pi + 2.0 * delta) / w, a
 
 
 # ----------------------------------------------------------------------------- controller
@@ -364,7 +310,7 @@ class HeightLegAngleController:
         c = self.config
         g = c.g_eff
         v_td = math.sqrt(2.0 * g * max(c.apex_height - c.leg_length, 0.0))
-        return _spring_mass_stance(v_td, c.model_mass, c.leg_stiffness, g)[0]
+        return spring_mass_stance(v_td, c.model_mass, c.leg_stiffness, g)[0]
 
     def _clip_tilt(self, a: float) -> float:
         m = self.config.max_tilt
@@ -409,7 +355,7 @@ class HeightLegAngleController:
         y[:, 1:] = self.y_des[1:] if self._in_stance else self._hold_angles
         ph = np.empty(n, dtype=np.int8)
         v_nom = math.sqrt(2.0 * g * max(c.apex_height - L0, 0.0))
-        t_st, z_off = _spring_mass_stance(v_nom, c.model_mass, c.leg_stiffness, g)
+        t_st, z_off = spring_mass_stance(v_nom, c.model_mass, c.leg_stiffness, g)
         w = math.sqrt(c.leg_stiffness / c.model_mass)
         t_air = 2.0 * v_nom / g
         period = t_st + t_air
@@ -429,7 +375,7 @@ class HeightLegAngleController:
                 ph[i] = self.phase
             elif t < cur_end:
                 if self._in_stance:
-                    y[i, 0] = _stance_z(t - self._t_touchdown, L0, v_nom, w, z_off)
+                    y[i, 0] = stance_height(t - self._t_touchdown, L0, v_nom, w, z_off)
                     ph[i] = GROUND
                 else:
                     tau = t - self._arc_t0
@@ -440,7 +386,7 @@ class HeightLegAngleController:
                 if not first_is_stance:
                     tc = (tc + t_st) % period  # the cycle below starts with the stance
                 if tc < t_st:
-                    y[i, 0] = _stance_z(tc, L0, v_nom, w, z_off)
+                    y[i, 0] = stance_height(tc, L0, v_nom, w, z_off)
                     ph[i] = GROUND
                 else:
                     tau = tc - t_st
@@ -499,7 +445,3 @@ class HeightLegAngleController:
         """Both stages without steering (the unsteered model-based controller)."""
         return self.track(self.nominal_reference(state), state)
 
-
-def _stance_z(tau: float, L0: float, v_td: float, w: float, z_off: float) -> float:
-    """Vertical undamped spring-mass height tau seconds after touchdown at L0 with speed v_td."""
-    return L0 - z_off + z_off * math.cos(w * tau) - (v_td / w) * math.sin(w * tau)

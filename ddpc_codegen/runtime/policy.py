@@ -47,12 +47,16 @@ class SteeringPolicy:
     Args:
         steerer: history, solver call and fallback rules.
         max_gap_fill: lost ticks bridged in the history (0: a lost sample resets it).
+        ramp_ticks: steered ticks over which the offset fades in after a reset (40 = 0.2 s at
+            200 Hz; 0: none).
+        fallback_decay: per-tick factor of the last offset on fallback ticks (0.9: ~50 ms time
+            constant at 200 Hz; 0: drop it at once).
     """
 
     steerer: ReferenceSteerer
     max_gap_fill: int = 3
-    ramp_ticks: int = 0
-    fallback_decay: float = 0.0
+    ramp_ticks: int = 40
+    fallback_decay: float = 0.9
 
     def __post_init__(self) -> None:
         if isinstance(self.ramp_ticks, bool) or not isinstance(self.ramp_ticks, int) or self.ramp_ticks < 0:

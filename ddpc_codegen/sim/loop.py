@@ -26,7 +26,8 @@ import numpy as np
 
 from ddpc_codegen.design.data import prbs
 from ddpc_codegen.design.phases import GROUND, PHASE_NAMES
-from ddpc_codegen.robot.controller import AttitudeTarget, HeightLegAngleController, MeasuredState
+from ddpc_codegen.robot.controller import HeightLegAngleController
+from ddpc_codegen.robot.state import AttitudeTarget, MeasuredState
 from ddpc_codegen.robot.frames import euler_from_quat
 from ddpc_codegen.sim.params import PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import STANCE

@@ -16,7 +16,7 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, PHASE_NAMES
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.robot.controller import ControllerConfig
-from ddpc_codegen.robot.frames import euler_from_quat
+from ddpc_codegen.robot.frames import euler_from_quat_array
 from ddpc_codegen.sim.metrics import compute_metrics
 from ddpc_codegen.sim.params import PogoXParams
 
@@ -92,8 +92,8 @@ class SimResult:
 
     @property
     def euler(self) -> np.ndarray:
-        """(N, 3) true roll, pitch, yaw [rad]."""
-        return np.array([euler_from_quat(q) for q in self.state[:, 6:10]])
+        """(N, 3) true roll, pitch, yaw [rad] (the vectorised frames path)."""
+        return euler_from_quat_array(self.state[:, 6:10]).reshape(-1, 3)
 
     def metrics(self) -> dict[str, Any]:
         """Tracking metrics (see :mod:`ddpc_codegen.sim.metrics`)."""

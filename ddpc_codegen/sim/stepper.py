@@ -24,7 +24,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ddpc_codegen.robot.controller import MeasuredState
+from ddpc_codegen.robot.state import MeasuredState
 from ddpc_codegen.robot.frames import euler_from_quat, matrix_from_quat
 from ddpc_codegen.sim.flight_controller import PX4LikeFlightController
 from ddpc_codegen.sim.params import PogoXParams, SensorNoise

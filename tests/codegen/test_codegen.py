@@ -298,3 +298,24 @@ def test_regenerating_in_place_loads_the_new_binary(problem, tmp_path):
     ub = b.solve_theta(th).u.max()
     assert ua > 0.5 + 1e-6 and ub <= 0.5 + 1e-9
     assert a.manifest["module"] != b.manifest["module"]
+
+
+def test_missing_daqp_source_cache_names_the_fix(problem, tmp_path, monkeypatch):
+    from ddpc_codegen import CodegenError
+
+    monkeypatch.setenv("DDPC_CODEGEN_CACHE", str(tmp_path / "empty-cache"))
+    with pytest.raises(CodegenError, match=r"DAQP 0.11.0 C sources are not in the cache .*run `make install` once"):
+        generate(problem, tmp_path / "x", backend="daqp", name="nocache", compile=False)
+
+
+def test_templates_render_strictly():
+    from ddpc_codegen import CodegenError
+    from ddpc_codegen.codegen.render import placeholders, render
+
+    names = placeholders("qp.h.in")
+    ctx = {k: "x" for k in names}
+    assert "int x_qp_init(x_workspace *ws);" in render("qp.h.in", **ctx)
+    with pytest.raises(CodegenError, match=r"template qp.h.in: missing values \['name'\]"):
+        render("qp.h.in", **{k: v for k, v in ctx.items() if k != "name"})
+    with pytest.raises(CodegenError, match=r"unused values \['typo'\]"):
+        render("qp.h.in", typo=1, **ctx)

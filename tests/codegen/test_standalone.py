@@ -54,6 +54,8 @@ def test_folder_holds_every_source_and_no_python_or_network(generated):
         for f in ("CMakeLists.txt", "Makefile", "example_main.c", f"{name}_solver.h", f"{name}_vectors.txt"):
             assert (folder / f).is_file(), f
         assert (folder / backend / "LICENSE").is_file() or backend == "osqp"
+        vec = json.loads((folder / "manifest.json").read_text())["vectors"]  # both regimes are recorded
+        assert vec["file"] == f"{name}_vectors.txt" and vec["fast_path"] >= 10 and vec["active_bound"] >= 10
         code = "\n".join(p.read_text() for p in folder.rglob("*") if p.is_file() and p.suffix in (".c", ".h"))
         build = (folder / "CMakeLists.txt").read_text() + (folder / "Makefile").read_text()
         for banned in ("Python.h", "casadi/", "pybind11"):

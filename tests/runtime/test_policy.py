@@ -23,7 +23,7 @@ class _Recorder:
 
 def _policy(**kw) -> tuple[SteeringPolicy, _Recorder]:
     rec = _Recorder()
-    return SteeringPolicy(ReferenceSteerer(rec, t_ini=3, t_f=4, m=2, p=2), **kw), rec
+    return SteeringPolicy(ReferenceSteerer(rec, t_ini=3, t_f=4, m=2, p=2), **{"ramp_ticks": 0, "fallback_decay": 0.0, **kw}), rec
 
 
 def test_nominal_horizon_is_y_des_with_r_nom_first():
