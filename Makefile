@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test lint demo codegen bench bridge-demo clean
+.PHONY: install test lint demo codegen bench bridge-demo sitl-demo clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -45,6 +45,12 @@ codegen: install data/flying.npz data/hopping.npz
 # Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights.
 bridge-demo: install
 	$(PY) -m firmware_bridge.demo
+
+# Real autopilots (see the README for building them; found through DDPC_ARDUPILOT_SITL and
+# DDPC_PX4_SITL): from the ground, baseline -> collect -> codegen -> steer, each SITL in a private
+# network namespace; reports/sitl.json and the flight logs in reports/sitl_<autopilot>/.
+sitl-demo: install
+	$(PY) -m firmware_bridge.sitl_demo
 
 bench: install
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,bench]' || echo "(bench extra not installed: the CVXPYgen comparison is skipped)"

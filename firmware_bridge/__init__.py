@@ -4,7 +4,12 @@
   filtering, reply pinning, reconnects, COMMAND_LONG retries.
 * :mod:`.profiles` -- PX4 / ArduPilot Copter mode encoding and SET_ATTITUDE_TARGET thrust semantics.
 * :mod:`.telemetry` -- NED/FRD telemetry -> the controller's ENU/FLU state (newest sample, age).
+* :mod:`.clock` -- the bridge's own control clock: a uniform tick grid whatever the telemetry does.
+* :mod:`.preflight` -- before the first tick: the heartbeat's autopilot, parameters, thrust semantics.
+* :mod:`.phases` -- arming retries, take-off ramp, bumpless (re-)engagement.
 * :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
+* :mod:`.sitl`, :mod:`.sitl_demo` -- real autopilot SITLs (PX4 SIH, ArduCopter) for tests and
+  ``make sitl-demo``.
 * :mod:`.vehicle` -- the simulator behind a PX4-like MAVLink endpoint (``ddpc-vehicle``).
 * :mod:`.realtime` -- SCHED_FIFO, mlockall, PM QoS for the loop; wake-up latency probe (``ddpc-rtcheck``).
 * :mod:`.ticklog` -- the per-tick log, an IODataset ``.npz`` (collect -> dataset -> codegen -> steer).

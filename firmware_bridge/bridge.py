@@ -1,7 +1,7 @@
 """The companion-computer tick loop: telemetry in, steering + height / leg-angle controller,
 SET_ATTITUDE_TARGET out, at 200 Hz (``ddpc-bridge``).
 
-One tick (event-driven: it runs as soon as every telemetry stream has a new sample)::
+One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
 
     newest telemetry (NED/FRD -> ENU/FLU -> trajectory frame) -> MeasuredState (t = trajectory time)
     r_nom = controller.nominal_reference(state)             stage (a)
@@ -11,23 +11,29 @@ One tick (event-driven: it runs as soon as every telemetry stream has a new samp
     sp    = controller.track(u, state)                      stage (b): quaternion + thrust
     clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
 
-Timing. The loop sleeps in ``select`` on the link, drains *everything* pending and folds it
-into the newest state. A tick fires when both streams (attitude, position) have advanced; in
-real time a timer also fires 1.25 periods after the last setpoint if telemetry is late (then
-every period while it stays away): with
-fresh telemetry it repeats the last setpoint ("hold", so a late sample never corrupts the
-steering history), with telemetry older than ``max_age`` it applies the stale action. So the
-setpoint stream continues while the vehicle is silent -- for ``stale_stream_limit`` seconds,
-after which the bridge goes quiet and lets the autopilot's own off-board-loss failsafe
-(PX4 COM_OF_LOSS_T) take over with its own estimator. Latency (logged per event tick) is from
-the kernel receive time of the telemetry message that completed the state to the return of
-the send call. In ``lockstep`` (with ``ddpc-vehicle --lockstep``) only telemetry drives ticks and
-the controller's time is the vehicle's time stamp.
+Timing. Real time: the bridge ticks on its own uniform grid at ``rate_hz`` (:mod:`.clock`);
+between ticks it sleeps in ``select`` on the link and folds *every* pending message into the
+telemetry state (each sample is also kept in the log: a burst of two is two samples). A tick uses
+the newest sample of each stream, held, with its age (receive -> now); a late or missing sample
+is just an older held sample -- it neither resets the steering history nor splits a dataset.
+Telemetry older than ``max_age`` applies the stale action; the setpoint stream continues while
+the vehicle is silent -- for ``stale_stream_limit`` seconds, after which the bridge goes quiet and
+lets the autopilot's own off-board-loss failsafe (PX4 COM_OF_LOSS_T) take over. Latency (per
+tick) is from the kernel receive time of the newest telemetry sample to the return of the send
+call. In ``lockstep`` (with ``ddpc-vehicle --lockstep``) only telemetry drives ticks and the
+controller's time is the vehicle's time stamp (a lost sample there is a ``gap``, bridged in the
+history for up to ``max_gap_fill`` ticks).
+
+Before the first tick (:mod:`.preflight`): the heartbeat's autopilot must match ``autopilot`` (no
+mode command otherwise), parameters are read (hover thrust, GUID_OPTIONS: the thrust semantics),
+the trajectory must lie inside the solver's bounds. Flight phases (:mod:`.phases`): arming once
+telemetry arrives, retried while refused; optional take-off ramp to the trajectory start (heights
+from the take-off point); bumpless (re-)engagement; the trajectory's clock and frame are fixed at
+its first start -- a stall never restarts or re-anchors it.
 
 Safety:
 * Steering only while the vehicle reports armed and off-board / guided, its heartbeat is
-  recent and telemetry is fresh; the steering history is reset whenever that chain breaks
-  (or a telemetry sample is lost), so the solver never sees a window with a hole.
+  recent and telemetry is fresh; the steering history is reset whenever that chain breaks.
 * Solver failure, NaN, out-of-bounds or too large a step -> the unsteered reference for that
   tick (ReferenceSteerer), counted per reason.
 * Attitude (roll, pitch) and thrust clamped to configured limits before sending.
@@ -40,207 +46,43 @@ Safety:
 
 from __future__ import annotations
 
+import dataclasses
 import gc
-import json
 import math
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.robot.controller import ControllerConfig, HeightLegAngleController
-from ddpc_codegen.robot.profile import load_profile
-from ddpc_codegen.robot.trajectory import EllipseTrajectory
+from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
-from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.runtime.policy import SteeringPolicy
-from ddpc_codegen.runtime.steerer import ReferenceSteerer
-from ddpc_codegen.stats import percentiles
+from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
+from firmware_bridge.clock import TickClock
+from firmware_bridge.config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
+                                    default_controller_config)
 from firmware_bridge.link import CommandTracker, MavLink, mavlink
+from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
+from firmware_bridge.preflight import PreflightError, VehicleInfo, check_trajectory_bounds
+from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
-from firmware_bridge.profiles import ArduPilotProfile, Profile, make_profile
+from firmware_bridge.report import Reporting, gap_statistics
+from firmware_bridge.supervisor import Supervisor
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
-from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
+from firmware_bridge.ticklog import TickRecorder
 
-__all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "NoVehicleError", "default_controller_config",
-           "gap_statistics"]
+__all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
+           "default_controller_config", "gap_statistics"]
 
-_MSG_IDS = {
-    "ATTITUDE": mavlink.MAVLINK_MSG_ID_ATTITUDE,
-    "ATTITUDE_QUATERNION": mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
-    "LOCAL_POSITION_NED": mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-    "ODOMETRY": mavlink.MAVLINK_MSG_ID_ODOMETRY,
-}
 # Body rates ignored: attitude + thrust (= 7).
 _TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
               | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
               | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
-_R = {r: i for i, r in enumerate(REASONS)}
 
 
-class NoVehicleError(RuntimeError):
-    """No heartbeat from the target vehicle within the wait time."""
-
-
-def default_controller_config() -> ControllerConfig:
-    """The flying controller of the shipped ``pogox`` profile (what ``ddpc-vehicle`` flies)."""
-    return load_profile("pogox").controller
-
-
-@dataclass
-class BridgeConfig:
-    """Options of the bridge (CLI flags of ``ddpc-bridge`` map 1:1; units SI unless named).
-
-    Attributes:
-        url, baud: MAVLink connection (see :func:`firmware_bridge.link.parse_url`).
-        mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS).
-        solver: folder of a generated solver (``ddpc-codegen codegen``), steer mode.
-        autopilot: "px4" or "ardupilot"; guid_options: ArduPilot GUID_OPTIONS (None: read it).
-        sysid, compid: our identity; target_system / target_component: the vehicle (0: first seen).
-        rate_hz: control rate (must match the solver's dt and the controller's dt).
-        attitude_stream / position_stream: telemetry messages to request.
-        max_age: telemetry older than this [s] -> stop steering, stale action.
-        stale_action: "reference" (controller on the newest telemetry, unsteered), "hover"
-            (level, hover thrust / climb rate 0), "land" (like hover and, with ``offboard``,
-            request the autopilot's LAND mode).
-        stale_stream_limit: stop streaming after telemetry has been stale this long [s] so the
-            autopilot's off-board-loss failsafe takes over (0: never stop).
-        link_timeout: no vehicle heartbeat for this long [s] -> link lost.
-        max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
-        max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard).
-        max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
-            history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
-            instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
-        arm, offboard: explicitly allowed actions: arm the vehicle; switch it to OFFBOARD /
-            GUIDED after ``prestream`` seconds of setpoints (and HOLD at exit / LAND if stale).
-        duration: stop after this long in off-board [s] (None: until signalled).
-        timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
-        lockstep: tick only on telemetry, controller time = vehicle time stamps.
-        log: tick log path (.npz; an IODataset). summary: JSON summary path.
-        dataset_skip: seconds after each activation left out of the dataset part of the log.
-        settle: seconds after activation excluded from the RMSE in the summary.
-        excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed.
-        inject_solver_failure: (first solve index, count[, "fail" | "nan"]) fault injection for tests.
-        controller: ControllerConfig (default: :func:`default_controller_config`).
-        trajectory: EllipseTrajectory (default: the controller's default ellipse).
-        frame: "start" (default: the trajectory starts where the robot is, along its heading, when
-            it enters off-board; no turn, no jump) or "world" (trajectory coordinates are the
-            autopilot's local ENU, commanded heading east). See :class:`.telemetry.TrajectoryFrame`.
-        rt_priority: >0: run the loop SCHED_FIFO at this priority, with memory locked and a
-            ``cpu_latency_us`` PM QoS request held (each if permitted; see :mod:`.realtime`).
-        cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
-        cpus: pin the loop to these CPUs (None: any).
-    """
-
-    url: str = "udpin:127.0.0.1:14540"
-    baud: int | None = None
-    mode: str = "steer"
-    solver: str | None = None
-    autopilot: str = "px4"
-    guid_options: int | None = None
-    sysid: int = 1
-    compid: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
-    target_system: int = 1
-    target_component: int = 1
-    rate_hz: float = 200.0
-    attitude_stream: str = "ATTITUDE_QUATERNION"
-    position_stream: str = "LOCAL_POSITION_NED"
-    max_age: float = 0.050
-    stale_action: str = "reference"
-    stale_stream_limit: float = 1.0
-    link_timeout: float = 3.0
-    max_tilt_deg: float = 30.0
-    thrust_min: float = 0.0
-    thrust_max: float = 1.0
-    max_step: tuple | None = (0.3, 0.5)
-    max_gap_fill: int = 3
-    arm: bool = False
-    offboard: bool = False
-    prestream: float = 1.0
-    duration: float | None = None
-    timeout: float | None = None
-    wait_heartbeat: float = 30.0
-    lockstep: bool = False
-    log: str | None = None
-    summary: str | None = None
-    dataset_skip: float = 0.0
-    settle: float = 3.0
-    excitation: tuple = (0.05, 0.03)
-    excitation_hold: int = 4
-    seed: int = 0
-    inject_solver_failure: tuple | None = None
-    controller: ControllerConfig | None = None
-    trajectory: EllipseTrajectory | None = None
-    frame: str = "start"
-    rt_priority: int = 0
-    cpu_latency_us: int | None = 0
-    cpus: tuple | None = None
-    verbose: bool = False
-
-    def __post_init__(self) -> None:
-        if self.mode not in ("steer", "passthrough", "collect"):
-            raise ValueError(f"mode must be steer, passthrough or collect; got {self.mode!r}")
-        if self.mode == "steer" and not self.solver:
-            raise ValueError("steer mode needs a generated solver folder (--solver generated/<name>)")
-        if self.stale_action not in ("reference", "hover", "land"):
-            raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
-        if not (self.rate_hz > 0 and self.max_age > 0):
-            raise ValueError("rate_hz and max_age must be positive")
-        if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
-            raise ValueError("need 0 <= thrust_min < thrust_max <= 1")
-        if not isinstance(self.max_gap_fill, int) or self.max_gap_fill < 0:
-            raise ValueError(f"max_gap_fill must be an integer >= 0; got {self.max_gap_fill!r}")
-        if self.frame not in ("start", "world"):
-            raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
-
-
-class FaultInjectingSolver:
-    """Wraps a solver; solve calls number ``start`` .. ``start+count-1`` fail (test hook).
-
-    kind "fail": status "injected_failure" (not ok); "nan": a NaN solution with status "solved".
-    """
-
-    def __init__(self, solver, start: int, count: int, kind: str = "fail") -> None:
-        self._solver, self.start, self.count, self.kind = solver, int(start), int(count), kind
-        self.calls = 0
-        self.injected = 0
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._solver, name)
-
-    def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
-        i = self.calls
-        self.calls += 1
-        if self.start <= i < self.start + self.count:
-            self.injected += 1
-            if self.kind == "nan":
-                res = self._solver.solve(u_ini, y_ini, y_des, u_nom)
-                res.u = np.full_like(res.u, np.nan)
-                return res
-            d = self._solver.manifest["dims"]
-            return SteeringResult(np.full((d["t_f"], d["m"]), np.nan), status="injected_failure")
-        return self._solver.solve(u_ini, y_ini, y_des, u_nom)
-
-
-def gap_statistics(send_times: np.ndarray, period: float) -> dict:
-    """Missed ticks from setpoint send times [s]: a gap of g seconds between two setpoints
-    misses round(g / period) - 1 ticks once g >= 1.5 periods (jitter below that is not a miss)."""
-    t = np.asarray(send_times, dtype=float)
-    if t.size < 2:
-        return {"missed_ticks": 0, "max_gap_ms": math.nan, "rate_hz": math.nan, "duration_s": 0.0}
-    g = np.diff(t)
-    miss = np.where(g >= 1.5 * period, np.rint(g / period) - 1, 0).astype(int)
-    dur = float(t[-1] - t[0])
-    return {"missed_ticks": int(miss.sum()), "max_gap_ms": float(g.max() * 1e3),
-            "rate_hz": float((t.size - 1) / dur) if dur > 0 else math.nan, "duration_s": dur}
-
-
-class Bridge:
+class Bridge(Supervisor, Reporting):
     """The tick loop (see the module docstring). ``run()`` returns the summary dict.
 
     Args:
@@ -261,11 +103,8 @@ class Bridge:
         self.ctrl = HeightLegAngleController(self.ctrl_cfg, c.trajectory)
         self.m, self.p = self.ctrl.m, self.ctrl.p
         self.hover_thrust = self.ctrl_cfg.model_mass * self.ctrl_cfg.g / self.ctrl_cfg.max_thrust
-        kw = {"prestream": c.prestream}
-        if c.autopilot == "ardupilot" and c.guid_options is not None:
-            kw["guid_options"] = int(c.guid_options)
-        self.profile: Profile = make_profile(c.autopilot, **kw)
-        self._guid_known = c.autopilot != "ardupilot" or c.guid_options is not None
+        self.profile: Profile = make_profile(c.autopilot, prestream=c.prestream)
+        self.vehicle: VehicleInfo | None = None  # known after the preflight (before the first tick)
         self.steerer: ReferenceSteerer | None = None
         self.solver = None
         if c.mode == "steer":
@@ -317,6 +156,10 @@ class Bridge:
         self.steerer = ReferenceSteerer.for_solver(
             solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
         self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill)
+        traj = self.ctrl.trajectory
+        t = np.linspace(0.0, traj.t_start + 5 * traj.spin_up + traj.period, 2000)
+        lo, hi = solver_input_bounds(solver)
+        check_trajectory_bounds(traj.sample(t)["z"], float(lo[0]), float(hi[0]))
         self.t_f = d["t_f"]
         self._ahead = self.period * np.arange(self.t_f)
 
@@ -338,13 +181,17 @@ class Bridge:
         self.armed = False
         self.offboard = False
         self.mode_name = "?"
+        self.hb_autopilot: int | None = None
+        self.hb_type = 0
         self.last_hb = -math.inf
         self.hb_seen = False
         self._link_lost = False
         self._t_offset = math.inf          # receive time - vehicle time stamp (clock sync estimate) [s]
         self._last_seq = (0, 0)            # telemetry sample counts used by the last event tick
+        self.clock = TickClock(self.period)  # real time: the uniform tick grid
+        self._seen_total = 0               # telemetry samples (both streams) up to the last tick
+        self._tick_t = math.nan            # trajectory clock of the last tick (grid time / stamp) [s]
         self._last_send = -math.inf
-        self._last_was_event = True
         self._last_msg = None              # last SET_ATTITUDE_TARGET (repeated by hold ticks)
         self._stream_since = math.inf      # start of the current uninterrupted setpoint stream [s]
         self._stream_since_stamp = math.nan
@@ -356,76 +203,15 @@ class Bridge:
         self._n_activations = 0
         self._offboard_attempts = 0
         self._next_offboard_try = 0.0
-        self._arm_attempts = 0
-        self._next_arm_try = 0.0
+        self.arming = ArmingRetry(timeout=self.cfg.arm_timeout)
+        self.approach: Approach | None = None
+        self.blend = RefBlend(tuple(self.cfg.blend_rates or ()))
+        self._flown = False                # the trajectory has started once: frame and clock are fixed
+        self.failure: str | None = None
+        self._last_text = ""
         self._was_engaged_ever = False
         self._stale_mode_sent = False
         self._k_exc = 0
-
-    def _on_message(self, msg, rx: float) -> None:
-        typ = msg.get_type()
-        if typ in self.telem.wanted:
-            tel = self.telem
-            before = (tel.att.stamp, tel.pos.stamp)
-            tel.update(msg, rx)
-            if before[0] - tel.att.stamp > 1.0 or before[1] - tel.pos.stamp > 1.0:
-                # Vehicle clock went back: it rebooted. Forget its state and ask for the streams again.
-                self.counts["reboots"] += 1
-                self._event(f"vehicle time went back ({max(before):.3f} s -> {tel.newest_stamp():.3f} s): "
-                            "reboot, re-requesting streams")
-                self.telem.reset()
-                self.telem.update(msg, rx)
-                self._last_seq = (0, 0)
-                self._t_offset = math.inf
-                self._request_streams()
-            new = self.telem.newest_stamp()
-            off = rx - new
-            # Vehicle clock estimate: minimum of (receive - stamp), slowly forgetting (clock drift).
-            self._t_offset = min(self._t_offset + 1e-5, off) if math.isfinite(self._t_offset) else off
-        elif typ == "HEARTBEAT":
-            vm = self.profile.decode(msg.base_mode, msg.custom_mode)
-            if not self.hb_seen:
-                self._event(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, {vm.name}, armed={vm.armed}")
-            elif rx - self.last_hb > self.cfg.link_timeout:
-                self._event("vehicle heartbeat back: link restored, re-requesting streams")
-                self._request_streams()
-            if self.hb_seen and (vm.armed != self.armed or vm.name != self.mode_name):
-                self._event(f"vehicle {vm.name}, armed={vm.armed}")
-            self.hb_seen = True
-            self.last_hb = rx
-            self.armed, self.offboard, self.mode_name = vm.armed, vm.offboard, vm.name
-        elif typ == "COMMAND_ACK":
-            pc = self.tracker.on_ack(msg)
-            if pc is not None and (self.cfg.verbose or not pc.accepted):
-                self._event(f"{pc.label}: {mavlink.enums['MAV_RESULT'][pc.result].name}")
-        elif typ == "PARAM_VALUE":
-            name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
-            name = name.rstrip("\x00")
-            self.params[name] = float(msg.param_value)
-            if name == "GUID_OPTIONS" and isinstance(self.profile, ArduPilotProfile) and not self._guid_known:
-                self.profile.guid_options = int(msg.param_value)
-                self._guid_known = True
-                self._event(f"GUID_OPTIONS={int(msg.param_value)}: thrust field is a "
-                            + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
-            if name == "COM_OF_LOSS_T":
-                self.profile.offboard_loss_timeout = float(msg.param_value)
-        elif typ == "STATUSTEXT" and self.cfg.verbose:
-            self._event(f"vehicle says: {msg.text}")
-
-    def _request_streams(self) -> None:
-        us = int(round(1e6 / self.cfg.rate_hz))
-        for name in sorted({self.cfg.attitude_stream, self.cfg.position_stream}):
-            self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(_MSG_IDS[name]), float(us)),
-                                f"SET_MESSAGE_INTERVAL {name} {self.cfg.rate_hz:g} Hz")
-        self.counts["stream_requests"] += 1
-        if isinstance(self.profile, ArduPilotProfile) and not self._guid_known:
-            self._request_param("GUID_OPTIONS")
-        elif self.profile.name == "px4":
-            self._request_param("COM_OF_LOSS_T")
-
-    def _request_param(self, name: str) -> None:
-        self.link.send(self.link.mav.param_request_read_encode(self.link.target_system or 0,
-                                                               self.link.target_component or 0, name.encode(), -1))
 
     # ------------------------------------------------------------------ main loop
     def run(self, install_signals: bool = True) -> dict:
@@ -443,6 +229,7 @@ class Bridge:
         gc_was = gc.isenabled()
         try:
             self._wait_for_vehicle()
+            self._preflight()
             self._request_streams()
             gc.collect()
             gc.freeze()  # keep the collector's full passes off the tick path (objects made so far are immortal)
@@ -460,6 +247,8 @@ class Bridge:
                 kind = self._tick_kind(now)
                 if kind:
                     self._tick(kind, now)
+                    if kind == "grid":
+                        self.clock.advance(time.monotonic())
                 # ---- housekeeping, after the tick (never delays a setpoint)
                 now = time.monotonic()
                 if now >= next_hb:
@@ -480,52 +269,34 @@ class Bridge:
         except NoVehicleError:
             self.stop_reason = "no vehicle"
             raise
+        except PreflightError as e:
+            self.stop_reason = f"preflight: {e}"
+            raise
         finally:
             self._rt.release()
             if gc_was:
                 gc.enable()
             gc.unfreeze()
             self._finish()
+        if self.failure:
+            raise FlightError(self.failure)
         return self.summary()
 
-    def _wait_for_vehicle(self) -> None:
-        c = self.cfg
-        t_end = time.monotonic() + c.wait_heartbeat
-        next_hb = 0.0
-        while not self.hb_seen and not self._stop:
-            now = time.monotonic()
-            if now > t_end:
-                raise NoVehicleError(f"no heartbeat from system {c.target_system} on {self.link.endpoint} "
-                                     f"within {c.wait_heartbeat:g} s")
-            if now >= next_hb:
-                next_hb = now + 1.0
-                self.link.send_heartbeat()  # udpout: lets a udpin vehicle learn our address
-            self.link.poll(now)
-            self.link.wait(0.05)
-            for msg, rx in self.link.drain():
-                self._on_message(msg, rx)
-
-    def _deadline(self) -> float:
-        """When a timer tick is due: 1.25 periods after an event tick (late telemetry gets a
-        chance), then every period while telemetry stays away (a steady 200 Hz stream)."""
-        return self._last_send + (1.25 if self._last_was_event else 1.0) * self.period
-
     def _wake_in(self, now: float) -> float:
-        if self.cfg.lockstep or not math.isfinite(self._last_send):
+        if self.cfg.lockstep or not self.clock.started:
             return 0.05
-        return min(0.05, self._deadline() - now)
+        return self.clock.wait_time(now)
 
     def _tick_kind(self, now: float) -> str:
+        """"event" (lock-step: every stream advanced), "grid" (real time: the clock's deadline), or ""."""
         t = self.telem
         if not t.has_data:
             return ""
-        if t.att.seq > self._last_seq[0] and t.pos.seq > self._last_seq[1]:
-            if self.cfg.lockstep or now - self._last_send >= 0.5 * self.period:
-                return "event"
-            return ""
-        if not self.cfg.lockstep and math.isfinite(self._last_send) and now >= self._deadline():
-            return "timer"
-        return ""
+        if self.cfg.lockstep:
+            return "event" if t.att.seq > self._last_seq[0] and t.pos.seq > self._last_seq[1] else ""
+        if not self.clock.started:
+            self.clock.start(now)  # the grid starts with the first complete telemetry
+        return "grid" if self.clock.due(now) else ""
 
     def _vehicle_now(self, now: float) -> float:
         """Vehicle time [s] now: the newest stamp in lockstep, else the clock estimate."""
@@ -535,170 +306,91 @@ class Bridge:
 
     # ------------------------------------------------------------------ one tick
     def _tick(self, kind: str, now: float) -> None:
+        """One control tick: newest telemetry (held, with its age) -> reference -> setpoint -> log."""
         c = self.cfg
         tel = self.telem
         event = kind == "event"
-        self._last_was_event = event
         if c.lockstep:
-            age = tel.newest_stamp() - tel.oldest_stamp()
+            age, tclk = tel.newest_stamp() - tel.oldest_stamp(), tel.newest_stamp()
         else:
-            age = now - tel.oldest_rx()
+            age, tclk = now - tel.oldest_rx(), self.clock.time()  # grid time: uniform, no jitter
         fresh = age <= c.max_age
         hb_ok = now - self.last_hb <= c.link_timeout
         engaged = self.armed and self.offboard and hb_ok
-        stamp = tel.newest_stamp() if event else self._vehicle_now(now)
-        # ---- staleness bookkeeping and the stream limit
-        if fresh:
-            if self._stale_since is not None:
-                self._event(f"telemetry fresh again after {now - self._stale_since:.3f} s")
-            self._stale_since = None
-        else:
-            if self._stale_since is None:
-                self._stale_since = now
-                self._event(f"telemetry stale (age {age * 1e3:.1f} ms > {c.max_age * 1e3:.0f} ms): fallback "
-                            f"'{c.stale_action}'")
-            if c.stale_stream_limit > 0 and now - self._stale_since > c.stale_stream_limit:
-                if event:
-                    self._last_seq = (tel.att.seq, tel.pos.seq)
-                self._last_send = now  # quiet: the autopilot's own failsafe takes over
-                return
-        if not event and fresh:
-            # Late telemetry, still fresh: repeat the last setpoint (zero-order hold), leave the history alone.
-            self._hold_tick(now, age, engaged, stamp)
+        n_new = max(tel.seq_total - self._seen_total, 0)
+        self._seen_total = tel.seq_total
+        if not self._check_staleness(now, age, fresh, event):
             return
-        gap = False
-        fill = 0  # lost ticks to bridge in the steering history
-        if event:
-            self._last_seq = (tel.att.seq, tel.pos.seq)
-            step = stamp - self._last_stamp
-            if math.isfinite(step) and abs(step - self.period) > 0.4 * self.period:
-                gap = True
-                self.counts["telemetry_gaps"] += 1
-                r = step / self.period
-                n = int(round(r)) - 1
-                if 1 <= n <= c.max_gap_fill and abs(r - round(r)) < 0.4:
-                    fill = n  # a few samples lost: bridge them (below, once this tick's y is known)
-                elif self.steerer is not None:
-                    self.policy.reset()  # a long hole, or time went backwards: refill before steering again
-            self._last_stamp = stamp
-        # ---- engagement and the trajectory clock
-        if engaged and not self._engaged:
-            self._traj_t0 = stamp
-            self._n_activations += 1
-            self._was_engaged_ever = True
-            if self.steerer is not None:
-                self.steerer.reset()
-            self._event(f"engaged ({self.mode_name}, armed): trajectory starts, {c.mode}; {self.frame.describe()}")
-        elif not engaged and self._engaged:
-            self._traj_t0 = None
-            self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
-        self._engaged = engaged
-        t_traj = stamp - self._traj_t0 if self._traj_t0 is not None else 0.0
-        if not engaged and fresh:
-            self.frame.capture(tel.position, float(tel.euler[2]))  # frozen from the engagement on
-        state = self.frame.to_trajectory(tel.measured_state(t_traj))
-        ctrl = self.ctrl
-        r_nom = ctrl.nominal_reference(state)
-        y = ctrl.outputs(state)
-        u = r_nom
-        exc = None
-        u_st = None
-        solve_us = math.nan
-        if not hb_ok:
-            reason = "no_heartbeat"
-        elif not engaged:
-            reason = "inactive"
-        elif not fresh:
-            reason = "stale"
-            if self.steerer is not None:
-                self.steerer.reset()
-        elif c.mode == "steer":
-            self.policy.lost(fill, y)
-            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
-            u = out.u
-            reason = out.reason
-            solve_us = out.solve_us
-            if out.steered:
-                u_st = u
-        elif c.mode == "collect":
-            exc = self._excitation()
-            u = r_nom + exc
-            reason = "collect"
-        else:
-            reason = "passthrough"
-        # ---- stage (b) and the stale action
+        gap, fill = self._lockstep_gap(tclk) if event else (False, 0)
+        if fresh and not self._flown:
+            # Before the trajectory first starts, the frame follows the vehicle (frozen from then
+            # on: no re-anchoring mid-air) and heights count from where it stood disarmed.
+            self.frame.capture(tel.position, float(tel.euler[2]))
+            if not self.armed:
+                self.frame.z0 = float(tel.position[2])
+        state = self.frame.to_trajectory(tel.measured_state(0.0))
+        self._update_engagement(engaged and self.frame.captured, tclk, state)
+        self._tick_t = tclk
+        t_traj = tclk - self._traj_t0 if self._traj_t0 is not None else 0.0
+        state = dataclasses.replace(state, t=t_traj)
+        ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
         if not fresh and c.stale_action != "reference":
             q, thrust, field = self._level_setpoint()
             if c.stale_action == "land":
                 self._request_land()
         else:
-            sp = ctrl.track(u, state)
-            q, thrust, _ = self._clamp(sp)
-            field = self.profile.thrust_field(thrust, float(u[0]), float(state.position[2]))
-        stamp_ms = int(round(stamp * 1000.0)) if math.isfinite(stamp) else 0
-        sent = self._send_setpoint(q, field, stamp_ms)
+            q, thrust, _ = self._clamp(self.ctrl.track(ref["u"], state))
+            field = self.profile.thrust_field(thrust, float(ref["u"][0]), float(state.position[2]))
+        t_vehicle = tel.newest_stamp() if event else self._vehicle_now(now)
+        sent = self._send_setpoint(q, field, int(round(t_vehicle * 1000.0)) if math.isfinite(t_vehicle) else 0)
         t_sent = time.monotonic()
-        latency = (t_sent - tel.newest_rx()) * 1e6 if event else math.nan
-        # ---- log
-        i = self.rec.new_row()
-        A = self.rec.arrays
-        A["t_wall"][i] = now - self.t0
-        A["t_vehicle"][i] = stamp
-        A["t_traj"][i] = t_traj if self._traj_t0 is not None else math.nan
-        A["age_ms"][i] = age * 1e3
-        A["position"][i] = state.position
-        A["velocity"][i] = state.velocity
-        A["euler"][i] = state.euler
-        A["rates"][i] = state.body_rates
-        A["y"][i] = y
-        A["y_des"][i] = ctrl.y_des
-        A["r_nom"][i] = r_nom
-        A["u"][i] = u
-        if u_st is not None:
-            A["u_steered"][i] = u_st
-        A["excitation"][i] = exc if exc is not None else 0.0
-        A["sp_q"][i] = q
-        A["sp_thrust"][i] = thrust
-        A["sp_field"][i] = field
-        A["reason"][i] = reason_code(reason)
-        A["solve_us"][i] = solve_us
-        A["latency_us"][i] = latency
-        A["compute_us"][i] = (t_sent - now) * 1e6
-        A["event"][i] = event
-        A["armed"][i] = self.armed
-        A["offboard"][i] = self.offboard
-        A["active"][i] = engaged and fresh
-        A["fresh"][i] = fresh
-        A["sent"][i] = sent
-        A["valid"][i] = event and engaged and fresh
-        A["gap"][i] = gap
+        self._record(ref, state, now=now, t_sent=t_sent, t_vehicle=t_vehicle,
+                     t_traj=t_traj if self._traj_t0 is not None else math.nan, age=age, q=q, thrust=thrust,
+                     field=field, event=event or n_new > 0, engaged=engaged and ref["reason"] not in ("takeoff", "blend"),
+                     fresh=fresh, sent=sent, gap=gap,
+                     n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6)
 
-    def _hold_tick(self, now: float, age: float, engaged: bool, stamp: float) -> None:
-        """Repeat the last setpoint verbatim (no controller call: its filters see one call per sample)."""
-        msg = self._last_msg
-        sent = False
-        if msg is not None:
-            sent = self.link.send(msg)
-            self._last_send = time.monotonic()
-            if sent:
-                self._send_times.append(self._last_send)
-                self._send_stamps.append(self._vehicle_now(self._last_send))
-                self._stream_mark(self._last_send)
-        i = self.rec.new_row()
-        A = self.rec.arrays
-        prev = i - 1
-        A["t_wall"][i] = now - self.t0
-        A["t_vehicle"][i] = stamp
-        A["t_traj"][i] = A["t_traj"][prev] if prev >= 0 else math.nan
-        A["age_ms"][i] = age * 1e3
-        for k in ("position", "velocity", "euler", "rates", "y", "y_des", "r_nom", "u", "sp_q", "sp_thrust",
-                  "sp_field"):
-            if prev >= 0:
-                A[k][i] = A[k][prev]
-        A["excitation"][i] = 0.0
-        A["reason"][i] = _R["hold"]
-        A["armed"][i], A["offboard"][i], A["fresh"][i], A["sent"][i] = self.armed, self.offboard, True, sent
-        A["active"][i] = engaged
+    def _reference(self, state, t_traj: float, hb_ok: bool, engaged: bool, fresh: bool, fill: int) -> dict:
+        """Stage (a) and the mode's reference: steered / passthrough / collect, or why not."""
+        ctrl = self.ctrl
+        r_nom = ctrl.nominal_reference(state)
+        y = ctrl.outputs(state)
+        if engaged and fresh and self.approach is not None:
+            r_nom[0] = self.approach.step(self._tick_t, self.period, float(y[0]))
+        blending = engaged and self.blend.active
+        if blending:
+            r_nom = self.blend.apply(r_nom, self.period)
+        ref = {"r_nom": r_nom, "y": y, "u": r_nom, "u_st": None, "exc": None, "solve_us": math.nan}
+        if engaged and fresh and self.approach is not None:
+            ref["reason"] = "takeoff"
+            if self.approach.done:
+                self.approach = None
+                self._event("at the trajectory's start height: trajectory starts")
+            return ref
+        if not hb_ok:
+            ref["reason"] = "no_heartbeat"
+        elif not engaged:
+            ref["reason"] = "inactive"
+        elif not fresh:
+            ref["reason"] = "stale"
+            if self.steerer is not None:
+                self.steerer.reset()
+        elif blending:
+            # The hand-over is the controller's alone: the solver would pull the reference back to the
+            # trajectory faster than the blend allows. The history fills meanwhile (no extra warm-up).
+            ref["reason"] = "blend"
+            if self.steerer is not None:
+                self.policy.observe(r_nom, y)
+        elif self.cfg.mode == "steer":
+            self.policy.lost(fill, y)
+            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
+            ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None)
+        elif self.cfg.mode == "collect":
+            ref["exc"] = self._excitation()
+            ref.update(u=r_nom + ref["exc"], reason="collect")
+        else:
+            ref["reason"] = "passthrough"
+        return ref
 
     def _excitation(self) -> np.ndarray:
         from ddpc_codegen.design.data import prbs
@@ -757,126 +449,3 @@ class Bridge:
             self._stream_since_stamp = self.telem.newest_stamp()
         self._prev_stream_t = t
 
-
-    # ------------------------------------------------------------------ arming / modes
-    def _supervise(self, now: float) -> None:
-        c = self.cfg
-        if not self.hb_seen:
-            return
-        if c.arm and not self.armed and now >= self._next_arm_try and self._arm_attempts < 3 \
-                and not self.tracker.queues.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM):
-            self._arm_attempts += 1
-            self._next_arm_try = now + 2.0
-            self._event("arming (--arm)")
-            self.tracker.submit(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "ARM")
-        streaming = math.isfinite(self._stream_since) and now - self._prev_stream_t < 0.1
-        # Lockstep: "1 s of setpoints" in vehicle time (wall time runs much faster or slower there).
-        streamed = (self.telem.newest_stamp() - self._stream_since_stamp) if c.lockstep else now - self._stream_since
-        if (c.offboard and not self.offboard and not self._was_engaged_ever and streaming
-                and streamed >= self.profile.prestream and (self.armed or not c.arm)
-                and now >= self._next_offboard_try and self._offboard_attempts < 5
-                and not self.tracker.queues.get(mavlink.MAV_CMD_DO_SET_MODE)):
-            self._offboard_attempts += 1
-            self._next_offboard_try = now + 1.0
-            params = self.profile.offboard_command()
-            self._event(f"requesting {self.profile.mode_command_name(params)} after "
-                        f"{streamed:.2f} s of setpoints (--offboard)")
-            self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
-        if c.duration is not None and self._engaged and self._traj_t0 is not None:
-            if self.telem.newest_stamp() - self._traj_t0 >= c.duration - 1e-9:
-                self.stop_reason = f"duration {c.duration:g} s flown"
-                self._stop = True
-        if c.timeout is not None and now - self.t0 > c.timeout:
-            self.stop_reason = self.stop_reason or f"timeout {c.timeout:g} s"
-            self._stop = True
-        if self.hb_seen and now - self.last_hb > c.link_timeout and not self._link_lost:
-            self._link_lost = True
-            self.counts["link_losses"] += 1
-            self._event(f"no vehicle heartbeat for {c.link_timeout:g} s: link lost")
-        elif now - self.last_hb <= c.link_timeout:
-            self._link_lost = False
-
-    def _request_land(self) -> None:
-        if self.cfg.offboard and not self._stale_mode_sent:
-            self._stale_mode_sent = True
-            params = self.profile.land_command()
-            self._event(f"stale telemetry: requesting {self.profile.mode_command_name(params)}")
-            self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
-
-    def _shutdown(self) -> None:
-        """With --offboard: hand the vehicle to HOLD before going quiet (setpoints keep flowing meanwhile)."""
-        c = self.cfg
-        if not (c.offboard and self.offboard and self.armed):
-            return
-        params = self.profile.hold_command()
-        self._event(f"exit: requesting {self.profile.mode_command_name(params)}")
-        pc = self.tracker.submit(mavlink.MAV_CMD_DO_SET_MODE, params, f"DO_SET_MODE {self.profile.mode_command_name(params)}")
-        t_end = time.monotonic() + 1.5
-        self._stop = False
-        while time.monotonic() < t_end and not pc.done:
-            now = time.monotonic()
-            self.link.wait(max(0.0, min(0.05, self._last_send + self.period - now)))
-            for msg, rx in self.link.drain():
-                self._on_message(msg, rx)
-            now = time.monotonic()
-            if now - self._last_send >= self.period and self._last_msg is not None:
-                self.link.send(self._last_msg)
-                self._last_send = now
-            self.tracker.poll(now)
-        self._stop = True
-
-    # ------------------------------------------------------------------ results
-    def ticklog(self) -> TickLog:
-        c = self.cfg
-        meta = {"bridge": {k: v for k, v in asdict(c).items() if k not in ("controller", "trajectory")},
-                "controller": asdict(self.ctrl_cfg), "trajectory": asdict(self.ctrl.trajectory),
-                "autopilot": self.profile.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
-                # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
-                "frame": self.frame.as_dict(),
-                "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
-                                                           "config_hash": self.solver.manifest.get("config_hash"),
-                                                           "predictor_hash": self.solver.manifest.get("predictor_hash")}}
-        return self.rec.to_log(dt=self.period, input_names=self.ctrl.input_names, output_names=self.ctrl.output_names,
-                               input_units=self.ctrl.input_units, output_units=self.ctrl.output_units, metadata=meta)
-
-    def summary(self) -> dict:
-        c = self.cfg
-        v = self.rec.view()
-        n = self.rec.n
-        reasons = v["reason"]
-        names = np.array(REASONS)
-        counts = {str(names[i]): int((reasons == i).sum()) for i in np.unique(reasons)} if n else {}
-        fb = {k: cnt for k, cnt in counts.items() if k in FALLBACK_REASONS}
-        # In lock-step the vehicle's clock is the one that matters: wall-clock gaps only say the
-        # machine was busy, not that a tick of the (paused) vehicle went without a setpoint.
-        gaps = gap_statistics(np.asarray(self._send_stamps if c.lockstep else self._send_times), self.period)
-        eng = v["event"] & v["active"] & (np.nan_to_num(v["t_traj"], nan=-1.0) >= c.settle)
-        ez = v["y"][eng, 0] - v["y_des"][eng, 0] if n else np.zeros(0)
-        out = {
-            "mode": c.mode, "autopilot": self.profile.name, "stop_reason": self.stop_reason, "ticks": n,
-            "setpoints_sent": len(self._send_times), "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
-            "latency_us": percentiles(v["latency_us"]) if n else percentiles(()),
-            "missed_ticks": gaps["missed_ticks"], "max_gap_ms": gaps["max_gap_ms"],
-            "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
-            "event_ticks": int(v["event"].sum()) if n else 0, "activations": self._n_activations,
-            "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
-            "rmse_samples": int(ez.size), **self.counts,
-            "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
-            "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
-            "events": self.events,
-        }
-        if self.steerer is not None:
-            out["steering"] = self.steerer.summary()
-            if isinstance(self.solver, FaultInjectingSolver):
-                out["steering"]["injected_failures"] = self.solver.injected
-        return out
-
-    def _finish(self) -> None:
-        c = self.cfg
-        if c.log and self.rec.n:
-            self.log_path = self.ticklog().save(c.log)
-        s = self.summary()
-        if c.summary:
-            Path(c.summary).parent.mkdir(parents=True, exist_ok=True)
-            Path(c.summary).write_text(json.dumps(s, indent=2, default=_json_default) + "\n")
-        self.link.close()

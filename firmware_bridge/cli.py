@@ -107,17 +107,32 @@ def build_bridge_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("autopilot")
     g.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
     g.add_argument("--guid-options", type=int, default=None,
-                   help="ArduPilot GUID_OPTIONS (bit 3 = thrust field is a thrust); default: read it from the vehicle "
-                        "(climb-rate semantics until known)")
+                   help="ArduPilot GUID_OPTIONS expected (bit 3 = thrust field is a thrust); default: the vehicle's "
+                        "value, read before the first setpoint; refused if it disagrees with the vehicle")
+    g.add_argument("--force-guid-options", action="store_true",
+                   help="encode the thrust field for --guid-options even if the vehicle says otherwise")
     g.add_argument("--sysid", type=int, default=1, help="our system id (default 1: the vehicle's companion)")
     g.add_argument("--compid", type=int, default=191, help="our component id (default 191, onboard computer)")
     g.add_argument("--target-system", type=int, default=1, help="vehicle system id (0: the first autopilot heard)")
     g.add_argument("--target-component", type=int, default=1, help="vehicle component id (0: any)")
-    g.add_argument("--arm", action="store_true", help="arm the vehicle (otherwise arming is left to the pilot)")
+    g.add_argument("--arm", action="store_true",
+                   help="arm the vehicle once its telemetry arrives, retrying while refused (otherwise arming is left "
+                        "to the pilot)")
+    g.add_argument("--arm-timeout", type=float, default=120.0,
+                   help="give up arming after this many seconds: exit 5 with the autopilot's last refusal (default 120)")
     g.add_argument("--offboard", action="store_true",
                    help="switch to OFFBOARD (PX4) / GUIDED_NOGPS (ArduPilot) after --prestream s of setpoints, HOLD at "
                         "exit, LAND on stale telemetry with --stale-action land (otherwise no mode changes)")
     g.add_argument("--prestream", type=float, default=1.0, help="seconds of setpoints before the mode switch")
+    g.add_argument("--takeoff", action="store_true",
+                   help="at the first engagement ramp the height reference from where the vehicle is to the "
+                        "trajectory's start height (heights count from the take-off point), then fly the trajectory")
+    g.add_argument("--climb-rate", type=float, default=0.5, help="--takeoff ramp rate [m/s] (default 0.5)")
+    g.add_argument("--land", action="store_true",
+                   help="at exit hand back with LAND and wait for the vehicle to disarm (default: HOLD)")
+    g.add_argument("--blend-rates", default="0.5,0.5", metavar="Z,PITCH|none",
+                   help="bumpless (re-)engagement: the references start at the measured outputs and move toward the "
+                        "nominal ones at most this fast [m/s, rad/s] (default 0.5,0.5; none: off)")
     g = p.add_argument_group("loop")
     g.add_argument("--rate", type=float, default=200.0, help="control rate [Hz] (default 200)")
     g.add_argument("--attitude-stream", choices=tuple(_ATT), default="quaternion")
@@ -181,12 +196,13 @@ def bridge_config_from_args(a: argparse.Namespace):
     max_step = None if str(a.max_step).lower() == "none" else _floats(a.max_step)
     return BridgeConfig(
         url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, autopilot=a.autopilot,
-        guid_options=a.guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
+        guid_options=a.guid_options, force_guid_options=a.force_guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
         target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
         position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
         thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=max_step, max_gap_fill=a.max_gap_fill,
-        arm=a.arm, offboard=a.offboard,
+        arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
+        land=a.land, blend_rates=None if str(a.blend_rates).lower() == "none" else _floats(a.blend_rates),
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
@@ -217,11 +233,13 @@ def format_summary(s: dict) -> str:
 
 
 def bridge_main(argv: list[str] | None = None) -> int:
-    """``ddpc-bridge``: exit 0 on a clean stop, 2 on a configuration error, 3 if no vehicle answered."""
+    """``ddpc-bridge``: exit 0 on a clean stop, 2 on a configuration error, 3 if no vehicle answered,
+    4 if the vehicle is not what the bridge was told (preflight), 5 if a flight phase failed (arming)."""
     args = build_bridge_parser().parse_args(argv)
     from ddpc_codegen.errors import DDPCError
 
-    from firmware_bridge.bridge import Bridge, NoVehicleError
+    from firmware_bridge.bridge import Bridge, FlightError, NoVehicleError
+    from firmware_bridge.preflight import PreflightError
 
     try:
         bridge = Bridge(bridge_config_from_args(args))
@@ -233,6 +251,12 @@ def bridge_main(argv: list[str] | None = None) -> int:
     except NoVehicleError as e:
         print(f"ddpc-bridge: {e}", file=sys.stderr)
         return 3
+    except PreflightError as e:
+        print(f"ddpc-bridge: error: {e}", file=sys.stderr)
+        return 4
+    except FlightError as e:
+        print(f"ddpc-bridge: error: {e}", file=sys.stderr)
+        return 5
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary), flush=True)
     return 0
 

@@ -98,6 +98,7 @@ class Profile(ABC):
 
     Attributes:
         prestream: seconds of setpoints to stream before requesting the off-board mode [s].
+        arm_first: with arming by the bridge, arm before the mode request (else after).
         offboard_loss_timeout: the autopilot's own setpoint-loss timeout [s] (PX4 COM_OF_LOSS_T).
     """
 
@@ -105,6 +106,9 @@ class Profile(ABC):
     offboard_loss_timeout: float = 1.0
     name: str = "generic"
     autopilot: int = 0
+    # With --arm: arm before requesting the off-board mode (PX4 refuses arming in OFFBOARD unless
+    # setpoints stream; ArduCopter arms in GUIDED_NOGPS, so it gets the mode first).
+    arm_first: bool = True
 
     @abstractmethod
     def decode(self, base_mode: int, custom_mode: int) -> VehicleMode: ...
@@ -178,6 +182,7 @@ class ArduPilotProfile(Profile):
 
     name: str = "ardupilot"
     autopilot: int = MAV_AUTOPILOT_ARDUPILOTMEGA
+    arm_first: bool = False
     guided_mode: int = ARDUCOPTER_MODES["GUIDED_NOGPS"]
     guid_options: int = 0
     climb_kp: float = 1.5

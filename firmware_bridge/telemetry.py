@@ -60,6 +60,8 @@ class Sample:
     stamp: float = math.nan
     rx: float = -math.inf
     seq: int = 0
+    # Every sample's (stamp, rx), kept across reboots: a burst of two is two rows, none is dropped.
+    history: list[tuple[float, float]] = field(default_factory=list)
 
 
 @dataclass
@@ -129,6 +131,12 @@ class TelemetryState:
     @staticmethod
     def _tick(s: Sample, stamp: float, rx: float) -> None:
         s.stamp, s.rx, s.seq = stamp, rx, s.seq + 1
+        s.history.append((stamp, rx))
+
+    @property
+    def seq_total(self) -> int:
+        """Samples received on both streams so far (grows by 2 for a burst of two)."""
+        return self.att.seq + self.pos.seq
 
     def newest_stamp(self) -> float:
         """Sender time of the newest sample [s] (nan before any)."""
@@ -150,8 +158,8 @@ class TelemetryState:
                              euler=self.euler.copy(), body_rates=self.rates.copy(), contact=False)
 
     def reset(self) -> None:
-        """Forget everything (vehicle reboot: its clock restarted)."""
-        self.att, self.pos = Sample(), Sample()
+        """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""
+        self.att, self.pos = Sample(history=self.att.history), Sample(history=self.pos.history)
 
 
 class TrajectoryFrame:
@@ -163,7 +171,9 @@ class TrajectoryFrame:
     horizontal position), and at engagement the frame freezes, so the robot neither turns nor
     jumps when it enters off-board; the trajectory's start point ``anchor`` (x, y) maps to where
     it was. ``"world"`` uses the autopilot's frame as is (the trajectory's coordinates are local
-    ENU positions and the commanded heading is east). Heights are never shifted.
+    ENU positions and the commanded heading is east). Heights are measured from ``z0``: the
+    take-off point's EKF height when the bridge saw the vehicle on the ground (the EKF's origin is
+    not the ground: PX4 SIH reads 0.5-0.85 m while landed), else 0 (the EKF origin).
     """
 
     def __init__(self, mode: str = "start", anchor: tuple[float, float] = (0.0, 0.0)) -> None:
@@ -173,6 +183,8 @@ class TrajectoryFrame:
         self.anchor = np.asarray(anchor, dtype=float)
         self.origin = self.anchor.copy()  # local ENU (x, y) that maps to the anchor
         self.yaw0 = 0.0
+        self.z0 = 0.0
+        self.captured = mode == "world"  # "start": known once :meth:`capture` saw the vehicle
         self._c, self._s = 1.0, 0.0
         self._q_yaw = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -180,6 +192,7 @@ class TrajectoryFrame:
         """Follow the vehicle (call while not engaged): position (3,) local ENU [m], yaw ENU [rad]."""
         if self.mode != "start":
             return
+        self.captured = True
         self.origin = np.asarray(position[:2], dtype=float).copy()
         self.yaw0 = float(yaw)
         self._c, self._s = math.cos(self.yaw0), math.sin(self.yaw0)
@@ -187,6 +200,7 @@ class TrajectoryFrame:
 
     def to_trajectory(self, st: MeasuredState) -> MeasuredState:
         """A local-ENU state in the trajectory frame (in place; returns it)."""
+        st.position[2] -= self.z0
         if self.mode == "world":
             return st
         c, s = self._c, self._s
@@ -205,10 +219,12 @@ class TrajectoryFrame:
 
     def as_dict(self) -> dict:
         """JSON-friendly: mode, heading yaw0 [rad, ENU], origin (local ENU x, y) [m] -> anchor [m]."""
-        return {"mode": self.mode, "yaw0": self.yaw0, "origin": self.origin.tolist(), "anchor": self.anchor.tolist()}
+        return {"mode": self.mode, "yaw0": self.yaw0, "origin": self.origin.tolist(), "anchor": self.anchor.tolist(),
+                "z0": self.z0}
 
     def describe(self) -> str:
+        z = f", heights from z0 = {self.z0:.2f} m (EKF)"
         if self.mode == "world":
-            return "frame world (local ENU)"
+            return "frame world (local ENU)" + z
         return (f"frame start: heading {math.degrees(self.yaw0):.1f} deg ENU, start point at "
-                f"({self.origin[0]:.2f}, {self.origin[1]:.2f}) m")
+                f"({self.origin[0]:.2f}, {self.origin[1]:.2f}) m" + z)

@@ -6,18 +6,21 @@ directly: collect -> dataset -> codegen -> steer with no glue. The dataset part 
 ticks that are valid closed-loop IO data of the loop being modelled:
 
 * the vehicle was armed and in the off-board / guided mode and telemetry was fresh;
-* the tick was triggered by new telemetry whose time stamp is exactly one period after the
-  previous one (a uniformly sampled sequence; a lost or merged telemetry sample splits it);
+* real time: every tick of the bridge's uniform grid (:mod:`.clock`), with the newest telemetry
+  held (its age logged) -- the loop the predictor learns includes the telemetry delay it will
+  see; lock-step: the tick was triggered by telemetry whose stamp is one period after the
+  previous one (a lost or merged sample is a ``gap`` and splits the run);
 * u is the reference applied at that tick (nominal + steering or PRBS), y the measured outputs
   the tick decided on (the convention of :mod:`ddpc_codegen.sim.loop`: u[k] acts on y[k+1]...).
 
-Each maximal run of such ticks becomes one trajectory. "hold" ticks (telemetry late but still
-fresh: the last setpoint repeated) are skipped over -- they add no sample and change nothing the
-vehicle sees; any other tick (stale, inactive, a fallback outside off-board) or a time-stamp gap
-ends the run. Runs shorter than ``min_segment`` ticks, and the first ``skip`` seconds after each
-activation, are dropped. Every tick (including timer / stale ticks and the time before
-activation) is kept in the ``tick_*`` arrays: times, telemetry (ENU/FLU), references, steered u,
-setpoint (NED/FRD quaternion + thrust), solver status and time, latency, flags.
+Each maximal run of such ticks becomes one trajectory; datasets are never spliced across a gap,
+a stale stretch or a mode change. "hold" ticks (older logs) are skipped over; any other tick
+(stale, inactive, a fallback outside off-board) or a gap ends the run. Runs shorter than
+``min_segment`` ticks, and the first ``skip`` seconds after each activation, are dropped. A log
+without any such run is saved marked ``"fit_ok": false`` with the reason, and ``ddpc-codegen
+codegen`` refuses it. Every tick is kept in the ``tick_*`` arrays (times, telemetry in ENU/FLU,
+references, steered u, setpoint, solver status and time, latency, flags) and every received
+telemetry sample in ``sample_<stream>`` (stamp, receive time): a burst of two is two rows.
 :func:`load_ticklog` reads them back.
 """
 
@@ -49,6 +52,8 @@ REASONS = (
     "step_too_large", # 10 |u - u_nom| above the guard
     "exception",      # 11 the solver raised
     "no_heartbeat",   # 12 link lost (no vehicle heartbeat)
+    "takeoff",        # 13 take-off / approach to the trajectory start (--takeoff): not steered, not data
+    "blend",          # 14 bumpless hand-over after (re-)engagement: reference rate-limited, history filling
 )
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",
@@ -92,7 +97,8 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "solve_us": (0, float),     # solver wall time [µs] (nan if not called)
         "latency_us": (0, float),   # telemetry receive -> setpoint sent [µs] (event ticks)
         "compute_us": (0, float),   # tick start -> setpoint sent [µs] (the rest of the latency is waking up)
-        "event": (0, bool),         # triggered by new telemetry (else timer)
+        "event": (0, bool),         # new telemetry since the previous tick (lock-step: the tick's trigger)
+        "new_samples": (0, np.int8),  # telemetry samples (both streams) received since the previous tick
         "armed": (0, bool),
         "offboard": (0, bool),
         "active": (0, bool),        # armed & off-board & heartbeat & fresh telemetry
@@ -141,10 +147,10 @@ class TickRecorder:
         return {k: a[: self.n] for k, a in self.arrays.items()}
 
     def to_log(self, *, dt: float, input_names, output_names, input_units=None, output_units=None,
-               metadata: dict | None = None) -> "TickLog":
+               metadata: dict | None = None, samples: dict | None = None) -> "TickLog":
         return TickLog({k: v.copy() for k, v in self.view().items()}, dt, tuple(input_names), tuple(output_names),
                        tuple(input_units or ("",) * self.m), tuple(output_units or ("",) * self.p),
-                       dict(metadata or {}))
+                       dict(metadata or {}), dict(samples or {}))
 
 
 @dataclass
@@ -158,6 +164,7 @@ class TickLog:
     input_units: tuple[str, ...] = ()
     output_units: tuple[str, ...] = ()
     metadata: dict = field(default_factory=dict)
+    samples: dict[str, np.ndarray] = field(default_factory=dict)  # stream -> (n, 2) stamp, rx [s]
 
     @property
     def n(self) -> int:
@@ -217,7 +224,8 @@ class TickLog:
         """Write the IODataset part (via IODataset.save) plus the ``tick_*`` arrays in one .npz.
 
         If there is no valid segment, every tick with finite telemetry is written as one trajectory
-        and the metadata says ``"closed_loop": false`` (the file still loads; do not fit on it).
+        and the metadata says ``"closed_loop": false, "fit_ok": false`` and why (the file still
+        loads for inspection; ``ddpc-codegen codegen`` refuses to fit on it).
         """
         path = Path(path)
         if path.suffix != ".npz":
@@ -228,21 +236,24 @@ class TickLog:
             ds = self.to_dataset(skip=skip, min_segment=min_segment)
             ds = IODataset(list(ds.u), list(ds.y), ds.dt, input_names=ds.input_names, output_names=ds.output_names,
                            input_units=ds.input_units, output_units=ds.output_units, phases=list(ds.phases),
-                           metadata={**ds.metadata, "closed_loop": True})
-        except DataError:
+                           metadata={**ds.metadata, "closed_loop": True, "fit_ok": True})
+        except DataError as e:
             ok = np.isfinite(self.ticks["y"]).all(axis=1) & np.isfinite(self.ticks["u"]).all(axis=1)
             if not ok.any():
                 ok = np.zeros(self.n, dtype=bool)
             u = self.ticks["u"][ok] if ok.any() else np.zeros((1, len(self.input_names)))
             y = self.ticks["y"][ok] if ok.any() else np.zeros((1, len(self.output_names)))
             ds = IODataset(u, y, self.dt, input_names=self.input_names, output_names=self.output_names,
-                           metadata={**self.metadata, "closed_loop": False, "source": "firmware_bridge.ticklog"})
+                           metadata={**self.metadata, "closed_loop": False, "fit_ok": False, "unfit_reason": str(e),
+                                     "source": "firmware_bridge.ticklog"})
         ds.save(path)
         # Re-open and add the tick arrays (IODataset.load ignores unknown entries).
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
         for k, a in self.ticks.items():
             arrays[f"tick_{k}"] = a
+        for k, a in self.samples.items():
+            arrays[f"sample_{k}"] = np.asarray(a, dtype=float).reshape(-1, 2)
         extra = {"dt": self.dt, "input_names": list(self.input_names), "output_names": list(self.output_names),
                  "input_units": list(self.input_units), "output_units": list(self.output_units),
                  "reasons": list(REASONS), "metadata": self.metadata}
@@ -271,5 +282,6 @@ def load_ticklog(path: str | Path) -> TickLog:
             raise ValueError(f"{path} has no tick arrays (not a bridge tick log)")
         h = json.loads(bytes(z["ticklog_header"]).decode())
         ticks = {k[5:]: z[k] for k in z.files if k.startswith("tick_")}
+        samples = {k[7:]: z[k] for k in z.files if k.startswith("sample_")}
     return TickLog(ticks, float(h["dt"]), tuple(h["input_names"]), tuple(h["output_names"]),
-                   tuple(h.get("input_units", ())), tuple(h.get("output_units", ())), h.get("metadata", {}))
+                   tuple(h.get("input_units", ())), tuple(h.get("output_units", ())), h.get("metadata", {}), samples)

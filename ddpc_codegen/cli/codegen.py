@@ -19,7 +19,7 @@ from typing import Any
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.match import conform_dataset, parse_channel_map
-from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.codegen import BACKENDS, generate
@@ -38,7 +38,12 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
     path = dataset or config.dataset
     if not path:
         raise ConfigError(f"{config.source}: no dataset: give --dataset or set [data] dataset in the config")
-    ds = conform_dataset(config, IODataset.load(path), channel_map, where=f"{config.source} with dataset {path}")
+    raw = IODataset.load(path)
+    if raw.metadata.get("fit_ok") is False:
+        # A bridge tick log without closed-loop data (firmware_bridge.ticklog): fitting on it
+        # would splice gaps, stale stretches and mode changes into one trajectory.
+        raise DataError(f"{path} is marked unfit for fitting: {raw.metadata.get('unfit_reason', 'no reason given')}")
+    ds = conform_dataset(config, raw, channel_map, where=f"{config.source} with dataset {path}")
     if channel_map:
         log(f"  channels mapped (config=dataset): {channel_map}")
     opts = {k: v for k, v in config.predictor.items() if k != "method"}

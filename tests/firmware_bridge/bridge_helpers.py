@@ -85,10 +85,13 @@ class FakeVehicle(threading.Thread):
     """A scripted PX4 stand-in in a thread (udpout to the bridge): heartbeat (armed, OFFBOARD),
     hover telemetry at 200 Hz in one datagram per tick, COMMAND_ACKs; records every setpoint.
 
-    ``telemetry`` and ``heartbeat`` switch the two streams on and off while running.
+    ``telemetry`` and ``heartbeat`` switch the two streams on and off while running. ``pattern``
+    imitates a real autopilot's telemetry (measured against the SITLs): "px4" -- 1 ms stamps,
+    attitude steps 4/8/12 ms, position every 8 ms (~125 samples/s per stream); "burst" -- 5 ms
+    stamps delivered two per datagram every 10 ms (ArduCopter over TCP). ``sent`` counts samples.
     """
 
-    def __init__(self, port: int, sysid: int = 1, z: float = 0.9) -> None:
+    def __init__(self, port: int, sysid: int = 1, z: float = 0.9, pattern: str = "regular") -> None:
         super().__init__(daemon=True)
         from firmware_bridge.link import MavLink
 
@@ -99,8 +102,14 @@ class FakeVehicle(threading.Thread):
         self.extra: list = []  # callables run once per tick (garbage injection ...)
         self.setpoints: list[tuple[float, object]] = []
         self.first_setpoint = threading.Event()
+        self.bridge_seen = threading.Event()  # any message from the bridge arrived (it is listening)
         self.stop_flag = threading.Event()
         self.k = 0
+        self.pattern = pattern
+        self.armed = True
+        self.arm_refusals = 0  # refuse this many ARM commands (TEMPORARILY_REJECTED) before accepting; -1: always
+        self.commands: list[int] = []  # COMMAND_LONG ids received
+        self.sent = {"attitude": 0, "position": 0}
 
     def run(self) -> None:
         from firmware_bridge.link import mavlink
@@ -119,24 +128,56 @@ class FakeVehicle(threading.Thread):
                 time.sleep(d)
             now = time.monotonic()
             for msg, rx in self.link.drain():
+                self.bridge_seen.set()
                 if msg.get_type() == "SET_ATTITUDE_TARGET":
                     self.setpoints.append((rx, msg))
                     self.first_setpoint.set()
                 elif msg.get_type() == "COMMAND_LONG":
-                    self.link.send(mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_ACCEPTED))
+                    self.commands.append(msg.command)
+                    self.link.send(mav.command_ack_encode(msg.command, self._answer(msg)))
             if self.heartbeat and now >= hb_next:
                 hb_next = now + 0.5
                 self.link.send_heartbeat(mavlink.MAV_TYPE_QUADROTOR, 12,
-                                         MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED,
+                                         MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                                         | (MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0),
                                          px4_custom_mode(6), mavlink.MAV_STATE_ACTIVE)
             if self.telemetry:
-                ms = self.k * 5
-                self.link.send_many([
-                    mav.attitude_quaternion_encode(ms, *q_level, 0.0, 0.0, 0.0, (0, 0, 0, 0)),
-                    mav.local_position_ned_encode(ms, 0.0, 0.0, -self.z, 0.0, 0.0, 0.0)])
+                self._send_telemetry(mav, q_level)
             for f in list(self.extra):
                 f(self)
             self.k += 1
+
+    def _answer(self, msg) -> int:
+        """MAV_RESULT for a command: ARM is refused ``arm_refusals`` times, everything else accepted."""
+        from firmware_bridge.link import mavlink
+
+        if msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and msg.param1 == 1.0:
+            if self.arm_refusals != 0:
+                self.arm_refusals -= 1 if self.arm_refusals > 0 else 0
+                return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+            self.armed = True
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _send_telemetry(self, mav, q_level) -> None:
+        """This 5 ms tick's samples per ``pattern`` (stamps in ms of vehicle time)."""
+        def att(ms):
+            return mav.attitude_quaternion_encode(ms, *q_level, 0.0, 0.0, 0.0, (0, 0, 0, 0))
+
+        def pos(ms):
+            return mav.local_position_ned_encode(ms, 0.0, 0.0, -self.z, 0.0, 0.0, 0.0)
+
+        k = self.k
+        if self.pattern == "regular":
+            msgs = [att(k * 5), pos(k * 5)]
+        elif self.pattern == "burst":
+            msgs = [] if k % 2 == 0 else [att((k - 1) * 5), pos((k - 1) * 5), att(k * 5), pos(k * 5)]
+        else:  # px4: within [5k, 5k+5) ms, attitude at 4/8/12 ms steps, position every 8 ms
+            att_ms = [m for m in range(k * 5, k * 5 + 5) if m % 24 in (0, 4, 12)]
+            msgs = [att(m) for m in att_ms] + [pos(m) for m in range(k * 5, k * 5 + 5) if m % 8 == 0]
+        for m in msgs:
+            self.sent["attitude" if m.get_type() == "ATTITUDE_QUATERNION" else "position"] += 1
+        if msgs:
+            self.link.send_many(msgs)
 
     def setpoint_times(self) -> np.ndarray:
         return np.array([t for t, _ in self.setpoints])

@@ -32,7 +32,11 @@ def test_collect_log_reloads_as_an_iodataset(procs, tmp_path):
     assert ds.input_names == ("z_ref", "pitch_ref") and ds.output_names == ("z", "pitch")
     assert ds.input_units == ("m", "rad")
     assert ds.metadata["closed_loop"] is True and ds.metadata["source"] == "firmware_bridge.ticklog"
-    assert ds.n_samples == pytest.approx((4.0 - 0.5) / 0.005, abs=3)
+    # 4 s flown, 0.5 s skipped; the vehicle starts on the ground, so the first ticks are the bumpless
+    # hand-over (blend, not data) from where it stands to the trajectory
+    n_blend = int((load_ticklog(log).ticks["reason"] == R["blend"]).sum())
+    assert n_blend > 0
+    assert ds.n_samples == pytest.approx((4.0 - 0.5) / 0.005 - max(n_blend - 100, 0), abs=3)
 
     t = load_ticklog(log).ticks
     rows = np.concatenate([np.arange(a, b) for a, b in ds.metadata["segments_ticks"]])
@@ -55,7 +59,7 @@ def test_collect_log_reloads_as_an_iodataset(procs, tmp_path):
     s = read_json(summ)
     assert s["reasons"]["collect"] >= ds.n_samples
     ev = [e for _, e in s["events"]]
-    assert ev.index("arming (--arm)") < min(i for i, e in enumerate(ev) if e.startswith("requesting OFFBOARD"))
+    assert ev.index("arming (--arm), attempt 1") < min(i for i, e in enumerate(ev) if e.startswith("requesting OFFBOARD"))
 
 
 def _log(reasons, *, gaps=(), t_traj=None):
@@ -90,5 +94,24 @@ def test_a_log_without_closed_loop_data_still_saves_and_says_so(tmp_path):
     log = _log(["inactive"] * 20)
     path = log.save(tmp_path / "idle.npz")
     ds = IODataset.load(path)
-    assert ds.metadata["closed_loop"] is False
+    assert ds.metadata["closed_loop"] is False and ds.metadata["fit_ok"] is False
+    assert "no closed-loop segment of >= 50 ticks" in ds.metadata["unfit_reason"]
     assert load_ticklog(path).n == 20
+
+
+def test_codegen_refuses_a_log_marked_unfit(tmp_path):
+    from ddpc_codegen.cli.codegen import build_from_config
+    from ddpc_codegen.errors import DataError
+
+    path = _log(["inactive"] * 20).save(tmp_path / "idle.npz")
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml")
+    with pytest.raises(DataError, match=r"idle.npz is marked unfit for fitting: the tick log has no closed-loop"):
+        build_from_config(cfg, path)
+
+
+def test_samples_are_saved_and_reloaded(tmp_path):
+    log = _log(["collect"] * 60)
+    log.samples = {"attitude": np.array([[0.004, 1.0], [0.008, 1.0001]]), "position": np.zeros((0, 2))}
+    back = load_ticklog(log.save(tmp_path / "s.npz"))
+    np.testing.assert_array_equal(back.samples["attitude"], log.samples["attitude"])
+    assert back.samples["position"].shape == (0, 2)

@@ -1,0 +1,183 @@
+"""The bridge's options (:class:`BridgeConfig`; ``ddpc-bridge`` flags map 1:1), its error types and
+the solver fault-injection wrapper used by the tests."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.profile import load_profile
+from ddpc_codegen.robot.trajectory import EllipseTrajectory
+
+from firmware_bridge.link import mavlink
+
+__all__ = ["BridgeConfig", "FaultInjectingSolver", "FlightError", "NoVehicleError", "default_controller_config"]
+
+
+class NoVehicleError(RuntimeError):
+    """No heartbeat from the target vehicle within the wait time."""
+
+
+class FlightError(RuntimeError):
+    """A flight phase could not be completed (e.g. the vehicle refused arming until the timeout)."""
+
+
+def default_controller_config() -> ControllerConfig:
+    """The flying controller of the shipped ``pogox`` profile (what ``ddpc-vehicle`` flies)."""
+    return load_profile("pogox").controller
+
+
+@dataclass
+class BridgeConfig:
+    """Options of the bridge (CLI flags of ``ddpc-bridge`` map 1:1; units SI unless named).
+
+    Attributes:
+        url, baud: MAVLink connection (see :func:`firmware_bridge.link.parse_url`).
+        mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS).
+        solver: folder of a generated solver (``ddpc-codegen codegen``), steer mode.
+        autopilot: "px4" or "ardupilot" (checked against the vehicle's heartbeat before anything is sent).
+        guid_options: ArduPilot GUID_OPTIONS expected (None: the vehicle's value, read before engaging);
+            force_guid_options: encode for ``guid_options`` even if the vehicle disagrees.
+        sysid, compid: our identity; target_system / target_component: the vehicle (0: first seen).
+        rate_hz: control rate (must match the solver's dt and the controller's dt).
+        attitude_stream / position_stream: telemetry messages to request.
+        max_age: telemetry older than this [s] -> stop steering, stale action.
+        stale_action: "reference" (controller on the newest telemetry, unsteered), "hover"
+            (level, hover thrust / climb rate 0), "land" (like hover and, with ``offboard``,
+            request the autopilot's LAND mode).
+        stale_stream_limit: stop streaming after telemetry has been stale this long [s] so the
+            autopilot's off-board-loss failsafe takes over (0: never stop).
+        link_timeout: no vehicle heartbeat for this long [s] -> link lost.
+        max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
+        max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard).
+        max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
+            history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
+            instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
+        arm, offboard: explicitly allowed actions: arm the vehicle (once both telemetry streams
+            arrive; retried every 2 s while refused, each refusal reported, :class:`FlightError`
+            after ``arm_timeout`` s); switch it to OFFBOARD / GUIDED after ``prestream`` seconds of
+            setpoints (and HOLD at exit / LAND if stale).
+        takeoff: at the first engagement, ramp the height reference at ``climb_rate`` [m/s] from
+            where the vehicle is to the trajectory's start height, then start the trajectory.
+        land: at exit hand the vehicle back with LAND (and wait up to 60 s for it to disarm)
+            instead of HOLD.
+        blend_rates: bumpless (re-)engagement: the applied references start at the measured
+            outputs and approach the nominal ones at most this fast per channel ((m/s, rad/s) for
+            flying); None: no blending.
+        duration: stop after this long in off-board [s] (None: until signalled).
+        timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
+        lockstep: tick only on telemetry, controller time = vehicle time stamps.
+        log: tick log path (.npz; an IODataset). summary: JSON summary path.
+        dataset_skip: seconds after each activation left out of the dataset part of the log.
+        settle: seconds after activation excluded from the RMSE in the summary.
+        excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed.
+        inject_solver_failure: (first solve index, count[, "fail" | "nan"]) fault injection for tests.
+        controller: ControllerConfig (default: :func:`default_controller_config`).
+        trajectory: EllipseTrajectory (default: the controller's default ellipse).
+        frame: "start" (default: the trajectory starts where the robot is, along its heading, when
+            it enters off-board; no turn, no jump) or "world" (trajectory coordinates are the
+            autopilot's local ENU, commanded heading east). See :class:`.telemetry.TrajectoryFrame`.
+        rt_priority: >0: run the loop SCHED_FIFO at this priority, with memory locked and a
+            ``cpu_latency_us`` PM QoS request held (each if permitted; see :mod:`.realtime`).
+        cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
+        cpus: pin the loop to these CPUs (None: any).
+    """
+
+    url: str = "udpin:127.0.0.1:14540"
+    baud: int | None = None
+    mode: str = "steer"
+    solver: str | None = None
+    autopilot: str = "px4"
+    guid_options: int | None = None
+    force_guid_options: bool = False
+    sysid: int = 1
+    compid: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+    target_system: int = 1
+    target_component: int = 1
+    rate_hz: float = 200.0
+    attitude_stream: str = "ATTITUDE_QUATERNION"
+    position_stream: str = "LOCAL_POSITION_NED"
+    max_age: float = 0.050
+    stale_action: str = "reference"
+    stale_stream_limit: float = 1.0
+    link_timeout: float = 3.0
+    max_tilt_deg: float = 30.0
+    thrust_min: float = 0.0
+    thrust_max: float = 1.0
+    max_step: tuple | None = (0.3, 0.5)
+    max_gap_fill: int = 3
+    arm: bool = False
+    offboard: bool = False
+    arm_timeout: float = 120.0
+    takeoff: bool = False
+    climb_rate: float = 0.5
+    land: bool = False
+    blend_rates: tuple | None = (0.5, 0.5)
+    prestream: float = 1.0
+    duration: float | None = None
+    timeout: float | None = None
+    wait_heartbeat: float = 30.0
+    lockstep: bool = False
+    log: str | None = None
+    summary: str | None = None
+    dataset_skip: float = 0.0
+    settle: float = 3.0
+    excitation: tuple = (0.05, 0.03)
+    excitation_hold: int = 4
+    seed: int = 0
+    inject_solver_failure: tuple | None = None
+    controller: ControllerConfig | None = None
+    trajectory: EllipseTrajectory | None = None
+    frame: str = "start"
+    rt_priority: int = 0
+    cpu_latency_us: int | None = 0
+    cpus: tuple | None = None
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("steer", "passthrough", "collect"):
+            raise ValueError(f"mode must be steer, passthrough or collect; got {self.mode!r}")
+        if self.mode == "steer" and not self.solver:
+            raise ValueError("steer mode needs a generated solver folder (--solver generated/<name>)")
+        if self.stale_action not in ("reference", "hover", "land"):
+            raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
+        if not (self.rate_hz > 0 and self.max_age > 0):
+            raise ValueError("rate_hz and max_age must be positive")
+        if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
+            raise ValueError("need 0 <= thrust_min < thrust_max <= 1")
+        if not isinstance(self.max_gap_fill, int) or self.max_gap_fill < 0:
+            raise ValueError(f"max_gap_fill must be an integer >= 0; got {self.max_gap_fill!r}")
+        if self.frame not in ("start", "world"):
+            raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
+
+
+class FaultInjectingSolver:
+    """Wraps a solver; solve calls number ``start`` .. ``start+count-1`` fail (test hook).
+
+    kind "fail": status "injected_failure" (not ok); "nan": a NaN solution with status "solved".
+    """
+
+    def __init__(self, solver, start: int, count: int, kind: str = "fail") -> None:
+        self._solver, self.start, self.count, self.kind = solver, int(start), int(count), kind
+        self.calls = 0
+        self.injected = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._solver, name)
+
+    def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
+        i = self.calls
+        self.calls += 1
+        if self.start <= i < self.start + self.count:
+            self.injected += 1
+            if self.kind == "nan":
+                res = self._solver.solve(u_ini, y_ini, y_des, u_nom)
+                res.u = np.full_like(res.u, np.nan)
+                return res
+            d = self._solver.manifest["dims"]
+            return SteeringResult(np.full((d["t_f"], d["m"]), np.nan), status="injected_failure")
+        return self._solver.solve(u_ini, y_ini, y_des, u_nom)

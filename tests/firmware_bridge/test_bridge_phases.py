@@ -1,0 +1,188 @@
+"""Knowing the vehicle before engaging (preflight) and the flight phases around the steered flight:
+arming retries, take-off ramp, bumpless blend -- units, then the bridge against the fake vehicle."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from bridge_helpers import FakeVehicle, Procs, free_port, read_json
+
+from firmware_bridge.link import mavlink
+from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
+from firmware_bridge.preflight import PreflightError, check_autopilot, decode_param_value, resolve_guid_options
+from firmware_bridge.profiles import make_profile
+
+
+def test_the_heartbeat_must_name_the_profiles_autopilot():
+    check_autopilot(12, make_profile("px4"))
+    with pytest.raises(PreflightError, match=r"says ArduPilot \(autopilot 3\) but the bridge is set for px4: "
+                                             r"refusing before any mode command; use --autopilot ardupilot"):
+        check_autopilot(3, make_profile("px4"))
+
+
+def test_param_values_decode_per_autopilot():
+    bits_250 = struct.unpack("<f", struct.pack("<i", 250))[0]  # what PX4 sent for IMU_INTEG_RATE
+    assert decode_param_value(bits_250, mavlink.MAV_PARAM_TYPE_INT32, 12) == 250.0
+    assert decode_param_value(8.0, mavlink.MAV_PARAM_TYPE_INT32, 3) == 8.0      # ArduPilot: float values
+    assert decode_param_value(0.5, mavlink.MAV_PARAM_TYPE_REAL32, 12) == 0.5
+
+
+def test_guid_options_from_the_vehicle_a_cli_value_only_if_it_agrees_or_forced():
+    assert resolve_guid_options(8.0, None, False) == 8
+    assert resolve_guid_options(8.0, 8, False) == 8
+    assert resolve_guid_options(0.0, 8, True) == 8 and resolve_guid_options(None, 8, True) == 8
+    with pytest.raises(PreflightError, match="--guid-options 8 disagrees with the vehicle's GUID_OPTIONS 0"):
+        resolve_guid_options(0.0, 8, False)
+    with pytest.raises(PreflightError, match="could not read GUID_OPTIONS"):
+        resolve_guid_options(None, None, False)
+
+
+def test_arming_retries_until_the_timeout_and_reports_every_refusal():
+    a = ArmingRetry(interval=2.0, timeout=10.0)
+    assert not a.due(0.0, ready=False) and a.due(0.0, ready=True)
+    a.sent(0.0)
+    assert not a.due(1.0, True) and a.due(2.0, True)
+    line = a.refused("MAV_RESULT_FAILED", "Arm: Gyros inconsistent")
+    assert line == "arming refused (MAV_RESULT_FAILED): Arm: Gyros inconsistent -- attempt 1, retrying every 2 s"
+    a.sent(2.0)
+    assert not a.gave_up(9.9) and a.gave_up(10.1) and not a.due(10.1, True)
+    assert a.failure().startswith("could not arm: 2 attempts in 10 s, last: arming refused (MAV_RESULT_FAILED)")
+
+
+def test_takeoff_ramp_is_rate_limited_and_waits_for_the_vehicle():
+    ap = Approach(target=0.9, climb_rate=0.5, tolerance=0.05, hold=1.0, max_extra=5.0)
+    ap.start(0.0)
+    dt = 0.005
+    z = [ap.step(k * dt, dt, 0.0) for k in range(400)]
+    assert np.max(np.diff([0.0] + z)) <= 0.5 * dt + 1e-12 and z[-1] == 0.9
+    assert not ap.done                                  # the vehicle is not there yet
+    k0 = 400
+    for k in range(k0, k0 + 199):
+        ap.step(k * dt, dt, 0.88)
+    assert not ap.done
+    ap.step((k0 + 201) * dt, dt, 0.88)
+    assert ap.done                                      # held within 5 cm for 1 s
+    late = Approach(target=0.9, max_extra=1.0)
+    late.start(0.9)
+    late.step(0.0, dt, 0.5)
+    late.step(1.0, dt, 0.5)
+    assert late.done                                    # gives up waiting: the trajectory starts anyway
+
+
+def test_blend_starts_at_the_measurement_and_hands_over_exactly():
+    b = RefBlend((0.5, 0.5))
+    assert np.array_equal(b.apply(np.array([1.0, 0.1]), 0.005), [1.0, 0.1])  # inactive: unchanged
+    b.start(np.array([0.8, 0.0]))
+    out = [b.apply(np.array([1.0, 0.1]), 0.005) for _ in range(100)]  # 0.2 m at 2.5 mm per tick
+    steps = np.abs(np.diff(np.vstack([[0.8, 0.0]] + out), axis=0))
+    assert np.all(steps <= 0.0025 + 1e-12)
+    assert np.array_equal(out[-1], [1.0, 0.1]) and not b.active
+
+
+@pytest.mark.e2e
+def test_wrong_autopilot_is_refused_before_any_command(tmp_path):
+    pr = Procs(tmp_path)
+    port = free_port()
+    veh = FakeVehicle(port)  # PX4 heartbeat
+    try:
+        veh.start()
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--autopilot", "ardupilot", "--mode", "passthrough",
+                      "--offboard", "--arm", "--timeout", "30", name="bridge")
+        rc = pr.wait(br, 60)
+        out = pr.log(br)
+    finally:
+        veh.close()
+        pr.cleanup()
+    assert rc == 4, out
+    assert "heartbeat says PX4 (autopilot 12) but the bridge is set for ardupilot" in out
+    assert veh.commands == [] and veh.setpoints == []
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("refusals", [2, -1])
+def test_arming_refused_then_accepted_or_refused_forever(tmp_path, refusals):
+    pr = Procs(tmp_path)
+    port = free_port()
+    veh = FakeVehicle(port)
+    veh.armed, veh.arm_refusals = False, refusals
+    try:
+        veh.start()
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--arm", "--arm-timeout", "5",
+                      "--duration", "1", "--summary", str(tmp_path / "s.json"), "--timeout", "30", name="bridge")
+        rc = pr.wait(br, 60)
+        out = pr.log(br)
+    finally:
+        veh.close()
+        pr.cleanup()
+    s = read_json(tmp_path / "s.json")
+    arms = veh.commands.count(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+    if refusals > 0:
+        assert rc == 0, out
+        assert s["arming"]["attempts"] == 3 == arms and len(s["arming"]["refusals"]) == 2
+        assert s["stop_reason"].startswith("duration")
+    else:
+        assert rc == 5, out
+        assert "could not arm: 3 attempts in 5 s, last: arming refused (MAV_RESULT_TEMPORARILY_REJECTED)" in out
+        assert s["stop_reason"] == "arming failed" and arms == 3
+
+
+@pytest.mark.e2e
+@pytest.mark.realtime
+def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path):
+    # The fake vehicle is armed and in OFFBOARD from the start (engaged on the first tick: the frame
+    # is captured on that tick, before anything is commanded); then it goes silent for 2 s.
+    from firmware_bridge.ticklog import REASONS, load_ticklog
+
+    pr = Procs(tmp_path)
+    port = free_port()
+    veh = FakeVehicle(port, z=1.0)
+    try:
+        veh.start()
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--link-timeout", "1.0",
+                      "--log", str(tmp_path / "t.npz"), "--summary", str(tmp_path / "s.json"), "--timeout", "30",
+                      name="bridge")
+        assert veh.first_setpoint.wait(30), pr.log(br)
+        import time
+
+        time.sleep(2.0)
+        veh.telemetry = veh.heartbeat = False
+        time.sleep(2.0)
+        veh.telemetry = veh.heartbeat = True
+        time.sleep(2.0)
+        assert pr.terminate(br) == 0, pr.log(br)
+    finally:
+        veh.close()
+        pr.cleanup()
+    s = read_json(tmp_path / "s.json")
+    ev = [e for _, e in s["events"]]
+    assert s["activations"] == 2 and sum(e.startswith("engaged (OFFBOARD") for e in ev) == 1
+    assert any(e.startswith("re-engaged (OFFBOARD): trajectory continues at t = ") and e.endswith("same frame")
+               for e in ev)
+    assert s["frame"]["origin"] == [0.0, 0.0] and s["frame"]["yaw0"] == pytest.approx(0.0, abs=1e-6)
+    t = load_ticklog(tmp_path / "t.npz").ticks
+    has = np.isfinite(t["t_traj"])
+    lag = t["t_wall"][has] - t["t_traj"][has]   # one trajectory clock, never restarted (also across the
+    assert np.ptp(lag) < 0.1                      # quiet second after 1 s of stale telemetry: no ticks logged)
+    # Between consecutive engaged ticks the reference moves by at most the blend rate plus the
+    # trajectory's own rate: the re-engagement starts from the measured height, no jump.
+    act = t["active"].astype(bool)
+    both = act[1:] & act[:-1]
+    assert np.max(np.abs(np.diff(t["u"][:, 0]))[both]) < 0.5 * 0.005 + 0.19 * 0.005 * 2
+    assert (t["reason"] == REASONS.index("blend")).sum() > 0
+
+
+def test_a_trajectory_outside_the_solver_bounds_is_refused_at_start(flying_solver):
+    from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.robot.trajectory import EllipseTrajectory
+    from firmware_bridge.bridge import Bridge, BridgeConfig
+    from firmware_bridge.preflight import check_trajectory_bounds
+
+    check_trajectory_bounds(np.array([0.9, 1.5]), 0.0, 3.0)
+    high = EllipseTrajectory(center=(0.0, 3.8), radii=(1.0, 0.3))
+    cfg = BridgeConfig(mode="steer", solver=str(flying_solver), controller=load_profile("pogox").controller,
+                       trajectory=high, url=f"udpin:127.0.0.1:{free_port()}")
+    with pytest.raises(ValueError, match=r"the trajectory spans z = 3.500 .. 4.100 m but the solver's z_ref bounds "
+                                         r"are \[0, 3\] m: steering could never engage"):
+        Bridge(cfg)
