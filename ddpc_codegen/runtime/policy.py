@@ -49,14 +49,14 @@ class SteeringPolicy:
         max_gap_fill: lost ticks bridged in the history (0: a lost sample resets it).
         ramp_ticks: steered ticks over which the offset fades in after a reset (40 = 0.2 s at
             200 Hz; 0: none).
-        fallback_decay: per-tick factor of the last offset on fallback ticks (0.9: ~50 ms time
-            constant at 200 Hz; 0: drop it at once).
+        fallback_decay: per-tick factor of the last offset on fallback ticks (e.g. 0.9: ~50 ms
+            time constant at 200 Hz); 0 (default): a fallback is exactly r_nom, as documented.
     """
 
     steerer: ReferenceSteerer
     max_gap_fill: int = 3
     ramp_ticks: int = 40
-    fallback_decay: float = 0.9
+    fallback_decay: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.ramp_ticks, bool) or not isinstance(self.ramp_ticks, int) or self.ramp_ticks < 0:
