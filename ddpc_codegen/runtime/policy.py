@@ -16,8 +16,8 @@ Hopping adds its ground-phase window on top (``set_window`` before :meth:`decide
 
 Bumpless transfer. The steering offset d = u - r_nom is what the robot feels on top of its own
 controller. On (re-)engagement the offset is faded in over ``ramp_ticks`` (u = r_nom + a d, a
-rising linearly from 0 to 1), and when a steered tick is followed by a fallback the last offset
-decays geometrically (``fallback_decay`` per tick) instead of vanishing in one tick. The applied
+rising linearly from 0 to 1). A fallback applies exactly r_nom by default; with
+``fallback_decay`` > 0 the last offset decays geometrically instead of vanishing in one tick. The applied
 u is what enters the history, so the predictor sees exactly what the loop did.
 """
 
