@@ -119,16 +119,16 @@ def _policy_run(policy: Any, sc: Any, duration: float, params: PogoXParams, push
 
 # ----------------------------------------------------------------------------- metrics
 def _metric(res: SimResult) -> dict[str, float]:
-    """Flying: rmse_z, rmse_pitch. Hopping: apex_err_mean against each hop's own target, rmse_pitch."""
+    """Flying: rmse_z, rmse_pitch. Hopping: apex_error_mean_abs against each hop's own target, rmse_pitch."""
     if res.crashed:
         return {"crashed": True}
     m = scenario_metrics(res)
     if res.scenario == "flying":
         return {"rmse_z": m["rmse_z"], "rmse_pitch": m["rmse_pitch"], "mean_z_error": m["mean_z_error"]}
-    out = {"apex_err_mean": m["apex_err_mean"], "rmse_pitch": m["rmse_pitch"], "vx_err_mean": m["vx_err_mean"]}
+    out = {"apex_error_mean_abs": m["apex_error_mean_abs"], "rmse_pitch": m["rmse_pitch"], "vx_error_mean_abs": m["vx_error_mean_abs"]}
     sc = res.scenario_obj
     if isinstance(sc, ScheduledHoppingScenario):
-        out["apex_err_mean"] = _scheduled_apex_error(res, sc.schedule, sc.settle_hops)
+        out["apex_error_mean_abs"] = _scheduled_apex_error(res, sc.schedule, sc.settle_hops)
     return out
 
 
@@ -145,7 +145,7 @@ def _scheduled_apex_error(res: SimResult, schedule: ApexSchedule, settle: int) -
 
 
 def _key(scenario: str) -> str:
-    return "rmse_z" if scenario == "flying" else "apex_err_mean"
+    return "rmse_z" if scenario == "flying" else "apex_error_mean_abs"
 
 
 # ----------------------------------------------------------------------------- identification

@@ -78,7 +78,7 @@ def test_hopping_baselines_in_the_loop_regression_band():
     assert pf.lead[0] <= 5 and 0.8 < pf.gain[0] < 0.9
     c = conditions("hopping")["apex 0.7 m (periodic)"]
     m = _metric(_policy_run(PrefilterPolicy(pf), c["scenario"], 10.0, c["params"], None, 0))
-    assert 0.045 < m["apex_err_mean"] < 0.075
+    assert 0.045 < m["apex_error_mean_abs"] < 0.075
     ilc = learn_ilc(setup, pf, duration=10.0, iterations=2)
     assert 0.025 < ilc.metric[0] < 0.04 and min(ilc.metric[1:]) < 0.01
 
