@@ -37,7 +37,7 @@ def mavlink_unit(cls, field: str) -> str | None:
     if raw in cls.fieldnames:
         return getattr(cls, "fieldunits_by_name", {}).get(raw, "")
     if base in ANGLE_FIELDS and "q" in cls.fieldnames:
-        return "rad"  # derived here from the quaternion (frames.quat_to_euler)
+        return "rad"  # derived here from the quaternion (robot.frames.euler_from_quat_array)
     return None
 
 
