@@ -141,6 +141,9 @@ def build_bridge_parser() -> argparse.ArgumentParser:
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
     g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
     g.add_argument("--wait-heartbeat", type=float, default=30.0, help="give up if no vehicle heartbeat [s]")
+    g.add_argument("--trajectory", default=None, metavar="ellipse|random[:SEED]|FILE",
+                   help="the desired trajectory: the profile's ellipse (default), a seeded random smooth path, or a "
+                        ".csv / .toml trajectory file (columns t, x, z; see the README)")
     g.add_argument("--profile", "--controller", dest="controller", default=None, metavar="NAME|TOML",
                    help="robot profile: a shipped name (pogox) or a TOML with [controller] (ControllerConfig "
                         "fields: model_mass, max_thrust, kp_z, ...) and [trajectory] (EllipseTrajectory fields); "
@@ -193,6 +196,10 @@ def bridge_config_from_args(a: argparse.Namespace):
     from firmware_bridge.bridge import BridgeConfig
 
     ctrl, traj = _controller_from_toml(a.controller) if a.controller else (None, None)
+    if a.trajectory:
+        from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
+
+        traj = trajectory_from_arg(a.trajectory)
     max_step = None if str(a.max_step).lower() == "none" else _floats(a.max_step)
     return BridgeConfig(
         url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, autopilot=a.autopilot,

@@ -77,7 +77,7 @@ class Reporting:
     def ticklog(self) -> TickLog:
         c = self.cfg
         meta = {"bridge": {k: v for k, v in asdict(c).items() if k not in ("controller", "trajectory")},
-                "controller": asdict(self.ctrl_cfg), "trajectory": asdict(self.ctrl.trajectory),
+                "controller": asdict(self.ctrl_cfg), "trajectory": _describe_trajectory(self.ctrl.trajectory),
                 "autopilot": self.profile.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
                 # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
                 "frame": self.frame.as_dict(),
@@ -148,3 +148,13 @@ class Reporting:
             Path(c.summary).parent.mkdir(parents=True, exist_ok=True)
             Path(c.summary).write_text(json.dumps(s, indent=2, default=_json_default) + "\n")
         self.link.close()
+
+
+def _describe_trajectory(traj) -> dict:
+    """The trajectory for the log's metadata: its type and parameters (a sampled one by its source)."""
+    d = {"type": type(traj).__name__}
+    if hasattr(traj, "source") and hasattr(traj, "t"):
+        d.update(source=traj.source, points=len(traj.t), t_end=float(traj.t[-1]))
+    else:
+        d.update(asdict(traj))
+    return d

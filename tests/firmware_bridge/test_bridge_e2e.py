@@ -185,3 +185,23 @@ def test_a_lost_telemetry_sample_is_bridged_not_a_steering_reset(procs, tmp_path
     # the reset costs one full warm-up more (the first one may be shorter: blend ticks fill the history)
     # (each run's first warm-up is shortened by its own number of blend ticks, which depends on timing: +-1)
     assert abs(st0["warmup"] - (st3["warmup"] + t_ini)) <= 1 and 0 < st3["warmup"] <= t_ini
+
+
+def test_a_trajectory_file_flies_over_the_link(tmp_path):
+    """``--trajectory FILE``: the bridge's desired outputs follow the file's spline (trajectory frame)."""
+    from ddpc_codegen.robot.trajectory_files import load_trajectory
+
+    traj_file = tmp_path / "path.csv"
+    traj_file.write_text("# a short climb and back\nt,x,z\n0.0,0.0,1.0\n1.5,0.2,1.15\n3.0,0.0,1.0\n")
+    pr = Procs(tmp_path)
+    try:
+        _fly(pr, tmp_path, "file", ["--mode", "passthrough", "--trajectory", str(traj_file), "--frame", "world",
+                                    "--blend-rates", "none"])
+    finally:
+        pr.cleanup()
+    ticks = load_ticklog(tmp_path / "file.npz").ticks
+    on = np.isfinite(ticks["t_traj"])
+    assert on.sum() > 500
+    want = load_trajectory(traj_file).sample(ticks["t_traj"][on])["z"]
+    np.testing.assert_allclose(ticks["y_des"][on, 0], want, atol=1e-9)
+    assert want.max() > 1.1  # the file's climb, not the default ellipse
