@@ -1,6 +1,7 @@
 """Companion-computer side: runs a generated steering solver in the loop over MAVLink.
 
-* :mod:`.link` -- MAVLink I/O: connection strings, drain-everything receive path, system-id
+* :mod:`.transports` -- connection strings; UDP / TCP / serial byte transports with receive times.
+* :mod:`.link` -- MAVLink I/O: drain-everything receive path, system-id
   filtering, reply pinning, reconnects, COMMAND_LONG retries.
 * :mod:`.profiles` -- PX4 / ArduPilot Copter mode encoding and SET_ATTITUDE_TARGET thrust semantics.
 * :mod:`.telemetry` -- NED/FRD telemetry -> the controller's ENU/FLU state (newest sample, age).
