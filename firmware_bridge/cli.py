@@ -90,6 +90,18 @@ def _add_realtime_args(g, what: str) -> None:
 
 
 # ----------------------------------------------------------------------------- bridge
+def _bridge_defaults() -> dict:
+    """BridgeConfig's field defaults: the flags' defaults are written once, in the dataclass."""
+    from dataclasses import fields
+
+    from firmware_bridge.config import BridgeConfig
+
+    return {f.name: f.default for f in fields(BridgeConfig)}
+
+
+_D = _bridge_defaults()
+
+
 def build_bridge_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="ddpc-bridge",
@@ -98,49 +110,58 @@ def build_bridge_parser() -> argparse.ArgumentParser:
         epilog="Modes: steer (DDPC on), passthrough (model-based controller alone, the baseline), collect (PRBS "
                "on the references; the --log file is an IODataset for `ddpc-codegen codegen --dataset`).",
     )
-    p.add_argument("connection", nargs="?", default="udpin:127.0.0.1:14540",
+    p.add_argument("connection", nargs="?", default=_D["url"],
                    help="pymavlink-style connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
                         "device (/dev/ttyACM0[:BAUD]) (default udpin:127.0.0.1:14540)")
     p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 921600)")
-    p.add_argument("--mode", choices=("steer", "passthrough", "collect"), default="steer")
+    p.add_argument("--mode", choices=("steer", "passthrough", "collect"), default=_D["mode"])
     p.add_argument("--solver", default=None, help="generated solver folder (steer mode), e.g. generated/flying")
-    g = p.add_argument_group("autopilot")
-    g.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
+    _bridge_autopilot_args(p.add_argument_group("autopilot"))
+    _bridge_loop_args(p.add_argument_group("loop"))
+    _bridge_safety_args(p.add_argument_group("safety"))
+    _bridge_logging_args(p.add_argument_group("logging"))
+    return p
+
+
+def _bridge_autopilot_args(g) -> None:
+    g.add_argument("--autopilot", choices=("px4", "ardupilot"), default=_D["autopilot"])
     g.add_argument("--guid-options", type=int, default=None,
                    help="ArduPilot GUID_OPTIONS expected (bit 3 = thrust field is a thrust); default: the vehicle's "
                         "value, read before the first setpoint; refused if it disagrees with the vehicle")
     g.add_argument("--force-guid-options", action="store_true",
                    help="encode the thrust field for --guid-options even if the vehicle says otherwise")
-    g.add_argument("--sysid", type=int, default=1, help="our system id (default 1: the vehicle's companion)")
-    g.add_argument("--compid", type=int, default=191, help="our component id (default 191, onboard computer)")
-    g.add_argument("--target-system", type=int, default=1, help="vehicle system id (0: the first autopilot heard)")
-    g.add_argument("--target-component", type=int, default=1, help="vehicle component id (0: any)")
+    g.add_argument("--sysid", type=int, default=_D["sysid"], help="our system id (default 1: the vehicle's companion)")
+    g.add_argument("--compid", type=int, default=_D["compid"], help="our component id (default 191, onboard computer)")
+    g.add_argument("--target-system", type=int, default=_D["target_system"], help="vehicle system id (0: the first autopilot heard)")
+    g.add_argument("--target-component", type=int, default=_D["target_component"], help="vehicle component id (0: any)")
     g.add_argument("--arm", action="store_true",
                    help="arm the vehicle once its telemetry arrives, retrying while refused (otherwise arming is left "
                         "to the pilot)")
-    g.add_argument("--arm-timeout", type=float, default=120.0,
+    g.add_argument("--arm-timeout", type=float, default=_D["arm_timeout"],
                    help="give up arming after this many seconds: exit 5 with the autopilot's last refusal (default 120)")
     g.add_argument("--offboard", action="store_true",
                    help="switch to OFFBOARD (PX4) / GUIDED_NOGPS (ArduPilot) after --prestream s of setpoints, HOLD at "
                         "exit, LAND on stale telemetry with --stale-action land (otherwise no mode changes)")
-    g.add_argument("--prestream", type=float, default=1.0, help="seconds of setpoints before the mode switch")
+    g.add_argument("--prestream", type=float, default=_D["prestream"], help="seconds of setpoints before the mode switch")
     g.add_argument("--takeoff", action="store_true",
                    help="at the first engagement ramp the height reference from where the vehicle is to the "
                         "trajectory's start height (heights count from the take-off point), then fly the trajectory")
-    g.add_argument("--climb-rate", type=float, default=0.5, help="--takeoff ramp rate [m/s] (default 0.5)")
+    g.add_argument("--climb-rate", type=float, default=_D["climb_rate"], help="--takeoff ramp rate [m/s] (default 0.5)")
     g.add_argument("--land", action="store_true",
                    help="at exit hand back with LAND and wait for the vehicle to disarm (default: HOLD)")
-    g.add_argument("--blend-rates", default="0.5,0.5", metavar="Z,PITCH|none",
+    g.add_argument("--blend-rates", default=",".join(map(str, _D["blend_rates"])), metavar="Z,PITCH|none",
                    help="bumpless (re-)engagement: the references start at the measured outputs and move toward the "
                         "nominal ones at most this fast [m/s, rad/s] (default 0.5,0.5; none: off)")
-    g = p.add_argument_group("loop")
-    g.add_argument("--rate", type=float, default=200.0, help="control rate [Hz] (default 200)")
+
+
+def _bridge_loop_args(g) -> None:
+    g.add_argument("--rate", type=float, default=_D["rate_hz"], help="control rate [Hz] (default 200)")
     g.add_argument("--attitude-stream", choices=tuple(_ATT), default="quaternion")
     g.add_argument("--position-stream", choices=tuple(_POS), default="local")
     g.add_argument("--lockstep", action="store_true", help="tick only on telemetry, vehicle time (ddpc-vehicle --lockstep)")
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
     g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
-    g.add_argument("--wait-heartbeat", type=float, default=30.0, help="give up if no vehicle heartbeat [s]")
+    g.add_argument("--wait-heartbeat", type=float, default=_D["wait_heartbeat"], help="give up if no vehicle heartbeat [s]")
     g.add_argument("--trajectory", default=None, metavar="ellipse|random[:SEED]|FILE",
                    help="the desired trajectory: the profile's ellipse (default), a seeded random smooth path, or a "
                         ".csv / .toml trajectory file (columns t, x, z; see the README)")
@@ -148,40 +169,43 @@ def build_bridge_parser() -> argparse.ArgumentParser:
                    help="robot profile: a shipped name (pogox) or a TOML with [controller] (ControllerConfig "
                         "fields: model_mass, max_thrust, kp_z, ...) and [trajectory] (EllipseTrajectory fields); "
                         "default: pogox, the simulated PogoX")
-    g = p.add_argument_group("safety")
-    g.add_argument("--max-age-ms", type=float, default=50.0, help="telemetry older than this stops steering")
-    g.add_argument("--stale-action", choices=("reference", "hover", "land"), default="reference",
+
+
+def _bridge_safety_args(g) -> None:
+    g.add_argument("--max-age-ms", type=float, default=_D["max_age"] * 1e3, help="telemetry older than this stops steering")
+    g.add_argument("--stale-action", choices=("reference", "hover", "land"), default=_D["stale_action"],
                    help="on stale telemetry: unsteered reference on the newest telemetry, level hover setpoint, or "
                         "hover + the autopilot's LAND mode (with --offboard)")
-    g.add_argument("--stale-stream-limit", type=float, default=1.0,
+    g.add_argument("--stale-stream-limit", type=float, default=_D["stale_stream_limit"],
                    help="stop streaming after this long stale so the autopilot's offboard-loss failsafe acts [s] "
                         "(0: stream forever)")
-    g.add_argument("--link-timeout", type=float, default=3.0, help="no heartbeat for this long = link lost [s]")
-    g.add_argument("--frame", choices=("start", "world"), default="start",
+    g.add_argument("--link-timeout", type=float, default=_D["link_timeout"], help="no heartbeat for this long = link lost [s]")
+    g.add_argument("--frame", choices=("start", "world"), default=_D["frame"],
                    help="start: fly the trajectory from where the robot is, along its heading, when it enters "
                         "off-board (no turn, no jump); world: trajectory in the autopilot's local ENU, heading east")
-    g.add_argument("--max-tilt-deg", type=float, default=30.0, help="clamp on commanded roll and pitch")
-    g.add_argument("--thrust-min", type=float, default=0.0)
-    g.add_argument("--thrust-max", type=float, default=1.0)
-    g.add_argument("--max-step", default="0.3,0.5",
+    g.add_argument("--max-tilt-deg", type=float, default=_D["max_tilt_deg"], help="clamp on commanded roll and pitch")
+    g.add_argument("--thrust-min", type=float, default=_D["thrust_min"])
+    g.add_argument("--thrust-max", type=float, default=_D["thrust_max"])
+    g.add_argument("--max-step", default=",".join(map(str, _D["max_step"])),
                    help="largest |steered - nominal| per reference, comma-separated, or 'none'")
-    g.add_argument("--max-gap-fill", type=int, default=3,
+    g.add_argument("--max-gap-fill", type=int, default=_D["max_gap_fill"],
                    help="bridge up to this many lost telemetry samples in the steering history instead of "
                         "resetting it (0: always reset)")
     g.add_argument("--inject-solver-failure", type=_fault, default=None, metavar="START:COUNT[:fail|nan]",
                    help="testing: make solver calls START..START+COUNT-1 fail")
-    g = p.add_argument_group("logging")
+
+
+def _bridge_logging_args(g) -> None:
     g.add_argument("--log", default=None, help="tick log (.npz, loads as an IODataset)")
     g.add_argument("--summary", default=None, help="write the summary JSON here")
-    g.add_argument("--dataset-skip", type=float, default=0.0, help="seconds after activation left out of the dataset")
-    g.add_argument("--settle", type=float, default=3.0, help="seconds after activation left out of the RMSE")
-    g.add_argument("--excitation", type=_floats, default=(0.05, 0.03), help="collect: PRBS amplitude per reference")
-    g.add_argument("--excitation-hold", type=int, default=4, help="collect: ticks per PRBS bit")
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--dataset-skip", type=float, default=_D["dataset_skip"], help="seconds after activation left out of the dataset")
+    g.add_argument("--settle", type=float, default=_D["settle"], help="seconds after activation left out of the RMSE")
+    g.add_argument("--excitation", type=_floats, default=_D["excitation"], help="collect: PRBS amplitude per reference")
+    g.add_argument("--excitation-hold", type=int, default=_D["excitation_hold"], help="collect: ticks per PRBS bit")
+    g.add_argument("--seed", type=int, default=_D["seed"])
     _add_realtime_args(g, "the loop")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
-    return p
 
 
 def _controller_from_toml(path: str):

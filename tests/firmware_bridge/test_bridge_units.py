@@ -358,3 +358,17 @@ def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
         VehicleConfig(start_yaw=float("nan"))
     assert vehicle_main(["udpout:127.0.0.1:9", "--start-offset", "1,2,3"]) == 2
     assert "start_offset must be two finite numbers" in capsys.readouterr().err
+
+
+def test_bridge_flag_defaults_are_the_config_dataclass_defaults():
+    """The defaults live in BridgeConfig only: no flag, no difference."""
+    import dataclasses
+
+    from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
+    from firmware_bridge.config import BridgeConfig
+
+    got = bridge_config_from_args(build_bridge_parser().parse_args(["--mode", "passthrough"]))
+    want = BridgeConfig(mode="passthrough")
+    diff = {f.name: (getattr(got, f.name), getattr(want, f.name)) for f in dataclasses.fields(want)
+            if getattr(got, f.name) != getattr(want, f.name)}
+    assert not diff
