@@ -219,6 +219,21 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     log("5. in-process reference (simulate, same solver)")
     ip = in_process(solver, flight_s, seed + 1)
 
+    report = _report(runs, ip, solver, {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s,
+                                        "seed": seed, "config": str(config), "predictor": predictor,
+                                        "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "pin": pin,
+                                        "settle_s": 3.0})
+    report["machine_wakeup_latency"] = machine
+    report["wall_s"] = time.monotonic() - t_start
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2, default=str) + "\n")
+    log(format_table(report))
+    log(f"wrote {out}")
+    return report
+
+
+def _report(runs: dict[str, dict], ip: dict, solver: Path, settings: dict) -> dict:
+    """reports/bridge.json from the flights over the link and the in-process reference."""
     from firmware_bridge.ticklog import load_ticklog
 
     lat, sent, dur, missed, ticks = [], 0, 0.0, 0, 0
@@ -232,7 +247,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
         ticks += s["ticks"]
     lat = np.concatenate(lat)
     link = {k: truth_rmse(runs[k]["ticks"], runs[k]["truth"]) for k in ("baseline", "steered")}
-    report = {
+    return {
         "rate_hz": sent / dur if dur > 0 else None,
         "latency_us": percentiles(lat),
         "missed_ticks": int(missed),
@@ -251,18 +266,9 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
                  for k, v in runs.items()},
         "steering": runs["steered"]["summary"].get("steering"),
         "in_process_steering": ip["steering"],
-        "settings": {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s, "seed": seed,
-                     "config": str(config), "predictor": predictor,
-                     "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "pin": pin, "settle_s": 3.0},
-        "machine_wakeup_latency": machine,
+        "settings": settings,
         "kernel": {"release": os.uname().release, "preemption": kernel_preemption()},
-        "wall_s": time.monotonic() - t_start,
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2, default=str) + "\n")
-    log(format_table(report))
-    log(f"wrote {out}")
-    return report
 
 
 def _pin_args(pin: bool, who: str) -> list[str]:

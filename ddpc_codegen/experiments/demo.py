@@ -253,20 +253,7 @@ def run_demo(
         block["duration_s"] = dur
         summary[sc] = block
     if robustness:
-        rob: dict[str, Any] = {}
-        for sc in scenarios:
-            rob[sc] = {}
-            for cond, kw in ROBUSTNESS[sc].items():
-                _say(f"[{sc}] robustness: {cond} ...", quiet)
-                try:
-                    b = run(None, sc, durations[sc], steer=False, seed=3, **kw)
-                    s = run(setups[sc], sc, durations[sc], interpreted=interpreted, seed=3, **kw)
-                except Exception as e:  # a simulator failure is reported, not fatal to the demo
-                    rob[sc][cond] = {"error": f"{type(e).__name__}: {e}"}
-                    continue
-                blk = summary_block(sc, b, s)
-                rob[sc][cond] = {k: blk[k] for k in ("baseline", "steered", "fallbacks", "fallback_reasons", "crashed")}
-        summary["robustness"] = rob
+        summary["robustness"] = _robustness(setups, scenarios, durations, interpreted, quiet)
     if baselines:
         # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines.py);
         # the runs above that are the same simulations are reused, not repeated.
@@ -276,7 +263,37 @@ def run_demo(
         summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
                                                   interpreted=interpreted, quiet=quiet, out_dir=out / "baselines")
     wall = time.perf_counter() - t0
-    summary["meta"] = {
+    summary["meta"] = _meta(interpreted, wall)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=False) + "\n")
+    if figures:
+        summary["meta"]["figures"] = [str(Path(f).relative_to(ROOT)) if Path(f).is_relative_to(ROOT) else f
+                                      for f in _figures(out, runs)]
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _robustness(setups: dict[str, SteeringSetup], scenarios: tuple[str, ...], durations: dict[str, float],
+                interpreted: bool | str, quiet: bool) -> dict[str, Any]:
+    """Baseline vs steered under each robustness condition (same seed); errors reported, not raised."""
+    rob: dict[str, Any] = {}
+    for sc in scenarios:
+        rob[sc] = {}
+        for cond, kw in ROBUSTNESS[sc].items():
+            _say(f"[{sc}] robustness: {cond} ...", quiet)
+            try:
+                b = run(None, sc, durations[sc], steer=False, seed=3, **kw)
+                s = run(setups[sc], sc, durations[sc], interpreted=interpreted, seed=3, **kw)
+            except Exception as e:  # a simulator failure is reported, not fatal to the demo
+                rob[sc][cond] = {"error": f"{type(e).__name__}: {e}"}
+                continue
+            blk = summary_block(sc, b, s)
+            rob[sc][cond] = {k: blk[k] for k in ("baseline", "steered", "fallbacks", "fallback_reasons", "crashed")}
+    return rob
+
+
+def _meta(interpreted: bool | str, wall: float) -> dict[str, Any]:
+    """The summary's meta block: units, conditions, machine and metric definitions."""
+    return {
         "units": "SI (m, rad, m/s); solve times in microseconds",
         "mass_error_kg": PogoXParams().controller_mass_error,
         "interpreted": bool(interpreted),
@@ -293,12 +310,6 @@ def run_demo(
             "fallbacks": "ticks on which the nominal reference was sent instead (solver failure, bound or step guard)",
         },
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=False) + "\n")
-    if figures:
-        summary["meta"]["figures"] = [str(Path(f).relative_to(ROOT)) if Path(f).is_relative_to(ROOT) else f
-                                      for f in _figures(out, runs)]
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    return summary
 
 
 # ----------------------------------------------------------------------------- CLI
