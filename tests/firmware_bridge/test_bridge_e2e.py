@@ -183,4 +183,4 @@ def test_a_lost_telemetry_sample_is_bridged_not_a_steering_reset(procs, tmp_path
     assert st3["gap_filled_ticks"] == 1 and reason3 == 0          # bridged: the gap tick is steered
     assert st0["gap_filled_ticks"] == 0 and reason0 == 3          # reset: the gap tick is a warm-up tick
     # the reset costs one full warm-up more (the first one may be shorter: blend ticks fill the history)
-    assert st0["warmup"] == st3["warmup"] + t_ini and 0 < st3["warmup"] <= t_ini
+    assert abs(st0["warmup"] - (st3["warmup"] + t_ini)) <= 1 and 0 < st3["warmup"] <= t_ini
