@@ -29,7 +29,11 @@ import numpy as np
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.channels import ChannelSpec, resolve_channels
+from ddpc_codegen.logs.dataset import assemble, file_meta, jsonable
 from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
+from ddpc_codegen.logs.grid import check_rule
+from ddpc_codegen.logs.intervals import intersect_windows, state_windows
 from ddpc_codegen.logs.mavlink_defs import (  # noqa: F401 (PX4_MAIN_MODES, ARDUPILOT_OFFBOARD_MODES re-exported)
     ARDUPILOT_OFFBOARD_MODES,
     MAV_AUTOPILOT_ARDUPILOTMEGA,
@@ -39,21 +43,9 @@ from ddpc_codegen.logs.mavlink_defs import (  # noqa: F401 (PX4_MAIN_MODES, ARDU
     mavlink_unit,
     with_mavlink_units,
 )
-from ddpc_codegen.logs.resample import (
-    ChannelSpec,
-    Notes,
-    Series,
-    assemble,
-    build_segments,
-    check_rule,
-    clean_series,
-    file_meta,
-    fmt_t,
-    intersect_windows,
-    jsonable,
-    resolve_channels,
-    state_windows,
-)
+from ddpc_codegen.logs.notes import Notes, fmt_t
+from ddpc_codegen.logs.resample import build_segments
+from ddpc_codegen.logs.series import Series, clean_series
 
 __all__ = ["import_tlog", "read_tlog", "list_tlog_messages", "mavlink_unit", "TLOG_PRESETS", "PX4_MAIN_MODES",
            "ARDUPILOT_OFFBOARD_MODES"]

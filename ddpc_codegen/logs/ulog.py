@@ -1,7 +1,7 @@
 """PX4 ULog flight logs -> IODataset (inputs: setpoints sent, outputs: what the vehicle did).
 
 Channels are picked by ``[NAME=]TOPIC[@INSTANCE].FIELD[:UNIT]`` (see
-:class:`~ddpc_codegen.logs.resample.ChannelSpec`), e.g.::
+:class:`~ddpc_codegen.logs.channels.ChannelSpec`), e.g.::
 
     pitch_ref=vehicle_attitude_setpoint.pitch     # Euler pitch of q_d, rad
     z_ref=trajectory_setpoint.z_up                # -position[2] (or -z on PX4 < 1.14), m
@@ -26,21 +26,14 @@ import numpy as np
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.channels import ChannelSpec, resolve_channels
+from ddpc_codegen.logs.dataset import assemble, file_meta
 from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
-from ddpc_codegen.logs.resample import (
-    ChannelSpec,
-    Notes,
-    Series,
-    assemble,
-    build_segments,
-    check_rule,
-    clean_series,
-    file_meta,
-    fmt_t,
-    intersect_windows,
-    resolve_channels,
-    state_windows,
-)
+from ddpc_codegen.logs.grid import check_rule
+from ddpc_codegen.logs.intervals import intersect_windows, state_windows
+from ddpc_codegen.logs.notes import Notes, fmt_t
+from ddpc_codegen.logs.resample import build_segments
+from ddpc_codegen.logs.series import Series, clean_series
 
 __all__ = ["import_ulog", "list_ulog_topics", "ULOG_PRESETS", "NAV_STATE_NAMES", "NAV_STATE_OFFBOARD"]
 
