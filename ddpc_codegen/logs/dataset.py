@@ -12,8 +12,9 @@ import numpy as np
 from ddpc_codegen.logs.channels import ChannelSpec
 from ddpc_codegen.logs.notes import Notes
 from ddpc_codegen.logs.resample import RESAMPLING_RULE, Segment
+from ddpc_codegen.logs.series import Series
 
-__all__ = ["assemble", "file_meta", "jsonable"]
+__all__ = ["assemble", "file_meta", "jsonable", "channel_summary"]
 
 
 def jsonable(x):
@@ -93,3 +94,13 @@ def file_meta(path) -> dict:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return {"path": str(p.resolve()), "name": p.name, "bytes": p.stat().st_size, "sha256": h.hexdigest()}
+
+
+def channel_summary(series: Sequence[Series], origin_us: int) -> dict[str, dict]:
+    """Per channel of one file: its source, first/last sample (s since the origin), count, log rate."""
+    return {
+        ser.name: {"source": ser.source, "t_first_s": round((int(ser.t_us[0]) - origin_us) / 1e6, 6),
+                   "t_last_s": round((int(ser.t_us[-1]) - origin_us) / 1e6, 6),
+                   "samples": int(ser.t_us.size), "log_rate_hz": ser.info.get("log_rate_hz")}
+        for ser in series
+    }
