@@ -54,15 +54,10 @@ class SteeringProblem:
     """
 
     def __init__(self, predictor: Predictor, config: SteeringConfig) -> None:
-        for key in ("t_ini", "t_f", "m", "p"):
-            if getattr(predictor, key) != getattr(config, key):
-                raise ConfigError(
-                    f"{config.source}: {key}={getattr(config, key)} but the predictor was fitted with "
-                    f"{key}={getattr(predictor, key)}; refit the predictor or fix the config"
-                )
+        self._check_dimensions(predictor, config)
         self.predictor = predictor
         self.config = config
-        c, pr = config, predictor
+        c = config
         m, p, Ti, Tf = c.m, c.p, c.t_ini, c.t_f
         self.n_u = m * Tf
         self.n_w = (m + p) * Ti
@@ -71,6 +66,28 @@ class SteeringProblem:
 
         u = ca.SX.sym("u", self.n_u)
         theta = ca.SX.sym("theta", self.n_theta)
+        J, y, du_expr, D = self._cost(u, theta)
+        g, lo, hi = self._general_constraints(y, du_expr)
+        self._evaluate(J, g, lo, hi, u, theta)
+        self._check_hessian()
+        self._precompute(D)
+        self._osqp = None
+        self._exact = None
+
+    @staticmethod
+    def _check_dimensions(predictor: Predictor, config: SteeringConfig) -> None:
+        """ConfigError unless the config's window sizes and channel counts are the predictor's."""
+        for key in ("t_ini", "t_f", "m", "p"):
+            if getattr(predictor, key) != getattr(config, key):
+                raise ConfigError(
+                    f"{config.source}: {key}={getattr(config, key)} but the predictor was fitted with "
+                    f"{key}={getattr(predictor, key)}; refit the predictor or fix the config"
+                )
+
+    def _cost(self, u: ca.SX, theta: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX, np.ndarray]:
+        """The cost J(u, theta), the predicted outputs y, the increments du and the difference matrix D."""
+        c, pr = self.config, self.predictor
+        m, p, Ti, Tf = c.m, c.p, c.t_ini, c.t_f
         w = theta[: self.n_w]
         y_des = theta[self.n_w : self.n_w + p * Tf]
         u_ini = theta[: m * Ti]
@@ -92,8 +109,12 @@ class SteeringProblem:
         J = J + ca.mtimes([ru.T, Rb, ru])
         if np.any(c.R_du):
             J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
+        return J, y, du_expr, D
 
-        # Simple bounds on u (constant) and general rows: predicted y and increments (only rows that bound something).
+    def _general_constraints(self, y: ca.SX, du_expr: ca.SX) -> tuple[ca.SX, list, list]:
+        """Simple bounds on u (constant) and the general rows g with their bounds: predicted y and
+        increments, only rows that bound something."""
+        c, Tf = self.config, self.config.t_f
         self.lb_u = np.tile(c.u_min, Tf).astype(float)
         self.ub_u = np.tile(c.u_max, Tf).astype(float)
         rows, lo, hi, kinds = [], [], [], []
@@ -108,7 +129,11 @@ class SteeringProblem:
         g = ca.vertcat(*rows) if rows else ca.SX(0, 1)
         self.n_g = int(g.shape[0])
         self.n_c = self.n_u + self.n_g  # OSQP form: A = [I; A_g]
+        return g, lo, hi
 
+    def _evaluate(self, J: ca.SX, g: ca.SX, lo: list, hi: list, u: ca.SX, theta: ca.SX) -> None:
+        """P and A evaluated once; the parameter maps theta -> (q, l_g, u_g) as CasADi Functions
+        and, since they are affine, as dense matrices."""
         H, grad = ca.hessian(J, u)
         Ag = ca.jacobian(g, u)
         if ca.depends_on(H, theta) or (self.n_g and ca.depends_on(Ag, theta)):
@@ -141,10 +166,6 @@ class SteeringProblem:
         self.q0 = np.array(q0, dtype=float).reshape(-1)
         self.lg0 = np.array(l0, dtype=float).reshape(-1)
         self.ug0 = np.array(u0, dtype=float).reshape(-1)
-        self._check_hessian()
-        self._precompute(D)
-        self._osqp = None
-        self._exact = None
 
     def _precompute(self, D: np.ndarray) -> None:
         """The unconstrained gain and the bounds in their own units (for check())."""

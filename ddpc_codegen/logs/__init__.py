@@ -5,6 +5,12 @@ outputs what the vehicle did (interpolated), both resampled onto the controller'
 and split into trajectories at gaps and mode changes; see :mod:`.resample` for the exact rule.
 Bad logs raise :class:`~ddpc_codegen.errors.DataError` naming the topic and time range, or
 warn (:class:`LogImportWarning`) saying what was dropped; nothing is silently invented.
+
+Modules, in the order the data flows: ``ulog`` / ``tlog`` (read a log, pick the channels, mode
+windows; ``tlog_reader`` frames and decodes .tlog records), ``channels`` (spec grammar, presets),
+``series`` (one channel validated), ``intervals`` (coverage, gaps, mode windows), ``grid`` (one
+channel onto the grid), ``resample`` (the rule: channels -> trajectories), ``dataset`` (the
+IODataset and its provenance); ``options`` and ``notes`` are shared by both importers.
 """
 
 from ddpc_codegen.logs.resample import RESAMPLING_RULE, ChannelSpec, LogImportWarning, parse_channel_spec

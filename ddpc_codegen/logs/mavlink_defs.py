@@ -9,8 +9,8 @@ import dataclasses
 from pymavlink import mavutil
 
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.channels import ChannelSpec
 from ddpc_codegen.logs.frames import ANGLE_FIELDS
-from ddpc_codegen.logs.resample import ChannelSpec
 
 __all__ = ["mavlink_unit", "with_mavlink_units", "heartbeat_mode", "PX4_MAIN_MODES", "ARDUPILOT_OFFBOARD_MODES"]
 

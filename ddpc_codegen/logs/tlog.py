@@ -1,9 +1,7 @@
 """MAVLink telemetry logs (.tlog) -> IODataset.
 
-A tlog is a sequence of records: an 8-byte big-endian timestamp (µs since the Unix epoch, when
-the logger received the packet) followed by one raw MAVLink v1 or v2 packet. Packets are framed
-here and decoded with pymavlink's dialect module (no global mavutil state is touched); wanted
-messages are CRC-checked, corrupt stretches are skipped with a warning saying where.
+Records are framed and decoded in :mod:`.tlog_reader` (corrupt stretches skipped with a warning);
+here the channels are picked from the decoded messages and resampled into the dataset.
 
 Channels: ``[NAME=]MESSAGE[@SYSID].FIELD[:UNIT]``, e.g. ``pitch_ref=SET_ATTITUDE_TARGET.pitch``
 (Euler pitch of q), ``z=LOCAL_POSITION_NED.z_up`` (height up), ``ATTITUDE.pitch`` (raw).
@@ -20,8 +18,6 @@ them as they are (several are merged as separate trajectories).
 
 from __future__ import annotations
 
-import importlib
-import struct
 from pathlib import Path
 from typing import Sequence
 
@@ -29,7 +25,11 @@ import numpy as np
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.channels import ChannelSpec, resolve_channels
+from ddpc_codegen.logs.dataset import assemble, channel_summary, file_meta, jsonable
 from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
+from ddpc_codegen.logs.grid import check_rule
+from ddpc_codegen.logs.intervals import intersect_windows, state_windows
 from ddpc_codegen.logs.mavlink_defs import (  # noqa: F401 (PX4_MAIN_MODES, ARDUPILOT_OFFBOARD_MODES re-exported)
     ARDUPILOT_OFFBOARD_MODES,
     MAV_AUTOPILOT_ARDUPILOTMEGA,
@@ -39,21 +39,10 @@ from ddpc_codegen.logs.mavlink_defs import (  # noqa: F401 (PX4_MAIN_MODES, ARDU
     mavlink_unit,
     with_mavlink_units,
 )
-from ddpc_codegen.logs.resample import (
-    ChannelSpec,
-    Notes,
-    Series,
-    assemble,
-    build_segments,
-    check_rule,
-    clean_series,
-    file_meta,
-    fmt_t,
-    intersect_windows,
-    jsonable,
-    resolve_channels,
-    state_windows,
-)
+from ddpc_codegen.logs.notes import Notes, fmt_t
+from ddpc_codegen.logs.options import ImportOptions, check_on_nan, check_time_range, crop_window, gap_rule_text
+from ddpc_codegen.logs.series import Series, clean_series
+from ddpc_codegen.logs.tlog_reader import TlogRow, list_tlog_messages, load_dialect, read_tlog
 
 __all__ = ["import_tlog", "read_tlog", "list_tlog_messages", "mavlink_unit", "TLOG_PRESETS", "PX4_MAIN_MODES",
            "ARDUPILOT_OFFBOARD_MODES"]
@@ -92,109 +81,6 @@ _POS_MASK = {"x": 1, "y": 2, "z": 4, "vx": 8, "vy": 16, "vz": 32, "afx": 64, "af
              "yaw": 1024, "yaw_rate": 2048}
 _TYPE_MASKS = {"SET_ATTITUDE_TARGET": _ATT_MASK, "ATTITUDE_TARGET": _ATT_MASK,
                "SET_POSITION_TARGET_LOCAL_NED": _POS_MASK, "POSITION_TARGET_LOCAL_NED": _POS_MASK}
-
-_V1, _V2 = 0xFE, 0xFD
-_MAX_JUMP_US = 24 * 3600 * 10**6  # resync: a record timestamp this far off is not a record start
-
-
-def _dialect(name: str):
-    try:
-        return importlib.import_module(f"pymavlink.dialects.v20.{name}")
-    except ImportError as e:
-        raise DataError(f"unknown MAVLink dialect {name!r} (pymavlink.dialects.v20.{name}): {e}") from None
-
-
-def read_tlog(
-    path: str | Path, wanted: Sequence[str] | None, *, dialect: str = "common", notes: Notes | None = None
-) -> tuple[dict[str, list[tuple[int, int, int, object]]], int]:
-    """Decode a tlog: (message name -> [(t_us, sysid, compid, message), ...] in file order,
-    timestamp of the first record in µs).
-
-    Only the ``wanted`` message names are decoded (all if None). Corrupt bytes are skipped
-    (resynchronising on the next plausible record) and packets failing the CRC are dropped,
-    each with a warning giving the file offset and time.
-    """
-    notes = notes if notes is not None else Notes()
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"tlog file {path} does not exist")
-    mod = _dialect(dialect)
-    by_name = {cls.msgname: cls for cls in mod.mavlink_map.values()}
-    if wanted is not None:
-        unknown = sorted(set(wanted) - set(by_name))
-        if unknown:
-            raise DataError(f"MAVLink message(s) {', '.join(unknown)} not in dialect {dialect!r}")
-        ids = {by_name[n].id for n in wanted}
-    else:
-        ids = set(mod.mavlink_map)
-    mav = mod.MAVLink(None)
-    data = path.read_bytes()
-    n = len(data)
-    if n < 9:
-        raise DataError(f"{path}: not a tlog (only {n} bytes)")
-    out: dict[str, list] = {}
-    pos = 0
-    last_t: int | None = None
-    origin: int | None = None
-    skipped: list[tuple[int, int, int | None]] = []  # (offset, bytes, t near)
-    crc_bad: list[tuple[int, int]] = []
-    while pos + 9 <= n:
-        magic = data[pos + 8]
-        total = None
-        if magic == _V1 and pos + 14 <= n:
-            total = 6 + data[pos + 9] + 2
-            sysid, compid, msgid = data[pos + 11], data[pos + 12], data[pos + 13]
-        elif magic == _V2 and pos + 18 <= n:
-            total = 10 + data[pos + 9] + 2 + (13 if data[pos + 10] & 1 else 0)
-            sysid, compid = data[pos + 13], data[pos + 14]
-            msgid = data[pos + 15] | (data[pos + 16] << 8) | (data[pos + 17] << 16)
-        t_us = struct.unpack_from(">Q", data, pos)[0]
-        if total is None and magic in (_V1, _V2):
-            break  # a header cut short by the end of the file (reported below)
-        if total is None or (last_t is not None and abs(t_us - last_t) > _MAX_JUMP_US):
-            # resync: next offset that looks like a record, "timestamp near the last one + magic"
-            start = pos
-            pos += 1
-            while pos + 9 <= n:
-                if data[pos + 8] in (_V1, _V2):
-                    tt = struct.unpack_from(">Q", data, pos)[0]
-                    if last_t is None or abs(tt - last_t) <= _MAX_JUMP_US:
-                        break
-                pos += 1
-            skipped.append((start, pos - start, last_t))
-            continue
-        if pos + 8 + total > n:
-            notes.warn(f"{path.name}: the file ends inside a packet at offset {pos}; its last {n - pos} bytes are ignored")
-            pos = n
-            break
-        if origin is None:
-            origin = t_us
-        last_t = t_us
-        if msgid in ids:
-            try:
-                msg = mav.decode(bytearray(data[pos + 8: pos + 8 + total]))
-            except Exception:  # pymavlink raises MAVError and, on odd payloads, struct errors
-                crc_bad.append((pos, t_us, mod.mavlink_map[msgid].msgname))
-            else:
-                out.setdefault(msg.get_type(), []).append((t_us, sysid, compid, msg))
-        pos += 8 + total
-    if pos < n:
-        notes.warn(f"{path.name}: {n - pos} trailing byte(s) at offset {pos} are not a complete record; ignored")
-    o = origin or 0
-    if skipped:
-        where = ", ".join(f"offset {off} ({nb} bytes, after {fmt_t(t, o) if t is not None else 'start'})"
-                          for off, nb, t in skipped[:3])
-        notes.warn(f"{path.name}: skipped {sum(nb for _, nb, _ in skipped)} corrupt byte(s) in "
-                   f"{len(skipped)} place(s): {where}{' ...' if len(skipped) > 3 else ''}")
-    if crc_bad:
-        names = sorted({nm for _, _, nm in crc_bad})
-        per = ", ".join(f"{nm} x{sum(1 for *_, x in crc_bad if x == nm)}" for nm in names)
-        where = ", ".join(f"{nm} at offset {off}, {fmt_t(t, o)}" for off, t, nm in crc_bad[:3])
-        notes.warn(f"{path.name}: dropped {len(crc_bad)} packet(s) failing the MAVLink CRC/decode ({per}): "
-                   f"{where}{' ...' if len(crc_bad) > 3 else ''}")
-    if origin is None:
-        raise DataError(f"{path}: no MAVLink record found; is it a tlog (8-byte timestamp + packet records)?")
-    return out, origin
 
 
 def _flatten(msgs: Sequence[object]) -> dict[str, np.ndarray]:
@@ -300,6 +186,118 @@ def _load_npz(paths: Sequence[Path]) -> IODataset:
     )
 
 
+def _sample_times(rows: Sequence[TlogRow], fields: dict[str, np.ndarray], spec: ChannelSpec,
+                  time_source: str) -> np.ndarray:
+    """Sample times (int64 µs) of one channel: tlog receive times, or the sender's time_boot_ms."""
+    if time_source == "boot":
+        if "time_boot_ms" not in fields:
+            raise DataError(f"time_source='boot': {spec.source} has no time_boot_ms field")
+        return (fields["time_boot_ms"] * 1000).astype(np.int64)
+    return np.array([r[0] for r in rows], dtype=np.int64)
+
+
+def _drop_ignored(fields: dict[str, np.ndarray], t: np.ndarray, x: np.ndarray, spec: ChannelSpec, path: Path,
+                  origin: int, notes: Notes) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the samples whose type_mask marks the field as ignored (their values mean nothing)."""
+    bit = _TYPE_MASKS.get(spec.source, {}).get(_base_field(spec.field))
+    if bit is None or "type_mask" not in fields:
+        return t, x
+    ign = (fields["type_mask"].astype(np.int64) & bit) > 0
+    if ign.all():
+        raise DataError(f"{path.name}:{spec.where}: every {spec.source} marks "
+                        f"{_base_field(spec.field)} as ignored (type_mask bit {bit}); it is not a setpoint here")
+    if ign.any():
+        k = np.flatnonzero(ign)
+        notes.warn(f"{path.name}:{spec.where}: dropped {k.size} sample(s) whose type_mask marks "
+                   f"{_base_field(spec.field)} as ignored ({fmt_t(t[k[0]], origin)}..{fmt_t(t[k[-1]], origin)})")
+        return t[~ign], x[~ign]
+    return t, x
+
+
+def _channel(msgs: dict[str, list[TlogRow]], path: Path, spec: ChannelSpec, role: str, rule: str, *,
+             sysid: int | None, time_source: str, origin: int, crop: tuple[int, int] | None, on_nan: str,
+             notes: Notes) -> tuple[Series, dict]:
+    """One channel of one tlog as a clean series, and its provenance (incl. the sender)."""
+    rows = msgs.get(spec.source, [])
+    if not rows:
+        present = sorted(k for k in msgs if k != "HEARTBEAT")
+        raise DataError(f"message {spec.source} (for {role} {spec.name!r}) is not in {path}; "
+                        f"of the requested messages it has: {', '.join(present) or 'none'} "
+                        "(list all with --list)")
+    rows = _pick_source(rows, spec.source, spec.instance if spec.instance is not None else sysid, path,
+                        f"{role} {spec.name!r}")
+    fields = _flatten([r[3] for r in rows])
+    t = _sample_times(rows, fields, spec, time_source)
+    x, how = derive_field(fields, spec.field, f"message {spec.source} of {path}")
+    t, x = _drop_ignored(fields, t, x, spec, path, origin, notes)
+    raw = Series(spec.name, spec.unit, f"{path.name}:{spec.where}", t, x, rule, angle=spec.field in ANGLE_FIELDS)
+    info = {"role": role, "name": spec.name, "unit": spec.unit, "spec": spec.text,
+            "message": spec.source, "sysid": rows[0][1], "compid": rows[0][2],
+            "field": spec.field, "derivation": how, "rule": rule,
+            "angle_unwrapped": spec.field in ANGLE_FIELDS}
+    return clean_series(raw, origin_us=origin, on_nan=on_nan, notes=notes, crop_us=crop), info
+
+
+def _import_file(path: Path, ins: Sequence[ChannelSpec], outs: Sequence[ChannelSpec], wanted: set[str], *,
+                 opts: ImportOptions, sysid: int | None, time_source: str, dialect: str,
+                 notes: Notes) -> tuple[dict, list, int, list[dict]]:
+    """One tlog: (file metadata, segments, time origin µs, channel provenance)."""
+    msgs, first_us = read_tlog(path, sorted(wanted), dialect=dialect, notes=notes)
+    origin = 0 if time_source == "boot" else first_us
+    crop = crop_window(origin, opts.time_range)
+    series: dict[str, list[Series]] = {"input": [], "output": []}
+    info: list[dict] = []
+    for role, specs, rule in (("input", ins, opts.input_rule), ("output", outs, opts.output_rule)):
+        for s in specs:
+            ser, ci = _channel(msgs, path, s, role, rule, sysid=sysid, time_source=time_source, origin=origin,
+                               crop=crop, on_nan=opts.on_nan, notes=notes)
+            series[role].append(ser)
+            info.append(ci)
+    senders = {(ci["sysid"], ci["compid"]) for ci in info}
+    if time_source == "boot" and len(senders) > 1:
+        raise DataError(f"time_source='boot' mixes clocks: channels come from systems/components "
+                        f"{sorted(senders)}; use time_source='log'")
+    wins = None
+    if opts.filters_modes:
+        # the vehicle whose mode counts is the one sending the outputs (state messages)
+        out_sys = {ci["sysid"] for ci in info if ci["role"] == "output"}
+        hb_sys = sysid if sysid is not None else (next(iter(out_sys)) if len(out_sys) == 1 else None)
+        wins = _heartbeat_windows(msgs.get("HEARTBEAT", []), path, origin, hb_sys, offboard_only=opts.offboard_only,
+                                  armed_only=opts.armed_only, split_on_mode=opts.split_on_mode)
+    if crop is not None:
+        wins = intersect_windows(wins, [(crop[0], crop[1], "")])
+    segs = opts.segments(series["input"], series["output"], origin_us=origin, notes=notes, windows=wins,
+                         what=str(path))
+    meta = file_meta(path)
+    meta.update({
+        "format": "tlog",
+        "log_start_us": origin,
+        "messages": sorted(wanted),
+        "channels": channel_summary(series["input"] + series["output"], origin),
+    })
+    return meta, segs, origin, info
+
+
+def _settings(opts: ImportOptions, *, preset: str | None, dialect: str, time_source: str,
+              sysid: int | None) -> dict:
+    """How the import was run, for the dataset's metadata."""
+    return {
+        "source_format": "tlog",
+        "importer": "ddpc_codegen.logs.import_tlog",
+        "preset": preset,
+        "dialect": dialect,
+        "time_source": time_source,
+        "time_base": ("seconds since each file's first tlog record (receive time)" if time_source == "log"
+                      else "seconds since the sender's boot (time_boot_ms)"),
+        "gap_rule": gap_rule_text(opts.max_gap, opts.gap_factor),
+        "min_duration_s": float(opts.min_duration),
+        "mode_filter": opts.mode_filter_settings(),
+        "sysid": sysid,
+        "time_range_s": None if opts.time_range is None else [float(v) for v in opts.time_range],
+        "on_nan": opts.on_nan,
+    }
+
+
 def import_tlog(
     paths: str | Path | Sequence[str | Path],
     inputs: Sequence[str | ChannelSpec] | None = None,
@@ -345,126 +343,27 @@ def import_tlog(
         return _load_npz(path_list)
     if any(npz):
         raise DataError("mix of .npz datasets and tlogs: import the tlogs first, then pass datasets separately")
-    if on_nan not in ("drop", "error"):
-        raise DataError(f"on_nan must be 'drop' or 'error'; got {on_nan!r}")
+    check_on_nan(on_nan)
     if time_source not in ("log", "boot"):
         raise DataError(f"time_source must be 'log' or 'boot'; got {time_source!r}")
-    if time_range is not None and not float(time_range[1]) > float(time_range[0]):
-        raise DataError(f"time_range end must be after start; got {time_range[0]}..{time_range[1]} s")
+    check_time_range(time_range)
     check_rule(input_rule, "input")
     check_rule(output_rule, "output")
     ins, outs = resolve_channels(preset, inputs, outputs, TLOG_PRESETS, "tlog")
-    mod = _dialect(dialect)
+    mod = load_dialect(dialect)
     ins, outs = with_mavlink_units(ins, mod), with_mavlink_units(outs, mod)
-    modes = offboard_only or armed_only or split_on_mode
-    if modes and time_source == "boot":
+    opts = ImportOptions(rate_hz, max_gap, gap_factor, min_duration, offboard_only, armed_only, split_on_mode,
+                         time_range, input_rule, output_rule, on_nan)
+    if opts.filters_modes and time_source == "boot":
         raise DataError("mode filters need time_source='log': HEARTBEAT carries no time_boot_ms")
     notes = Notes()
-    wanted = {s.source for s in ins + outs} | ({"HEARTBEAT"} if modes else set())
+    wanted = {s.source for s in ins + outs} | ({"HEARTBEAT"} if opts.filters_modes else set())
     per_file, chan_info = [], []
     for fi, path in enumerate(path_list):
-        msgs, first_us = read_tlog(path, sorted(wanted), dialect=dialect, notes=notes)
-        origin = 0 if time_source == "boot" else first_us
-        crop = None if time_range is None else (
-            origin + int(round(float(time_range[0]) * 1e6)), origin + int(round(float(time_range[1]) * 1e6)) + 1)
-        series = {"input": [], "output": []}
-        senders: dict[str, set[tuple[int, int]]] = {"input": set(), "output": set()}
-        for role, specs, rule in (("input", ins, input_rule), ("output", outs, output_rule)):
-            for s in specs:
-                rows = msgs.get(s.source, [])
-                if not rows:
-                    present = sorted(k for k in msgs if k != "HEARTBEAT")
-                    raise DataError(f"message {s.source} (for {role} {s.name!r}) is not in {path}; "
-                                    f"of the requested messages it has: {', '.join(present) or 'none'} "
-                                    "(list all with --list)")
-                rows = _pick_source(rows, s.source, s.instance if s.instance is not None else sysid, path,
-                                    f"{role} {s.name!r}")
-                senders[role].add((rows[0][1], rows[0][2]))
-                fields = _flatten([r[3] for r in rows])
-                if time_source == "boot":
-                    if "time_boot_ms" not in fields:
-                        raise DataError(f"time_source='boot': {s.source} has no time_boot_ms field")
-                    t = (fields["time_boot_ms"] * 1000).astype(np.int64)
-                else:
-                    t = np.array([r[0] for r in rows], dtype=np.int64)
-                x, how = derive_field(fields, s.field, f"message {s.source} of {path}")
-                bit = _TYPE_MASKS.get(s.source, {}).get(_base_field(s.field))
-                if bit is not None and "type_mask" in fields:
-                    ign = (fields["type_mask"].astype(np.int64) & bit) > 0
-                    if ign.all():
-                        raise DataError(f"{path.name}:{s.where}: every {s.source} marks "
-                                        f"{_base_field(s.field)} as ignored (type_mask bit {bit}); it is not a setpoint here")
-                    if ign.any():
-                        k = np.flatnonzero(ign)
-                        notes.warn(f"{path.name}:{s.where}: dropped {k.size} sample(s) whose type_mask marks "
-                                   f"{_base_field(s.field)} as ignored ({fmt_t(t[k[0]], origin)}..{fmt_t(t[k[-1]], origin)})")
-                        t, x = t[~ign], x[~ign]
-                src = f"{path.name}:{s.where}"
-                raw = Series(s.name, s.unit, src, t, x, rule, angle=s.field in ANGLE_FIELDS)
-                series[role].append(clean_series(raw, origin_us=origin, on_nan=on_nan, notes=notes, crop_us=crop))
-                if fi == 0:
-                    chan_info.append({"role": role, "name": s.name, "unit": s.unit, "spec": s.text,
-                                      "message": s.source, "sysid": rows[0][1], "compid": rows[0][2],
-                                      "field": s.field, "derivation": how, "rule": rule,
-                                      "angle_unwrapped": s.field in ANGLE_FIELDS})
-        all_senders = senders["input"] | senders["output"]
-        if time_source == "boot" and len(all_senders) > 1:
-            raise DataError(f"time_source='boot' mixes clocks: channels come from systems/components "
-                            f"{sorted(all_senders)}; use time_source='log'")
-        wins = None
-        if modes:
-            # the vehicle whose mode counts is the one sending the outputs (state messages)
-            out_sys = {sy for sy, _ in senders["output"]}
-            hb_sys = sysid if sysid is not None else (next(iter(out_sys)) if len(out_sys) == 1 else None)
-            wins = _heartbeat_windows(msgs.get("HEARTBEAT", []), path, origin, hb_sys, offboard_only=offboard_only,
-                                      armed_only=armed_only, split_on_mode=split_on_mode)
-        if crop is not None:
-            wins = intersect_windows(wins, [(crop[0], crop[1], "")])
-        segs = build_segments(series["input"], series["output"], rate_hz=rate_hz, origin_us=origin, notes=notes,
-                              windows=wins, max_gap_s=max_gap, gap_factor=gap_factor,
-                              min_duration_s=min_duration, what=str(path))
-        meta = file_meta(path)
-        meta.update({
-            "format": "tlog",
-            "log_start_us": origin,
-            "messages": sorted(wanted),
-            "channels": {
-                ser.name: {"source": ser.source, "t_first_s": round((int(ser.t_us[0]) - origin) / 1e6, 6),
-                           "t_last_s": round((int(ser.t_us[-1]) - origin) / 1e6, 6),
-                           "samples": int(ser.t_us.size), "log_rate_hz": ser.info.get("log_rate_hz")}
-                for ser in series["input"] + series["output"]
-            },
-        })
+        meta, segs, origin, info = _import_file(path, ins, outs, wanted, opts=opts, sysid=sysid,
+                                                time_source=time_source, dialect=dialect, notes=notes)
         per_file.append((meta, segs, origin))
-    settings = {
-        "source_format": "tlog",
-        "importer": "ddpc_codegen.logs.import_tlog",
-        "preset": preset,
-        "dialect": dialect,
-        "time_source": time_source,
-        "time_base": ("seconds since each file's first tlog record (receive time)" if time_source == "log"
-                      else "seconds since the sender's boot (time_boot_ms)"),
-        "gap_rule": (f"split at spells > {max_gap} s without samples" if max_gap is not None
-                     else f"split at spells > {gap_factor:g} x the channel's median sampling interval"),
-        "min_duration_s": float(min_duration),
-        "mode_filter": {"offboard_only": offboard_only, "armed_only": armed_only, "split_on_mode": split_on_mode},
-        "sysid": sysid,
-        "time_range_s": None if time_range is None else [float(v) for v in time_range],
-        "on_nan": on_nan,
-    }
+        if fi == 0:
+            chan_info = info
+    settings = _settings(opts, preset=preset, dialect=dialect, time_source=time_source, sysid=sysid)
     return assemble(per_file, ins, outs, rate_hz=rate_hz, notes=notes, settings=settings, channel_info=chan_info)
-
-
-def list_tlog_messages(path: str | Path, dialect: str = "common") -> list[tuple[str, int, int, int, float, list[str]]]:
-    """(message, sysid, compid, count, rate Hz, fields) for every message source in a tlog."""
-    msgs, _ = read_tlog(path, None, dialect=dialect)
-    out = []
-    for name, rows in sorted(msgs.items()):
-        by_src: dict[tuple[int, int], list[int]] = {}
-        for r in rows:
-            by_src.setdefault((r[1], r[2]), []).append(r[0])
-        for (s, c), ts in sorted(by_src.items()):
-            d = np.diff(np.asarray(ts, dtype=np.int64))
-            rate = float(1e6 / np.median(d)) if d.size and np.median(d) > 0 else 0.0
-            out.append((name, s, c, len(ts), rate, list(type(rows[0][3]).fieldnames)))
-    return out

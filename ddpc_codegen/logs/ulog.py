@@ -1,7 +1,7 @@
 """PX4 ULog flight logs -> IODataset (inputs: setpoints sent, outputs: what the vehicle did).
 
 Channels are picked by ``[NAME=]TOPIC[@INSTANCE].FIELD[:UNIT]`` (see
-:class:`~ddpc_codegen.logs.resample.ChannelSpec`), e.g.::
+:class:`~ddpc_codegen.logs.channels.ChannelSpec`), e.g.::
 
     pitch_ref=vehicle_attitude_setpoint.pitch     # Euler pitch of q_d, rad
     z_ref=trajectory_setpoint.z_up                # -position[2] (or -z on PX4 < 1.14), m
@@ -26,21 +26,14 @@ import numpy as np
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.logs.channels import ChannelSpec, resolve_channels
+from ddpc_codegen.logs.dataset import assemble, channel_summary, file_meta
 from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
-from ddpc_codegen.logs.resample import (
-    ChannelSpec,
-    Notes,
-    Series,
-    assemble,
-    build_segments,
-    check_rule,
-    clean_series,
-    file_meta,
-    fmt_t,
-    intersect_windows,
-    resolve_channels,
-    state_windows,
-)
+from ddpc_codegen.logs.grid import check_rule
+from ddpc_codegen.logs.intervals import intersect_windows, state_windows
+from ddpc_codegen.logs.notes import Notes, fmt_t
+from ddpc_codegen.logs.options import ImportOptions, check_on_nan, check_time_range, crop_window, gap_rule_text
+from ddpc_codegen.logs.series import Series, clean_series
 
 __all__ = ["import_ulog", "list_ulog_topics", "ULOG_PRESETS", "NAV_STATE_NAMES", "NAV_STATE_OFFBOARD"]
 
@@ -156,6 +149,71 @@ def _mode_windows(
     return wins
 
 
+def _channel(ulog, path: Path, spec: ChannelSpec, role: str, rule: str, *, origin: int,
+             crop: tuple[int, int] | None, on_nan: str, notes: Notes) -> tuple[Series, dict]:
+    """One channel of one ULog as a clean series, and its provenance."""
+    inst = 0 if spec.instance is None else spec.instance
+    t, fields = _topic_fields(ulog, path, spec.source, inst)
+    x, how = derive_field(fields, spec.field, f"topic {spec.source!r} of {path}")
+    raw = Series(spec.name, spec.unit, f"{path.name}:{spec.where}", t, x, rule, angle=spec.field in ANGLE_FIELDS)
+    info = {"role": role, "name": spec.name, "unit": spec.unit, "spec": spec.text,
+            "topic": spec.source, "instance": inst, "field": spec.field,
+            "derivation": how, "rule": rule,
+            "angle_unwrapped": spec.field in ANGLE_FIELDS}
+    return clean_series(raw, origin_us=origin, on_nan=on_nan, notes=notes, crop_us=crop), info
+
+
+def _import_file(path: Path, ins: Sequence[ChannelSpec], outs: Sequence[ChannelSpec], topics: set[str], *,
+                 opts: ImportOptions, notes: Notes) -> tuple[dict, list, int, list[dict]]:
+    """One ULog: (file metadata, segments, time origin µs, channel provenance)."""
+    ulog = _read(path, sorted(topics), notes)
+    origin = int(ulog.start_timestamp)
+    crop = crop_window(origin, opts.time_range)
+    series: dict[str, list[Series]] = {"input": [], "output": []}
+    info: list[dict] = []
+    for role, specs, rule in (("input", ins, opts.input_rule), ("output", outs, opts.output_rule)):
+        for s in specs:
+            ser, ci = _channel(ulog, path, s, role, rule, origin=origin, crop=crop, on_nan=opts.on_nan, notes=notes)
+            series[role].append(ser)
+            info.append(ci)
+    wins = _mode_windows(ulog, path, origin, offboard_only=opts.offboard_only, armed_only=opts.armed_only,
+                         split_on_mode=opts.split_on_mode)
+    if crop is not None:
+        wins = intersect_windows(wins, [(crop[0], crop[1], "")])
+    segs = opts.segments(series["input"], series["output"], origin_us=origin, notes=notes, windows=wins,
+                         what=str(path), rate_hint=" (PX4: SDLOG_PROFILE 'high rate' or a custom logger topic list)")
+    if ulog.dropouts:
+        lost = sum(d.duration for d in ulog.dropouts)
+        notes.warn(f"{path.name}: the logger reported {len(ulog.dropouts)} dropout(s), {lost} ms in total "
+                   f"(first at {fmt_t(ulog.dropouts[0].timestamp, origin)}); gaps they leave are split by the gap rule")
+    meta = file_meta(path)
+    meta.update({
+        "format": "ulog",
+        "log_start_us": origin,
+        "duration_s": round((int(ulog.last_timestamp) - origin) / 1e6, 6),
+        "sys_name": str(ulog.msg_info_dict.get("sys_name", "")),
+        "ver_sw": str(ulog.msg_info_dict.get("ver_sw", "")),
+        "topics": sorted({s.source if s.instance is None else f"{s.source}@{s.instance}" for s in list(ins) + list(outs)}),
+        "channels": channel_summary(series["input"] + series["output"], origin),
+    })
+    return meta, segs, origin, info
+
+
+def _settings(opts: ImportOptions, preset: str | None) -> dict:
+    """How the import was run, for the dataset's metadata."""
+    return {
+        "source_format": "ulog",
+        "importer": "ddpc_codegen.logs.import_ulog",
+        "preset": preset,
+        "time_base": "seconds since each file's ULog start timestamp",
+        "gap_rule": gap_rule_text(opts.max_gap, opts.gap_factor),
+        "min_duration_s": float(opts.min_duration),
+        "mode_filter": opts.mode_filter_settings(),
+        "time_range_s": None if opts.time_range is None else [float(v) for v in opts.time_range],
+        "on_nan": opts.on_nan,
+    }
+
+
 def import_ulog(
     paths: str | Path | Sequence[str | Path],
     inputs: Sequence[str | ChannelSpec] | None = None,
@@ -194,83 +252,29 @@ def import_ulog(
     Raises:
         DataError for missing files/topics/fields, backwards timestamps, no usable segment.
     """
-    if on_nan not in ("drop", "error"):
-        raise DataError(f"on_nan must be 'drop' or 'error'; got {on_nan!r}")
-    if time_range is not None and not float(time_range[1]) > float(time_range[0]):
-        raise DataError(f"time_range end must be after start; got {time_range[0]}..{time_range[1]} s")
+    check_on_nan(on_nan)
+    check_time_range(time_range)
     check_rule(input_rule, "input")
     check_rule(output_rule, "output")
     ins, outs = resolve_channels(preset, inputs, outputs, ULOG_PRESETS, "ULog")
     path_list = [paths] if isinstance(paths, (str, Path)) else list(paths)
     if not path_list:
         raise DataError("no ULog file given")
+    opts = ImportOptions(rate_hz, max_gap, gap_factor, min_duration, offboard_only, armed_only, split_on_mode,
+                         time_range, input_rule, output_rule, on_nan)
     notes = Notes()
     topics = {s.source for s in ins + outs}
-    if offboard_only or armed_only or split_on_mode:
+    if opts.filters_modes:
         topics.add("vehicle_status")
     per_file = []
     chan_info: list[dict] = []
     for fi, p in enumerate(path_list):
-        path = Path(p)
-        ulog = _read(path, sorted(topics), notes)
-        origin = int(ulog.start_timestamp)
-        crop = None if time_range is None else (
-            origin + int(round(float(time_range[0]) * 1e6)), origin + int(round(float(time_range[1]) * 1e6)) + 1)
-        series = {"input": [], "output": []}
-        for role, specs, rule in (("input", ins, input_rule), ("output", outs, output_rule)):
-            for s in specs:
-                inst = 0 if s.instance is None else s.instance
-                t, fields = _topic_fields(ulog, path, s.source, inst)
-                x, how = derive_field(fields, s.field, f"topic {s.source!r} of {path}")
-                src = f"{path.name}:{s.where}"
-                raw = Series(s.name, s.unit, src, t, x, rule, angle=s.field in ANGLE_FIELDS)
-                series[role].append(clean_series(raw, origin_us=origin, on_nan=on_nan, notes=notes, crop_us=crop))
-                if fi == 0:
-                    chan_info.append({"role": role, "name": s.name, "unit": s.unit, "spec": s.text,
-                                      "topic": s.source, "instance": inst, "field": s.field,
-                                      "derivation": how, "rule": rule,
-                                      "angle_unwrapped": s.field in ANGLE_FIELDS})
-        wins = _mode_windows(ulog, path, origin, offboard_only=offboard_only, armed_only=armed_only,
-                             split_on_mode=split_on_mode)
-        if crop is not None:
-            wins = intersect_windows(wins, [(crop[0], crop[1], "")])
-        segs = build_segments(series["input"], series["output"], rate_hz=rate_hz, origin_us=origin,
-                              notes=notes, windows=wins, max_gap_s=max_gap, gap_factor=gap_factor,
-                              min_duration_s=min_duration, what=str(path),
-                              rate_hint=" (PX4: SDLOG_PROFILE 'high rate' or a custom logger topic list)")
-        if ulog.dropouts:
-            lost = sum(d.duration for d in ulog.dropouts)
-            notes.warn(f"{path.name}: the logger reported {len(ulog.dropouts)} dropout(s), {lost} ms in total "
-                       f"(first at {fmt_t(ulog.dropouts[0].timestamp, origin)}); gaps they leave are split by the gap rule")
-        meta = file_meta(path)
-        meta.update({
-            "format": "ulog",
-            "log_start_us": origin,
-            "duration_s": round((int(ulog.last_timestamp) - origin) / 1e6, 6),
-            "sys_name": str(ulog.msg_info_dict.get("sys_name", "")),
-            "ver_sw": str(ulog.msg_info_dict.get("ver_sw", "")),
-            "topics": sorted({s.source if s.instance is None else f"{s.source}@{s.instance}" for s in ins + outs}),
-            "channels": {
-                ser.name: {"source": ser.source, "t_first_s": round((int(ser.t_us[0]) - origin) / 1e6, 6),
-                           "t_last_s": round((int(ser.t_us[-1]) - origin) / 1e6, 6),
-                           "samples": int(ser.t_us.size), "log_rate_hz": ser.info.get("log_rate_hz")}
-                for ser in series["input"] + series["output"]
-            },
-        })
+        meta, segs, origin, info = _import_file(Path(p), ins, outs, topics, opts=opts, notes=notes)
         per_file.append((meta, segs, origin))
-    settings = {
-        "source_format": "ulog",
-        "importer": "ddpc_codegen.logs.import_ulog",
-        "preset": preset,
-        "time_base": "seconds since each file's ULog start timestamp",
-        "gap_rule": (f"split at spells > {max_gap} s without samples" if max_gap is not None
-                     else f"split at spells > {gap_factor:g} x the channel's median sampling interval"),
-        "min_duration_s": float(min_duration),
-        "mode_filter": {"offboard_only": offboard_only, "armed_only": armed_only, "split_on_mode": split_on_mode},
-        "time_range_s": None if time_range is None else [float(v) for v in time_range],
-        "on_nan": on_nan,
-    }
-    return assemble(per_file, ins, outs, rate_hz=rate_hz, notes=notes, settings=settings, channel_info=chan_info)
+        if fi == 0:
+            chan_info = info
+    return assemble(per_file, ins, outs, rate_hz=rate_hz, notes=notes, settings=_settings(opts, preset),
+                    channel_info=chan_info)
 
 
 def list_ulog_topics(path: str | Path) -> list[tuple[str, int, int, float, list[str]]]:
