@@ -270,11 +270,12 @@ def bridge_main(argv: list[str] | None = None) -> int:
     from ddpc_codegen.errors import DDPCError
 
     from firmware_bridge.bridge import Bridge, FlightError, NoVehicleError
+    from firmware_bridge.link import LinkError
     from firmware_bridge.preflight import PreflightError
 
     try:
         bridge = Bridge(bridge_config_from_args(args))
-    except (ValueError, DDPCError, OSError) as e:
+    except (ValueError, DDPCError, OSError, LinkError) as e:
         print(f"ddpc-bridge: error: {e}", file=sys.stderr)
         return 2
     try:
@@ -308,6 +309,8 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p.add_argument("--compid", type=int, default=1)
     p.add_argument("--lockstep", action="store_true", help="advance one tick per setpoint (fast, deterministic)")
     p.add_argument("--lockstep-timeout", type=float, default=1.0, help="lockstep: max wall wait per tick [s]")
+    p.add_argument("--peer-timeout", type=float, default=5.0,
+                   help="lockstep: end when the companion, once heard, has been silent this long [s] (0: never)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise (the delay stays)")
     p.add_argument("--start", choices=("hover", "disarmed"), default="hover",
@@ -340,12 +343,13 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
 def vehicle_main(argv: list[str] | None = None) -> int:
     """``ddpc-vehicle``: serve until SIGINT / SIGTERM or --duration; exit 0."""
     a = build_vehicle_parser().parse_args(argv)
+    from firmware_bridge.link import LinkError
     from firmware_bridge.vehicle import SimVehicle, VehicleConfig
 
     try:
         cfg = VehicleConfig(url=a.connection, baud=a.baud, sysid=a.sysid,
                             compid=a.compid, autopilot=a.autopilot, lockstep=a.lockstep,
-                            lockstep_timeout=a.lockstep_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
+                            lockstep_timeout=a.lockstep_timeout, peer_timeout=a.peer_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
                             start_offset=a.start_offset, start_yaw=math.radians(a.start_yaw_deg),
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
@@ -353,7 +357,7 @@ def vehicle_main(argv: list[str] | None = None) -> int:
                             verbose=a.verbose, telemetry_pattern=a.telemetry_pattern,
                             telemetry_seed=a.telemetry_seed, pushes=list(a.push))
         veh = SimVehicle(cfg)
-    except (ValueError, OSError) as e:
+    except (ValueError, OSError, LinkError) as e:
         print(f"ddpc-vehicle: error: {e}", file=sys.stderr)
         return 2
     summary = veh.run()

@@ -4,6 +4,7 @@ the solver fault-injection wrapper used by the tests."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,25 @@ from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
 from firmware_bridge.link import mavlink
+
+
+def check_output_path(path: str, flag: str) -> None:
+    """Before anything flies: ``path`` must be writable (its folder exists and takes new files), or
+    ValueError naming the flag and the path -- a log discovered unwritable after the flight is lost."""
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        raise ValueError(f"{flag} {path}: is a directory, not a file")
+    if not folder.is_dir():
+        raise ValueError(f"{flag} {path}: folder {folder} does not exist")
+    existed = p.exists()
+    try:  # a real open: permission bits say nothing for root or for special filesystems
+        with open(p, "ab"):
+            pass
+    except OSError as e:
+        raise ValueError(f"{flag} {path}: not writable ({e.strerror})") from None
+    if not existed:
+        p.unlink()
 
 __all__ = ["BridgeConfig", "FaultInjectingSolver", "FlightError", "NoVehicleError", "default_controller_config"]
 
@@ -139,6 +159,9 @@ class BridgeConfig:
     verbose: bool = False
 
     def __post_init__(self) -> None:
+        for key, flag in (("log", "--log"), ("summary", "--summary")):
+            if getattr(self, key):
+                check_output_path(getattr(self, key), flag)
         if self.mode not in ("steer", "passthrough", "collect"):
             raise ValueError(f"mode must be steer, passthrough or collect; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:

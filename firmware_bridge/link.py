@@ -22,6 +22,7 @@ is. Times are returned on the ``time.monotonic()`` clock.
 from __future__ import annotations
 
 import math
+import os
 import select
 import time
 from collections import Counter, deque
@@ -101,6 +102,10 @@ class MavLink:
         self._next_reopen = 0.0
         self.transport: _Transport | None = None
         self.last_error = ""
+        if self.endpoint.kind == "serial" and not os.path.exists(self.endpoint.device):
+            # at start a missing device is a wrong path, not a link drop (later it may re-enumerate)
+            raise LinkError(f"serial device {self.endpoint.device} does not exist (check the path, the cable, "
+                            "and that the flight controller's USB / UART is enabled)")
         try:
             self.transport = open_transport(self.endpoint)
         except (OSError, LinkError) as e:

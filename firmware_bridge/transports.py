@@ -51,6 +51,8 @@ def parse_url(url: str, baud: int | None = None) -> Endpoint:
             host, sep, port = rest.rpartition(":")
             if not sep or not port.isdigit():
                 raise ValueError(f"{url!r}: expected {prefix}HOST:PORT")
+            if not 1 <= int(port) <= 65535:
+                raise ValueError(f"{url!r}: port {port} is outside 1..65535")
             return Endpoint(kind, host or "127.0.0.1", int(port))
     if url.startswith(("tcpin:", "udpbcast:", "ws:", "wss:", "mcast:")):
         raise ValueError(f"{url!r}: supported links are udpin:, udpout:, tcp: and serial devices")

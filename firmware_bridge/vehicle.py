@@ -277,9 +277,19 @@ class SimVehicle:
             rem = deadline - time.monotonic()
             if rem <= 0:
                 self.stats["lockstep_timeouts"] += 1
+                self._check_peer_gone()
                 return
             if self.link.wait(min(rem, 0.05)) and ap.process():
                 return
+
+    def _check_peer_gone(self) -> None:
+        """Lockstep waits for the companion: once it has been heard, its silence ends the run."""
+        rx, now = self.link.stats["rx"], time.monotonic()
+        if rx != getattr(self, "_rx_count", 0):
+            self._rx_count, self._rx_time = rx, now
+        elif rx and self.cfg.peer_timeout > 0 and now - self._rx_time > self.cfg.peer_timeout:
+            self.autopilot.event(f"nothing from the companion for {self.cfg.peer_timeout:g} s: it is gone, stopping")
+            self._stop = True
 
     def summary(self) -> dict:
         """JSON-friendly: simulated time, ticks, mode, arming, events, counters, link statistics."""

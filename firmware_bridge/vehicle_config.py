@@ -23,6 +23,8 @@ class VehicleConfig:
         sysid, compid: the vehicle's MAVLink identity.
         autopilot: "px4" or "ardupilot".
         lockstep: advance one tick per setpoint (see module docstring); lockstep_timeout [s wall].
+        peer_timeout: lockstep: once a companion has been heard, end the run when nothing has
+            arrived from it for this long [s wall] (the bridge is gone; 0: never).
         scenario: where the vehicle starts (the scenario's start point; "flying").
         seed, noise: sensor-noise seed and switch (the simulator's SensorNoise defaults).
         start: "hover" (armed, HOLD at the start point) or "disarmed" (parked at the start point).
@@ -57,6 +59,7 @@ class VehicleConfig:
     autopilot: str = "px4"
     lockstep: bool = False
     lockstep_timeout: float = 1.0
+    peer_timeout: float = 5.0
     scenario: str = "flying"
     seed: int = 0
     noise: bool = True

@@ -372,3 +372,17 @@ def test_bridge_flag_defaults_are_the_config_dataclass_defaults():
     diff = {f.name: (getattr(got, f.name), getattr(want, f.name)) for f in dataclasses.fields(want)
             if getattr(got, f.name) != getattr(want, f.name)}
     assert not diff
+
+
+@pytest.mark.parametrize("args, message", [
+    (["udpin:127.0.0.1:99999"], "port 99999 is outside 1..65535"),
+    (["udpin:127.0.0.1:14999", "--log", "/nonexistent-dir/x.npz"], "--log /nonexistent-dir/x.npz: folder /nonexistent-dir does not exist"),
+    (["udpin:127.0.0.1:14999", "--summary", "/proc/x.json"], "--summary /proc/x.json: not writable"),
+    (["/dev/ttyDOES-NOT-EXIST"], "serial device /dev/ttyDOES-NOT-EXIST does not exist"),
+])
+def test_bad_ports_paths_and_devices_are_refused_before_anything_flies(capsys, args, message):
+    """Issue 12: errors named at start (exit 2), not a traceback or a log lost after the flight."""
+    from firmware_bridge.cli import bridge_main
+
+    assert bridge_main([*args, "--mode", "passthrough", "--wait-heartbeat", "1"]) == 2
+    assert message in capsys.readouterr().err

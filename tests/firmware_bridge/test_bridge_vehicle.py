@@ -125,3 +125,19 @@ def test_vehicle_imitates_real_autopilots_telemetry_stamps(procs, pattern, lo, h
     finally:
         c.link.close()
     assert procs.terminate(veh) == 0
+
+
+def test_lockstep_vehicle_ends_when_the_companion_is_gone(procs):
+    """Issue 12: a lock-step vehicle whose bridge has gone stops by itself (it used to wait forever)."""
+    port = free_port()
+    veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--lockstep-timeout", "0.2",
+                      "--peer-timeout", "1.0", "--summary", str(procs.tmp / "veh.json"), name="vehicle")
+    c = Companion(port)
+    try:
+        c.pump(10.0, until=lambda: c.mode is not None)
+        assert c.mode is not None, procs.log(veh)
+        c.pump(1.0, setpoints=True)                      # heard by the vehicle: setpoints reach it
+    finally:
+        c.link.close()                                   # the companion goes away
+    assert procs.wait(veh, 20.0) == 0, procs.log(veh)
+    assert "it is gone, stopping" in (procs.tmp / "veh.json").read_text()
