@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.errors import ConfigError, DDPCError
-from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup
+from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, say
 from ddpc_codegen.experiments.evaluate import RunResult, prediction_check, run
 from ddpc_codegen.sim import PogoXParams, Push
 
@@ -52,11 +52,6 @@ ROBUSTNESS: dict[str, dict[str, dict[str, Any]]] = {
         "mass -300 g": {"params": PogoXParams(controller_mass_error=-0.3)},
     },
 }
-
-
-def _say(msg: str, quiet: bool = False) -> None:
-    if not quiet:
-        print(msg, file=sys.stderr, flush=True)
 
 
 def _num(x: Any) -> float | None:
@@ -228,17 +223,17 @@ def run_demo(
     setups: dict[str, SteeringSetup] = {}
     runs: dict[str, tuple[RunResult, RunResult]] = {}
     for sc in scenarios:
-        _say(f"== {sc} ==", quiet)
+        say(f"== {sc} ==", not quiet)
         setup = build_setup(sc, collect_spec=(collect_specs or {}).get(sc), generate_dir=generate_dir,
                             save_data=save_data, progress=not quiet)
         setups[sc] = setup
-        _say(f"[{sc}] {setup.info['excitation']}", quiet)
+        say(f"[{sc}] {setup.info['excitation']}", not quiet)
         if setup.solver_path is not None:
-            _say(f"[{sc}] solver: {setup.solver_path} ({setup.info.get('backend')}, built in {setup.info.get('codegen_s')} s)", quiet)
+            say(f"[{sc}] solver: {setup.solver_path} ({setup.info.get('backend')}, built in {setup.info.get('codegen_s')} s)", not quiet)
         dur = durations[sc]
-        _say(f"[{sc}] running {dur:.0f} s without steering ...", quiet)
+        say(f"[{sc}] running {dur:.0f} s without steering ...", not quiet)
         base = run(None, sc, dur, steer=False, progress=not quiet, label="baseline")
-        _say(f"[{sc}] running {dur:.0f} s with steering ({'interpreted' if interpreted or setup.solver is None else 'generated C solver'}) ...", quiet)
+        say(f"[{sc}] running {dur:.0f} s with steering ({'interpreted' if interpreted or setup.solver is None else 'generated C solver'}) ...", not quiet)
         steered = run(setup, sc, dur, interpreted=interpreted, progress=not quiet, label="steered")
         runs[sc] = (base, steered)
         block = summary_block(sc, base, steered)
@@ -259,7 +254,7 @@ def run_demo(
         # the runs above that are the same simulations are reused, not repeated.
         from ddpc_codegen.experiments.baselines import evaluate_baselines, reuse_from_summary
 
-        _say("baselines: prefilter, ILC, non-repeating trajectories ...", quiet)
+        say("baselines: prefilter, ILC, non-repeating trajectories ...", not quiet)
         summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
                                                   interpreted=interpreted, quiet=quiet, out_dir=out / "baselines")
     wall = time.perf_counter() - t0
@@ -279,7 +274,7 @@ def _robustness(setups: dict[str, SteeringSetup], scenarios: tuple[str, ...], du
     for sc in scenarios:
         rob[sc] = {}
         for cond, kw in ROBUSTNESS[sc].items():
-            _say(f"[{sc}] robustness: {cond} ...", quiet)
+            say(f"[{sc}] robustness: {cond} ...", not quiet)
             try:
                 b = run(None, sc, durations[sc], steer=False, seed=3, **kw)
                 s = run(setups[sc], sc, durations[sc], interpreted=interpreted, seed=3, **kw)

@@ -81,8 +81,9 @@ def default_config(scenario: str) -> Path:
     return ROOT / "configs" / f"{scenario}.toml"
 
 
-def _say(progress: bool, msg: str) -> None:
-    if progress:
+def say(msg: str, show: bool = True) -> None:
+    """Progress text of the experiments for a person at the terminal (stderr; the data goes to stdout / files)."""
+    if show:
         print(msg, file=sys.stderr, flush=True)
 
 
@@ -248,7 +249,7 @@ def build_setup(
     cfg = config if isinstance(config, SteeringConfig) else SteeringConfig.from_toml(config or default_config(scenario))
     info: dict[str, Any] = {"config": cfg.source}
     if raw is None:
-        _say(progress, f"[{scenario}] collecting PRBS-excited data on the simulator ...")
+        say(f"[{scenario}] collecting PRBS-excited data on the simulator ...", progress)
         raw = collect(scenario, collect_spec, progress=progress)
     if isinstance(raw, SimResult):
         raw = raw.to_dataset("none", t_min=getattr(raw.scenario_obj, "settle_time", 0.0) if scenario == "flying" else 0.0)
@@ -263,7 +264,7 @@ def build_setup(
         aerial, hops = split_hopping(raw)
         g_max = max(b - a for ph in hops.phases for a, b in ground_runs(ph))
         depth = art_spec.t_d + g_max + art_spec.ground_margin + max(art_spec.t_a, cfg.t_ini)
-        _say(progress, f"[hopping] artificial IO: Hankel of {aerial.n_trajectories} aerial segments, depth {depth}")
+        say(f"[hopping] artificial IO: Hankel of {aerial.n_trajectories} aerial segments, depth {depth}", progress)
         art = ArtificialIO(aerial, depth, noise_level=art_spec.noise_level,
                            u_min=cfg.u_min, u_max=cfg.u_max, y_min=cfg.y_min, y_max=cfg.y_max)
         ds, rep = stitch_hops(hops, art, art_spec.t_d, art_spec.t_a, progress=progress)
@@ -272,8 +273,8 @@ def build_setup(
         if save_data and cfg.dataset:
             raw.save(Path(cfg.dataset).with_name("hopping_raw.npz"))
             ds.save(cfg.dataset)
-    _say(progress, f"[{scenario}] fitting the {cfg.predictor['method']} predictor on {ds.n_trajectories} "
-                   f"trajectories, {ds.n_samples} samples ...")
+    say(f"[{scenario}] fitting the {cfg.predictor['method']} predictor on {ds.n_trajectories} "
+                   f"trajectories, {ds.n_samples} samples ...", progress)
     pred = (fit or _fit)(cfg, ds)
     info["excitation"] = pred.excitation().summary()
     info["predictor"] = {"method": pred.method, "rank": pred.rank, "columns": pred.n_columns,
@@ -286,7 +287,7 @@ def build_setup(
 
         name = solver_name or f"steer_{scenario}"
         t0 = time.perf_counter()
-        _say(progress, f"[{scenario}] generating + compiling the C solver generated/{name} ...")
+        say(f"[{scenario}] generating + compiling the C solver generated/{name} ...", progress)
         path = generate(prob, Path(generate_dir) / name, backend=backend, name=name)
         setup.solver = load_solver(path)
         setup.solver_path = Path(path)
