@@ -133,17 +133,19 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
 
 
 def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
-    """True height error over the link: vehicle truth at each engaged event tick's vehicle time
-    minus that tick's desired height, for trajectory time >= settle [m]."""
+    """True height error over the link: vehicle truth at each engaged tick's vehicle time
+    (interpolated) minus that tick's desired height, for trajectory time >= settle [m]."""
     from firmware_bridge.ticklog import load_ticklog
 
     tl = load_ticklog(ticks_path).ticks
     with np.load(truth_path) as z:
         tt, st = z["t"], z["state"]
-    sel = tl["event"] & tl["active"] & (np.nan_to_num(tl["t_traj"], nan=-1.0) >= settle)
-    idx = np.clip(np.searchsorted(tt, tl["t_vehicle"][sel] - 1e-6), 0, tt.size - 1)
-    ok = np.abs(tt[idx] - tl["t_vehicle"][sel]) < 1e-3
-    e_true = st[idx[ok], 2] - tl["y_des"][sel][ok, 0]
+    sel = tl["active"] & (np.nan_to_num(tl["t_traj"], nan=-1.0) >= settle)
+    tv = tl["t_vehicle"][sel]
+    # The bridge ticks on its own clock: a tick's vehicle time falls between the truth log's
+    # samples (1 kHz physics, logged per 5 ms tick), so the truth is interpolated there.
+    ok = (tv >= tt[0]) & (tv <= tt[-1])
+    e_true = np.interp(tv[ok], tt, st[:, 2]) - tl["y_des"][sel][ok, 0]
     e_meas = tl["y"][sel, 0] - tl["y_des"][sel, 0]
     r = lambda e: float(np.sqrt(np.mean(e * e))) if e.size else math.nan  # noqa: E731
     return {"rmse_z": r(e_true), "rmse_z_telemetry": r(e_meas), "samples": int(ok.sum()),
