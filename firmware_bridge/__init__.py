@@ -8,6 +8,7 @@
 * :mod:`.clock` -- the bridge's own control clock: a uniform tick grid whatever the telemetry does.
 * :mod:`.preflight` -- before the first tick: the heartbeat's autopilot, parameters, thrust semantics.
 * :mod:`.phases` -- arming retries, take-off ramp, bumpless (re-)engagement.
+* :mod:`.setpoints` -- setpoint shaping: PRBS in collect mode, clamps, the SET_ATTITUDE_TARGET send.
 * :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
 * :mod:`.sitl`, :mod:`.sitl_demo` -- real autopilot SITLs (PX4 SIH, ArduCopter) for tests and
   ``make sitl-demo``.

@@ -56,19 +56,19 @@ import time
 import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
-from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
 from firmware_bridge.clock import TickClock
 from firmware_bridge.config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
                                     default_controller_config)
-from firmware_bridge.link import CommandTracker, MavLink, mavlink
+from firmware_bridge.link import CommandTracker, MavLink
 from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
 from firmware_bridge.preflight import PreflightError, VehicleInfo, check_trajectory_bounds
 from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.report import Reporting, gap_statistics
+from firmware_bridge.setpoints import SetpointShaping
 from firmware_bridge.supervisor import Supervisor
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.ticklog import TickRecorder
@@ -76,13 +76,7 @@ from firmware_bridge.ticklog import TickRecorder
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
            "default_controller_config", "gap_statistics"]
 
-# Body rates ignored: attitude + thrust (= 7).
-_TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
-              | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
-              | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
-
-
-class Bridge(Supervisor, Reporting):
+class Bridge(Supervisor, Reporting, SetpointShaping):
     """The tick loop (see the module docstring). ``run()`` returns the summary dict.
 
     Args:
@@ -391,61 +385,3 @@ class Bridge(Supervisor, Reporting):
         else:
             ref["reason"] = "passthrough"
         return ref
-
-    def _excitation(self) -> np.ndarray:
-        from ddpc_codegen.design.data import prbs
-
-        block = 12000
-        j = self._k_exc % block
-        if self._exc is None or j == 0:
-            seed = self.cfg.seed * 1009 + self._k_exc // block
-            self._exc = prbs(block, self.m, amplitude=self._exc_amp, min_hold=self.cfg.excitation_hold, seed=seed)
-        self._k_exc += 1
-        return self._exc[j]
-
-    def _level_setpoint(self) -> tuple[tuple, float, float]:
-        """Level attitude at the trajectory frame's heading and hover thrust / zero climb rate."""
-        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
-        thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
-        return q, thrust, self.profile.hover_field(thrust)
-
-    def _clamp(self, sp) -> tuple[tuple, float, tuple]:
-        roll, pitch, yaw = (float(v) for v in sp.euler)
-        lim = self.tilt_max
-        q_enu = tuple(float(v) for v in sp.q)
-        if abs(roll) > lim or abs(pitch) > lim or not (math.isfinite(roll) and math.isfinite(pitch)):
-            self.counts["tilt_clamped"] += 1
-            roll = max(-lim, min(lim, roll)) if math.isfinite(roll) else 0.0
-            pitch = max(-lim, min(lim, pitch)) if math.isfinite(pitch) else 0.0
-            q_enu = tuple(float(v) for v in quat_from_euler(roll, pitch, yaw if math.isfinite(yaw) else 0.0))
-        thrust = float(sp.thrust)
-        lo, hi = self.cfg.thrust_min, self.cfg.thrust_max
-        if not math.isfinite(thrust):
-            thrust = self.hover_thrust
-            self.counts["thrust_clamped"] += 1
-        if thrust < lo or thrust > hi:
-            self.counts["thrust_clamped"] += 1
-            thrust = min(max(thrust, lo), hi)
-        return quat_ned_frd_from_enu_flu(self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
-
-    def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
-        lk = self.link
-        msg = lk.mav.set_attitude_target_encode(
-            stamp_ms & 0xFFFFFFFF, lk.target_system or 0, lk.target_component or 0, _TYPE_MASK,
-            list(q_ned), 0.0, 0.0, 0.0, float(field))
-        ok = lk.send(msg)
-        self._last_msg = msg
-        self._last_send = time.monotonic()
-        if ok:
-            self._send_times.append(self._last_send)
-            self._send_stamps.append(self._vehicle_now(self._last_send))
-            self._stream_mark(self._last_send)
-        return ok
-
-    def _stream_mark(self, t: float) -> None:
-        # Continuous streaming since when (PX4 wants a live stream before it accepts OFFBOARD).
-        if not math.isfinite(self._stream_since) or t - self._prev_stream_t > 0.5:
-            self._stream_since = t
-            self._stream_since_stamp = self.telem.newest_stamp()
-        self._prev_stream_t = t
-
