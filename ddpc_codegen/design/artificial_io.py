@@ -37,7 +37,7 @@ Layout of the per-hop data: :func:`stitch_hops` takes apex-to-apex hop segments 
 from ``t_d`` descent and ``t_a`` ascent samples around it; the result is an :class:`IODataset`
 whose trajectories are the hops H_G1..H_Gn (a mosaic Hankel never crosses from one hop to the next).
 
-Online (:class:`HoppingWindow`) the same completion fills the ground samples of u_ini / y_ini
+Online (:class:`ddpc_codegen.runtime.hopping.HoppingWindow`) the same completion fills the ground samples of u_ini / y_ini
 once ``min_ascent`` ascent samples are in. Measured on the simulator, two choices differ from the
 offline stitching: (1) no descent context (``t_d = 0``): joining the real descent to the real
 ascent forces the aerial dynamics to reverse the vertical velocity within the ~0.13 s ground
@@ -51,13 +51,13 @@ one data-consistent trajectory without a seam.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.design.phases import ground_runs
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.design.hankel import PEReport, persistency_of_excitation
@@ -67,7 +67,6 @@ __all__ = [
     "Completion",
     "ground_runs",
     "stitch_hops",
-    "HoppingWindow",
     "hop_excitation",
 ]
 
@@ -303,13 +302,6 @@ class ArtificialIO:
 
 
 # ---------------------------------------------------------------------------- hops
-def ground_runs(phase: np.ndarray) -> list[tuple[int, int]]:
-    """[start, end) index pairs of every run of GROUND labels in a phase array."""
-    g = np.asarray(phase) == GROUND
-    edges = np.flatnonzero(np.diff(np.r_[0, g.astype(np.int8), 0]))
-    return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])]
-
-
 def stitch_hops(
     hops: IODataset,
     art: ArtificialIO,
@@ -382,68 +374,3 @@ def stitch_hops(
 def hop_excitation(dataset: IODataset, order: int, tol: float | None = None) -> PEReport:
     """PE check of the mosaic Hankel of a hop dataset's inputs (one Hankel per hop, joined)."""
     return persistency_of_excitation(list(dataset.u), order, tol)
-
-
-# ---------------------------------------------------------------------------- online
-@dataclass
-class HoppingWindow:
-    """Online artificial IO: the Tini window of u_ini / y_ini with its ground part filled.
-
-    Args:
-        art: completion operator (aerial dynamics).
-        t_ini: window length.
-        t_d: real descent samples before the touchdown that the fill is conditioned on.
-        min_ascent: fewest ascent samples after the liftoff before a window is produced
-            (right after the liftoff nothing is known yet about the aerial state).
-        noise_level: sigma of the online completion [m / rad] (None: the operator's); online
-            windows are noisy measurements, so a sigma near the sensor noise keeps the fill from
-            amplifying it.
-        smooth: return the fitted window (known samples too) when sigma > 0 (see
-            :meth:`ArtificialIO.complete`, ``replace_known``).
-    """
-
-    art: ArtificialIO
-    t_ini: int
-    t_d: int = 10
-    min_ascent: int = 1
-    noise_level: float | None = None
-    smooth: bool = True
-    counts: dict = field(default_factory=lambda: {"filled": 0, "clean": 0, "unavailable": 0})
-
-    def window(self, u_log: np.ndarray, y_log: np.ndarray, phase_log: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray] | None | str:
-        """The window over the last ``t_ini`` samples of the logs.
-
-        Args:
-            u_log (k, m), y_log (k, p), phase_log (k,): history up to (not including) this tick.
-        Returns:
-            (u_ini (Tini, m), y_ini (Tini, p)) with ground samples replaced; ``None`` when the window
-            has no ground sample (use the real one); a reason string when no window can be formed
-            ("history": fewer than Tini samples, "early_ascent": fewer than ``min_ascent`` ascent
-            samples, "no_context": the descent context or the depth is missing).
-        """
-        k = u_log.shape[0]
-        Ti = self.t_ini
-        if k < Ti:
-            return "history"
-        ph = phase_log[:k]
-        if not np.any(ph[k - Ti :] == GROUND):
-            self.counts["clean"] += 1
-            return None
-        runs = [r for r in ground_runs(ph[max(0, k - Ti - self.art.depth) :])]
-        off = max(0, k - Ti - self.art.depth)
-        g0, g1 = runs[-1][0] + off, runs[-1][1] + off
-        if g1 >= k or k - g1 < self.min_ascent:
-            self.counts["unavailable"] += 1
-            return "early_ascent"
-        a = g0 - self.t_d
-        if a < 0 or np.any(ph[a:g0] == GROUND) or k - a > self.art.depth:
-            self.counts["unavailable"] += 1
-            return "no_context"
-        missing = np.zeros(k - a, dtype=bool)
-        missing[g0 - a : g1 - a] = True
-        sig = self.art.noise_level if self.noise_level is None else self.noise_level
-        c = self.art.complete(u_log[a:k], y_log[a:k], missing, replace_known=self.smooth and sig > 0,
-                              noise_level=sig)
-        self.counts["filled"] += 1
-        return c.u[-Ti:], c.y[-Ti:]

@@ -11,12 +11,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ddpc_codegen.design.artificial_io import HoppingWindow
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.experiments.pipeline import SteeringSetup
+from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
@@ -45,91 +45,45 @@ class InterpretedSolver:
 
 
 class SteeringHook:
-    """The :class:`SteeringPolicy` as the simulator's per-tick ``reference_hook``.
+    """The shared per-tick policy as the simulator's ``reference_hook``.
 
-    Flying: y_des over the horizon is ``ctx.desired_ahead(Tf)`` (z of the ellipse, the pitch of
-    the horizontal PD with its current correction held); u_nom is y_des with row 0 = r_nom.
-    Hopping: no steering on the ground (r_nom = measured outputs keeps the spring's natural
-    dynamics); in the air, a window whose ground part is filled with artificial IO, and the
-    desired arc continued ballistically past the predicted touchdown (the aerial predictor knows
-    nothing of the ground, so the horizon is scored against the arc the aerial dynamics should
-    fly; the leg angles are held as the controller does).
+    Flying (:class:`SteeringPolicy`): y_des over the horizon is ``ctx.desired_ahead(Tf)`` (z of the
+    ellipse, the pitch of the horizontal PD with its current correction held); u_nom is y_des with
+    row 0 = r_nom. Hopping (:class:`~ddpc_codegen.runtime.hopping.HoppingSteering`, the same
+    implementation the bridge runs): ground ticks unsteered, aerial windows with the ground part
+    filled, the desired arc continued ballistically.
 
     Counts (``counts``): ticks, ground, no_window:<reason>, filled (hopping).
     """
 
     def __init__(self, steerer: ReferenceSteerer, scenario: str, *, window: HoppingWindow | None = None,
-                 g_eff: float | None = None) -> None:
+                 g_eff: float | None = None, dt: float = 0.005) -> None:
         self.steerer = steerer
         self.policy = SteeringPolicy(steerer, max_gap_fill=0)  # the simulator never loses a sample
         self.scenario = scenario
         self.window = window
-        self.g_eff = g_eff
-        self.counts: dict[str, int] = {}
+        self.hopping = HoppingSteering(self.policy, window, g_eff, dt) if scenario == "hopping" else None
+        self._counts: dict[str, int] = {}
         self.solver_us: list[float] = []  # the solver's own timer (C for a generated solver)
-        self._v_arc: float | None = None
 
-    def _count(self, key: str) -> None:
-        self.counts[key] = self.counts.get(key, 0) + 1
+    @property
+    def counts(self) -> dict[str, int]:
+        return self.hopping.counts if self.hopping is not None else self._counts
 
     def __call__(self, ctx: TickContext) -> np.ndarray | None:
         pol = self.policy
-        self._count("ticks")
-        if self.scenario == "flying":
-            return self._decide(ctx, ctx.desired_ahead(pol.t_f))
-        # ---- hopping
-        if ctx.phase == GROUND:
-            self._count("ground")
-            pol.observe(ctx.r_nom, ctx.y)
-            return None
-        if self.window is not None:
-            w = self.window.window(ctx.u_log, ctx.y_log[:-1], ctx.phase_log[:-1])
-            if isinstance(w, str):
-                self._count(f"no_window:{w}")
-                pol.observe(ctx.r_nom, ctx.y)
+        if self.hopping is None:
+            self._counts["ticks"] = self._counts.get("ticks", 0) + 1
+            out = pol.decide(ctx.y, ctx.r_nom, ctx.desired_ahead(pol.t_f))
+        else:
+            n = pol.t_f
+            u, out = self.hopping.decide(int(ctx.phase), ctx.y, ctx.r_nom, ctx.desired_ahead(n),
+                                         ctx.phases_ahead(n))
+            if out is None:
                 return None
-            if w is not None:
-                pol.steerer.set_window(*w)
-                self._count("filled")
-            else:
-                # A clean aerial window: the real samples (a fitted window of an earlier tick may
-                # still sit in the ring buffer otherwise).
-                Ti = pol.steerer.t_ini
-                pol.steerer.set_window(ctx.u_log[-Ti:], ctx.y_log[-Ti - 1 : -1])
-        return self._decide(ctx, self._arc_horizon(ctx))
-
-    def _decide(self, ctx: TickContext, y_des: np.ndarray) -> np.ndarray:
-        out = self.policy.decide(ctx.y, ctx.r_nom, y_des)
         if out.result is not None and np.isfinite(out.result.solve_time) and out.result.solve_time > 0:
             self.solver_us.append(out.result.solve_time * 1e6)
         return out.u
-
-    def _arc_horizon(self, ctx: TickContext) -> np.ndarray:
-        """(Tf, p) desired outputs with z continued on the current ballistic arc after touchdown."""
-        n = self.policy.t_f
-        yd = np.array(ctx.desired_ahead(n), dtype=float)
-        ph = np.asarray(ctx.phases_ahead(n))
-        g = self.g_eff
-        air = np.flatnonzero(ph != GROUND)
-        # The aerial samples before the first predicted ground sample define the arc.
-        first_ground = int(np.argmax(ph == GROUND)) if np.any(ph == GROUND) else n
-        if g is None or first_ground >= n:
-            if first_ground >= n and len(air) >= 2:
-                self._v_arc = (yd[1, 0] - yd[0, 0]) / ctx.dt + 0.5 * (g or 0.0) * ctx.dt
-            return yd
-        tau = ctx.dt * np.arange(n)
-        z0 = yd[0, 0]
-        if first_ground >= 2:
-            v = float(np.mean((yd[1:first_ground, 0] - z0 + 0.5 * g * tau[1:first_ground] ** 2) / tau[1:first_ground]))
-        elif self._v_arc is not None:
-            v = self._v_arc - g * ctx.dt
-        else:
-            v = 0.0
-        self._v_arc = v
-        yd[first_ground:, 0] = z0 + v * tau[first_ground:] - 0.5 * g * tau[first_ground:] ** 2
-        # Leg angles: held at the current aerial command (what the controller does in the air).
-        yd[first_ground:, 1:] = yd[0, 1:]
-        return yd
 
 
 # ----------------------------------------------------------------------------- runs
@@ -229,7 +183,7 @@ def run(
             window = HoppingWindow(setup.art, cfg.t_ini, setup.art_spec.t_d_online, setup.art_spec.min_ascent,
                                    setup.art_spec.noise_level_online)
         hook = SteeringHook(steerer, scenario, window=window,
-                            g_eff=_g_eff(params) if scenario == "hopping" else None)
+                            g_eff=_g_eff(params) if scenario == "hopping" else None, dt=cfg.dt)
     t0 = time.perf_counter()
     res = simulate(sim_scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
                    pushes=pushes, progress=progress)

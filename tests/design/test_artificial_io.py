@@ -9,7 +9,8 @@ from ddpc_codegen import IODataset
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect, split_hopping
 from ddpc_codegen.experiments.evaluate import run
-from ddpc_codegen.design.artificial_io import ArtificialIO, HoppingWindow, ground_runs, hop_excitation
+from ddpc_codegen.design.artificial_io import ArtificialIO, ground_runs, hop_excitation
+from ddpc_codegen.runtime.hopping import HoppingWindow
 
 
 def _lti_data(sys_, n_traj: int, T: int, seed: int, offset: float = 0.5) -> IODataset:

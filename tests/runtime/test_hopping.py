@@ -1,0 +1,103 @@
+"""The robot-side hopping policy (runtime/hopping.py): its own history equals the simulator's logs,
+ground ticks pass the controller's reference, a hole in the samples resets the history."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.experiments.evaluate import SteeringHook
+from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow, _History
+from ddpc_codegen.runtime.steerer import SteerOutcome
+from ddpc_codegen.sim import simulate
+
+
+class _Steerer:
+    """A stand-in steerer that never steers (warm-up) and records the windows it is given."""
+
+    t_ini, t_f, m, p = 4, 6, 3, 3
+
+    def __init__(self) -> None:
+        self.windows: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def observe(self, u, y) -> None:
+        pass
+
+    def reset(self) -> None:
+        pass
+
+    def set_window(self, u, y) -> None:
+        self.windows.append((np.array(u), np.array(y)))
+
+    def step(self, y_des, u_nom):
+        return SteerOutcome(np.asarray(u_nom[0]), False, "warmup")
+
+
+class _Spy:
+    """A completion operator that records the histories the window hands it."""
+
+    depth, noise_level, m, p = 40, 0.0, 3, 3
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def complete(self, u, y, missing, *, replace_known=False, noise_level=None):
+        raise AssertionError("not reached: the spy window below never completes")
+
+
+class _CheckingWindow(HoppingWindow):
+    """Compares the policy's history with the simulator's logs of the same tick."""
+
+    ctx = None
+    checked = 0
+
+    def window(self, u_log, y_log, phase_log):
+        c = self.ctx
+        n = u_log.shape[0]
+        np.testing.assert_array_equal(u_log, c.u_log[-n:] if n else c.u_log[:0])
+        np.testing.assert_array_equal(y_log, c.y_log[:-1][-n:] if n else c.y_log[:0])
+        np.testing.assert_array_equal(phase_log, c.phase_log[:-1][-n:] if n else c.phase_log[:0])
+        assert n == min(c.u_log.shape[0], n)  # never more than the simulator has
+        _CheckingWindow.checked += 1
+        return "history"
+
+
+def test_history_is_the_simulators_log_and_ground_ticks_pass_r_nom():
+    win = _CheckingWindow(_Spy(), t_ini=4)
+    hook = SteeringHook(_Steerer(), "hopping", window=win, g_eff=9.0, dt=0.005)
+
+    def tick(ctx):
+        win.ctx = ctx
+        return hook(ctx)
+
+    res = simulate("hopping", 2.5, reference_hook=tick, seed=0, noise=True)
+    assert _CheckingWindow.checked == res.n - hook.counts["ground"]
+    assert hook.counts["ground"] > 50 and np.any(res.phase == GROUND)
+    # The capacity (t_ini + depth + 2) wrapped several times: the views stay the newest samples.
+    assert hook.hopping.history.capacity == 4 + 40 + 2 < res.n
+    np.testing.assert_array_equal(res.u, res.r_nom)
+
+
+def test_history_buffer_wraps_and_clears():
+    h = _History(5, 1, 2)
+    for k in range(23):
+        h.append(np.array([k]), np.array([k, -k]), k % 4)
+        u, y, ph = h.views()
+        assert min(k + 1, 5) <= u.shape[0] <= 10 and u[-1, 0] == k and y[-1, 1] == -k and ph[-1] == k % 4
+        assert np.array_equal(u[:, 0], np.arange(k + 1 - u.shape[0], k + 1))
+    h.clear()
+    assert h.views()[0].shape == (0, 1)
+
+
+def test_a_lost_sample_resets_the_hopping_history():
+    from ddpc_codegen.runtime.policy import SteeringPolicy
+
+    st = _Steerer()
+    hop = HoppingSteering(SteeringPolicy(st), None, None, 0.005)
+    for _ in range(7):
+        hop.decide(0, np.zeros(3), np.ones(3), np.zeros((6, 3)), np.zeros(6))
+    assert hop.history.views()[0].shape[0] == 7
+    hop.lost(0)
+    assert hop.history.views()[0].shape[0] == 7
+    hop.lost(2)
+    assert hop.history.views()[0].shape[0] == 0
