@@ -115,6 +115,24 @@ def test_ardupilot_profile_guided_nogps_with_both_thrust_semantics(procs, tmp_pa
             assert s["rmse_z_measured"] < 0.15
 
 
+def test_climb_rate_semantics_refuse_steer_and_collect_before_any_mode_command(procs, tmp_path, flying_solver):
+    # ddpc-vehicle as ArduCopter with GUID_OPTIONS 0; the bridge reads it and refuses (exit 4).
+    for mode, extra in (("steer", ("--solver", str(flying_solver))), ("collect", ())):
+        port = free_port()
+        veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--autopilot", "ardupilot", "--guid-options", "0",
+                          name=f"{mode}_vehicle")
+        br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--autopilot", "ardupilot", "--offboard", "--arm",
+                         "--mode", mode, *extra, "--summary", str(tmp_path / f"{mode}.json"), "--timeout", "30",
+                         name=f"{mode}_bridge")
+        assert procs.wait(br, 60) == 4, procs.log(br)
+        procs.terminate(veh)
+        assert re.search(rf"--mode {mode} needs SET_ATTITUDE_TARGET.thrust to be a thrust.*GUID_OPTIONS 8",
+                         procs.log(br)), procs.log(br)
+        ev = [e for _, e in read_json(tmp_path / f"{mode}.json")["events"]]
+        assert ev[-1] == "GUID_OPTIONS=0: thrust field is a climb rate", ev  # nothing commanded after it
+        assert not any("requesting" in e or "ARM" in e for e in ev), ev
+
+
 def test_frame_start_keeps_heading_and_position_world_turns_east(procs, tmp_path):
     # The robot is 3.6 m from the trajectory's start point, heading 60 deg (ENU). "start" (default)
     # flies the ellipse from there along that heading; "world" turns it east and flies to the origin.
