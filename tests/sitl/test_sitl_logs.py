@@ -48,6 +48,7 @@ def test_px4_ulog_of_a_bridge_flight(tmp_path):
     assert logged == pytest.approx(sent, abs=0.01)
     with pytest.raises(DataError, match="attitude off-board.*ddpc-bridge --log"):
         import_ulog(ulg, preset="pogox-flying", offboard_only=True)
+    assert summary["truth_samples"] == 0 and summary["rmse_z_truth"] is None   # PX4 sends no SIM_STATE
 
 
 def test_ardupilot_tlog_of_a_bridge_flight(tmp_path):
@@ -59,3 +60,10 @@ def test_ardupilot_tlog_of_a_bridge_flight(tmp_path):
     assert logged == pytest.approx(sent, abs=0.01)
     with pytest.raises(DataError, match="attitude setpoints .*ATTITUDE_TARGET.*ddpc-bridge --log"):
         import_tlog(tlog, preset="pogox-flying")
+    # The bridge kept ArduCopter's SIM_STATE as truth: the true height (from where it stood disarmed)
+    # agrees with the EKF's (from the same point) to centimetres in flight; the RMSEs are close.
+    t = load_ticklog(tmp_path / "ticks.npz").ticks
+    on = t["active"].astype(bool)
+    assert summary["truth_samples"] > 0 and np.isfinite(t["truth_position"][on]).all()
+    assert np.max(np.abs(t["truth_position"][on, 2] - t["y"][on, 0])) < 0.05
+    assert summary["rmse_z_truth"] == pytest.approx(summary["rmse_z_measured"], abs=0.01)
