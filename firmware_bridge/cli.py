@@ -114,9 +114,7 @@ def build_bridge_parser() -> argparse.ArgumentParser:
                    help="pymavlink-style connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
                         "device (/dev/ttyACM0[:BAUD]) (default udpin:127.0.0.1:14540)")
     p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 921600)")
-    p.add_argument("--mode", choices=("steer", "passthrough", "collect"), default=_D["mode"],
-                   help="steer / collect need a thrust field that is a thrust: on ArduPilot GUID_OPTIONS bit 3 "
-                        "(value 8), else refused at start (exit 4); passthrough flies either")
+    p.add_argument("--mode", choices=("steer", "passthrough", "collect"), default=_D["mode"])
     p.add_argument("--solver", default=None, help="generated solver folder (steer mode), e.g. generated/flying")
     _bridge_autopilot_args(p.add_argument_group("autopilot"))
     _bridge_loop_args(p.add_argument_group("loop"))

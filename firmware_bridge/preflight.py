@@ -8,9 +8,7 @@ Run once, after the first heartbeat and before the tick loop sends any mode comm
   ``MPC_THR_HOVER``, ArduPilot ``MOT_THST_HOVER``), PX4's ``COM_OF_LOSS_T``, ArduPilot's
   ``GUID_OPTIONS`` (bit 3: SET_ATTITUDE_TARGET.thrust is a thrust, else a climb rate). PX4 sends
   integer parameters bytewise (the float's bits are the int32), ArduPilot as float values;
-* ``--guid-options`` is accepted only when it agrees with the vehicle, or with ``force``;
-* steering and collecting are refused when ArduCopter reads the thrust field as a climb rate
-  (:func:`check_thrust_semantics`); passthrough still flies there.
+* ``--guid-options`` is accepted only when it agrees with the vehicle, or with ``force``.
 
 Measured on the SITLs: six parameters answered within 0.05 s (PX4) / 0.15 s (ArduCopter) of the
 first heartbeat.
@@ -35,7 +33,6 @@ __all__ = [
     "params_to_read",
     "resolve_guid_options",
     "check_trajectory_bounds",
-    "check_thrust_semantics",
 ]
 
 AUTOPILOT_NAMES = {0: "generic", 3: "ArduPilot", 8: "none (a GCS or companion)", 12: "PX4"}
@@ -117,32 +114,6 @@ def resolve_guid_options(read: float | None, cli: int | None, force: bool) -> in
                              "parameter on the vehicle, or add --force-guid-options to encode for {cli} anyway"
                              .replace("{cli}", str(cli)))
     return int(read)
-
-
-def check_thrust_semantics(profile: Profile, mode: str) -> None:
-    """Refuse ``steer`` and ``collect`` when SET_ATTITUDE_TARGET.thrust is a climb rate.
-
-    ArduCopter with GUID_OPTIONS bit 3 clear reads the field as a climb rate (0.5 = hold, 0 / 1 =
-    -WPNAV_SPEED_DN / +WPNAV_SPEED_UP), integrates it into its own altitude target and closes
-    height itself (its jerk- and acceleration-limited position controller). The bridge can only
-    encode ``climb_kp (z_ref - z)`` there: the controller's thrust is discarded, and the loop the
-    steering learns and acts on is ArduCopter's altitude loop behind a proportional climb-rate
-    law, whose answer to a change of z_ref is slow (time constant 1 / climb_kp ≈ 0.7 s plus
-    ArduCopter's lag) and rate-limited -- within the solver's 0.1-0.2 s horizon z_ref barely moves
-    z, so the QP asks for huge z_ref steps (seen: 85 -> 180 mm RMSE, 720 ``step_too_large``
-    fallbacks, the field saturating at 1.0, a growing oscillation). A dataset collected that way
-    would also model a different loop than the thrust-mode flight the solver is meant for.
-
-    Raises:
-        PreflightError: ArduPilot with climb-rate semantics and ``mode`` "steer" or "collect".
-    """
-    if mode in ("steer", "collect") and profile.climb_rate_thrust:
-        raise PreflightError(
-            f"--mode {mode} needs SET_ATTITUDE_TARGET.thrust to be a thrust, but the vehicle's GUID_OPTIONS "
-            f"({getattr(profile, 'guid_options', '?')}) has bit 3 clear: ArduCopter reads the field as a climb rate "
-            "and closes height itself, so the steering's z_ref has no thrust to act on. Set bit 3 on the vehicle "
-            "(GUID_OPTIONS 8, e.g. 'param set GUID_OPTIONS 8', then restart the bridge); --mode passthrough "
-            "flies in climb-rate mode as it is")
 
 
 def check_trajectory_bounds(z: np.ndarray, z_min: float, z_max: float, what: str = "trajectory") -> None:

@@ -13,10 +13,9 @@ ArduPilot Copter
     and GUIDED_NOGPS (20); DO_SET_MODE(param1 = 1, param2 = mode number). In those modes
     SET_ATTITUDE_TARGET.thrust is a *climb rate* (0.5 = hold altitude, 0 = full descent speed,
     1 = full climb speed) unless bit 3 (value 8) of GUID_OPTIONS is set; then it is a
-    normalized thrust like PX4's. With the climb-rate semantics the bridge turns the height
-    reference into a climb rate ``kp (z_ref - z)`` (ArduPilot's own altitude loop then closes
-    height) -- in passthrough only: steering and collecting are refused there
-    (:func:`firmware_bridge.preflight.check_thrust_semantics` says why).
+    normalized thrust like PX4's. Both are supported; with the climb-rate semantics the
+    bridge turns the height reference into a climb rate ``kp (z_ref - z)`` (ArduPilot's own
+    altitude loop then closes height).
 
 Arming (MAV_CMD_COMPONENT_ARM_DISARM) is the same for both. The bridge only arms or changes
 modes when asked by an explicit CLI flag.

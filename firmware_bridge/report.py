@@ -85,6 +85,8 @@ class Reporting:
         meta = {"bridge": {k: v for k, v in asdict(c).items() if k not in ("controller", "trajectory")},
                 "controller": asdict(self.ctrl_cfg), "trajectory": _describe_trajectory(self.ctrl.trajectory),
                 "autopilot": self.profile.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
+                # what SET_ATTITUDE_TARGET.thrust meant: a solver fits the loop it was collected in
+                "thrust_field": "climb_rate" if self.profile.climb_rate_thrust else "thrust",
                 # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
                 "frame": self.frame.as_dict(), "truth": self.truth.as_dict(),
                 "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),

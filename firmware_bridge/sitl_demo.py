@@ -87,13 +87,15 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
 
 
 def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect_s: float = 25.0,
-                 steer_s: float = 12.0) -> dict:
-    """Start the SITL here, fly baseline -> collect -> codegen -> steer; the figures (JSON-ready)."""
+                 steer_s: float = 12.0, sitl_params: dict | None = None) -> dict:
+    """Start the SITL here, fly baseline -> collect -> codegen -> steer; the figures (JSON-ready).
+    ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
+    climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     res: dict = {"autopilot": autopilot}
-    with make_sitl(autopilot, params=SITL_PARAMS[autopilot]) as sitl:
+    with make_sitl(autopilot, params=SITL_PARAMS[autopilot] if sitl_params is None else sitl_params) as sitl:
         base = fly(sitl, autopilot, "passthrough", out, baseline_s)
         fly(sitl, autopilot, "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT[autopilot]))
         solver = codegen(ROOT / "configs" / CONFIGS[autopilot], out / f"{autopilot}_collect.npz", out / "generated")

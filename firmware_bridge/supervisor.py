@@ -9,8 +9,8 @@ import time
 from firmware_bridge.config import NoVehicleError
 from firmware_bridge.link import mavlink
 from firmware_bridge.phases import Approach
-from firmware_bridge.preflight import (VehicleInfo, check_autopilot, check_thrust_semantics, decode_param_value,
-                                       hover_param, params_to_read, resolve_guid_options)
+from firmware_bridge.preflight import (VehicleInfo, check_autopilot, decode_param_value, hover_param,
+                                       params_to_read, resolve_guid_options)
 from firmware_bridge.profiles import ArduPilotProfile
 
 __all__ = ["Supervisor"]
@@ -121,7 +121,6 @@ class Supervisor:
             self.profile.guid_options = opt
             self._event(f"GUID_OPTIONS={opt}: thrust field is a "
                         + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
-        check_thrust_semantics(self.profile, c.mode)
         self._event(f"vehicle: {self.profile.name}, hover thrust {hover_param(self.profile)}="
                     + ("?" if hover is None else f"{hover:.3f}")
                     + f", controller model hover thrust {self.hover_thrust:.3f}")

@@ -11,9 +11,8 @@ from bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
 from firmware_bridge.link import mavlink
 from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
-from firmware_bridge.preflight import (PreflightError, check_autopilot, check_thrust_semantics, decode_param_value,
-                                      resolve_guid_options)
-from firmware_bridge.profiles import ArduPilotProfile, make_profile
+from firmware_bridge.preflight import PreflightError, check_autopilot, decode_param_value, resolve_guid_options
+from firmware_bridge.profiles import make_profile
 
 
 def test_the_heartbeat_must_name_the_profiles_autopilot():
@@ -21,22 +20,6 @@ def test_the_heartbeat_must_name_the_profiles_autopilot():
     with pytest.raises(PreflightError, match=r"says ArduPilot \(autopilot 3\) but the bridge is set for px4: "
                                              r"refusing before any mode command; use --autopilot ardupilot"):
         check_autopilot(3, make_profile("px4"))
-
-
-def test_steering_and_collecting_need_a_thrust_field_passthrough_flies_either():
-    # PX4's field is always a thrust; ArduCopter's is one only with GUID_OPTIONS bit 3 (value 8).
-    for profile in (make_profile("px4"), ArduPilotProfile(guid_options=8), ArduPilotProfile(guid_options=8 | 1)):
-        for mode in ("passthrough", "collect", "steer"):
-            check_thrust_semantics(profile, mode)
-    climb = ArduPilotProfile(guid_options=0)
-    check_thrust_semantics(climb, "passthrough")
-    for mode in ("collect", "steer"):
-        with pytest.raises(PreflightError, match=rf"--mode {mode} needs SET_ATTITUDE_TARGET.thrust to be a thrust, "
-                                                 r"but the vehicle's GUID_OPTIONS \(0\) has bit 3 clear.*"
-                                                 r"Set bit 3 on the vehicle \(GUID_OPTIONS 8.*--mode passthrough"):
-            check_thrust_semantics(climb, mode)
-    with pytest.raises(PreflightError, match=r"GUID_OPTIONS \(7\) has bit 3 clear"):
-        check_thrust_semantics(ArduPilotProfile(guid_options=7), "steer")
 
 
 def test_param_values_decode_per_autopilot():

@@ -33,28 +33,6 @@ def sitl_heartbeat(autopilot: str) -> dict:
             "value": None if pv is None else float(pv.param_value), "rc": sitl.proc is None, "workdir": workdir}
 
 
-def ardupilot_climb_rate_refusal(out_dir: str) -> dict:
-    """ArduCopter SITL with GUID_OPTIONS 0: ``ddpc-bridge --mode collect --arm --offboard`` must
-    exit 4 right after reading the parameter, before any mode or arming command."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from firmware_bridge.sitl import make_sitl
-
-    out = Path(out_dir)
-    with make_sitl("ardupilot", params={"GUID_OPTIONS": 0}) as sitl:
-        cmd = [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", "ardupilot",
-               "--profile", "arducopter_sitl", "--mode", "collect", "--arm", "--offboard", "--takeoff",
-               "--wait-heartbeat", "60", "--timeout", "60", "--summary", str(out / "s.json")]
-        t0 = time.monotonic()
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-        wall = time.monotonic() - t0
-    return {"rc": res.returncode, "stderr": res.stderr[-3000:], "wall_s": wall,
-            "events": [e for _, e in json.loads((out / "s.json").read_text())["events"]]}
-
-
 def flight_with_autopilot_log(autopilot: str, out_dir: str, duration: float = 6.0) -> dict:
     """A short passthrough flight from the ground (arm, take off, fly, land) by ``ddpc-bridge``,
     and the autopilot's side of it: PX4's own ULog (from its working directory ``log/``), or for

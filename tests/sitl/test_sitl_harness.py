@@ -87,19 +87,3 @@ def test_sitl_starts_answers_and_stops(autopilot):
     assert res["heartbeat_s"] < 30
     assert 0.2 < res["value"] < 0.8  # hover thrust parameter
     assert res["rc"] and not Path(res["workdir"]).exists()
-
-
-@pytest.mark.sitl
-def test_ardupilot_climb_rate_mode_refuses_collect_before_any_command(tmp_path):
-    # GUID_OPTIONS 0 (ArduCopter's default): the thrust field is a climb rate; the bridge reads it
-    # from the real vehicle and refuses to collect (or steer) before arming or changing modes.
-    why = h.missing_reason("ardupilot")
-    if why:
-        pytest.skip(why)
-    res = h.run_isolated("isolated_funcs:ardupilot_climb_rate_refusal", {"out_dir": str(tmp_path)}, timeout=180)
-    assert res["rc"] == 4, res
-    assert "--mode collect needs SET_ATTITUDE_TARGET.thrust to be a thrust" in res["stderr"], res
-    assert "Set bit 3 on the vehicle (GUID_OPTIONS 8" in res["stderr"], res
-    ev = res["events"]
-    assert ev[-1] == "GUID_OPTIONS=0: thrust field is a climb rate", ev
-    assert not any("requesting" in e or "ARM" in e for e in ev), ev
