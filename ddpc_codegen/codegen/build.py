@@ -59,8 +59,10 @@ const char *{name}_status_string(int status);
 def include_dirs_of(backend: str, artio: bool = False) -> list[str]:
     """Private include directories of a backend's library (and of DAQP for a hopping solver's
     artificial-IO completion), relative to the solver folder."""
-    daqp = ["daqp/include"] if backend == "daqp" or artio else []
-    return daqp + (["osqp", "osqp/inc/public", "osqp/inc/private"] if backend == "osqp" else [])
+    # OSQP's first: both libraries have a types.h; DAQP's sources never include theirs by -I (their
+    # headers find it next to themselves), OSQP's sources do.
+    osqp = ["osqp", "osqp/inc/public", "osqp/inc/private"] if backend == "osqp" else []
+    return osqp + (["daqp/include"] if backend == "daqp" or artio else [])
 
 
 def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], backend: str,
