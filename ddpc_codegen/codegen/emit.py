@@ -196,6 +196,7 @@ def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: st
     includes = include_dirs_of(backend, artio is not None)
     ctx["artio_include"] = (f'#include "{name}_artio.h" /* artificial ground-phase IO (hopping) */'
                             if artio is not None else "/* no artificial-IO completion: not a hopping solver */")
+    ctx["artio_example"] = render("artio_example.in", name=name, NAME=name.upper()) if artio is not None else ""
     ctx["ws_backend"] = render_ctx(f"ws_{backend}.h.in", ctx).rstrip("\n")
     h, c = data_files(data_arrays(problem), ctx, f"{name}_data")
     (out_dir / f"{name}_data.h").write_text(h)

@@ -16,6 +16,7 @@ from ddpc_codegen import (CodegenError, DataError, IODataset, ManifestError, Ste
 from ddpc_codegen.codegen import OnlineCompletion
 from ddpc_codegen.design.artificial_io import ArtificialIO
 from ddpc_codegen.design.result import BOUND_TOL
+from ddpc_codegen.experiments.pipeline import default_config
 
 pytestmark = pytest.mark.compiler
 
@@ -189,3 +190,60 @@ def test_zero_noise_level_is_refused_at_codegen(problem, art, tmp_path):
 
 def test_a_flying_solver_has_no_completion(problem, tmp_path):
     assert load_solver(generate(problem, tmp_path / "f", name="artio_none")).artificial_io is None
+
+
+@pytest.fixture(scope="module")
+def hop_log(tmp_path_factory):
+    """A short raw hopping log (25 s, ~30 hops) with phase labels, as the simulator records it."""
+    from ddpc_codegen.experiments.pipeline import CollectSpec, collect
+
+    res = collect("hopping", CollectSpec(duration=25.0, seed=2, amplitude=(0.01, 0.02, 0.02)))
+    path = tmp_path_factory.mktemp("hoplog") / "hop_raw.npz"
+    res.to_dataset("none").save(path)
+    return path
+
+
+def test_cli_builds_a_hopping_artifact_with_its_completion_from_a_raw_log(hop_log, tmp_path, capsys):
+    from ddpc_codegen.cli.main import main as cli_main
+    from ddpc_codegen.design.hopping_data import ArtificialIOSpec
+
+    assert cli_main(["codegen", str(default_config("hopping")), "--dataset", str(hop_log), "--out", str(tmp_path),
+                     "--quiet"]) == 0
+    solver = load_solver(tmp_path / "hopping")
+    gen = solver.artificial_io
+    spec = ArtificialIOSpec(**SteeringConfig.from_toml(default_config("hopping")).artificial_io)
+    assert gen.noise_level == spec.noise_level_online and (gen.m, gen.p) == (3, 3)
+    assert (gen.t_d_online, gen.min_ascent) == (spec.t_d_online, spec.min_ascent)
+    # the online window of a recorded hop: ground phase + the first ascent samples
+    from ddpc_codegen.design.artificial_io import ground_runs
+
+    raw = IODataset.load(hop_log)
+    ph = raw.phases[0]
+    g0, g1 = ground_runs(ph)[2]
+    miss = np.zeros(g1 + 12 - g0, dtype=bool)
+    miss[: g1 - g0] = True
+    c = gen.complete(raw.u[0][g0 : g1 + 12], raw.y[0][g0 : g1 + 12], miss, replace_known=True)
+    assert c.status == "solved" and c.u.shape == (len(miss), 3) and np.all(np.isfinite(c.y))
+
+
+def test_cli_refuses_a_hopping_config_without_phase_labels(hop_log, tmp_path, capsys):
+    from ddpc_codegen.cli.main import main as cli_main
+
+    raw = IODataset.load(hop_log)
+    IODataset(list(raw.u), list(raw.y), raw.dt, input_names=raw.input_names, output_names=raw.output_names,
+              input_units=raw.input_units, output_units=raw.output_units).save(tmp_path / "nophase.npz")
+    assert cli_main(["codegen", str(default_config("hopping")), "--dataset", str(tmp_path / "nophase.npz"),
+                     "--out", str(tmp_path)]) != 0
+    assert "has no phase labels" in capsys.readouterr().err and not (tmp_path / "hopping").exists()
+
+
+def test_the_standalone_example_calls_the_completion_from_c(folders, tmp_path):
+    from ddpc_codegen.codegen import standalone
+
+    if standalone.tool("make") is None:
+        pytest.skip("no make")
+    for backend in ("daqp", "osqp"):  # osqp: DAQP bundled for the completion, both libraries link
+        folder = standalone.relocated_copy(folders[backend], tmp_path / backend)
+        run = standalone.run_example(standalone.make_example(folder), standalone.vectors_file(folder))
+        assert run.returncode == 0 and run.mismatches == 0
+        assert f"artio_{backend}: artificial IO over {TI} samples: solved" in run.output
