@@ -69,11 +69,11 @@ def context(oc: OnlineCompletion, base: dict) -> dict:
     art = oc.art
     rows, r = art.depth * art.d, art.rank
     ctx = {k: base[k] for k in ("banner", "name", "NAME", "max_iter")}
-    ctx.update(depth=art.depth, rank=r, m=art.m, p=art.p, d=art.d, rows=rows, rows_sq=rows * rows,
+    ctx.update(depth=art.depth, rank=r, m=art.m, p=art.p, d=art.d, rows=rows, rows_sq=rows * rows, rows_sq4=rows * rows // 4 + 1,
                rank_sq=r * r, n_m=r * rows, n_vals=2 * art.d + 3, n_columns=art.n_columns,
                sigma=c_float(oc.noise_level), lam=c_float(oc.lam), feas_tol=repr(BOUND_TOL),
                daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL))
-    ws_words = (2 * rows + 5 * rows + rows * rows + r + r * r + r + r * rows  # arrays of the header
+    ws_words = (4 * rows + 5 * rows + 2.25 * rows * rows + r + r * r + r + r * rows  # arrays of the header
                 + 3 * r * rows + (r + 1) * (r + 2) // 2 + r * (r + 1) // 2 + 12 * (r + 1) + 8 * rows)
     ctx["ws_kib"] = int(ws_words * 8 / 1024) + 1
     ctx["ws_daqp"] = render("ws_daqp.h.in", n_u=r, n_c=rows, n_u1=r + 1, n_l=(r + 1) * (r + 2) // 2,
@@ -115,7 +115,7 @@ def manifest_entry(oc: OnlineCompletion) -> dict:
 def cdef_text(name: str) -> str:
     """The completion's C API as cffi declares it."""
     return f"""
-typedef struct {{ int bounded; int iterations; int raw_status; int n_known; double residual; double g_norm;
+typedef struct {{ int bounded; int reduced; int iterations; int raw_status; int n_known; double residual; double g_norm;
                  double max_violation; double solve_time_us; }} {name}_artio_info;
 typedef struct {{ ...; }} {name}_artio_workspace;
 int {name}_artio_init({name}_artio_workspace *ws);

@@ -187,6 +187,9 @@ def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: st
     ctx.update(_param_maps(problem, name, out_dir))
     if artio is not None:
         artio.check()  # before anything slow is emitted
+        if (artio.art.m, artio.art.p) != (problem.config.m, problem.config.p):
+            raise CodegenError(f"the artificial-IO operator has m={artio.art.m}, p={artio.art.p} but the steering "
+                               f"config m={problem.config.m}, p={problem.config.p}: build both from the same data")
     if backend == "daqp" or artio is not None:
         lib_units = libs.emit_daqp(out_dir, name)
     else:

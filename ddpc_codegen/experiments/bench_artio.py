@@ -22,7 +22,7 @@ class _Timed:
     """Wraps a completer: records every call's wall time [us] (C's own timer when it has one) and result."""
 
     def __init__(self, inner) -> None:
-        self.inner, self.times, self.bounded, self.results = inner, [], [], []
+        self.inner, self.times, self.bounded, self.results, self.reduced = inner, [], [], [], []
         self.depth, self.noise_level, self.m, self.p, self.counts = (inner.depth, inner.noise_level, inner.m,
                                                                      inner.p, inner.counts)
 
@@ -32,6 +32,7 @@ class _Timed:
         wall = (time.perf_counter_ns() - t0) * 1e-3
         self.times.append(getattr(self.inner, "last_info", {}).get("solve_time_us", wall))
         self.bounded.append(c.bounded)
+        self.reduced.append(bool(getattr(self.inner, "last_info", {}).get("reduced", False)))
         self.results.append(c)
         return c
 
@@ -65,14 +66,15 @@ def completion_timing(log=print, duration: float = 40.0) -> dict:
     g, i = runs["generated"], runs["interpreted"]
     tg, bg = np.asarray(g.times), np.asarray(g.bounded, dtype=bool)
     diff = max(max(np.abs(a.u - b.u).max(), np.abs(a.y - b.y).max()) for a, b in zip(g.results, i.results))
-    out.update(calls=int(tg.size), bounded_calls=int(bg.sum()),
+    out.update(calls=int(tg.size), bounded_calls=int(bg.sum()), bounded_reduced_form=int(np.sum(g.reduced)),
                c_median_us=float(np.median(tg)), c_p99_us=float(np.percentile(tg, 99)),
                c_unbounded_median_us=float(np.median(tg[~bg])) if (~bg).any() else None,
                c_bounded_median_us=float(np.median(tg[bg])) if bg.any() else None,
                python_interpreted_median_us=float(np.median(i.times)),
                max_abs_diff_generated_vs_interpreted=float(diff),
                statuses={s: sum(c.status == s for c in g.results) for s in {c.status for c in g.results}})
-    log(f"  hopping completion: {out['calls']} calls ({out['bounded_calls']} bounded), C median "
+    log(f"  hopping completion: {out['calls']} calls ({out['bounded_calls']} bounded, "
+        f"{out['bounded_reduced_form']} in the reduced form), C median "
         f"{out['c_median_us']:.1f} us (unbounded {out['c_unbounded_median_us']}, bounded {out['c_bounded_median_us']}), "
         f"p99 {out['c_p99_us']:.1f} us; interpreted median {out['python_interpreted_median_us']:.1f} us; "
         f"max |generated - interpreted| {diff:.2e}")

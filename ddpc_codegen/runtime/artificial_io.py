@@ -118,6 +118,7 @@ class GeneratedArtificialIO:
                 self.counts["qp_failed"] += 1
         W = out.reshape(L, self.d)
         self.last_info = {"solve_time_us": float(info.solve_time_us), "max_violation": float(info.max_violation),
-                          "iterations": int(info.iterations), "raw_status": int(info.raw_status)}
+                          "iterations": int(info.iterations), "raw_status": int(info.raw_status),
+                          "reduced": bool(info.reduced)}
         return Completion(W[:, : self.m].copy(), W[:, self.m :].copy(), float(info.residual), float(info.g_norm),
                           bool(info.bounded), status)
