@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.artificial_io import HoppingWindow
+from ddpc_codegen.runtime.hopping import HoppingWindow
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.hopping_data import prepare_hopping
 from ddpc_codegen.design.predictor import fit_predictor

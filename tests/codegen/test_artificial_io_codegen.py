@@ -215,7 +215,7 @@ def test_cli_builds_a_hopping_artifact_with_its_completion_from_a_raw_log(hop_lo
     assert gen.noise_level == spec.noise_level_online and (gen.m, gen.p) == (3, 3)
     assert (gen.t_d_online, gen.min_ascent) == (spec.t_d_online, spec.min_ascent)
     # the online window of a recorded hop: ground phase + the first ascent samples
-    from ddpc_codegen.design.artificial_io import ground_runs
+    from ddpc_codegen.design.phases import ground_runs
 
     raw = IODataset.load(hop_log)
     ph = raw.phases[0]
@@ -247,3 +247,22 @@ def test_the_standalone_example_calls_the_completion_from_c(folders, tmp_path):
         run = standalone.run_example(standalone.make_example(folder), standalone.vectors_file(folder))
         assert run.returncode == 0 and run.mismatches == 0
         assert f"artio_{backend}: artificial IO over {TI} samples: solved" in run.output
+
+
+def test_the_runtime_hopping_window_runs_on_the_generated_completion(plant, art, completers):
+    from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
+    from ddpc_codegen.runtime.hopping import HoppingWindow
+
+    u, y = _window(plant, 120, 0.3, 4)
+    ph = np.resize(np.r_[[DESCENT] * 30, [GROUND] * 8, [ASCENT] * 30], 120)
+    wins = [HoppingWindow(op, TI, 0, 3, SIGMA) for op in (completers["daqp"], art)]
+    filled = 0
+    for k in range(TI, 120):
+        a, b = (w.window(u[:k], y[:k], ph[:k]) for w in wins)
+        assert type(a) is type(b)
+        if isinstance(a, tuple):
+            filled += 1
+            np.testing.assert_allclose(np.hstack(a), np.hstack(b), rtol=0, atol=1e-8)
+        else:
+            assert a == b
+    assert filled >= 8 and wins[0].counts == wins[1].counts
