@@ -67,7 +67,7 @@ def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = Non
         log(f"  hopping: {rep['hops']} hops stitched with artificial IO (skipped {rep['skipped']}), operator depth "
             f"{rep['depth']}, rank {rep['rank']} from {rep['aerial_segments']} aerial segments")
         ds = hd.dataset
-        online = OnlineCompletion(hd.art, hd.spec.noise_level_online, hd.spec.t_d_online, hd.spec.min_ascent)
+        online = OnlineCompletion.from_spec(hd.art, hd.spec)
         online.check()  # refused before the fit
     opts = {k: v for k, v in config.predictor.items() if k != "method"}
     t0 = time.perf_counter()

@@ -37,6 +37,12 @@ class OnlineCompletion:
     noise_level: float
     t_d_online: int = 0
     min_ascent: int = 10
+    denoise_online: bool = False
+
+    @classmethod
+    def from_spec(cls, art: ArtificialIO, spec) -> "OnlineCompletion":
+        """From the operator and its :class:`~ddpc_codegen.design.hopping_data.ArtificialIOSpec`."""
+        return cls(art, spec.noise_level_online, spec.t_d_online, spec.min_ascent, spec.denoise_online)
 
     @property
     def lam(self) -> float:
@@ -48,7 +54,7 @@ class OnlineCompletion:
             raise CodegenError(
                 f"the generated artificial-IO operator needs an online noise level > 0 (got noise_level_online = "
                 f"{self.noise_level}): the exact least-norm fill (sigma = 0) is not generated; set "
-                f"[artificial_io] noise_level_online > 0 (default 1e-3)")
+                f"[artificial_io] noise_level_online > 0 (default 2e-3)")
 
 
 def data_arrays(oc: OnlineCompletion) -> dict[str, tuple[np.ndarray, str]]:
@@ -109,7 +115,7 @@ def manifest_entry(oc: OnlineCompletion) -> dict:
     return {"depth": art.depth, "rank": art.rank, "m": art.m, "p": art.p, "n_columns": art.n_columns,
             "noise_level": float(oc.noise_level), "lambda": oc.lam, "feas_tol": BOUND_TOL,
             "lo": _inf_list(art.lo), "hi": _inf_list(art.hi), "t_d_online": int(oc.t_d_online),
-            "min_ascent": int(oc.min_ascent), "rcond": art.rcond}
+            "min_ascent": int(oc.min_ascent), "denoise_online": bool(oc.denoise_online), "rcond": art.rcond}
 
 
 def cdef_text(name: str) -> str:

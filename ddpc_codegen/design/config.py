@@ -32,7 +32,8 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
     "predictor": ("method", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
-    "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online"),
+    "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online",
+                      "denoise_online"),
     "data": ("dataset",),
 }
 # [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.
@@ -188,7 +189,10 @@ class SteeringConfig:
         set_("codegen", cg)
         art = dict(self.artificial_io)
         for k, v in art.items():
-            if k in _ART_INT_MIN:
+            if k == "denoise_online":
+                if not isinstance(v, bool):
+                    raise _err(src, f"[artificial_io] {k}", f"must be true or false; got {v!r}")
+            elif k in _ART_INT_MIN:
                 if isinstance(v, bool) or not isinstance(v, int) or v < _ART_INT_MIN[k]:
                     raise _err(src, f"[artificial_io] {k}", f"must be an integer >= {_ART_INT_MIN[k]}; got {v!r}")
             elif k in _SCHEMA["artificial_io"]:

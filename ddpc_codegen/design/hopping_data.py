@@ -39,6 +39,8 @@ class ArtificialIOSpec:
         ground_margin: extra samples of depth beyond the longest recorded ground phase.
         noise_level: sigma of the offline completion [m / rad] (0 = exact: clean recordings).
         noise_level_online: sigma of the online completion (measurements are noisy online).
+        denoise_online: also replace windows without ground samples by their fit onto the data's
+            dynamics (see :class:`~ddpc_codegen.runtime.hopping.HoppingWindow`, ``denoise``).
     """
 
     t_d: int = 10
@@ -47,7 +49,13 @@ class ArtificialIOSpec:
     min_ascent: int = 10
     ground_margin: int = 10
     noise_level: float = 0.0
-    noise_level_online: float = 1e-3
+    noise_level_online: float = 2e-3
+    denoise_online: bool = True
+
+    def window_settings(self) -> dict:
+        """The online window's keyword arguments (``HoppingWindow(op, t_ini, **settings)``)."""
+        return {"t_d": self.t_d_online, "min_ascent": self.min_ascent, "noise_level": self.noise_level_online,
+                "denoise": self.denoise_online}
 
 
 @dataclass

@@ -53,13 +53,12 @@ def completion_timing(log=print, duration: float = 40.0) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         log("  generating the hopping solver with its completion ...")
         solver = load_solver(generate(prob, Path(tmp) / "artio_bench", name="artio_bench",
-                                      artificial_io=OnlineCompletion(hd.art, sp.noise_level_online, sp.t_d_online,
-                                                                     sp.min_ascent)))
+                                      artificial_io=OnlineCompletion.from_spec(hd.art, sp)))
         out = {"depth": hd.art.depth, "rank": hd.art.rank}
         runs = {}
         for label, op in (("generated", solver.artificial_io), ("interpreted", hd.art)):
             timed = _Timed(op)
-            win = HoppingWindow(timed, cfg.t_ini, sp.t_d_online, sp.min_ascent, sp.noise_level_online)
+            win = HoppingWindow(timed, cfg.t_ini, **sp.window_settings())
             for k in range(cfg.t_ini, held.n):
                 win.window(held.u[:k], held.y[:k], held.phase[:k])
             runs[label] = timed

@@ -182,8 +182,7 @@ def run(
         steerer = ReferenceSteerer.for_solver(solver)
         window = None
         if scenario == "hopping":
-            window = HoppingWindow(_completer(setup, solver, completion), cfg.t_ini, setup.art_spec.t_d_online,
-                                   setup.art_spec.min_ascent, setup.art_spec.noise_level_online)
+            window = HoppingWindow(_completer(setup, solver, completion), cfg.t_ini, **setup.art_spec.window_settings())
         hook = SteeringHook(steerer, scenario, window=window,
                             g_eff=_g_eff(params) if scenario == "hopping" else None, dt=cfg.dt)
     t0 = time.perf_counter()
@@ -230,8 +229,7 @@ def prediction_check(setup: SteeringSetup, held_out: SimResult, *, stride: int =
     pr = setup.predictor
     Ti, Tf = pr.t_ini, pr.t_f
     u, y, ph = held_out.u, held_out.y, held_out.phase
-    win = HoppingWindow(setup.art, Ti, setup.art_spec.t_d_online, setup.art_spec.min_ascent,
-                        setup.art_spec.noise_level_online) if setup.art is not None else None
+    win = HoppingWindow(setup.art, Ti, **setup.art_spec.window_settings()) if setup.art is not None else None
     errs = []
     for k in range(max(Ti, 200), held_out.n - Tf, stride):
         if win is not None:

@@ -224,8 +224,7 @@ def build_setup(
         name = solver_name or f"steer_{scenario}"
         t0 = time.perf_counter()
         say(f"[{scenario}] generating + compiling the C solver generated/{name} ...", progress)
-        online = None if art is None else OnlineCompletion(art, art_spec.noise_level_online, art_spec.t_d_online,
-                                                            art_spec.min_ascent)
+        online = None if art is None else OnlineCompletion.from_spec(art, art_spec)
         path = generate(prob, Path(generate_dir) / name, backend=backend, name=name, artificial_io=online)
         setup.solver = load_solver(path)
         setup.solver_path = Path(path)

@@ -54,6 +54,7 @@ class GeneratedArtificialIO:
         self.feas_tol = float(v[-1])
         self._check(folder, entry)
         self.t_d_online, self.min_ascent = int(entry["t_d_online"]), int(entry["min_ascent"])
+        self.denoise_online = bool(entry["denoise_online"])
         self._ws = ffi.new(f"{name}_artio_workspace *")
         self._fn["init"](self._ws)
         self._info = ffi.new(f"{name}_artio_info *")
@@ -77,6 +78,11 @@ class GeneratedArtificialIO:
     def __repr__(self) -> str:
         return (f"GeneratedArtificialIO(m={self.m}, p={self.p}, depth={self.depth}, rank={self.rank}, "
                 f"noise_level={self.noise_level})")
+
+    def window_settings(self) -> dict:
+        """The online window's keyword arguments as generated (``HoppingWindow(op, t_ini, **settings)``)."""
+        return {"t_d": self.t_d_online, "min_ascent": self.min_ascent, "noise_level": self.noise_level,
+                "denoise": self.denoise_online}
 
     def complete(self, u: np.ndarray, y: np.ndarray, missing: np.ndarray, *, replace_known: bool = False,
                  noise_level: float | None = None) -> Completion:

@@ -78,7 +78,8 @@ class HoppingWindow:
             (u_ini (Tini, m), y_ini (Tini, p)) with ground samples replaced; ``None`` when the window
             has no ground sample (use the real one); a reason string when no window can be formed
             ("history": fewer than Tini samples, "early_ascent": fewer than ``min_ascent`` ascent
-            samples, "no_context": the descent context or the depth is missing).
+            samples, "no_context": the descent context or the depth is missing, "fill_<status>": the
+            completion did not verify its bounds).
         """
         k = u_log.shape[0]
         Ti = self.t_ini
@@ -91,7 +92,7 @@ class HoppingWindow:
             if self.denoise and sig > 0:
                 c = self.art.complete(u_log[k - Ti :], y_log[k - Ti :], np.zeros(Ti, dtype=bool),
                                       replace_known=True, noise_level=sig)
-                return c.u, c.y
+                return self._checked(c)
             return None
         runs = [r for r in ground_runs(ph[max(0, k - Ti - self.art.depth) :])]
         off = max(0, k - Ti - self.art.depth)
@@ -109,7 +110,16 @@ class HoppingWindow:
         c = self.art.complete(u_log[a:k], y_log[a:k], missing, replace_known=self.smooth and sig > 0,
                               noise_level=sig)
         self.counts["filled"] += 1
-        return c.u[-Ti:], c.y[-Ti:]
+        out = self._checked(c)
+        return out if isinstance(out, str) else (out[0][-Ti:], out[1][-Ti:])
+
+    def _checked(self, c) -> tuple[np.ndarray, np.ndarray] | str:
+        """The completed window, or "fill_<status>" when the fill is not a verified solution (a
+        clipped fill violates the data's dynamics: the predictor must not see it)."""
+        if c.status != "solved":
+            self.counts["unverified"] = self.counts.get("unverified", 0) + 1
+            return f"fill_{c.status}"
+        return c.u, c.y
 
 
 class _History:

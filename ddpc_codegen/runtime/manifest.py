@@ -26,7 +26,8 @@ _SCHEMA = {"name": str, "backend": str, "module": str, "extension": str, "dims":
 
 # hopping solvers: the generated artificial-IO completion (null otherwise)
 _ART_SCHEMA = {"depth": int, "rank": int, "m": int, "p": int, "n_columns": int, "noise_level": float,
-               "lambda": float, "feas_tol": float, "lo": list, "hi": list, "t_d_online": int, "min_ascent": int}
+               "lambda": float, "feas_tol": float, "lo": list, "hi": list, "t_d_online": int, "min_ascent": int,
+               "denoise_online": bool}
 
 
 def sha256_file(path: Path) -> str:
@@ -60,7 +61,7 @@ def _check_schema(path: Path, man: object) -> dict:
         if not isinstance(art, dict):
             raise ManifestError(f"{path}: 'artificial_io' must be an object or null, got {art!r}")
         for key, typ in _ART_SCHEMA.items():
-            if not isinstance(art.get(key), typ) or isinstance(art.get(key), bool):
+            if not isinstance(art.get(key), typ) or (typ is not bool and isinstance(art.get(key), bool)):
                 raise ManifestError(f"{path}: artificial_io.{key} must be a {typ.__name__}, got {art.get(key)!r}")
     if not all(isinstance(k, str) and isinstance(v, str) for k, v in man["sources"].items()):
         raise ManifestError(f"{path}: 'sources' must map file names to sha256 strings")

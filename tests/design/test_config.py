@@ -117,3 +117,13 @@ def test_nonsymmetric_and_indefinite_weights():
         SteeringConfig(Q=[[1, 2], [0, 1]], **kw)
     with pytest.raises(ConfigError, match="positive semidefinite"):
         SteeringConfig(Q=[[1, 2], [2, 1]], **kw)
+
+
+def test_denoise_online_must_be_a_boolean(tmp_path):
+    import tomllib
+
+    raw = tomllib.loads((Path(__file__).resolve().parents[2] / "configs" / "hopping.toml").read_text())
+    assert raw["artificial_io"]["denoise_online"] is True
+    raw["artificial_io"]["denoise_online"] = 1
+    with pytest.raises(ConfigError, match=r"\[artificial_io\] denoise_online.*true or false"):
+        SteeringConfig.from_dict(raw, source="h.toml")
