@@ -33,6 +33,7 @@ __all__ = [
     "params_to_read",
     "resolve_guid_options",
     "check_trajectory_bounds",
+    "check_solver_loop",
 ]
 
 AUTOPILOT_NAMES = {0: "generic", 3: "ArduPilot", 8: "none (a GCS or companion)", 12: "PX4"}
@@ -128,3 +129,26 @@ def check_trajectory_bounds(z: np.ndarray, z_min: float, z_max: float, what: str
         raise ValueError(f"the {what} spans z = {lo:.3f} .. {hi:.3f} m but the solver's z_ref bounds are "
                          f"[{z_min:g}, {z_max:g}] m: steering could never engage; regenerate the solver with "
                          "wider [bounds] or fly a trajectory inside them")
+
+
+def check_solver_loop(manifest: dict, autopilot: str, thrust_field: str) -> str | None:
+    """Refuse a solver fitted on another loop: its manifest's ``dataset`` records what the thrust
+    field meant when the data were collected (a climb-rate loop and a thrust loop are different
+    dynamics: the predictor would be wrong on every tick).
+
+    Returns:
+        a warning when the data came from another autopilot (allowed: e.g. simulator data), else None.
+    Raises:
+        PreflightError: the thrust semantics differ.
+    """
+    ds = manifest.get("dataset") or {}
+    had = ds.get("thrust_field")
+    if had and had != thrust_field:
+        raise PreflightError(
+            f"the solver was fitted on data where SET_ATTITUDE_TARGET.thrust was a {had.replace('_', ' ')} "
+            f"({ds.get('path', 'its dataset')}), but this vehicle reads it as a {thrust_field.replace('_', ' ')}; "
+            "collect and generate again in this mode, or set GUID_OPTIONS as it was (bit 3 = thrust)")
+    src = ds.get("autopilot")
+    if src and src != autopilot:
+        return f"the solver's data came from {src}, this vehicle is {autopilot}"
+    return None

@@ -9,8 +9,8 @@ import time
 from firmware_bridge.config import NoVehicleError
 from firmware_bridge.link import mavlink
 from firmware_bridge.phases import Approach
-from firmware_bridge.preflight import (VehicleInfo, check_autopilot, decode_param_value, hover_param,
-                                       params_to_read, resolve_guid_options)
+from firmware_bridge.preflight import (VehicleInfo, check_autopilot, check_solver_loop, decode_param_value,
+                                       hover_param, params_to_read, resolve_guid_options)
 from firmware_bridge.profiles import ArduPilotProfile
 
 __all__ = ["Supervisor"]
@@ -121,6 +121,12 @@ class Supervisor:
             self.profile.guid_options = opt
             self._event(f"GUID_OPTIONS={opt}: thrust field is a "
                         + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
+        solver = getattr(self, "solver", None)
+        if solver is not None:
+            field = "climb_rate" if self.profile.climb_rate_thrust else "thrust"
+            warning = check_solver_loop(solver.manifest, self.profile.name, field)
+            if warning:
+                self._event(f"warning: {warning}")
         self._event(f"vehicle: {self.profile.name}, hover thrust {hover_param(self.profile)}="
                     + ("?" if hover is None else f"{hover:.3f}")
                     + f", controller model hover thrust {self.hover_thrust:.3f}")

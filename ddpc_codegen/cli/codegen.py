@@ -28,6 +28,9 @@ from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.hopping_data import is_hopping_config, prepare_hopping
 from ddpc_codegen.codegen import BACKENDS, OnlineCompletion, generate
 
+# What a dataset's metadata says about the loop it was recorded in (bridge tick logs).
+PROVENANCE_KEYS = ("thrust_field", "autopilot")
+
 __all__ = ["register", "build_from_config", "prepare_from_config"]
 
 
@@ -39,8 +42,12 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
 
 def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = None,
                         log=lambda msg: None, channel_map: dict[str, str] | None = None
-                        ) -> tuple[SteeringProblem, OnlineCompletion | None]:
-    """Config + dataset file -> (SteeringProblem, online completion or None).
+                        ) -> tuple[SteeringProblem, OnlineCompletion | None, dict]:
+    """Config + dataset file -> (SteeringProblem, online completion or None, provenance).
+
+    The provenance (recorded in the manifest as ``dataset``) names the file and what the data say about
+    the loop they were recorded in (e.g. a bridge tick log's ``thrust_field`` and ``autopilot``), so a
+    solver is never flown on a different loop unnoticed.
 
     The dataset is checked against the config first (names, order, units, dt; see
     :func:`~ddpc_codegen.design.match.conform_dataset`); ``channel_map`` maps config channel names to
@@ -76,7 +83,9 @@ def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = Non
     log(f"  data: {ds.n_trajectories} trajectories, {ds.n_samples} samples -> {pred.n_columns} Hankel columns")
     log(f"  excitation: {pe.summary()}")
     log(f"  predictor: {pred.method}, rank {pred.rank}, fitted in {time.perf_counter() - t0:.2f} s")
-    return SteeringProblem(pred, config), online
+    meta = raw.metadata
+    provenance = {"path": str(path), **{k: meta[k] for k in PROVENANCE_KEYS if isinstance(meta.get(k), str)}}
+    return SteeringProblem(pred, config), online, provenance
 
 
 def _cmd_codegen(args: argparse.Namespace) -> int:
@@ -86,10 +95,11 @@ def _cmd_codegen(args: argparse.Namespace) -> int:
     for cfg_path, cfg in zip(args.configs, configs):
         backend = args.backend or cfg.codegen["backend"]
         say(f"[{cfg.name}] {cfg_path}: m={cfg.m} p={cfg.p} Tini={cfg.t_ini} Tf={cfg.t_f} backend={backend}")
-        prob, online = prepare_from_config(cfg, args.dataset, say, mapping)
+        prob, online, provenance = prepare_from_config(cfg, args.dataset, say, mapping)
         out = Path(args.out) / cfg.name
         t0 = time.perf_counter()
-        generate(prob, out, backend, march_native=args.march_native or None, artificial_io=online)
+        generate(prob, out, backend, march_native=args.march_native or None, artificial_io=online,
+                 provenance=provenance)
         say(f"  generated + compiled {out}/ in {time.perf_counter() - t0:.1f} s "
             f"({prob.n_u} variables, {prob.n_theta} parameters, {prob.n_g} general constraints)")
         print(out)

@@ -46,6 +46,7 @@ def generate(
     n_vectors: int = 48,
     verbose: bool = False,
     artificial_io: OnlineCompletion | None = None,
+    provenance: dict | None = None,
 ) -> Path:
     """Emit (and compile) the steering solver of ``problem`` into the folder ``out_dir``.
 
@@ -59,6 +60,8 @@ def generate(
         n_vectors: number of recorded test vectors (``<name>_vectors.txt``).
         artificial_io: hopping: the online artificial-IO completion to generate with the solver
             (``<name>_artio.h``; in Python ``solver.artificial_io``); its noise level must be > 0.
+        provenance: what the data were (JSON-able; manifest ``dataset``), e.g. the bridge's
+            ``thrust_field``, which the bridge checks against the vehicle before flying the solver.
     Returns:
         the solver folder (with manifest.json), loadable by :func:`ddpc_codegen.load_solver`; it also
         builds without Python (CMakeLists.txt, Makefile, example_main.c).
@@ -94,6 +97,7 @@ def generate(
     sources = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".c", ".h")
                      and not any(part.startswith("build") for part in p.relative_to(out).parts))
     extra = {"vectors": {"file": vec_file.name, "sha256": vec_sha, **vec.summary()},
-             "artificial_io": None if artificial_io is None else manifest_entry(artificial_io)}
+             "artificial_io": None if artificial_io is None else manifest_entry(artificial_io),
+             "dataset": dict(provenance or {})}
     write_manifest(out, build_manifest(problem, name, backend, module, ext, sources, out, settings, flags, extra))
     return out

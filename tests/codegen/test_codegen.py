@@ -238,7 +238,13 @@ def test_build_works_without_network(problem, tmp_path, monkeypatch):
 
 
 def test_cli_codegen(plant, tmp_path, capsys):
+    import dataclasses
+
+    from firmware_bridge.preflight import PreflightError, check_solver_loop
+
     _, ds = plant
+    # What a bridge tick log records about its loop goes into the manifest, and the bridge checks it.
+    ds = dataclasses.replace(ds, metadata={**ds.metadata, "thrust_field": "climb_rate", "autopilot": "ardupilot"})
     ds.save(tmp_path / "d.npz")
     cfg = tmp_path / "c.toml"
     cfg.write_text(f"""
@@ -263,7 +269,13 @@ dataset = "d.npz"
     assert cli_main(["codegen", str(cfg), "--out", str(tmp_path / "gen"), "--quiet"]) == 0
     out = Path(capsys.readouterr().out.strip())
     assert out == tmp_path / "gen" / "clitest" and (out / "manifest.json").exists()
-    assert load_solver(out, config=cfg).manifest["backend"] == "daqp"
+    man = load_solver(out, config=cfg).manifest
+    assert man["backend"] == "daqp"
+    assert man["dataset"]["thrust_field"] == "climb_rate" and man["dataset"]["autopilot"] == "ardupilot"
+    assert check_solver_loop(man, "ardupilot", "climb_rate") is None
+    assert "came from ardupilot, this vehicle is px4" in check_solver_loop(man, "px4", "climb_rate")
+    with pytest.raises(PreflightError, match="thrust was a climb rate .*d.npz.*reads it as a thrust"):
+        check_solver_loop(man, "ardupilot", "thrust")
     (tmp_path / "d.npz").unlink()
     assert cli_main(["codegen", str(cfg), "--out", str(tmp_path / "gen"), "--quiet"]) == 2
     assert "dataset file" in capsys.readouterr().err
