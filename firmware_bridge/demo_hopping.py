@@ -1,0 +1,165 @@
+"""``make bridge-demo SCENARIO=hopping``: DDPC-Hopping over MAVLink, the simulated hopping robot as robot.
+
+Vehicle (``ddpc-vehicle --scenario hopping --contact-signal --no-noise``) and bridge (``ddpc-bridge
+--scenario hopping``) as two processes on UDP 127.0.0.1 (lock-step by default: deterministic, and
+as fast as the machine allows)::
+
+    1. collect   aerial PRBS on the references, hops labelled by the bridge's phase detection
+    2. codegen   ddpc-codegen codegen configs/hopping.toml --dataset <the collect tick log>
+    3. baseline  the hopping controller alone (--mode passthrough)
+    4. steered   the generated solver + its artificial-IO operator in the loop (--mode steer)
+    5. in-process reference: the same solver in :func:`ddpc_codegen.experiments.evaluate.run`'s hook
+
+Metrics over the link come from the vehicle's truth log (true state per tick, true touchdown /
+liftoff times) with the in-process definitions (:func:`ddpc_codegen.experiments.evaluate.scenario_metrics`,
+first 3 hops not scored). Phase-detection delays: per true event, the bridge's detection tick
+minus the first tick at or after the event, from telemetry alone (the estimate) and from the
+contact signal (both replayed with the bridge's :class:`PhaseEstimator` on the logged telemetry
+and flags: the same estimator on the same per-tick inputs as in the flight; the logged labels
+differ only by the touchdowns back-dated after confirmation).
+
+Writes ``reports/bridge_hopping.json``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ddpc_codegen.design.phases import DESCENT
+from ddpc_codegen.robot.frames import euler_from_quat
+from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
+
+__all__ = ["LinkRun", "link_run", "link_metrics", "detection_delays", "replay_phases"]
+
+
+@dataclass
+class LinkRun:
+    """A flight over the link in the shape the simulator's metrics read (:class:`ddpc_codegen.sim.metrics.RunLogs`):
+    truth rows from the first to the last engaged tick, each with that tick's desired outputs and phase."""
+
+    t: np.ndarray
+    state: np.ndarray
+    y_true: np.ndarray
+    y_des: np.ndarray
+    phase: np.ndarray
+    touchdowns: np.ndarray
+    liftoffs: np.ndarray
+    config: object
+    params: object
+    scenario_obj: object
+    dt: float
+    scenario: str = "hopping"
+    extras: dict = field(default_factory=dict)
+    crashed: bool = False
+    crash_reason: str = ""
+    wall_time: float = 0.0
+    n_bottom_outs: int = 0
+
+    @property
+    def n(self) -> int:
+        return int(self.t.shape[0])
+
+    def metrics(self) -> dict:
+        from ddpc_codegen.sim.metrics import compute_metrics
+
+        return compute_metrics(self)
+
+
+def link_run(ticks_path: Path, truth_path: Path) -> LinkRun:
+    """The engaged part of a hopping flight: vehicle truth per tick + the bridge's y_des / phase at that tick."""
+    from ddpc_codegen.robot.controller import ControllerConfig
+    from ddpc_codegen.sim.params import PogoXParams
+    from ddpc_codegen.sim.scenarios import HoppingScenario
+    from firmware_bridge.ticklog import load_ticklog
+
+    log = load_ticklog(ticks_path)
+    tl = log.ticks
+    act = np.flatnonzero(tl["active"])
+    with np.load(truth_path) as z:
+        tt, st, td, lo = z["t"], z["state"], z["touchdowns"], z["liftoffs"]
+    tv = tl["t_vehicle"][act]
+    t0, t1 = tv[0], tv[-1]
+    sel = np.flatnonzero((tt >= t0 - 1e-9) & (tt <= t1 + 1e-9))
+    # The tick that decided at (or last before) each truth row's time.
+    j = np.clip(np.searchsorted(tv, tt[sel] + 1e-9) - 1, 0, act.size - 1)
+    rows = act[j]
+    eul = np.array([euler_from_quat(q) for q in st[sel, 6:10]])
+    cc = ControllerConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in log.metadata["controller"].items()})
+    inside = lambda ev: np.asarray(ev)[(np.asarray(ev) >= t0) & (np.asarray(ev) <= t1)] - t0  # noqa: E731
+    return LinkRun(t=tt[sel] - t0, state=st[sel], y_true=np.column_stack([st[sel, 2], eul[:, 0], eul[:, 1]]),
+                   y_des=tl["y_des"][rows], phase=tl["phase"][rows], touchdowns=inside(td), liftoffs=inside(lo),
+                   config=cc, params=PogoXParams(), scenario_obj=HoppingScenario(), dt=log.dt)
+
+
+def replay_phases(ticks_path: Path, contact: ContactConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(vehicle times, GROUND flags) of the engaged ticks as the bridge's :class:`PhaseEstimator` with
+    ``contact`` sees them from the logged telemetry (trajectory frame) and contact flags, started
+    at the release in DESCENT, like the bridge."""
+    from firmware_bridge.ticklog import load_ticklog
+
+    tl = load_ticklog(ticks_path).ticks
+    act = np.flatnonzero(tl["active"])
+    est = PhaseEstimator(contact, phase=DESCENT)
+    g = np.zeros(act.size, dtype=bool)
+    for n, i in enumerate(act):
+        flag = bool(tl["contact"][i] == 1) if contact.source == "signal" else None
+        if contact.source == "signal" and tl["contact"][i] < 0:
+            raise ValueError(f"{ticks_path}: no contact flag logged (fly the vehicle with --contact-signal)")
+        est.update(float(tl["position"][i, 2]), float(tl["velocity"][i, 2]), float(tl["euler"][i, 0]),
+                   float(tl["euler"][i, 1]), signal=flag)
+        g[n] = est.contact
+    return tl["t_vehicle"][act], g
+
+
+def detection_delays(t: np.ndarray, ground: np.ndarray, touchdowns, liftoffs, dt: float) -> dict:
+    """Per true event: the tick of the matching detected transition minus the first tick at or after the
+    event [ticks] (None: none detected within -3 .. +10 ticks). Returns the delays per kind, the share
+    within 0 .. 2 ticks over both kinds, and the detected transitions with no true event (chatter)."""
+    k = np.rint(np.asarray(t) / dt).astype(int)
+    edges = np.diff(ground.astype(np.int8))
+    det = {"touchdown": k[1:][edges == 1], "liftoff": k[1:][edges == -1]}
+    out: dict = {}
+    matched = 0
+    for kind, times in (("touchdown", touchdowns), ("liftoff", liftoffs)):
+        ds = []
+        for te in times:
+            k0 = int(math.ceil(te / dt - 1e-9))
+            near = [int(x - k0) for x in det[kind] if -3 <= x - k0 <= 10]
+            ds.append(near[0] if near else None)
+        matched += sum(d is not None for d in ds)
+        out[kind] = ds
+    both = out["touchdown"] + out["liftoff"]
+    out["within_2_ticks"] = float(np.mean([d is not None and 0 <= d <= 2 for d in both])) if both else math.nan
+    out["events"] = len(both)
+    out["spurious"] = int(sum(len(v) for v in det.values()) - matched)
+    for kind in ("touchdown", "liftoff"):
+        v = [d for d in out[kind] if d is not None]
+        out[f"{kind}_mean_ticks"] = float(np.mean(v)) if v else math.nan
+        out[f"{kind}_max_ticks"] = int(max(v)) if v else None
+    return out
+
+
+def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | None = None) -> dict:
+    """The in-process hopping metrics of a flight over the link, plus the phase-detection delays from
+    telemetry alone and (if the vehicle sent it) from the contact signal."""
+    from ddpc_codegen.experiments.evaluate import scenario_metrics
+    from firmware_bridge.ticklog import load_ticklog
+
+    run = link_run(ticks_path, truth_path)
+    met = scenario_metrics(run)
+    contact = contact or ContactConfig(leg_length=run.config.leg_length)
+    with np.load(truth_path) as z:
+        td, lo = z["touchdowns"], z["liftoffs"]
+    tl = load_ticklog(ticks_path).ticks
+    t_end = float(tl["t_vehicle"][tl["active"]][-1])
+    td, lo = td[td <= t_end], lo[lo <= t_end]
+    met["phase_detection"] = {}
+    sources = ("estimate", "signal") if np.any(tl["contact"][tl["active"]] >= 0) else ("estimate",)
+    for src in sources:
+        t, g = replay_phases(ticks_path, replace(contact, source=src))
+        met["phase_detection"][src] = detection_delays(t, g, td, lo, run.dt)
+    return met
