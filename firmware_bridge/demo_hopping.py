@@ -163,3 +163,104 @@ def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | No
         t, g = replay_phases(ticks_path, replace(contact, source=src))
         met["phase_detection"][src] = detection_delays(t, g, td, lo, run.dt)
     return met
+
+
+# ----------------------------------------------------------------------------- the demo
+def in_process(solver_dir: Path, duration: float, seed: int, noise: bool) -> dict:
+    """Baseline and steered hopping in-process (simulate + the simulator's steering hook), the same
+    generated solver and artificial-IO operator as over the link."""
+    from ddpc_codegen import ReferenceSteerer, load_solver
+    from ddpc_codegen.experiments.evaluate import SteeringHook, scenario_metrics
+    from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.sim import simulate
+
+    from firmware_bridge.hopping import hopping_window
+
+    solver = load_solver(solver_dir)
+    st = ReferenceSteerer.for_solver(solver)
+    cc = load_profile("pogox_hopping").controller
+    hook = SteeringHook(st, "hopping", window=hopping_window(solver, st.t_ini), g_eff=cc.g_eff, dt=cc.dt)
+    out = {}
+    for name, h in (("baseline", None), ("steered", hook)):
+        out[name] = scenario_metrics(simulate("hopping", duration, seed=seed, noise=noise or None, reference_hook=h))
+    out["steering"] = {**st.summary(), "hook": dict(hook.counts)}
+    return out
+
+
+def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_s: float = 20.0,
+                     solver: Path | None = None, config: Path | None = None, lockstep: bool = True,
+                     noise: bool = False, rt_priority: int = 30, seed: int = 1, log=print) -> dict:
+    """collect -> codegen -> baseline -> steered over the link, then the in-process reference (see
+    the module docstring). ``lockstep`` False: both processes in real time (SCHED_FIFO if permitted)."""
+    import subprocess
+    import time
+
+    from firmware_bridge.demo import ROOT, _env, _py, fly
+
+    config = config or ROOT / "configs" / "hopping.toml"
+    work.mkdir(parents=True, exist_ok=True)
+    t_start = time.monotonic()
+    veh = ["--scenario", "hopping", "--contact-signal"] + ([] if noise else ["--no-noise"])
+    br = ["--scenario", "hopping"]
+    if lockstep:
+        veh, br = veh + ["--lockstep"], br + ["--lockstep"]
+    kw = dict(rt_priority=0 if lockstep else rt_priority, log=log, vehicle_args=veh)
+    runs: dict[str, dict] = {}
+    if solver is None:
+        log(f"1. collect: {collect_s:g} s of hopping with aerial PRBS over MAVLink")
+        runs["collect"] = fly("hop_collect", work, br + ["--mode", "collect", "--seed", str(seed)],
+                              duration=collect_s, seed=seed, **kw)
+        log(f"2. codegen: ddpc-codegen codegen {config} --dataset {runs['collect']['ticks']}")
+        r = subprocess.run(_py() + ["ddpc_codegen.cli.main", "codegen", str(config), "--dataset",
+                                    str(runs["collect"]["ticks"]), "--out", str(work / "generated")],
+                           env=_env(), capture_output=True, text=True, timeout=900)
+        if r.returncode != 0:
+            raise RuntimeError(f"codegen failed:\n{r.stderr}")
+        solver = Path(r.stdout.strip().splitlines()[-1])
+    log(f"3. baseline: {flight_s:g} s, the hopping controller alone (passthrough)")
+    runs["baseline"] = fly("hop_baseline", work, br + ["--mode", "passthrough"], duration=flight_s, seed=seed + 1, **kw)
+    log(f"4. steered: {flight_s:g} s, generated solver {solver} in the loop")
+    runs["steered"] = fly("hop_steered", work, br + ["--mode", "steer", "--solver", str(solver)], duration=flight_s,
+                          seed=seed + 1, **kw)
+    log("5. in-process reference (simulate, same solver)")
+    ip = in_process(solver, flight_s, seed + 1, noise)
+    link = {k: link_metrics(runs[k]["ticks"], runs[k]["truth"]) for k in ("baseline", "steered")}
+    report = {
+        "link": link, "in_process": ip, "solver": str(solver),
+        "fallbacks": int(runs["steered"]["summary"]["fallbacks"]),
+        "runs": {k: {key: v["summary"].get(key) for key in ("rate_hz", "missed_ticks", "fallbacks", "fallback_reasons",
+                                                             "reasons", "duration_s", "stop_reason", "hopping", "steering")}
+                 for k, v in runs.items()},
+        "settings": {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s, "seed": seed,
+                     "config": str(config), "lockstep": lockstep, "noise": noise, "settle_hops": 3},
+    }
+    report["wall_s"] = time.monotonic() - t_start
+    out.parent.mkdir(parents=True, exist_ok=True)
+    import json
+
+    out.write_text(json.dumps(report, indent=2, default=str) + "\n")
+    log(format_table(report))
+    log(f"wrote {out}")
+    return report
+
+
+def format_table(r: dict) -> str:
+    """The README table: per run mean / max |apex error|, leg-angle RMSE, vx error, fallbacks; the delays."""
+    f = lambda v, s=1e3, fmt="{:.2f}": "-" if v is None or not math.isfinite(v) else fmt.format(v * s)  # noqa: E731
+    lines = ["", "| run | mean / max abs apex err [mm] | RMSE pitch [mrad] | RMSE roll [mrad] | mean abs vx err [mm/s] | fallbacks |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for where, src in (("link", r["link"]), ("in-process", r["in_process"])):
+        for run in ("baseline", "steered"):
+            m = src[run]
+            fb = r["fallbacks"] if (where, run) == ("link", "steered") else (
+                src["steering"]["fallbacks"] if where == "in-process" and run == "steered" else "-")
+            lines.append(f"| {where} {run} | {f(m['apex_error_mean_abs'])} / {f(m['apex_error_max_abs'])} | "
+                         f"{f(m['rmse_pitch'])} | {f(m['rmse_roll'])} | {f(m['vx_error_mean_abs'], fmt='{:.1f}')} | {fb} |")
+    lines += ["", "| phase detection (link) | touchdown mean / max [ticks] | liftoff mean / max [ticks] | within 2 ticks | spurious |",
+              "|---|---:|---:|---:|---:|"]
+    for run in ("baseline", "steered"):
+        for srcname, d in r["link"][run]["phase_detection"].items():
+            lines.append(f"| {run}, {srcname} | {d['touchdown_mean_ticks']:.2f} / {d['touchdown_max_ticks']} | "
+                         f"{d['liftoff_mean_ticks']:.2f} / {d['liftoff_max_ticks']} | "
+                         f"{100 * d['within_2_ticks']:.1f} % of {d['events']} | {d['spurious']} |")
+    return "\n".join(lines)
