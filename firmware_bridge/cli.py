@@ -280,6 +280,10 @@ def format_summary(s: dict) -> str:
         f"  rmse z (telemetry, after settle) {f(s['rmse_z_measured'], '{:.4f}')} m  "
         f"link rx {s['link'].get('rx', 0)} bad {s['link'].get('bad_data', 0)} foreign {s['link'].get('foreign', 0)}",
     ]
+    if "hopping" in s:
+        h = s["hopping"]
+        lines.append(f"  hopping: phases from {h['contact_source']}, touchdowns {h['touchdowns']} liftoffs {h['liftoffs']}"
+                     + (f", windows completed {h['artificial_io']['filled']}" if "artificial_io" in h else ""))
     if "steering" in s:
         st = s["steering"]
         lines.append(f"  steering: steered {st['steered']} warmup {st['warmup']} fallbacks {st['fallbacks']}  "
