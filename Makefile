@@ -36,10 +36,13 @@ demo: install
 
 # Steering solvers from configs/. A missing dataset is recorded on the simulator first
 # (hopping: aerial data, ground phases replaced by artificial IO, hops stitched into H_G).
-data/%.npz: | install
-	$(PY) -c "from ddpc_codegen.experiments.pipeline import build_setup; build_setup('$*', generate_dir=None, progress=True)"
+data/flying.npz: | install
+	$(PY) -c "from ddpc_codegen.experiments.pipeline import build_setup; build_setup('flying', generate_dir=None, progress=True)"
 
-codegen: install data/flying.npz data/hopping.npz
+data/hopping_raw.npz: | install
+	$(PY) -c "from ddpc_codegen.experiments.pipeline import build_setup; build_setup('hopping', generate_dir=None, progress=True)"
+
+codegen: install data/flying.npz data/hopping_raw.npz
 	$(VENV)/bin/ddpc-codegen codegen configs/flying.toml configs/hopping.toml
 
 # Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights.

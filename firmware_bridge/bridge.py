@@ -76,6 +76,7 @@ from firmware_bridge.setpoints import SetpointShaping
 from firmware_bridge.supervisor import Supervisor
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.ticklog import TickRecorder
+from firmware_bridge.truth import SimTruth
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
            "default_controller_config", "gap_statistics"]
@@ -227,6 +228,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self._was_engaged_ever = False
         self._stale_mode_sent = False
         self._k_exc = 0
+        self.truth = SimTruth()            # the SITL's true state, when it sends one (logged, not used)
 
     # ------------------------------------------------------------------ main loop
     def run(self, install_signals: bool = True) -> dict:
@@ -343,6 +345,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             self.frame.capture(tel.position, float(tel.euler[2]))
             if not self.armed:
                 self.frame.z0 = float(tel.position[2])
+                self.truth.capture_ground()
         state = self.frame.to_trajectory(tel.measured_state(0.0))
         self._update_engagement(engaged and self.frame.captured, tclk, state)
         self._tick_t = tclk

@@ -78,6 +78,12 @@ class Reporting:
             # A touchdown confirmed late: the samples already on the ground before it are ground samples.
             A["phase"][max(0, i - self.hop.backdate) : i] = GROUND
         A["contact"][i] = -1 if self.telem.contact is None else int(self.telem.contact)
+        tr = self.truth
+        if tr.present:
+            A["truth_position"][i] = tr.position
+            A["truth_velocity"][i] = tr.velocity
+            A["truth_euler"][i] = tr.euler
+            A["truth_age_ms"][i] = tr.age(now) * 1e3
 
     # ------------------------------------------------------------------ results
     def ticklog(self) -> TickLog:
@@ -85,8 +91,10 @@ class Reporting:
         meta = {"bridge": {k: v for k, v in asdict(c).items() if k not in ("controller", "trajectory")},
                 "controller": asdict(self.ctrl_cfg), "trajectory": _describe_trajectory(self.ctrl.trajectory),
                 "autopilot": self.profile.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
+                # what SET_ATTITUDE_TARGET.thrust meant: a solver fits the loop it was collected in
+                "thrust_field": "climb_rate" if self.profile.climb_rate_thrust else "thrust",
                 # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
-                "frame": self.frame.as_dict(),
+                "frame": self.frame.as_dict(), "truth": self.truth.as_dict(),
                 "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
                                                            "config_hash": self.solver.manifest.get("config_hash"),
                                                            "predictor_hash": self.solver.manifest.get("predictor_hash")}}
@@ -109,6 +117,8 @@ class Reporting:
         gaps = gap_statistics(np.asarray(self._send_stamps if c.lockstep else self._send_times), self.period)
         eng = v["event"] & v["active"] & (np.nan_to_num(v["t_traj"], nan=-1.0) >= c.settle)
         ez = v["y"][eng, 0] - v["y_des"][eng, 0] if n else np.zeros(0)
+        ezt = v["truth_position"][eng, 2] - v["y_des"][eng, 0] if n else np.zeros(0)
+        ezt = ezt[np.isfinite(ezt)]
         out = {
             "mode": c.mode, "autopilot": self.profile.name, "stop_reason": self.stop_reason, "ticks": n,
             "setpoints_sent": len(self._send_times), "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
@@ -120,7 +130,9 @@ class Reporting:
             "arming": {"attempts": self.arming.attempts, "refusals": self.arming.refusals[-5:]},
             "vehicle": None if self.vehicle is None else asdict(self.vehicle),
             "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
-            "rmse_samples": int(ez.size), **self.counts,
+            "rmse_samples": int(ez.size),
+            "rmse_z_truth": float(np.sqrt(np.mean(ezt ** 2))) if ezt.size else None, "truth_samples": self.truth.seq,
+            **self.counts,
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
             "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
             "events": self.events,

@@ -69,27 +69,33 @@ def codegen(config: Path, dataset: Path, out: Path) -> Path:
 
 
 def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
-    """RMSE of z (telemetry) after ``settle`` s of trajectory, steered fraction of the engaged
+    """RMSE of z (telemetry; and of the simulator's true height where the SITL sends it: ArduPilot's
+    SIM_STATE, None otherwise) after ``settle`` s of trajectory, steered fraction of the engaged
     ticks after the warm-up, tick-to-tick thrust change (rms) -- from a tick log."""
     t = load_ticklog(log_path).ticks
     on = t["active"].astype(bool) & (np.nan_to_num(t["t_traj"], nan=-1.0) >= settle)
     ez = t["y"][on, 0] - t["y_des"][on, 0]
     dthr = np.diff(t["sp_thrust"][on])
     steered = t["reason"][on] == _STEERED
+    ezt = t["truth_position"][on, 2] - t["y_des"][on, 0] if "truth_position" in t else np.zeros(0)
+    ezt = ezt[np.isfinite(ezt)]
     return {"rmse_z": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
+            "rmse_z_truth": float(np.sqrt(np.mean(ezt ** 2))) if ezt.size else None,
             "engaged_fraction": float(steered.mean()) if steered.size else None,
             "thrust_step_rms": float(np.sqrt(np.mean(dthr ** 2))) if dthr.size else None,
             "ticks": int(on.sum())}
 
 
 def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect_s: float = 25.0,
-                 steer_s: float = 12.0) -> dict:
-    """Start the SITL here, fly baseline -> collect -> codegen -> steer; the figures (JSON-ready)."""
+                 steer_s: float = 12.0, sitl_params: dict | None = None) -> dict:
+    """Start the SITL here, fly baseline -> collect -> codegen -> steer; the figures (JSON-ready).
+    ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
+    climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     res: dict = {"autopilot": autopilot}
-    with make_sitl(autopilot, params=SITL_PARAMS[autopilot]) as sitl:
+    with make_sitl(autopilot, params=SITL_PARAMS[autopilot] if sitl_params is None else sitl_params) as sitl:
         base = fly(sitl, autopilot, "passthrough", out, baseline_s)
         fly(sitl, autopilot, "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT[autopilot]))
         solver = codegen(ROOT / "configs" / CONFIGS[autopilot], out / f"{autopilot}_collect.npz", out / "generated")
@@ -97,6 +103,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     res.update({
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
+        "rmse_z_truth": {"baseline": fb["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
         "engaged_fraction": fs["engaged_fraction"],
         "thrust_step_rms": {"baseline": fb["thrust_step_rms"], "steered": fs["thrust_step_rms"]},
         "rate_hz": steer["rate_hz"], "latency_us": steer["latency_us"], "fallbacks": steer["fallbacks"],
@@ -123,8 +130,10 @@ def main(argv: list[str] | None = None) -> int:
         res = run_isolated("firmware_bridge.sitl_demo:run_pipeline",
                            {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}")}, timeout=900)
         report[ap] = res
-        r = res["rmse_z"]
-        print(f"[sitl-demo] {ap}: rmse z {1e3 * r['baseline']:.1f} -> {1e3 * r['steered']:.1f} mm, "
+        r, rt = res["rmse_z"], res["rmse_z_truth"]
+        truth = (f" (true height {1e3 * rt['baseline']:.1f} -> {1e3 * rt['steered']:.1f} mm)"
+                 if rt["baseline"] is not None and rt["steered"] is not None else "")
+        print(f"[sitl-demo] {ap}: rmse z {1e3 * r['baseline']:.1f} -> {1e3 * r['steered']:.1f} mm{truth}, "
               f"steered {100 * res['engaged_fraction']:.1f} %, rate {res['rate_hz']:.1f} Hz, "
               f"fallbacks {res['fallbacks']}, {res['wall_s']:.0f} s", flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)

@@ -73,6 +73,8 @@ class Supervisor:
             self.params[name] = decode_param_value(msg.param_value, msg.param_type, self.hb_autopilot or 0)
             if name == "COM_OF_LOSS_T":
                 self.profile.offboard_loss_timeout = float(msg.param_value)
+        elif typ == "SIM_STATE":
+            self.truth.update(msg, rx)
         elif typ == "STATUSTEXT":
             self._last_text = str(msg.text).rstrip("\x00")  # the autopilot's reason for a refusal
             if self.cfg.verbose:
@@ -83,6 +85,11 @@ class Supervisor:
         for name in sorted({self.cfg.attitude_stream, self.cfg.position_stream}):
             self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(_MSG_IDS[name]), float(us)),
                                 f"SET_MESSAGE_INTERVAL {name} {self.cfg.rate_hz:g} Hz")
+        if isinstance(self.profile, ArduPilotProfile):
+            # The simulator's truth, logged beside the EKF (SITL only: a real vehicle refuses it).
+            self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                                (float(mavlink.MAVLINK_MSG_ID_SIM_STATE), float(us)),
+                                f"SET_MESSAGE_INTERVAL SIM_STATE {self.cfg.rate_hz:g} Hz (SITL truth)")
         self.counts["stream_requests"] += 1
 
     def _preflight(self, timeout: float = 3.0) -> None:

@@ -22,7 +22,8 @@ a stale stretch or a mode change. "hold" ticks (older logs) are skipped over; an
 without any such run is saved marked ``"fit_ok": false`` with the reason, and ``ddpc-codegen
 codegen`` refuses it. Every tick is kept in the ``tick_*`` arrays (times, telemetry in ENU/FLU,
 references, steered u, setpoint, solver status and time, latency, flags) and every received
-telemetry sample in ``sample_<stream>`` (stamp, receive time): a burst of two is two rows.
+telemetry sample in ``sample_<stream>`` (stamp, receive time): a burst of two is two rows; a SITL's
+true state (ArduPilot SIM_STATE) is kept in ``truth_*`` columns (nan without it).
 :func:`load_ticklog` reads them back.
 """
 
@@ -112,6 +113,11 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "gap": (0, bool),           # event tick whose stamp is not one period after the previous one
         "phase": (0, np.int8),      # phase label (design.phases: 0 flying; hopping 1 descent, 2 ground, 3 ascent)
         "contact": (0, np.int8),    # hopping: the robot's contact flag as received (-1: none yet / not read)
+        # The simulator's truth (ArduPilot SITL SIM_STATE, :mod:`.truth`; nan without it): never used for control
+        "truth_position": (3, float),  # local ENU [m]: east / north from the first sample, up from the take-off point
+        "truth_velocity": (3, float),  # ENU [m/s]
+        "truth_euler": (3, float),     # roll, pitch, yaw ENU/FLU [rad]
+        "truth_age_ms": (0, float),    # since the newest SIM_STATE arrived [ms]
     }
 
 

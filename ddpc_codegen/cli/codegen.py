@@ -2,10 +2,13 @@
 
     ddpc-codegen codegen configs/flying.toml
     ddpc-codegen codegen configs/flying.toml --dataset data/flight1.npz --backend osqp --out generated
+    ddpc-codegen codegen configs/hopping.toml --dataset data/hopping_raw.npz   # raw hopping log, phases labelled
     ddpc-codegen codegen cfg.toml --dataset log.npz --map-channels z=pos_z,pitch=att_pitch
 
 Every config is loaded and checked before any fit; the dataset must match the config's channel
-names and order, units and dt (or be mapped explicitly with --map-channels).
+names and order, units and dt (or be mapped explicitly with --map-channels). A hopping config
+([artificial_io]) takes the raw hopping log: the hops are stitched here and the artifact carries the
+generated artificial-IO completion.
 """
 
 from __future__ import annotations
@@ -22,18 +25,29 @@ from ddpc_codegen.design.match import conform_dataset, parse_channel_map
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.codegen import BACKENDS, generate
+from ddpc_codegen.design.hopping_data import is_hopping_config, prepare_hopping
+from ddpc_codegen.codegen import BACKENDS, OnlineCompletion, generate
 
-__all__ = ["register", "build_from_config"]
+__all__ = ["register", "build_from_config", "prepare_from_config"]
 
 
 def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
                       log=lambda msg: None, channel_map: dict[str, str] | None = None) -> SteeringProblem:
-    """Config + dataset file -> SteeringProblem (predictor fitted with the config's [predictor] options).
+    """The SteeringProblem of :func:`prepare_from_config` (without the hopping completion)."""
+    return prepare_from_config(config, dataset, log, channel_map)[0]
+
+
+def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = None,
+                        log=lambda msg: None, channel_map: dict[str, str] | None = None
+                        ) -> tuple[SteeringProblem, OnlineCompletion | None]:
+    """Config + dataset file -> (SteeringProblem, online completion or None).
 
     The dataset is checked against the config first (names, order, units, dt; see
     :func:`~ddpc_codegen.design.match.conform_dataset`); ``channel_map`` maps config channel names to
-    dataset channel names where they differ on purpose.
+    dataset channel names where they differ on purpose. A hopping config (``[artificial_io]``) needs
+    the raw hopping log with phase labels: its hops are stitched with artificial IO
+    (:func:`~ddpc_codegen.design.hopping_data.prepare_hopping`), the predictor is fitted on them and
+    the online completion is returned for the artifact.
     """
     path = dataset or config.dataset
     if not path:
@@ -46,6 +60,15 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
     ds = conform_dataset(config, raw, channel_map, where=f"{config.source} with dataset {path}")
     if channel_map:
         log(f"  channels mapped (config=dataset): {channel_map}")
+    online = None
+    if is_hopping_config(config):
+        hd = prepare_hopping(ds, config, where=str(path))
+        rep = hd.report
+        log(f"  hopping: {rep['hops']} hops stitched with artificial IO (skipped {rep['skipped']}), operator depth "
+            f"{rep['depth']}, rank {rep['rank']} from {rep['aerial_segments']} aerial segments")
+        ds = hd.dataset
+        online = OnlineCompletion(hd.art, hd.spec.noise_level_online, hd.spec.t_d_online, hd.spec.min_ascent)
+        online.check()  # refused before the fit
     opts = {k: v for k, v in config.predictor.items() if k != "method"}
     t0 = time.perf_counter()
     pred = fit_predictor(ds, config.t_ini, config.t_f, config.predictor["method"], **opts)
@@ -53,7 +76,7 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
     log(f"  data: {ds.n_trajectories} trajectories, {ds.n_samples} samples -> {pred.n_columns} Hankel columns")
     log(f"  excitation: {pe.summary()}")
     log(f"  predictor: {pred.method}, rank {pred.rank}, fitted in {time.perf_counter() - t0:.2f} s")
-    return SteeringProblem(pred, config)
+    return SteeringProblem(pred, config), online
 
 
 def _cmd_codegen(args: argparse.Namespace) -> int:
@@ -63,10 +86,10 @@ def _cmd_codegen(args: argparse.Namespace) -> int:
     for cfg_path, cfg in zip(args.configs, configs):
         backend = args.backend or cfg.codegen["backend"]
         say(f"[{cfg.name}] {cfg_path}: m={cfg.m} p={cfg.p} Tini={cfg.t_ini} Tf={cfg.t_f} backend={backend}")
-        prob = build_from_config(cfg, args.dataset, say, mapping)
+        prob, online = prepare_from_config(cfg, args.dataset, say, mapping)
         out = Path(args.out) / cfg.name
         t0 = time.perf_counter()
-        generate(prob, out, backend, march_native=args.march_native or None)
+        generate(prob, out, backend, march_native=args.march_native or None, artificial_io=online)
         say(f"  generated + compiled {out}/ in {time.perf_counter() - t0:.1f} s "
             f"({prob.n_u} variables, {prob.n_theta} parameters, {prob.n_g} general constraints)")
         print(out)

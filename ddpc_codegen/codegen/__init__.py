@@ -10,13 +10,14 @@ from pathlib import Path
 from ddpc_codegen.errors import CodegenError
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.codegen import vectors as test_vectors
+from ddpc_codegen.codegen.artio import OnlineCompletion, manifest_entry
 from ddpc_codegen.codegen.build import compile_extension
 from ddpc_codegen.codegen.emit import BACKENDS, DEFAULTS, VECTORS_FILE, check_name, emit_sources
 from ddpc_codegen.codegen.manifest import build_manifest, write_manifest
 from ddpc_codegen.runtime.manifest import read_manifest
 from ddpc_codegen.codegen.tuning import choose_rho
 
-__all__ = ["generate", "BACKENDS", "read_manifest"]
+__all__ = ["generate", "BACKENDS", "OnlineCompletion", "read_manifest"]
 
 
 def _settings(problem: SteeringProblem, backend: str, max_iter, eps) -> dict:
@@ -44,6 +45,7 @@ def generate(
     eps: float | None = None,
     n_vectors: int = 48,
     verbose: bool = False,
+    artificial_io: OnlineCompletion | None = None,
 ) -> Path:
     """Emit (and compile) the steering solver of ``problem`` into the folder ``out_dir``.
 
@@ -55,6 +57,8 @@ def generate(
         march_native: add ``-march=native`` (opt-in: the binary then only runs on this CPU family).
         max_iter, eps: solver settings; default from the config, then the backend's defaults.
         n_vectors: number of recorded test vectors (``<name>_vectors.txt``).
+        artificial_io: hopping: the online artificial-IO completion to generate with the solver
+            (``<name>_artio.h``; in Python ``solver.artificial_io``); its noise level must be > 0.
     Returns:
         the solver folder (with manifest.json), loadable by :func:`ddpc_codegen.load_solver`; it also
         builds without Python (CMakeLists.txt, Makefile, example_main.c).
@@ -68,23 +72,28 @@ def generate(
     settings = _settings(problem, backend, max_iter, eps)
     native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)
     t0 = time.perf_counter()
-    units = emit_sources(problem, out, name, backend, settings)
+    units = emit_sources(problem, out, name, backend, settings, artificial_io)
     vec = test_vectors.record(problem, n_vectors)
     vec_file = out / VECTORS_FILE.format(name=name)
     vec_sha = test_vectors.write(vec_file, name, vec)
     # The module (and file) name changes with anything that changes the binary: a process cannot
     # dlopen a rebuilt library under a path it has already loaded.
-    ident = hashlib.sha256(json.dumps([problem.predictor.digest, cfg.digest, backend, settings, native, name],
+    art_key = None
+    if artificial_io is not None:
+        art_key = [hashlib.sha256(artificial_io.art.basis.tobytes()).hexdigest(), manifest_entry(artificial_io)]
+    ident = hashlib.sha256(json.dumps([problem.predictor.digest, cfg.digest, backend, settings, native, name, art_key],
                                       sort_keys=True, default=str).encode()).hexdigest()[:12]
     module = f"_ddpc_{name}_{ident}"
     if not compile:
         return out
     for old in out.glob("_ddpc_*"):
         old.unlink()
-    ext, flags = compile_extension(out, name, module, units, backend, march_native=native, verbose=verbose)
+    ext, flags = compile_extension(out, name, module, units, backend, march_native=native, verbose=verbose,
+                                   artio=artificial_io is not None)
     settings["build_seconds"] = round(time.perf_counter() - t0, 3)
     sources = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".c", ".h")
                      and not any(part.startswith("build") for part in p.relative_to(out).parts))
-    extra = {"vectors": {"file": vec_file.name, "sha256": vec_sha, **vec.summary()}}
+    extra = {"vectors": {"file": vec_file.name, "sha256": vec_sha, **vec.summary()},
+             "artificial_io": None if artificial_io is None else manifest_entry(artificial_io)}
     write_manifest(out, build_manifest(problem, name, backend, module, ext, sources, out, settings, flags, extra))
     return out

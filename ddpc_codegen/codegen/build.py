@@ -56,20 +56,28 @@ const char *{name}_status_string(int status);
 """
 
 
-def include_dirs_of(backend: str) -> list[str]:
-    """Private include directories of a backend's library, relative to the solver folder."""
-    return ["daqp/include"] if backend == "daqp" else ["osqp", "osqp/inc/public", "osqp/inc/private"]
+def include_dirs_of(backend: str, artio: bool = False) -> list[str]:
+    """Private include directories of a backend's library (and of DAQP for a hopping solver's
+    artificial-IO completion), relative to the solver folder."""
+    # OSQP's first: both libraries have a types.h; DAQP's sources never include theirs by -I (their
+    # headers find it next to themselves), OSQP's sources do.
+    osqp = ["osqp", "osqp/inc/public", "osqp/inc/private"] if backend == "osqp" else []
+    return osqp + (["daqp/include"] if backend == "daqp" or artio else [])
 
 
 def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], backend: str,
-                      march_native: bool = False, verbose: bool = False) -> tuple[Path, list[str]]:
+                      march_native: bool = False, verbose: bool = False, artio: bool = False) -> tuple[Path, list[str]]:
     """Build ``module`` from ``units`` -- the very sources CMake and the Makefile compile, with the same
     portable flags; returns (extension path, compiler flags used)."""
     flags = list(PORTABLE_FLAGS) + (["-march=native"] if march_native else [])
-    include_dirs = [str(out_dir)] + [str(out_dir / i) for i in include_dirs_of(backend)]
-    glue = f'#include "{name}_solver.h"\n'
+    include_dirs = [str(out_dir)] + [str(out_dir / i) for i in include_dirs_of(backend, artio)]
+    glue = f'#include "{name}_solver.h"\n'  # which includes <name>_artio.h in a hopping solver
     ffi = cffi.FFI()
     ffi.cdef(cdef_text(name))
+    if artio:
+        from ddpc_codegen.codegen.artio import cdef_text as artio_cdef
+
+        ffi.cdef(artio_cdef(name))
     ffi.set_source(module, glue, sources=[str(u) for u in units], include_dirs=include_dirs,
                    libraries=["m"], extra_compile_args=flags)
     # A fresh directory per build: distutils caches the directories it created per process, so

@@ -114,7 +114,8 @@ def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -
         "max_iter": int(settings["max_iter"]), "vectors_file": VECTORS_FILE.format(name=name),
     }
     if backend == "daqp":
-        ctx.update(daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL), n_u1=n_u + 1,
+        ctx.update(daqp_wire=render("daqp_wire.in", ws_type=f"{name}_workspace").rstrip("\n"),
+                   daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL), n_u1=n_u + 1,
                    n_l=(n_u + 1) * (n_u + 2) // 2, n_m=max(1, n_u * n_g), n_r=n_u * (n_u + 1) // 2,
                    daqp_words=DAQP_STRUCT_WORDS)
     else:
@@ -141,18 +142,20 @@ def _param_maps(problem: SteeringProblem, name: str, out_dir: Path) -> dict:
             "casadi_iw": max(1, lin.sz_iw(), bnd.sz_iw()), "casadi_w": max(1, lin.sz_w(), bnd.sz_w())}
 
 
-def _data_files(problem: SteeringProblem, ctx: dict) -> tuple[str, str]:
+def data_files(arrays: dict[str, tuple[np.ndarray, str]], ctx: dict, stem: str) -> tuple[str, str]:
+    """(header, source) text of the constant ``arrays`` (suffix -> (values, comment)) as ``<stem>.{h,c}``."""
     decls, defs = [], []
-    for key, (a, comment) in data_arrays(problem).items():
+    for key, (a, comment) in arrays.items():
         sym = f"{ctx['name']}_{key}"
         size = max(1, int(np.asarray(a).size))
         decls.append(render("array_decl.in", symbol=sym, size=size, comment=comment).rstrip("\n"))
         defs.append(render("array_def.in", symbol=sym, size=size, values=_values(a)))
-    return (_render_ctx("data.h.in", {**ctx, "declarations": "\n".join(decls)}),
-            _render_ctx("data.c.in", {**ctx, "definitions": "\n".join(defs)}))
+    common = {"banner": ctx["banner"], "name": ctx["name"], "stem": stem}
+    return (render("data.h.in", **common, GUARD=f"{stem.upper()}_H", declarations="\n".join(decls)),
+            render("data.c.in", **common, definitions="\n".join(defs)))
 
 
-def _render_ctx(fname: str, ctx: dict) -> str:
+def render_ctx(fname: str, ctx: dict) -> str:
     """Render a template from the names of ``ctx`` it uses (a name it lacks is a CodegenError)."""
     return render(fname, **{k: ctx[k] for k in placeholders(fname) if k in ctx})
 
@@ -168,33 +171,50 @@ def _build_files(out_dir: Path, ctx: dict, units: list[Path], includes: list[str
     }
     for tpl, fname in (("CMakeLists.txt.in", "CMakeLists.txt"), ("Makefile.in", "Makefile"),
                        ("example_main.c.in", "example_main.c")):
-        (out_dir / fname).write_text(_render_ctx(tpl, {**ctx, **files}))
+        (out_dir / fname).write_text(render_ctx(tpl, {**ctx, **files}))
 
 
-def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: str, settings: dict) -> list[Path]:
+def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: str, settings: dict,
+                 artio=None) -> list[Path]:
     """Write every source and build file of the solver into ``out_dir``; returns the library's
-    compilation units (what CMake, the Makefile and the Python extension all compile)."""
+    compilation units (what CMake, the Makefile and the Python extension all compile).
+    ``artio`` (an :class:`~ddpc_codegen.codegen.artio.OnlineCompletion`, hopping): also emit the
+    generated artificial-IO completion (with DAQP's sources, whatever the steering backend)."""
     if backend not in BACKENDS:
         raise CodegenError(f"unknown backend {backend!r}; choose one of {list(BACKENDS)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     ctx = context(problem, name, backend, settings)
     ctx.update(_param_maps(problem, name, out_dir))
-    if backend == "daqp":
+    if artio is not None:
+        artio.check()  # before anything slow is emitted
+        if (artio.art.m, artio.art.p) != (problem.config.m, problem.config.p):
+            raise CodegenError(f"the artificial-IO operator has m={artio.art.m}, p={artio.art.p} but the steering "
+                               f"config m={problem.config.m}, p={problem.config.p}: build both from the same data")
+    if backend == "daqp" or artio is not None:
         lib_units = libs.emit_daqp(out_dir, name)
     else:
-        lib_units = libs.emit_osqp_library(osqp_embedded_solver(problem, settings), out_dir, name)
-    includes = include_dirs_of(backend)
-    ctx["ws_backend"] = _render_ctx(f"ws_{backend}.h.in", ctx).rstrip("\n")
-    h, c = _data_files(problem, ctx)
+        lib_units = []
+    if backend == "osqp":
+        lib_units += libs.emit_osqp_library(osqp_embedded_solver(problem, settings), out_dir, name)
+    includes = include_dirs_of(backend, artio is not None)
+    ctx["artio_include"] = (f'#include "{name}_artio.h" /* artificial ground-phase IO (hopping) */'
+                            if artio is not None else "/* no artificial-IO completion: not a hopping solver */")
+    ctx["artio_example"] = render("artio_example.in", name=name, NAME=name.upper()) if artio is not None else ""
+    ctx["ws_backend"] = render_ctx(f"ws_{backend}.h.in", ctx).rstrip("\n")
+    h, c = data_files(data_arrays(problem), ctx, f"{name}_data")
     (out_dir / f"{name}_data.h").write_text(h)
     (out_dir / f"{name}_data.c").write_text(c)
     for tpl, fname in (("solver.h.in", "solver.h"), ("solver.c.in", "solver.c"), ("qp.h.in", "qp.h"),
                        (f"qp_{backend}.c.in", "qp.c")):
-        (out_dir / f"{name}_{fname}").write_text(_render_ctx(tpl, ctx))
+        (out_dir / f"{name}_{fname}").write_text(render_ctx(tpl, ctx))
     units = [out_dir / f"{name}_solver.c", out_dir / f"{name}_qp.c", out_dir / f"{name}_data.c",
              out_dir / f"{name}_param_map.c"] + lib_units
+    if artio is not None:
+        from ddpc_codegen.codegen.artio import emit_artio
+
+        units += emit_artio(artio, out_dir, ctx, data_files)
     _build_files(out_dir, ctx, units, includes)
     (out_dir / "codegen_context.json").write_text(json.dumps(
-        {k: v for k, v in ctx.items() if k != "ws_backend"}, indent=1, sort_keys=True) + "\n")
+        {k: v for k, v in ctx.items() if k not in ("ws_backend", "daqp_wire")}, indent=1, sort_keys=True) + "\n")
     return units
 

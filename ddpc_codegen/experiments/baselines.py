@@ -29,7 +29,8 @@ import numpy as np
 
 from ddpc_codegen.design.baselines import PrefilterModel, fit_prefilter, ilc_update_p
 from ddpc_codegen.design.phases import GROUND
-from ddpc_codegen.experiments.pipeline import ROOT, SteeringSetup, split_hopping
+from ddpc_codegen.design.hopping_data import split_hopping
+from ddpc_codegen.experiments.pipeline import ROOT, SteeringSetup
 from ddpc_codegen.experiments.evaluate import RunResult, run, scenario_metrics
 from ddpc_codegen.robot.hop_targets import ApexSchedule, ScheduledHoppingController
 from ddpc_codegen.robot.trajectory import RandomSmoothTrajectory

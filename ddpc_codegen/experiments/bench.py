@@ -319,6 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="reports/bench.json")
     ap.add_argument("--skip-predictor", action="store_true", help="skip the 10^6-sample predictor fit")
     ap.add_argument("--skip-scale", action="store_true", help="skip the fleet-fit and sweep scaling (Ray)")
+    ap.add_argument("--skip-artio", action="store_true", help="skip the hopping artificial-IO completion timing")
     args = ap.parse_args(argv)
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
     report: dict = {}
@@ -331,6 +332,11 @@ def main(argv: list[str] | None = None) -> int:
             report.setdefault("standalone", {})[size] = {**sa["daqp"], "osqp": sa["osqp"]}
             arm = report[size].pop("aarch64_qemu")
             report["aarch64_qemu"] = None if arm is None else {**(report.get("aarch64_qemu") or {}), size: arm}
+    if not args.skip_artio:
+        from ddpc_codegen.experiments.bench_artio import completion_timing
+
+        log("hopping artificial-IO completion ...")
+        report["hopping_completion"] = completion_timing(log)
     if not args.skip_predictor:
         log("predictor fit on 10^6 samples (fresh process) ...")
         report["predictor_1e6"] = predictor_scaling()

@@ -151,6 +151,7 @@ def run(
     seed: int = 0,
     progress: bool = False,
     label: str = "",
+    completion: str = "auto",
 ) -> RunResult:
     """Simulate one run of ``scenario`` (a name or a scenario object, e.g. another trajectory),
     steered through ``setup`` or not.
@@ -159,6 +160,9 @@ def run(
         steer: False = the baseline (the model-based controller alone).
         interpreted: True / "fast" / "exact" / "osqp": solve in Python (SteeringProblem) instead of
             the generated C solver (used anyway when the setup has none).
+        completion: hopping's online artificial IO: "generated" (the solver artifact's compiled
+            completion), "interpreted" (``setup.art``), "auto" (generated when the generated solver
+            steers and carries one).
     The simulator never gets an exception from the steering: solver failures are fallbacks
     (counted by the steerer); a simulator error ends the run as crashed.
     """
@@ -178,10 +182,8 @@ def run(
         steerer = ReferenceSteerer.for_solver(solver)
         window = None
         if scenario == "hopping":
-            if setup.art is None:
-                raise DataError("a hopping setup needs its artificial-IO operator")
-            window = HoppingWindow(setup.art, cfg.t_ini, setup.art_spec.t_d_online, setup.art_spec.min_ascent,
-                                   setup.art_spec.noise_level_online)
+            window = HoppingWindow(_completer(setup, solver, completion), cfg.t_ini, setup.art_spec.t_d_online,
+                                   setup.art_spec.min_ascent, setup.art_spec.noise_level_online)
         hook = SteeringHook(steerer, scenario, window=window,
                             g_eff=_g_eff(params) if scenario == "hopping" else None, dt=cfg.dt)
     t0 = time.perf_counter()
@@ -197,8 +199,25 @@ def run(
         st["solver_us"] = percentiles(hook.solver_us)
         st["solver"] = "interpreted" if isinstance(steerer.solver, InterpretedSolver) else f"generated:{steerer.solver.backend}"
         if hook.window is not None:
-            st["artificial_io"] = dict(hook.window.counts)
+            art = hook.window.art
+            st["artificial_io"] = {**hook.window.counts, **{f"op_{k}": v for k, v in art.counts.items()},
+                                   "completion": "interpreted" if art is setup.art else "generated"}
     return RunResult(res, met, st, label)
+
+
+def _completer(setup: SteeringSetup, solver, completion: str):
+    """The online artificial-IO operator of a hopping run (see :func:`run`, ``completion``)."""
+    generated = getattr(setup.solver, "artificial_io", None)
+    if completion not in ("auto", "generated", "interpreted"):
+        raise DataError(f"completion must be 'auto', 'generated' or 'interpreted'; got {completion!r}")
+    if completion == "generated" or (completion == "auto" and solver is setup.solver and generated is not None):
+        if generated is None:
+            raise DataError("completion='generated' needs a generated hopping solver with its artificial-IO completion "
+                            "(setup.solver.artificial_io); regenerate it with build_setup")
+        return generated
+    if setup.art is None:
+        raise DataError("a hopping setup needs its artificial-IO operator")
+    return setup.art
 
 
 # ----------------------------------------------------------------------------- checks

@@ -46,13 +46,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 
 from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.design.artificial_io import ArtificialIO, ground_runs, stitch_hops
+from ddpc_codegen.design.artificial_io import ArtificialIO
+from ddpc_codegen.design.hopping_data import ArtificialIOSpec, prepare_hopping
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, SimResult, simulate
@@ -61,10 +60,8 @@ from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
 __all__ = [
     "ROOT",
     "CollectSpec",
-    "ArtificialIOSpec",
     "SteeringSetup",
     "collect",
-    "split_hopping",
     "build_setup",
     "default_config",
 ]
@@ -132,62 +129,7 @@ def collect(scenario: str, spec: CollectSpec | None = None, *, progress: bool = 
     return res
 
 
-def split_hopping(raw: IODataset) -> tuple[IODataset, IODataset]:
-    """(aerial segments, apex-to-apex hops) of hopping logs with phase labels.
-
-    Aerial segments run from a liftoff to the next touchdown (complete ones only, plus the
-    release arc); hops from one apex (ascent -> descent switch) to the next, each with one
-    ground phase.
-    """
-    if raw.phases is None:
-        raise DataError("hopping data need phase labels (descent / ground / ascent)")
-    au, ay, ap, hu, hy, hp = [], [], [], [], [], []
-    for (u, y), ph in zip(raw.trajectories(), raw.phases):
-        runs = ground_runs(ph)
-        starts = [0] + [b for _, b in runs]
-        ends = [a for a, _ in runs] + [len(ph)]
-        for a, b in zip(starts, ends):
-            if b - a >= 2 and b < len(ph):  # complete aerial phases (ending in a touchdown)
-                au.append(u[a:b]); ay.append(y[a:b]); ap.append(ph[a:b])
-        apex = [k for k in range(1, len(ph)) if ph[k - 1] == ASCENT and ph[k] == DESCENT]
-        for a, b in zip(apex[:-1], apex[1:]):
-            if np.any(ph[a:b] == GROUND):
-                hu.append(u[a:b]); hy.append(y[a:b]); hp.append(ph[a:b])
-    kw = dict(input_names=raw.input_names, output_names=raw.output_names, input_units=raw.input_units,
-              output_units=raw.output_units, metadata=raw.metadata)
-    if not au or not hu:
-        raise DataError("no complete aerial phase or hop in the hopping data; record longer")
-    return IODataset(au, ay, raw.dt, phases=ap, **kw), IODataset(hu, hy, raw.dt, phases=hp, **kw)
-
-
 # ----------------------------------------------------------------------------- setup
-@dataclass(frozen=True)
-class ArtificialIOSpec:
-    """Artificial ground-phase IO settings (hopping; see :mod:`ddpc_codegen.design.artificial_io`); the config's
-    ``[artificial_io]`` table sets any of them (validated by :class:`SteeringConfig`).
-
-    Attributes:
-        t_d, t_a: real descent / ascent samples around each recorded ground phase that the offline
-            stitching (the mosaic H_G) is conditioned on (exact least-norm, ``noise_level``).
-        t_d_online: descent samples the online fill is conditioned on (0: the ascent alone; a
-            descent context makes the fill atypical and noise-sensitive online).
-        min_ascent: ascent samples needed before steering starts (fewer leave the aerial state
-            at liftoff under-determined: on noise-free windows the 25-step height prediction
-            error is ~9 cm with 1-4 samples, ~4 mm with 5-9 and ~2 mm with 10-14).
-        ground_margin: extra samples of depth beyond the longest recorded ground phase.
-        noise_level: sigma of the offline completion [m / rad] (0 = exact: clean recordings).
-        noise_level_online: sigma of the online completion (measurements are noisy online).
-    """
-
-    t_d: int = 10
-    t_a: int = 20
-    t_d_online: int = 0
-    min_ascent: int = 10
-    ground_margin: int = 10
-    noise_level: float = 0.0
-    noise_level_online: float = 1e-3
-
-
 @dataclass
 class SteeringSetup:
     """Everything a steered run needs.
@@ -243,7 +185,7 @@ def build_setup(
         fit: fits the predictor from (config, dataset) (default: ``fit_predictor`` with the config's
             [predictor] options); a sweep passes a cached one.
         save_data: write the recorded data (flying: the config's [data] dataset; hopping: the raw
-            log next to it as ``hopping_raw.npz`` and the stitched hops as the [data] dataset).
+            log as the [data] dataset and the stitched hops next to it as ``hopping_stitched.npz``).
     """
     t_start = time.perf_counter()
     cfg = config if isinstance(config, SteeringConfig) else SteeringConfig.from_toml(config or default_config(scenario))
@@ -261,18 +203,12 @@ def build_setup(
         if save_data and cfg.dataset:
             ds.save(cfg.dataset)
     else:
-        aerial, hops = split_hopping(raw)
-        g_max = max(b - a for ph in hops.phases for a, b in ground_runs(ph))
-        depth = art_spec.t_d + g_max + art_spec.ground_margin + max(art_spec.t_a, cfg.t_ini)
-        say(f"[hopping] artificial IO: Hankel of {aerial.n_trajectories} aerial segments, depth {depth}", progress)
-        art = ArtificialIO(aerial, depth, noise_level=art_spec.noise_level,
-                           u_min=cfg.u_min, u_max=cfg.u_max, y_min=cfg.y_min, y_max=cfg.y_max)
-        ds, rep = stitch_hops(hops, art, art_spec.t_d, art_spec.t_a, progress=progress)
-        info["artificial_io"] = {"depth": depth, "rank": art.rank, "aerial_segments": aerial.n_trajectories,
-                                 "aerial_columns": art.n_columns, **rep}
-        if save_data and cfg.dataset:
-            raw.save(Path(cfg.dataset).with_name("hopping_raw.npz"))
-            ds.save(cfg.dataset)
+        hd = prepare_hopping(raw, cfg, art_spec, where="the recorded hopping data", progress=progress)
+        ds, art = hd.dataset, hd.art
+        info["artificial_io"] = hd.report
+        if save_data and cfg.dataset:  # the raw log is what `ddpc-codegen codegen` builds a hopping solver from
+            raw.save(cfg.dataset)
+            ds.save(Path(cfg.dataset).with_name("hopping_stitched.npz"))
     say(f"[{scenario}] fitting the {cfg.predictor['method']} predictor on {ds.n_trajectories} "
                    f"trajectories, {ds.n_samples} samples ...", progress)
     pred = (fit or _fit)(cfg, ds)
@@ -282,13 +218,15 @@ def build_setup(
     prob = SteeringProblem(pred, cfg)
     setup = SteeringSetup(scenario, cfg, pred, prob, ds, art=art, art_spec=art_spec, info=info, raw=raw)
     if generate_dir is not None:
-        from ddpc_codegen.codegen import generate
+        from ddpc_codegen.codegen import OnlineCompletion, generate
         from ddpc_codegen.runtime.loader import load_solver
 
         name = solver_name or f"steer_{scenario}"
         t0 = time.perf_counter()
         say(f"[{scenario}] generating + compiling the C solver generated/{name} ...", progress)
-        path = generate(prob, Path(generate_dir) / name, backend=backend, name=name)
+        online = None if art is None else OnlineCompletion(art, art_spec.noise_level_online, art_spec.t_d_online,
+                                                            art_spec.min_ascent)
+        path = generate(prob, Path(generate_dir) / name, backend=backend, name=name, artificial_io=online)
         setup.solver = load_solver(path)
         setup.solver_path = Path(path)
         info["codegen_s"] = round(time.perf_counter() - t0, 2)

@@ -65,6 +65,16 @@ TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
          "yaw_ref=ATTITUDE_TARGET.yaw:rad", "thrust_ref=ATTITUDE_TARGET.thrust:1"),
         ("roll=ATTITUDE.roll:rad", "pitch=ATTITUDE.pitch:rad", "yaw=ATTITUDE.yaw:rad"),
     ),
+    # ArduCopter in GUIDED / GUIDED_NOGPS flown by attitude (SET_ATTITUDE_TARGET, e.g. ddpc-bridge), as a
+    # GCS records it: the attitude target and the throttle ArduCopter applied (ATTITUDE_TARGET.thrust =
+    # its throttle input, with either GUID_OPTIONS) -> height and attitude. The companion's own
+    # references are only in its own log (ddpc-bridge --log).
+    "ardupilot-guided-attitude": (
+        ("roll_ref=ATTITUDE_TARGET.roll:rad", "pitch_ref=ATTITUDE_TARGET.pitch:rad",
+         "yaw_ref=ATTITUDE_TARGET.yaw:rad", "thrust_ref=ATTITUDE_TARGET.thrust:1"),
+        ("z=LOCAL_POSITION_NED.z_up:m", "roll=ATTITUDE.roll:rad", "pitch=ATTITUDE.pitch:rad",
+         "yaw=ATTITUDE.yaw:rad"),
+    ),
     "position": (
         ("x_ref=SET_POSITION_TARGET_LOCAL_NED.x:m", "y_ref=SET_POSITION_TARGET_LOCAL_NED.y:m",
          "z_ref=SET_POSITION_TARGET_LOCAL_NED.z_up:m"),
@@ -72,6 +82,7 @@ TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     ),
 }
 
+_ATTITUDE_SETPOINTS = ("SET_ATTITUDE_TARGET", "ATTITUDE_TARGET")
 _MAV_AUTOPILOT_INVALID = 8
 _MAV_TYPE_GCS = 6
 
@@ -221,6 +232,14 @@ def _channel(msgs: dict[str, list[TlogRow]], path: Path, spec: ChannelSpec, role
     rows = msgs.get(spec.source, [])
     if not rows:
         present = sorted(k for k in msgs if k != "HEARTBEAT")
+        att = [k for k in _ATTITUDE_SETPOINTS if msgs.get(k)]
+        if spec.source == "SET_POSITION_TARGET_LOCAL_NED" and att:
+            raise DataError(
+                f"{path} has attitude setpoints ({', '.join(att)}) but no SET_POSITION_TARGET_LOCAL_NED (for {role} "
+                f"{spec.name!r}): an attitude off-board flight, like ddpc-bridge's -- the height reference a companion "
+                "computer steered is in no MAVLink message. For the bridge's steering loop use its own tick log "
+                "(ddpc-bridge --log flight.npz writes a dataset: ddpc-codegen codegen CONFIG --dataset flight.npz); "
+                "for the attitude + throttle loop the autopilot reports use --preset ardupilot-guided-attitude")
         raise DataError(f"message {spec.source} (for {role} {spec.name!r}) is not in {path}; "
                         f"of the requested messages it has: {', '.join(present) or 'none'} "
                         "(list all with --list)")
@@ -358,6 +377,8 @@ def import_tlog(
         raise DataError("mode filters need time_source='log': HEARTBEAT carries no time_boot_ms")
     notes = Notes()
     wanted = {s.source for s in ins + outs} | ({"HEARTBEAT"} if opts.filters_modes else set())
+    if "SET_POSITION_TARGET_LOCAL_NED" in wanted:
+        wanted |= set(_ATTITUDE_SETPOINTS)  # to tell an attitude off-board log apart when it is missing
     per_file, chan_info = [], []
     for fi, path in enumerate(path_list):
         meta, segs, origin, info = _import_file(path, ins, outs, wanted, opts=opts, sysid=sysid,

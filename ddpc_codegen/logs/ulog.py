@@ -12,6 +12,15 @@ Times are PX4's ``timestamp`` field (µs since boot); errors quote seconds since
 start timestamp, as Flight Review's time axis does. Mode filters use ``vehicle_status``:
 ``nav_state`` (14 = offboard) and ``arming_state`` (2 = armed); vehicle_status is published
 on every change, so a mode lasts from its first report to the next change.
+
+What PX4 logs depends on the kind of off-board control (``offboard_control_mode``, measured on
+PX4 SITL with SIH and the default logger profile): in *attitude* off-board (SET_ATTITUDE_TARGET,
+what ``ddpc-bridge`` sends) it logs the attitude and thrust it was given
+(``vehicle_attitude_setpoint``, ~20 Hz at the default profile), ``vehicle_attitude`` (250 Hz) and
+``vehicle_local_position`` (125 Hz) -- preset ``px4-offboard-attitude`` -- but no
+``trajectory_setpoint``: the height and pitch references a companion computer steered never
+reach PX4. A preset that reads ``trajectory_setpoint`` is therefore refused on such a log, with
+the advice to use the companion's own log (``ddpc-bridge --log``: a dataset already).
 """
 
 from __future__ import annotations
@@ -53,6 +62,19 @@ ULOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
             "thrust_ref=vehicle_attitude_setpoint.thrust_body[2]_up:1",
         ),
         ("roll=vehicle_attitude.roll:rad", "pitch=vehicle_attitude.pitch:rad", "yaw=vehicle_attitude.yaw:rad"),
+    ),
+    # PX4 in attitude off-board (a companion sending SET_ATTITUDE_TARGET, e.g. ddpc-bridge): the
+    # attitude + collective thrust PX4 was given -> height and attitude (the loop under the
+    # companion's controller; its own references are only in the companion's log)
+    "px4-offboard-attitude": (
+        (
+            "roll_ref=vehicle_attitude_setpoint.roll:rad",
+            "pitch_ref=vehicle_attitude_setpoint.pitch:rad",
+            "yaw_ref=vehicle_attitude_setpoint.yaw:rad",
+            "thrust_ref=vehicle_attitude_setpoint.thrust_body[2]_up:1",
+        ),
+        ("z=vehicle_local_position.z_up:m", "roll=vehicle_attitude.roll:rad", "pitch=vehicle_attitude.pitch:rad",
+         "yaw=vehicle_attitude.yaw:rad"),
     ),
     # position loop: position setpoint -> position (x north, y east, z up)
     "position": (
@@ -149,6 +171,25 @@ def _mode_windows(
     return wins
 
 
+def _refuse_attitude_offboard(ulog, path: Path, specs: Sequence[ChannelSpec]) -> None:
+    """A ``trajectory_setpoint`` channel on a log whose off-board flight was attitude control only:
+    PX4 published no trajectory_setpoint there, so say why and what to use instead."""
+    if not any(s.source == "trajectory_setpoint" for s in specs):
+        return
+    ocm = [d for d in ulog.data_list if d.name == "offboard_control_mode"]
+    if not ocm:
+        return
+    f = ocm[0].data
+    on = {k: bool(np.any(f[k])) for k in ("position", "velocity", "acceleration", "attitude", "body_rate") if k in f}
+    if on.get("attitude", False) and not any(on.get(k, False) for k in ("position", "velocity", "acceleration")):
+        raise DataError(
+            f"{path}: PX4 flew attitude off-board here (offboard_control_mode: attitude, never position, velocity "
+            "or acceleration), so it published no trajectory_setpoint: the references a companion computer "
+            "steered (z_ref ...) are not in PX4's log. For ddpc-bridge's steering loop use the bridge's own tick "
+            "log instead (ddpc-bridge --log flight.npz writes a dataset: ddpc-codegen codegen CONFIG --dataset "
+            "flight.npz); for the attitude + thrust loop PX4 did log use --preset px4-offboard-attitude")
+
+
 def _channel(ulog, path: Path, spec: ChannelSpec, role: str, rule: str, *, origin: int,
              crop: tuple[int, int] | None, on_nan: str, notes: Notes) -> tuple[Series, dict]:
     """One channel of one ULog as a clean series, and its provenance."""
@@ -169,6 +210,7 @@ def _import_file(path: Path, ins: Sequence[ChannelSpec], outs: Sequence[ChannelS
     ulog = _read(path, sorted(topics), notes)
     origin = int(ulog.start_timestamp)
     crop = crop_window(origin, opts.time_range)
+    _refuse_attitude_offboard(ulog, path, list(ins) + list(outs))
     series: dict[str, list[Series]] = {"input": [], "output": []}
     info: list[dict] = []
     for role, specs, rule in (("input", ins, opts.input_rule), ("output", outs, opts.output_rule)):
@@ -266,6 +308,8 @@ def import_ulog(
     topics = {s.source for s in ins + outs}
     if opts.filters_modes:
         topics.add("vehicle_status")
+    if "trajectory_setpoint" in topics:
+        topics.add("offboard_control_mode")  # to tell an attitude off-board log (no trajectory_setpoint) apart
     per_file = []
     chan_info: list[dict] = []
     for fi, p in enumerate(path_list):

@@ -103,6 +103,14 @@ class GeneratedSolver:
         fb = self._ffi.from_buffer
         self._pt, self._pu = fb("double[]", self._theta), fb("double[]", self._u)
         self._shape_u = (self.t_f, self.m)
+        self.artificial_io = None  # hopping: the generated completion (GeneratedArtificialIO), else None
+        if manifest.get("artificial_io") is not None:
+            from ddpc_codegen.runtime.artificial_io import GeneratedArtificialIO
+
+            self.artificial_io = GeneratedArtificialIO(folder, manifest, self._lib, self._ffi)
+        elif hasattr(self._lib, f"{self.name}_artio_complete"):
+            raise ManifestError(f"{folder}: the binary has an artificial-IO completion that manifest.json does not "
+                                "list (edited?); regenerate the solver")
 
     def __repr__(self) -> str:
         return f"GeneratedSolver({self.name!r}, backend={self.backend!r}, n_u={self.n_u}, n_theta={self.n_theta})"

@@ -24,6 +24,10 @@ _SCHEMA = {"name": str, "backend": str, "module": str, "extension": str, "dims":
            "has_nominal": bool, "sources": dict, "extension_sha256": str, "config_hash": str,
            "predictor_hash": str, "feas_tol": float, "vectors": dict}
 
+# hopping solvers: the generated artificial-IO completion (null otherwise)
+_ART_SCHEMA = {"depth": int, "rank": int, "m": int, "p": int, "n_columns": int, "noise_level": float,
+               "lambda": float, "feas_tol": float, "lo": list, "hi": list, "t_d_online": int, "min_ascent": int}
+
 
 def sha256_file(path: Path) -> str:
     """Hex SHA-256 of a file's bytes."""
@@ -51,6 +55,13 @@ def _check_schema(path: Path, man: object) -> dict:
         v = man["bounds"].get(key)
         if not isinstance(v, list) or not all(x is None or isinstance(x, (int, float)) for x in v):
             raise ManifestError(f"{path}: bounds.{key} must be a list of numbers or null, got {v!r}")
+    art = man.get("artificial_io")
+    if art is not None:
+        if not isinstance(art, dict):
+            raise ManifestError(f"{path}: 'artificial_io' must be an object or null, got {art!r}")
+        for key, typ in _ART_SCHEMA.items():
+            if not isinstance(art.get(key), typ) or isinstance(art.get(key), bool):
+                raise ManifestError(f"{path}: artificial_io.{key} must be a {typ.__name__}, got {art.get(key)!r}")
     if not all(isinstance(k, str) and isinstance(v, str) for k, v in man["sources"].items()):
         raise ManifestError(f"{path}: 'sources' must map file names to sha256 strings")
     return man

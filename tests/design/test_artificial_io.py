@@ -7,7 +7,8 @@ import pytest
 
 from ddpc_codegen import IODataset
 from ddpc_codegen.design.phases import GROUND
-from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect, split_hopping
+from ddpc_codegen.design.hopping_data import split_hopping
+from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.design.artificial_io import ArtificialIO, ground_runs, hop_excitation
 from ddpc_codegen.runtime.hopping import HoppingWindow

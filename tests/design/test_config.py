@@ -52,7 +52,7 @@ def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_
 
 
 def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
-    from ddpc_codegen.experiments.pipeline import ArtificialIOSpec
+    from ddpc_codegen.design.hopping_data import ArtificialIOSpec
 
     cfg = _load(tmp_path, BASE + "\n[artificial_io]\nt_a = 24\nmin_ascent = 6\nnoise_level_online = 0.002\n")
     spec = ArtificialIOSpec(**cfg.artificial_io)

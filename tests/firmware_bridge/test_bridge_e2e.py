@@ -105,7 +105,9 @@ def test_ardupilot_profile_guided_nogps_with_both_thrust_semantics(procs, tmp_pa
         assert f"GUID_OPTIONS={opt}: thrust field is a {'climb rate' if opt == 0 else 'thrust'}" in ev
         assert "requesting GUIDED_NOGPS" in ev and "engaged (GUIDED_NOGPS" in ev and "requesting BRAKE" in ev
         assert s["stop_reason"].startswith("duration") and s["activations"] == 1
-        t = load_ticklog(tmp_path / f"ap{opt}.npz").ticks
+        log = load_ticklog(tmp_path / f"ap{opt}.npz")
+        assert log.metadata["thrust_field"] == ("climb_rate" if opt == 0 else "thrust")
+        t = log.ticks
         on = t["active"] & t["event"]
         if opt == 0:
             assert np.all(np.abs(t["sp_field"][on] - 0.5) < 0.3) and not np.allclose(t["sp_field"][on], t["sp_thrust"][on])

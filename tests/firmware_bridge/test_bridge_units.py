@@ -53,6 +53,13 @@ def test_ardupilot_guided_modes_and_both_thrust_semantics():
     assert up == pytest.approx(0.5 + 0.5 * 0.75 / 2.5)
     assert p.field_to_climb_rate(up) == pytest.approx(0.75)
     assert p.field_to_climb_rate(p.thrust_field(0.9, 0.0, 1.0)) == pytest.approx(-1.5)  # saturates at descent speed
+    # ArduCopter's reading of the field (GCS_MAVLink_Copter.cpp, handle_message_set_attitude_target):
+    # 0.5 holds, above it (f - 0.5) * 2 * WPNAV_SPEED_UP, below (0.5 - f) * 2 * -WPNAV_SPEED_DN, clipped to [0, 1].
+    r = ArduPilotProfile(speed_up=2.0, speed_down=1.0)
+    for f, vz in ((0.5, 0.0), (0.75, 0.5 * 2.0), (1.0, 2.0), (0.25, -0.5 * 1.0), (0.0, -1.0), (1.4, 2.0), (-0.2, -1.0)):
+        assert r.field_to_climb_rate(f) == pytest.approx(vz)
+    for vz in (-1.0, -0.3, 0.0, 0.4, 2.0):  # the encoding is its inverse inside the speed limits
+        assert r.field_to_climb_rate(r.climb_rate_to_field(vz)) == pytest.approx(vz)
     # GUID_OPTIONS bit 3: the field is a thrust, like PX4.
     q = ArduPilotProfile(guid_options=8)
     assert not q.climb_rate_thrust and q.thrust_field(0.61, 2.0, 1.0) == 0.61

@@ -129,6 +129,19 @@ def test_missing_message(flight, tmp_path):
         import_tlog(p, ["ATTITUDE_TARGET.pitch"], ["ATTITUDEX.pitch"])
 
 
+def test_attitude_offboard_tlog_refuses_a_position_setpoint_preset_with_advice(flight, tmp_path):
+    # The companion sent SET_ATTITUDE_TARGET only (like ddpc-bridge): no height reference on the link.
+    w = flight.writer()
+    w.records = [r for r in w.records if r[1][7 if r[1][0] == 0xFD else 5] != 84]  # drop SET_POSITION_TARGET_LOCAL_NED
+    p = w.write(tmp_path / "att_only.tlog")
+    with pytest.raises(DataError, match=r"att_only.tlog has attitude setpoints \(SET_ATTITUDE_TARGET\) but no "
+                                        r"SET_POSITION_TARGET_LOCAL_NED \(for input 'z_ref'\).*ddpc-bridge --log "
+                                        r"flight.npz.*--preset ardupilot-guided-attitude"):
+        import_tlog(p, preset="pogox-flying")
+    ds = import_tlog(p, ["thrust=SET_ATTITUDE_TARGET.thrust"], ["ATTITUDE.pitch"])  # what is there still imports
+    assert np.all(ds.u[0] == np.float32(0.55))
+
+
 def test_missing_field(tlog):
     with pytest.raises(DataError, match=r"field 'height' not found in message LOCAL_POSITION_NED of .*; fields: "
                                         r"time_boot_ms, vx, vy, vz, x, y, z"):

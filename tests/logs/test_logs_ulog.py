@@ -230,3 +230,44 @@ def test_not_a_ulog_and_bad_arguments(ulg, tmp_path):
         import_ulog(ulg, ["vehicle_attitude_setpoint.pitch"], ["vehicle_attitude.pitch", "pitch=vehicle_attitude.roll"])
     with pytest.raises(DataError, match="need at least one input and one output"):
         import_ulog(ulg, ["vehicle_attitude_setpoint.pitch"], [])
+
+
+# ------------------------------------------------------------------ attitude off-board (what ddpc-bridge flies)
+PX4_SIH = __import__("pathlib").Path(__file__).parent / "data" / "px4_sih_offboard_attitude.ulg"  # trim_ulog.py
+
+
+def test_a_real_px4_attitude_offboard_log_imports_with_its_preset():
+    # PX4 SITL (SIH) flown by ddpc-bridge (passthrough, SET_ATTITUDE_TARGET): PX4 logs the attitude
+    # and thrust it was given (vehicle_attitude_setpoint, 20 Hz here) and the state it reached.
+    ds = import_ulog(PX4_SIH, preset="px4-offboard-attitude", offboard_only=True)
+    assert ds.input_names == ("roll_ref", "pitch_ref", "yaw_ref", "thrust_ref")
+    assert ds.output_names == ("z", "roll", "pitch", "yaw") and ds.n_trajectories == 1
+    log = ULog(str(PX4_SIH))
+    st = log.get_dataset("vehicle_status").data
+    t_off = int(st["timestamp"][np.argmax(st["nav_state"] == 14)])     # PX4's own switch to offboard
+    seg = ds.metadata["segments"][0]
+    assert log.start_timestamp + seg["t_start_s"] * 1e6 == pytest.approx(t_off, abs=5000)
+    grid = log.start_timestamp + round(seg["t_start_s"] * 1e6) + np.arange(ds.lengths[0]) * 5000
+    # Against the raw samples: setpoints held (the newest at or before each grid time), height interpolated.
+    sp = log.get_dataset("vehicle_attitude_setpoint").data
+    i = np.searchsorted(sp["timestamp"], grid, side="right") - 1
+    np.testing.assert_allclose(ds.u[0][:, 3], -sp["thrust_body[2]"][i], atol=F32)
+    lp = log.get_dataset("vehicle_local_position").data
+    np.testing.assert_allclose(ds.y[0][:, 0], -np.interp(grid, lp["timestamp"], lp["z"]), atol=1e-5)
+
+
+def test_a_preset_reading_trajectory_setpoint_is_refused_on_attitude_offboard_with_advice(flight, tmp_path):
+    with pytest.raises(DataError, match=r"PX4 flew attitude off-board here .* no trajectory_setpoint.*ddpc-bridge "
+                                        r"--log flight.npz.*--preset px4-offboard-attitude"):
+        import_ulog(PX4_SIH, preset="pogox-flying", offboard_only=True)
+    # Position off-board (or no offboard_control_mode logged): trajectory_setpoint is there and is read.
+    topics = flight.topics()
+    t = topics["vehicle_status"]["timestamp"]
+    for mode, refused in (({"position": True}, False), ({"attitude": True}, True)):
+        topics["offboard_control_mode"] = {"timestamp": t, **{k: np.full(t.size, v) for k, v in mode.items()}}
+        p = write_ulog(tmp_path / f"{'att' if refused else 'pos'}.ulg", topics)
+        if refused:
+            with pytest.raises(DataError, match="attitude off-board"):
+                import_ulog(p, preset="pogox-flying")
+        else:
+            assert import_ulog(p, preset="pogox-flying").n_trajectories == 1

@@ -41,6 +41,9 @@ PX4_FORMATS: dict[str, list[tuple[str, str]]] = {
                                ("float", "heading"), ("uint8_t[4]", "_padding1")],
     "vehicle_status": [("uint64_t", "timestamp"), ("uint64_t", "armed_time"), ("uint8_t", "arming_state"),
                        ("uint8_t", "nav_state"), ("uint8_t[6]", "_padding0")],
+    "offboard_control_mode": [("uint64_t", "timestamp"), ("bool", "position"), ("bool", "velocity"),
+                              ("bool", "acceleration"), ("bool", "attitude"), ("bool", "body_rate"),
+                              ("bool", "thrust_and_torque"), ("bool", "direct_actuator"), ("uint8_t[1]", "_padding0")],
 }
 
 

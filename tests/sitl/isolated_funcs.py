@@ -31,3 +31,64 @@ def sitl_heartbeat(autopilot: str) -> dict:
         workdir = str(sitl.workdir)
     return {"heartbeat_s": t_hb, "autopilot": hb.autopilot, "type": hb.type, "param": name,
             "value": None if pv is None else float(pv.param_value), "rc": sitl.proc is None, "workdir": workdir}
+
+
+def flight_with_autopilot_log(autopilot: str, out_dir: str, duration: float = 6.0) -> dict:
+    """A short passthrough flight from the ground (arm, take off, fly, land) by ``ddpc-bridge``,
+    and the autopilot's side of it: PX4's own ULog (from its working directory ``log/``), or for
+    ArduCopter (GUID_OPTIONS 8) a tlog recorded meanwhile by a GCS-like connection on SERIAL1
+    (5762) that asks for ATTITUDE, LOCAL_POSITION_NED and ATTITUDE_TARGET at 50 Hz."""
+    import shutil
+    import subprocess
+    import sys
+    import threading
+    from pathlib import Path
+
+    from firmware_bridge.sitl import make_sitl
+    from firmware_bridge.sitl_demo import PROFILES
+
+    out = Path(out_dir)
+    sitl = make_sitl(autopilot, **({"params": {"GUID_OPTIONS": 8}} if autopilot == "ardupilot" else {}))
+    sitl.keep = True
+    stop = threading.Event()
+    rec = None
+    with sitl:
+        if autopilot == "ardupilot":
+            sitl.connect(timeout=60).close()
+            rec = threading.Thread(target=_record_tlog, args=("tcp:127.0.0.1:5762", out / "ardupilot.tlog", stop),
+                                   daemon=True)
+            rec.start()
+        cmd = [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
+               "--profile", PROFILES[autopilot], "--mode", "passthrough", "--arm", "--offboard", "--takeoff", "--land",
+               "--duration", f"{duration:g}", "--timeout", "150", "--wait-heartbeat", "60",
+               "--log", str(out / "ticks.npz"), "--summary", str(out / "summary.json")]
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=out)
+        stop.set()
+        if rec is not None:
+            rec.join(5)
+        workdir = sitl.workdir
+    logs = []
+    for p in sorted(workdir.glob("log/**/*.ulg")):
+        logs.append(str(shutil.copy(p, out / p.name)))
+    shutil.rmtree(workdir, ignore_errors=True)
+    if autopilot == "ardupilot":
+        logs.append(str(out / "ardupilot.tlog"))
+    return {"rc": res.returncode, "stderr": res.stderr[-3000:], "logs": logs}
+
+
+def _record_tlog(url: str, path, stop) -> None:
+    """A GCS on ``url``: asks for the streams at 50 Hz and writes every message it receives as a tlog."""
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(url, source_system=254, autoreconnect=False)
+    conn.setup_logfile(str(path), mode="wb")
+    conn.wait_heartbeat(timeout=30)
+    for msg_id in (30, 32, 83):  # ATTITUDE, LOCAL_POSITION_NED, ATTITUDE_TARGET
+        conn.mav.command_long_send(conn.target_system, conn.target_component, 511, 0, msg_id, 20000, 0, 0, 0, 0, 0)
+    next_hb = 0.0
+    while not stop.is_set():
+        if time.monotonic() >= next_hb:
+            next_hb = time.monotonic() + 1.0
+            conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
+        conn.recv_match(blocking=True, timeout=0.2)
+    conn.close()
