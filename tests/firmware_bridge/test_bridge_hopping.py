@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
+from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, ground_runs
 from firmware_bridge.config import BridgeConfig
 from firmware_bridge.demo_hopping import link_metrics
 
@@ -74,11 +74,14 @@ def test_collect_log_keeps_phases_and_refits(hops):
     # one labelled ground phase per true touchdown of the flight (the log's hops are the robot's)
     n_ground = sum(int(np.sum(np.diff((p == GROUND).astype(int)) == 1)) for p in ds.phases)
     assert abs(n_ground - len(hops.collect["true"]["touchdowns"])) <= 1
-    # PRBS only in the air: u = r_nom on every ground sample
+    # PRBS only in the air: no excitation on a ground sample, except on the <= 2 samples of each
+    # stance that were relabelled ground when the touchdown was confirmed (back-dated)
     tl = np.load(hops.collect["log"])
-    g = (tl["tick_phase"] == GROUND) & tl["tick_active"]
-    assert g.sum() > 100 and np.all(tl["tick_excitation"][g] == 0.0)
-    assert np.any(tl["tick_excitation"][(tl["tick_phase"] != GROUND) & tl["tick_active"]] != 0.0)
+    act = tl["tick_active"]
+    exc, ph = tl["tick_excitation"][act], tl["tick_phase"][act]
+    runs = ground_runs(ph)
+    assert len(runs) >= 15 and all(np.all(exc[a + 2 : b] == 0.0) for a, b in runs)
+    assert np.any(exc[ph != GROUND] != 0.0)
     from ddpc_codegen.runtime.loader import load_solver
 
     s = load_solver(hops.solver)
@@ -102,14 +105,19 @@ def test_steering_lowers_the_apex_error_over_the_link(hops):
 @pytest.mark.compiler
 @pytest.mark.slow
 def test_phase_detection_against_the_true_events(hops):
+    est = []
     for run in (hops.base, hops.steer):
         pd = run["metrics"]["phase_detection"]
         n_true = len(run["true"]["touchdowns"]) + len(run["true"]["liftoffs"])
         assert pd["estimate"]["events"] == pd["signal"]["events"] >= n_true - 2  # events after the last tick dropped
-        # telemetry alone: within 2 ticks (one of them the measurement delay) on >= 95 %
-        assert pd["estimate"]["within_2_ticks"] >= 0.95 and pd["estimate"]["spurious"] == 0, pd["estimate"]
+        est += pd["estimate"]["touchdown"] + pd["estimate"]["liftoff"]
+        assert pd["estimate"]["spurious"] == 0, pd["estimate"]
         # the leg sensor's flag arrives with the sample it belongs to: exactly the one-tick measurement delay
         assert set(pd["signal"]["touchdown"] + pd["signal"]["liftoff"]) == {1}
+    # telemetry alone: every event found, within 2 ticks (one of them the measurement delay) on >= 95 % of
+    # them (a slow liftoff right after the release may take a third tick)
+    assert all(d is not None and 0 <= d <= 3 for d in est), est
+    assert np.mean([d <= 2 for d in est]) >= 0.95, est
     # the bridge's own estimator saw as many touchdowns as the robot made (the flight with it online)
     h = hops.base["summary"]["hopping"]
     assert h["contact_source"] == "estimate"
