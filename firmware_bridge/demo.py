@@ -344,6 +344,8 @@ def main(argv: list[str] | None = None) -> int:
                         "steered; default out reports/bridge_hopping.json, 120 s collect, lock-step)")
     p.add_argument("--realtime", action="store_true", help="hopping: real time instead of lock-step")
     p.add_argument("--noise", action="store_true", help="hopping: sensor noise on the vehicle (default: none, as make demo)")
+    p.add_argument("--contact", choices=("estimate", "signal"), default="estimate",
+                   help="hopping: the bridge's phases from telemetry alone (default) or the vehicle's contact signal")
     a = p.parse_args(argv)
     if a.scenario == "hopping":
         from firmware_bridge.demo_hopping import run_hopping_demo
@@ -352,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
         run_hopping_demo(out, Path(a.work), collect_s=a.collect or 120.0, flight_s=a.flight,
                          solver=Path(a.solver) if a.solver else None,
                          config=None if a.config == _FLY_CONFIG else Path(a.config), lockstep=not a.realtime,
-                         noise=a.noise, rt_priority=a.rt_priority, seed=a.seed, log=lambda s: print(s, flush=True))
+                         noise=a.noise, contact=a.contact, rt_priority=a.rt_priority, seed=a.seed, log=lambda s: print(s, flush=True))
         return 0
     run_demo(Path(a.out), Path(a.work), collect_s=a.collect or 60.0, flight_s=a.flight,
              solver=Path(a.solver) if a.solver else None, config=Path(a.config), predictor=a.predictor,

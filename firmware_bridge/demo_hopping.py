@@ -189,9 +189,11 @@ def in_process(solver_dir: Path, duration: float, seed: int, noise: bool) -> dic
 
 def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_s: float = 20.0,
                      solver: Path | None = None, config: Path | None = None, lockstep: bool = True,
-                     noise: bool = False, rt_priority: int = 30, seed: int = 1, log=print) -> dict:
+                     noise: bool = False, contact: str = "estimate", rt_priority: int = 30, seed: int = 1,
+                     log=print) -> dict:
     """collect -> codegen -> baseline -> steered over the link, then the in-process reference (see
-    the module docstring). ``lockstep`` False: both processes in real time (SCHED_FIFO if permitted)."""
+    the module docstring). ``lockstep`` False: both processes in real time (SCHED_FIFO if permitted).
+    ``contact``: the bridge's phase source ("estimate": telemetry alone; "signal": the leg sensor's flag)."""
     import subprocess
     import time
 
@@ -201,7 +203,7 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
     work.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()
     veh = ["--scenario", "hopping", "--contact-signal"] + ([] if noise else ["--no-noise"])
-    br = ["--scenario", "hopping"]
+    br = ["--scenario", "hopping", "--contact", contact]
     if lockstep:
         veh, br = veh + ["--lockstep"], br + ["--lockstep"]
     kw = dict(rt_priority=0 if lockstep else rt_priority, log=log, vehicle_args=veh)
@@ -216,6 +218,7 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
                            env=_env(), capture_output=True, text=True, timeout=900)
         if r.returncode != 0:
             raise RuntimeError(f"codegen failed:\n{r.stderr}")
+        log("    " + r.stderr.strip().replace("\n", "\n    "))
         solver = Path(r.stdout.strip().splitlines()[-1])
     log(f"3. baseline: {flight_s:g} s, the hopping controller alone (passthrough)")
     runs["baseline"] = fly("hop_baseline", work, br + ["--mode", "passthrough"], duration=flight_s, seed=seed + 1, **kw)
@@ -232,7 +235,8 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
                                                              "reasons", "duration_s", "stop_reason", "hopping", "steering")}
                  for k, v in runs.items()},
         "settings": {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s, "seed": seed,
-                     "config": str(config), "lockstep": lockstep, "noise": noise, "settle_hops": 3},
+                     "config": str(config), "lockstep": lockstep, "noise": noise, "contact": contact,
+                     "settle_hops": 3},
     }
     report["wall_s"] = time.monotonic() - t_start
     out.parent.mkdir(parents=True, exist_ok=True)
