@@ -21,9 +21,11 @@ plane; the samples in between are relabelled ground in the steering history and 
 (:attr:`PhaseEstimator.backdate`): spring dynamics labelled aerial would corrupt the aerial data.
 
 At the first engagement the controller is released at rest where the robot hovers (the first
-arc's apex is the measured height, trajectory time 0) and the estimator starts in DESCENT. Any
-telemetry hole resets the hopping history (:meth:`HoppingSteering.lost`): a window cannot be
-bridged across a possible ground phase; the policy fades the offset back in (bumpless).
+arc's apex is the measured height, trajectory time 0) and the estimator starts in DESCENT. A telemetry
+hole (lock-step: a missing stamp), stale telemetry or a re-engagement resets the hopping history
+(:meth:`HoppingSteering.lost` / ``reset``): a window cannot be bridged across a possible ground
+phase; the policy fades the offset back in (bumpless). In real time a late sample is held, as
+when flying.
 """
 
 from __future__ import annotations
