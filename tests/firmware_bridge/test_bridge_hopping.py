@@ -169,3 +169,66 @@ def test_steering_needs_the_artificial_io_operator():
     solver = SimpleNamespace(manifest={"dims": {"m": 3, "p": 3}, "artificial_io": None}, artificial_io=None)
     with pytest.raises(ValueError, match="no artificial-IO operator"):
         hopping_window(solver, 20)
+
+
+class _Steerer:
+    """A stand-in steerer that never steers (warm-up)."""
+
+    t_ini, t_f, m, p = 4, 6, 3, 3
+
+    def observe(self, u, y) -> None:
+        pass
+
+    def reset(self) -> None:
+        pass
+
+    def set_window(self, u, y) -> None:
+        pass
+
+    def step(self, y_des, u_nom):
+        from ddpc_codegen.runtime.steerer import SteerOutcome
+
+        return SteerOutcome(np.asarray(u_nom[0]), False, "warmup")
+
+
+def _loop(source: str = "estimate"):
+    from ddpc_codegen.robot.controller import HeightLegAngleController
+    from ddpc_codegen.robot.phases import ContactConfig
+    from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.runtime.policy import SteeringPolicy
+    from firmware_bridge.hopping import HoppingLoop
+
+    ctrl = HeightLegAngleController(load_profile("pogox_hopping").controller)
+    return HoppingLoop(ctrl, ContactConfig(source=source), SteeringPolicy(_Steerer()), None)
+
+
+def _state(z: float, vz: float):
+    from ddpc_codegen.robot.state import MeasuredState
+
+    return MeasuredState(0.0, np.array([0.0, 0.0, z]), np.array([0.0, 0.0, vz]), np.zeros(3), np.zeros(3))
+
+
+def test_hopping_loop_history_resets_on_a_hole_and_phases_drive_the_controller():
+    hop = _loop()
+    tel = SimpleNamespace(contact=None, contact_stamp=float("nan"), newest_stamp=lambda: 0.0)
+    hop.release(_state(0.7, 0.0))
+    ahead = 0.005 * np.arange(6)
+    for k, z in enumerate((0.45, 0.43, 0.41, 0.3915, 0.383)):  # falling; the foot 8.5 mm below the plane: touchdown
+        st = hop.observe(_state(z, -1.7), tel)
+        hop.ctrl.nominal_reference(st)
+        hop.steer(np.zeros(3), np.zeros(3), 0.005 * k, ahead)
+    assert st.contact and hop.ctrl.phase == GROUND and hop.summary()["touchdowns"] == 1
+    assert hop.excitation(np.ones(3)).tolist() == [0.0, 0.0, 0.0]  # no PRBS on the ground
+    assert hop.steering.history.views()[0].shape[0] == 5
+    hop.lost(1)  # one lost sample: the hopping history starts over
+    assert hop.steering.history.views()[0].shape[0] == 0
+
+
+def test_signal_source_holds_the_phase_until_the_first_flag():
+    hop = _loop("signal")
+    tel = SimpleNamespace(contact=None, contact_stamp=float("nan"), newest_stamp=lambda: 1.0)
+    assert not hop.observe(_state(0.3, -1.0), tel).contact and hop.counts["contact_missing"] == 1
+    tel.contact, tel.contact_stamp = True, 0.995  # a flag one sample older than the state: used, counted
+    for _ in range(3):
+        st = hop.observe(_state(0.3, -1.0), tel)
+    assert st.contact and hop.counts["contact_old"] == 3
