@@ -47,7 +47,7 @@ codegen: install data/flying.npz data/hopping_raw.npz
 
 # Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights.
 bridge-demo: install
-	$(PY) -m firmware_bridge.demo
+	$(PY) -m firmware_bridge.demo $(if $(SCENARIO),--scenario $(SCENARIO))
 
 # Real autopilots (see the README for building them; found through DDPC_ARDUPILOT_SITL and
 # DDPC_PX4_SITL): from the ground, baseline -> collect -> codegen -> steer, each SITL in a private

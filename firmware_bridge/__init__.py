@@ -10,12 +10,14 @@
 * :mod:`.phases` -- arming retries, take-off ramp, bumpless (re-)engagement.
 * :mod:`.setpoints` -- setpoint shaping: PRBS in collect mode, clamps, the SET_ATTITUDE_TARGET send.
 * :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
+* :mod:`.hopping` -- hopping: phases from telemetry or a contact signal, the hopping steering tick.
 * :mod:`.sitl`, :mod:`.sitl_demo` -- real autopilot SITLs (PX4 SIH, ArduCopter) for tests and
   ``make sitl-demo``.
 * :mod:`.vehicle` -- the simulator behind a PX4-like MAVLink endpoint (``ddpc-vehicle``).
 * :mod:`.realtime` -- SCHED_FIFO, mlockall, PM QoS for the loop; wake-up latency probe (``ddpc-rtcheck``).
 * :mod:`.ticklog` -- the per-tick log, an IODataset ``.npz`` (collect -> dataset -> codegen -> steer).
-* :mod:`.cli`, :mod:`.demo` -- console entry points and ``make bridge-demo``.
+* :mod:`.cli`, :mod:`.demo`, :mod:`.demo_hopping` -- console entry points and ``make bridge-demo
+  [SCENARIO=hopping]``.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ _EXPORTS: dict[str, str] = {
     "ArduPilotProfile": "firmware_bridge.profiles",
     "PX4Profile": "firmware_bridge.profiles",
     "make_profile": "firmware_bridge.profiles",
+    "HoppingLoop": "firmware_bridge.hopping",
     "TelemetryState": "firmware_bridge.telemetry",
     "TickLog": "firmware_bridge.ticklog",
     "load_ticklog": "firmware_bridge.ticklog",

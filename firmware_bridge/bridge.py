@@ -4,10 +4,12 @@ SET_ATTITUDE_TARGET out, at 200 Hz (``ddpc-bridge``).
 One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
 
     newest telemetry (NED/FRD -> ENU/FLU -> trajectory frame) -> MeasuredState (t = trajectory time)
+    hopping: phase (contact estimate or the robot's contact flag) -> state.contact    (:mod:`.hopping`)
     r_nom = controller.nominal_reference(state)             stage (a)
     u     = steer: ReferenceSteerer.step(y_des, u_nom)      the generated solver, with fallback
             passthrough: r_nom                              the model-based controller alone
-            collect: r_nom + PRBS                           new data
+            collect: r_nom + PRBS                           new data (hopping: in the air only)
+            hopping steer: HoppingSteering.decide(phase, ...)  ground ticks r_nom, aerial windows completed
     sp    = controller.track(u, state)                      stage (b): quaternion + thrust
     clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
 
@@ -56,12 +58,14 @@ import time
 import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
+from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
 from firmware_bridge.clock import TickClock
 from firmware_bridge.config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
                                     default_controller_config)
+from firmware_bridge.hopping import HoppingLoop, hopping_window
 from firmware_bridge.link import CommandTracker, MavLink
 from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
 from firmware_bridge.preflight import PreflightError, VehicleInfo, check_trajectory_bounds
@@ -92,10 +96,10 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self.ctrl_cfg = c.controller or default_controller_config()
         if abs(self.ctrl_cfg.dt - self.period) > 1e-9:
             raise ValueError(f"controller dt {self.ctrl_cfg.dt} s does not match the rate {c.rate_hz} Hz")
-        if self.ctrl_cfg.mode != "flying":
-            raise ValueError("the bridge flies the 'flying' controller (hopping needs a contact estimate "
-                             "that MAVLink telemetry does not carry)")
         self.ctrl = HeightLegAngleController(self.ctrl_cfg, c.trajectory)
+        self.hopping = self.ctrl.mode == "hopping"
+        contact = c.contact or ContactConfig(leg_length=self.ctrl_cfg.leg_length)
+        self.hop: HoppingLoop | None = None
         self.m, self.p = self.ctrl.m, self.ctrl.p
         self.hover_thrust = self.ctrl_cfg.model_mass * self.ctrl_cfg.g / self.ctrl_cfg.max_thrust
         self.profile: Profile = make_profile(c.autopilot, prestream=c.prestream)
@@ -104,11 +108,17 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self.solver = None
         if c.mode == "steer":
             self._setup_solver(solver)
+        if self.hopping:
+            window = hopping_window(self.solver, self.steerer.t_ini) if self.steerer is not None else None
+            self.hop = HoppingLoop(self.ctrl, contact, self.policy if self.steerer is not None else None, window)
         self.link = link or MavLink(c.url, baud=c.baud, source_system=c.sysid, source_component=c.compid,
                                     target_system=c.target_system, target_component=c.target_component)
         self.tracker = CommandTracker(self.link)
-        self.telem = TelemetryState(c.attitude_stream, c.position_stream)
-        self.frame = TrajectoryFrame(c.frame, anchor=(self.ctrl.trajectory.start_point()[0], 0.0))
+        # Hopping: the contact flag is read (and logged) whenever the robot sends one; it drives the
+        # phases only with source "signal".
+        self.telem = TelemetryState(c.attitude_stream, c.position_stream, contact.signal_name if self.hopping else None)
+        x0 = 0.0 if self.hopping else self.ctrl.trajectory.start_point()[0]
+        self.frame = TrajectoryFrame(c.frame, anchor=(x0, 0.0))
         self.rec = TickRecorder(self.m, self.p, capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
         self.tilt_max = math.radians(c.max_tilt_deg)
         self._exc = None
@@ -151,12 +161,23 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self.steerer = ReferenceSteerer.for_solver(
             solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
         self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill)
-        traj = self.ctrl.trajectory
-        t = np.linspace(0.0, traj.t_start + 5 * traj.spin_up + traj.period, 2000)
         lo, hi = solver_input_bounds(solver)
-        check_trajectory_bounds(traj.sample(t)["z"], float(lo[0]), float(hi[0]))
+        if self.hopping:  # the nominal hop: from the leg's rest length up to the apex
+            cc = self.ctrl_cfg
+            check_trajectory_bounds(np.array([cc.leg_length, cc.apex_height]), float(lo[0]), float(hi[0]), "hop")
+        else:
+            traj = self.ctrl.trajectory
+            t = np.linspace(0.0, traj.t_start + 5 * traj.spin_up + traj.period, 2000)
+            check_trajectory_bounds(traj.sample(t)["z"], float(lo[0]), float(hi[0]))
         self.t_f = d["t_f"]
         self._ahead = self.period * np.arange(self.t_f)
+
+    def _reset_steering(self) -> None:
+        """Forget the steering history (hopping: its own (u, y, phase) history too)."""
+        if self.hop is not None:
+            self.hop.reset()
+        elif self.steerer is not None:
+            self.policy.reset()
 
     def stop(self, *_args) -> None:
         """Ask the loop to finish (signal handler)."""
@@ -330,6 +351,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self._tick_t = tclk
         t_traj = tclk - self._traj_t0 if self._traj_t0 is not None else 0.0
         state = dataclasses.replace(state, t=t_traj)
+        if self.hop is not None:
+            state = self.hop.observe(state, tel)
         ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
         if not fresh and c.stale_action != "reference":
             q, thrust, field = self._level_setpoint()
@@ -370,7 +393,9 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             ref["reason"] = "inactive"
         elif not fresh:
             ref["reason"] = "stale"
-            if self.steerer is not None:
+            if self.hop is not None:
+                self.hop.reset()
+            elif self.steerer is not None:
                 self.steerer.reset()
         elif blending:
             # The hand-over is the controller's alone: the solver would pull the reference back to the
@@ -378,12 +403,15 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             ref["reason"] = "blend"
             if self.steerer is not None:
                 self.policy.observe(r_nom, y)
+        elif self.cfg.mode == "steer" and self.hop is not None:
+            self.hop.lost(fill)
+            ref.update(self.hop.steer(y, r_nom, t_traj, self._ahead))
         elif self.cfg.mode == "steer":
             self.policy.lost(fill, y)
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None)
         elif self.cfg.mode == "collect":
-            ref["exc"] = self._excitation()
+            ref["exc"] = self._excitation() if self.hop is None else self.hop.excitation(self._excitation())
             ref.update(u=r_nom + ref["exc"], reason="collect")
         else:
             ref["reason"] = "passthrough"

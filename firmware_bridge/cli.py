@@ -116,6 +116,9 @@ def build_bridge_parser() -> argparse.ArgumentParser:
     p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 921600)")
     p.add_argument("--mode", choices=("steer", "passthrough", "collect"), default=_D["mode"])
     p.add_argument("--solver", default=None, help="generated solver folder (steer mode), e.g. generated/flying")
+    p.add_argument("--scenario", choices=("flying", "hopping"), default=None,
+                   help="flying (default) or hopping: the profile's controller mode; hopping without --profile is the "
+                        "shipped pogox_hopping (phases from telemetry or a contact signal, see --contact)")
     _bridge_autopilot_args(p.add_argument_group("autopilot"))
     _bridge_loop_args(p.add_argument_group("loop"))
     _bridge_safety_args(p.add_argument_group("safety"))
@@ -169,6 +172,11 @@ def _bridge_loop_args(g) -> None:
                    help="robot profile: a shipped name (pogox) or a TOML with [controller] (ControllerConfig "
                         "fields: model_mass, max_thrust, kp_z, ...) and [trajectory] (EllipseTrajectory fields); "
                         "default: pogox, the simulated PogoX")
+    g.add_argument("--contact", choices=("estimate", "signal"), default=None,
+                   help="hopping phase detection: estimate (from height, vertical velocity and leg angles) or signal "
+                        "(the robot's NAMED_VALUE_INT contact flag); default: the profile's [contact] source")
+    g.add_argument("--contact-name", default=None, metavar="NAME",
+                   help="NAMED_VALUE_INT name of the contact flag (default: the profile's, CONTACT)")
 
 
 def _bridge_safety_args(g) -> None:
@@ -208,18 +216,34 @@ def _bridge_logging_args(g) -> None:
     g.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
 
 
-def _controller_from_toml(path: str):
-    """(ControllerConfig, EllipseTrajectory) of a robot profile (shipped name or TOML path)."""
+def _profile_from_args(a: argparse.Namespace):
+    """(ControllerConfig, EllipseTrajectory, ContactConfig) of the robot profile named by --profile /
+    --scenario (None, None, None: the flying default), with --contact / --contact-name applied."""
+    from dataclasses import replace
+
     from ddpc_codegen.robot.profile import load_profile
 
-    prof = load_profile(path)
-    return prof.controller, prof.trajectory
+    name = a.controller or ("pogox_hopping" if a.scenario == "hopping" else None)
+    if name is None:
+        if a.contact or a.contact_name:
+            raise ValueError("--contact / --contact-name are for hopping (--scenario hopping)")
+        return None, None, None
+    prof = load_profile(name)
+    if a.scenario and prof.controller.mode != a.scenario:
+        raise ValueError(f"--scenario {a.scenario} but profile {prof.name} has controller mode {prof.controller.mode!r}")
+    contact = prof.contact
+    if a.contact:
+        contact = replace(contact, source=a.contact)
+    if a.contact_name:
+        contact = replace(contact, signal_name=a.contact_name)
+    traj = prof.trajectory if prof.controller.mode == "flying" else None  # hopping: the hop cycle, no path
+    return prof.controller, traj, contact
 
 
 def bridge_config_from_args(a: argparse.Namespace):
     from firmware_bridge.bridge import BridgeConfig
 
-    ctrl, traj = _controller_from_toml(a.controller) if a.controller else (None, None)
+    ctrl, traj, contact = _profile_from_args(a)
     if a.trajectory:
         from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
 
@@ -237,7 +261,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
-        inject_solver_failure=a.inject_solver_failure, controller=ctrl, trajectory=traj, frame=a.frame, rt_priority=a.rt_priority,
+        inject_solver_failure=a.inject_solver_failure, controller=ctrl, contact=contact, trajectory=traj, frame=a.frame, rt_priority=a.rt_priority,
         cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
         verbose=a.verbose)
 
@@ -256,6 +280,10 @@ def format_summary(s: dict) -> str:
         f"  rmse z (telemetry, after settle) {f(s['rmse_z_measured'], '{:.4f}')} m  "
         f"link rx {s['link'].get('rx', 0)} bad {s['link'].get('bad_data', 0)} foreign {s['link'].get('foreign', 0)}",
     ]
+    if "hopping" in s:
+        h = s["hopping"]
+        lines.append(f"  hopping: phases from {h['contact_source']}, touchdowns {h['touchdowns']} liftoffs {h['liftoffs']}"
+                     + (f", windows completed {h['artificial_io']['filled']}" if "artificial_io" in h else ""))
     if "steering" in s:
         st = s["steering"]
         lines.append(f"  steering: steered {st['steered']} warmup {st['warmup']} fallbacks {st['fallbacks']}  "
@@ -311,6 +339,12 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep-timeout", type=float, default=1.0, help="lockstep: max wall wait per tick [s]")
     p.add_argument("--peer-timeout", type=float, default=5.0,
                    help="lockstep: end when the companion, once heard, has been silent this long [s] (0: never)")
+    p.add_argument("--scenario", choices=("flying", "hopping"), default="flying",
+                   help="the simulator's robot and start point: flying (hover at the ellipse's start) or hopping "
+                        "(hover at the 0.7 m release height; the bridge hops it with --scenario hopping)")
+    p.add_argument("--contact-signal", nargs="?", const="CONTACT", default=None, metavar="NAME",
+                   help="publish the foot-contact flag as NAMED_VALUE_INT NAME (default CONTACT; 1 = foot on the "
+                        "ground) with every telemetry sample, as a leg sensor would")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise (the delay stays)")
     p.add_argument("--start", choices=("hover", "disarmed"), default="hover",
@@ -348,7 +382,8 @@ def vehicle_main(argv: list[str] | None = None) -> int:
 
     try:
         cfg = VehicleConfig(url=a.connection, baud=a.baud, sysid=a.sysid,
-                            compid=a.compid, autopilot=a.autopilot, lockstep=a.lockstep,
+                            compid=a.compid, autopilot=a.autopilot, lockstep=a.lockstep, scenario=a.scenario,
+                            contact_signal=a.contact_signal,
                             lockstep_timeout=a.lockstep_timeout, peer_timeout=a.peer_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
                             start_offset=a.start_offset, start_yaw=math.radians(a.start_yaw_deg),
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,

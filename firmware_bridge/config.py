@@ -11,6 +11,7 @@ import numpy as np
 
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
@@ -73,7 +74,8 @@ class BridgeConfig:
             autopilot's off-board-loss failsafe takes over (0: never stop).
         link_timeout: no vehicle heartbeat for this long [s] -> link lost.
         max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
-        max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard).
+        max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard; hopping's
+            default, as in the simulator's loop).
         max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
             history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
             instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
@@ -87,16 +89,21 @@ class BridgeConfig:
             instead of HOLD.
         blend_rates: bumpless (re-)engagement: the applied references start at the measured
             outputs and approach the nominal ones at most this fast per channel ((m/s, rad/s) for
-            flying); None: no blending.
+            flying); None: no blending (hopping: the policy's fade-in is the bumpless transfer, a
+            blend toward an arc or a stance reference would fight the hop).
         duration: stop after this long in off-board [s] (None: until signalled).
         timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
         lockstep: tick only on telemetry, controller time = vehicle time stamps.
         log: tick log path (.npz; an IODataset). summary: JSON summary path.
         dataset_skip: seconds after each activation left out of the dataset part of the log.
         settle: seconds after activation excluded from the RMSE in the summary.
-        excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed.
+        excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed
+            (hopping: in the air only; default (0.01, 0.02, 0.02) m, rad as in the simulator).
         inject_solver_failure: (first solve index, count[, "fail" | "nan"]) fault injection for tests.
-        controller: ControllerConfig (default: :func:`default_controller_config`).
+        controller: ControllerConfig (default: :func:`default_controller_config`); ``mode =
+            "hopping"`` makes the bridge hop (:mod:`.hopping`; profile ``pogox_hopping``).
+        contact: hopping phase detection (the profile's ``[contact]``; default: estimated from
+            telemetry with the controller's leg length).
         trajectory: EllipseTrajectory (default: the controller's default ellipse).
         frame: "start" (default: the trajectory starts where the robot is, along its heading, when
             it enters off-board; no turn, no jump) or "world" (trajectory coordinates are the
@@ -151,6 +158,7 @@ class BridgeConfig:
     seed: int = 0
     inject_solver_failure: tuple | None = None
     controller: ControllerConfig | None = None
+    contact: ContactConfig | None = None
     trajectory: EllipseTrajectory | None = None
     frame: str = "start"
     rt_priority: int = 0
@@ -176,6 +184,29 @@ class BridgeConfig:
             raise ValueError(f"max_gap_fill must be an integer >= 0; got {self.max_gap_fill!r}")
         if self.frame not in ("start", "world"):
             raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
+        if self.scenario == "hopping":
+            self._hopping_defaults()
+
+    @property
+    def scenario(self) -> str:
+        """"flying" or "hopping" (the controller's mode)."""
+        return self.controller.mode if self.controller is not None else "flying"
+
+    def _hopping_defaults(self) -> None:
+        """The flying defaults have two channels; on the three-channel hopping loop they can only be
+        defaults, replaced by hopping's (no step guard, no blend, the simulator's PRBS)."""
+        for key, hop in (("max_step", None), ("blend_rates", None), ("excitation", _HOP_EXCITATION)):
+            if getattr(self, key) == _FLYING_DEFAULTS[key]:
+                setattr(self, key, hop)
+            v = getattr(self, key)
+            if v is not None and len(v) != 3:
+                raise ValueError(f"{key} needs 3 values on the hopping loop (z_ref, roll_ref, pitch_ref); got {v!r}")
+        if self.takeoff:
+            raise ValueError("takeoff is for flying: hopping is released from where the robot hovers")
+
+
+_FLYING_DEFAULTS = {"max_step": (0.3, 0.5), "blend_rates": (0.5, 0.5), "excitation": (0.05, 0.03)}
+_HOP_EXCITATION = (0.01, 0.02, 0.02)
 
 
 class FaultInjectingSolver:

@@ -99,8 +99,9 @@ def write_toml(raw: dict, path: Path) -> Path:
 
 
 def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed: int, rt_priority: int,
-        cpu_latency_us: int = 0, pin: bool = False, log=print) -> dict:
-    """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths + summary."""
+        cpu_latency_us: int = 0, pin: bool = False, log=print, vehicle_args: list[str] = ()) -> dict:
+    """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths + summary.
+    ``vehicle_args``: more ``ddpc-vehicle`` flags (e.g. --scenario hopping --lockstep)."""
     port = free_udp_port()
     truth = work / f"{name}_truth.npz"
     ticks = work / f"{name}.npz"
@@ -113,7 +114,7 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
         veh = subprocess.Popen(
             _py() + ["firmware_bridge.cli", "vehicle", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
                      "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
-                     "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle"),
+                     "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle") + list(vehicle_args),
             env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
         cmd = _py() + ["firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{port}", "--offboard", "--duration",
                        str(duration), "--log", str(ticks), "--summary", str(summ), "--rt-priority", str(rt_priority),
@@ -314,14 +315,19 @@ def format_table(r: dict) -> str:
     return "\n".join(lines)
 
 
+_OUT = str(ROOT / "reports" / "bridge.json")
+_FLY_CONFIG = str(ROOT / "configs" / "flying.toml")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m firmware_bridge.demo", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default=str(ROOT / "reports" / "bridge.json"))
+    p.add_argument("--out", default=_OUT)
     p.add_argument("--work", default=str(ROOT / "build" / "bridge-demo"), help="logs, dataset, generated solver")
-    p.add_argument("--collect", type=float, default=60.0, help="seconds of data collection over the link")
+    p.add_argument("--collect", type=float, default=None,
+                   help="seconds of data collection over the link (default 60 flying, 120 hopping)")
     p.add_argument("--flight", type=float, default=20.0, help="seconds of each baseline / steered flight")
     p.add_argument("--solver", default=None, help="use this generated solver instead of collecting + codegen")
-    p.add_argument("--config", default=str(ROOT / "configs" / "flying.toml"))
+    p.add_argument("--config", default=_FLY_CONFIG)
     p.add_argument("--predictor", choices=("lsq", "pem", "config"), default="lsq",
                    help="predictor of the generated solver (default lsq: exact on LTI data; 'config' keeps the "
                         "config's [predictor])")
@@ -333,8 +339,24 @@ def main(argv: list[str] | None = None) -> int:
                    help="seconds per CPU of the machine wake-up latency probe before the flights (0: skip)")
     p.add_argument("--pin", action="store_true", help="pin the bridge and the vehicle to different CPUs")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--scenario", choices=("flying", "hopping"), default="flying",
+                   help="hopping: firmware_bridge.demo_hopping (collect -> codegen configs/hopping.toml -> baseline -> "
+                        "steered; default out reports/bridge_hopping.json, 120 s collect, lock-step)")
+    p.add_argument("--realtime", action="store_true", help="hopping: real time instead of lock-step")
+    p.add_argument("--noise", action="store_true", help="hopping: sensor noise on the vehicle (default: none, as make demo)")
+    p.add_argument("--contact", choices=("estimate", "signal"), default="estimate",
+                   help="hopping: the bridge's phases from telemetry alone (default) or the vehicle's contact signal")
     a = p.parse_args(argv)
-    run_demo(Path(a.out), Path(a.work), collect_s=a.collect, flight_s=a.flight,
+    if a.scenario == "hopping":
+        from firmware_bridge.demo_hopping import run_hopping_demo
+
+        out = Path(a.out) if a.out != _OUT else ROOT / "reports" / "bridge_hopping.json"
+        run_hopping_demo(out, Path(a.work), collect_s=a.collect or 120.0, flight_s=a.flight,
+                         solver=Path(a.solver) if a.solver else None,
+                         config=None if a.config == _FLY_CONFIG else Path(a.config), lockstep=not a.realtime,
+                         noise=a.noise, contact=a.contact, rt_priority=a.rt_priority, seed=a.seed, log=lambda s: print(s, flush=True))
+        return 0
+    run_demo(Path(a.out), Path(a.work), collect_s=a.collect or 60.0, flight_s=a.flight,
              solver=Path(a.solver) if a.solver else None, config=Path(a.config), predictor=a.predictor,
              rt_priority=a.rt_priority, cpu_latency_us=a.cpu_latency_us, probe_s=a.probe, pin=a.pin, seed=a.seed,
              log=lambda s: print(s, flush=True))

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.stats import percentiles
 
 from firmware_bridge.config import FaultInjectingSolver
@@ -72,6 +73,11 @@ class Reporting:
         A["sent"][i] = sent
         A["valid"][i] = event and engaged and fresh if self.cfg.lockstep else engaged and fresh
         A["gap"][i] = gap
+        A["phase"][i] = self.ctrl.phase
+        if self.hop is not None and self.hop.backdate:
+            # A touchdown confirmed late: the samples already on the ground before it are ground samples.
+            A["phase"][max(0, i - self.hop.backdate) : i] = GROUND
+        A["contact"][i] = -1 if self.telem.contact is None else int(self.telem.contact)
         tr = self.truth
         if tr.present:
             A["truth_position"][i] = tr.position
@@ -131,6 +137,8 @@ class Reporting:
             "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
             "events": self.events,
         }
+        if self.hop is not None:
+            out["hopping"] = self.hop.summary()
         if self.steerer is not None:
             out["steering"] = self.steerer.summary()
             if isinstance(self.solver, FaultInjectingSolver):
@@ -164,6 +172,8 @@ class Reporting:
 
 def _describe_trajectory(traj) -> dict:
     """The trajectory for the log's metadata: its type and parameters (a sampled one by its source)."""
+    if traj is None:
+        return {"type": "hop cycle (the hopping controller's apex / velocity targets)"}
     d = {"type": type(traj).__name__}
     if hasattr(traj, "source") and hasattr(traj, "t"):
         d.update(source=traj.source, points=len(traj.t), t_end=float(traj.t[-1]))

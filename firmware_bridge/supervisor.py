@@ -31,7 +31,8 @@ class Supervisor:
         if typ in self.telem.wanted:
             tel = self.telem
             before = (tel.att.stamp, tel.pos.stamp)
-            tel.update(msg, rx)
+            if not tel.update(msg, rx):
+                return  # the contact flag: kept, not a state sample
             if before[0] - tel.att.stamp > 1.0 or before[1] - tel.pos.stamp > 1.0:
                 # Vehicle clock went back: it rebooted. Forget its state and ask for the streams again.
                 self.counts["reboots"] += 1
@@ -184,8 +185,7 @@ class Supervisor:
         n = int(round(r)) - 1
         if 1 <= n <= self.cfg.max_gap_fill and abs(r - round(r)) < 0.4:
             return True, n  # a few samples lost: bridged once this tick's y is known
-        if self.steerer is not None:
-            self.policy.reset()  # a long hole, or time went backwards: refill before steering again
+        self._reset_steering()  # a long hole, or time went backwards: refill before steering again
         return True, 0
 
     def _update_engagement(self, engaged: bool, tclk: float, state) -> None:
@@ -195,13 +195,14 @@ class Supervisor:
         if engaged and not self._engaged:
             self._n_activations += 1
             self._was_engaged_ever = True
-            if self.steerer is not None:
-                self.policy.reset()
+            self._reset_steering()
             if c.blend_rates:
                 self.blend.start(self.ctrl.outputs(state))
             if not self._flown:
                 self._flown = True
                 self._traj_t0 = tclk
+                if self.hop is not None:
+                    self.hop.release(state)
                 if c.takeoff:
                     self.approach = Approach(self.ctrl.trajectory.start_point()[1], climb_rate=c.climb_rate)
                     self.approach.start(float(state.position[2]))

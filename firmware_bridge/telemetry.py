@@ -71,10 +71,14 @@ class TelemetryState:
     Args:
         attitude_msg: "ATTITUDE", "ATTITUDE_QUATERNION" or "ODOMETRY".
         position_msg: "LOCAL_POSITION_NED" or "ODOMETRY".
+        contact_name: hopping with a leg sensor: the NAMED_VALUE_INT name carrying foot contact
+            (value != 0: on the ground); the newest flag is ``contact`` (None before the first one)
+            with its stamp ``contact_stamp`` [s]. None: not read.
     """
 
     attitude_msg: str = "ATTITUDE_QUATERNION"
     position_msg: str = "LOCAL_POSITION_NED"
+    contact_name: str | None = None
     att: Sample = field(default_factory=Sample)
     pos: Sample = field(default_factory=Sample)
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -88,6 +92,10 @@ class TelemetryState:
         if self.position_msg not in STREAMS["position"]:
             raise ValueError(f"position stream must be one of {STREAMS['position']}; got {self.position_msg!r}")
         self.wanted = {self.attitude_msg, self.position_msg}
+        self.contact: bool | None = None
+        self.contact_stamp = math.nan
+        if self.contact_name:
+            self.wanted.add("NAMED_VALUE_INT")
 
     @property
     def has_data(self) -> bool:
@@ -98,6 +106,11 @@ class TelemetryState:
         typ = msg.get_type()
         if typ not in self.wanted:
             return False
+        if typ == "NAMED_VALUE_INT":
+            name = msg.name if isinstance(msg.name, str) else msg.name.decode(errors="ignore")
+            if name.rstrip("\x00") == self.contact_name:
+                self.contact, self.contact_stamp = msg.value != 0, msg.time_boot_ms * 1e-3
+            return False  # not a state stream: it never triggers a tick
         if typ == "ODOMETRY":
             stamp = msg.time_usec * 1e-6
             e = euler_from_quat(quat_enu_flu_from_ned_frd(msg.q))
@@ -160,6 +173,7 @@ class TelemetryState:
     def reset(self) -> None:
         """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""
         self.att, self.pos = Sample(history=self.att.history), Sample(history=self.pos.history)
+        self.contact, self.contact_stamp = None, math.nan
 
 
 class TrajectoryFrame:

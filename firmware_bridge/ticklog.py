@@ -11,7 +11,9 @@ ticks that are valid closed-loop IO data of the loop being modelled:
   see; lock-step: the tick was triggered by telemetry whose stamp is one period after the
   previous one (a lost or merged sample is a ``gap`` and splits the run);
 * u is the reference applied at that tick (nominal + steering or PRBS), y the measured outputs
-  the tick decided on (the convention of :mod:`ddpc_codegen.sim.loop`: u[k] acts on y[k+1]...).
+  the tick decided on (the convention of :mod:`ddpc_codegen.sim.loop`: u[k] acts on y[k+1]...);
+  each sample's phase label (hopping: descent / ground / ascent, the controller's) goes with it,
+  so a hopping log splits into aerial phases and hops like a simulated run.
 
 Each maximal run of such ticks becomes one trajectory; datasets are never spliced across a gap,
 a stale stretch or a mode change. "hold" ticks (older logs) are skipped over; any other tick
@@ -55,6 +57,8 @@ REASONS = (
     "no_heartbeat",   # 12 link lost (no vehicle heartbeat)
     "takeoff",        # 13 take-off / approach to the trajectory start (--takeoff): not steered, not data
     "blend",          # 14 bumpless hand-over after (re-)engagement: reference rate-limited, history filling
+    "ground",         # 15 hopping steer mode, ground phase: the controller's reference (never steered)
+    "no_window",      # 16 hopping steer mode, in the air without a window yet (history, early ascent)
 )
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",
@@ -107,6 +111,8 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "sent": (0, bool),          # setpoint went out
         "valid": (0, bool),         # closed-loop IO sample (event tick, engaged, fresh)
         "gap": (0, bool),           # event tick whose stamp is not one period after the previous one
+        "phase": (0, np.int8),      # phase label (design.phases: 0 flying; hopping 1 descent, 2 ground, 3 ascent)
+        "contact": (0, np.int8),    # hopping: the robot's contact flag as received (-1: none yet / not read)
         # The simulator's truth (ArduPilot SITL SIM_STATE, :mod:`.truth`; nan without it): never used for control
         "truth_position": (3, float),  # local ENU [m]: east / north from the first sample, up from the take-off point
         "truth_velocity": (3, float),  # ENU [m/s]
@@ -224,7 +230,12 @@ class TickLog:
         return IODataset([u[s] for s in segs], [y[s] for s in segs], self.dt,
                          input_names=self.input_names, output_names=self.output_names,
                          input_units=self.input_units or None, output_units=self.output_units or None,
-                         phases=[np.zeros(s.size, dtype=np.int8) for s in segs], metadata=meta)
+                         phases=[self._phases(s) for s in segs], metadata=meta)
+
+    def _phases(self, rows: np.ndarray) -> np.ndarray:
+        """Phase labels of the rows (logs older than the field: flying, 0)."""
+        ph = self.ticks.get("phase")
+        return np.zeros(rows.size, dtype=np.int8) if ph is None else ph[rows].astype(np.int8)
 
     def save(self, path: str | Path, *, skip: float | None = None, min_segment: int | None = None) -> Path:
         """Write the IODataset part (via IODataset.save) plus the ``tick_*`` arrays in one .npz.

@@ -95,8 +95,8 @@ class SimVehicle:
         self.start_position[:2] += np.asarray(c.start_offset, dtype=float)
         self.stepper = Stepper(p, self.start_position, quaternion=quat_from_euler(0.0, 0.0, float(c.start_yaw)),
                                noise=c.noise, seed=c.seed, pushes=c.pushes, history=_HISTORY)
-        self.telemetry = TelemetryPublisher(self.link, c.default_rates, SamplePattern(c.telemetry_pattern,
-                                                                                     c.telemetry_seed))
+        self.telemetry = TelemetryPublisher(self.link, c.default_rates,
+                                            SamplePattern(c.telemetry_pattern, c.telemetry_seed), c.contact_signal)
         self.autopilot = AutopilotEmulator(c, self.link, StepperBody(self.stepper), lambda: self.t,
                                            self.telemetry, (self.start_position, float(c.start_yaw)))
         self.k = 0
@@ -105,6 +105,7 @@ class SimVehicle:
         self._truth = np.empty((4096, 27))
         self._truth_n = 0
         self._published: list[int] = []  # sample stamps [ms] sent at this tick
+        self.contact_events: dict[str, list[float]] = {"touchdown": [], "liftoff": []}  # true, vehicle time [s]
         self._hb_wall = -float("inf")
 
     # ------------------------------------------------------------------ views
@@ -141,7 +142,11 @@ class SimVehicle:
         """The physics of the current tick (parked when disarmed; frozen once stuck)."""
         st = self.stepper
         if self.autopilot.armed and not st.stuck:
+            # Plant time stands still while parked: the true contact events are kept in vehicle time.
+            off, n_td, n_lo = self.t - st.plant.t, len(st.touchdowns), len(st.liftoffs)
             st.advance(before_substep=before_substep)
+            self.contact_events["touchdown"] += [t + off for t in st.touchdowns[n_td:]]
+            self.contact_events["liftoff"] += [t + off for t in st.liftoffs[n_lo:]]
             if st.stuck:
                 self.autopilot.event(f"physics stopped: {st.stuck}")
         elif before_substep is not None:
@@ -295,6 +300,8 @@ class SimVehicle:
         """JSON-friendly: simulated time, ticks, mode, arming, events, counters, link statistics."""
         ap = self.autopilot
         return {"sim_time": self.t, "ticks": self.k, "mode": ap.mode_name(), "armed": ap.armed,
+                "scenario": self.cfg.scenario, "touchdowns": len(self.contact_events["touchdown"]),
+                "liftoffs": len(self.contact_events["liftoff"]),
                 "scheduling": getattr(self, "scheduling", ""), "telemetry_pattern": self.telemetry.pattern.kind,
                 "events": [[round(t, 3), e] for t, e in ap.events], **self.stats, **ap.stats,
                 "link": dict(self.link.stats)}
@@ -307,7 +314,8 @@ class SimVehicle:
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(path, t=a[:, 0], state=a[:, 1:20], armed=a[:, 20].astype(bool),
                             offboard=a[:, 21].astype(bool), fc_q_sp=a[:, 22:26], fc_thrust_sp=a[:, 26],
-                            dt=self.dt)
+                            dt=self.dt, touchdowns=np.array(self.contact_events["touchdown"]),
+                            liftoffs=np.array(self.contact_events["liftoff"]))
 
 
 def _stderr_events() -> None:

@@ -25,7 +25,12 @@ class VehicleConfig:
         lockstep: advance one tick per setpoint (see module docstring); lockstep_timeout [s wall].
         peer_timeout: lockstep: once a companion has been heard, end the run when nothing has
             arrived from it for this long [s wall] (the bridge is gone; 0: never).
-        scenario: where the vehicle starts (the scenario's start point; "flying").
+        scenario: the simulator's scenario whose robot and start point the vehicle is: "flying"
+            (hover at the ellipse's start) or "hopping" (hover at the release height; the plant
+            models the leg's ground contact either way).
+        contact_signal: publish the foot-contact flag as a NAMED_VALUE_INT of this name with every
+            telemetry sample (1 = foot on the ground, from the same delayed measurement as the
+            sample; what a leg sensor would send); None: not published.
         seed, noise: sensor-noise seed and switch (the simulator's SensorNoise defaults).
         start: "hover" (armed, HOLD at the start point) or "disarmed" (parked at the start point).
         start_offset: (x, y) added to the scenario's start point [m, local ENU] (a robot that is
@@ -61,6 +66,7 @@ class VehicleConfig:
     lockstep_timeout: float = 1.0
     peer_timeout: float = 5.0
     scenario: str = "flying"
+    contact_signal: str | None = None
     seed: int = 0
     noise: bool = True
     start: str = "hover"
@@ -85,6 +91,12 @@ class VehicleConfig:
     def __post_init__(self) -> None:
         if self.autopilot not in ("px4", "ardupilot"):
             raise ValueError(f"autopilot must be 'px4' or 'ardupilot'; got {self.autopilot!r}")
+        if self.scenario not in ("flying", "hopping"):
+            raise ValueError(f"scenario must be 'flying' or 'hopping'; got {self.scenario!r}")
+        if self.contact_signal is not None and not (0 < len(self.contact_signal) <= 10
+                                                    and self.contact_signal.isascii()):
+            raise ValueError("contact_signal must be an ASCII name of 1-10 characters (NAMED_VALUE_INT.name); "
+                             f"got {self.contact_signal!r}")
         if self.start not in ("hover", "disarmed"):
             raise ValueError(f"start must be 'hover' or 'disarmed'; got {self.start!r}")
         off = tuple(float(v) for v in self.start_offset)

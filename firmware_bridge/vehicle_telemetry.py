@@ -101,10 +101,14 @@ class TelemetryPublisher:
         link: the vehicle's MAVLink endpoint.
         default_rates: message name -> rate [Hz] before anyone asks (and after interval 0).
         pattern: which samples exist (:class:`SamplePattern`).
+        contact_name: also send each sample's foot-contact flag as a NAMED_VALUE_INT of this
+            name, stamped like the sample, ahead of its state messages (None: not sent).
     """
 
-    def __init__(self, link: MavLink, default_rates: dict[str, float], pattern: SamplePattern) -> None:
+    def __init__(self, link: MavLink, default_rates: dict[str, float], pattern: SamplePattern,
+                 contact_name: str | None = None) -> None:
         self.link = link
+        self.contact_name = contact_name
         self.default_rates = dict(default_rates)
         self.pattern = pattern
         self.intervals: dict[str, float] = {n: 0.0 for n in STREAM_IDS.values()}  # [s], 0 = off
@@ -145,7 +149,10 @@ class TelemetryPublisher:
             self._next_due[name] = nd if nd > t else t + iv
         out = []
         for ms in stamps:
-            out += encode_state(self.link.mav, due, ms, measure((now_ms - ms) * 1e-3))
+            st = measure((now_ms - ms) * 1e-3)
+            if self.contact_name:
+                out.append(self.link.mav.named_value_int_encode(ms, self.contact_name.encode(), int(st.contact)))
+            out += encode_state(self.link.mav, due, ms, st)
         self.link.send_many(out)  # one datagram per tick
         self.last_stamp_ms = stamps[-1]
         return stamps

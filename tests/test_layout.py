@@ -30,8 +30,8 @@ RULES: list[tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...], str]] = [
     (("firmware_bridge",), ("casadi", "osqp", "ddpc_codegen.sim", "ddpc_codegen.codegen",
                             "ddpc_codegen.design.problem", "ddpc_codegen.design.deepc",
                             "ddpc_codegen.experiments"),
-     ("firmware_bridge.vehicle", "firmware_bridge.demo"),
-     "the bridge runs on the companion computer (the simulated vehicle and the demo are exempt)"),
+     ("firmware_bridge.vehicle", "firmware_bridge.demo", "firmware_bridge.demo_hopping"),
+     "the bridge runs on the companion computer (the simulated vehicle and the demos are exempt)"),
 ]
 
 

@@ -13,6 +13,14 @@ Two sources, configured in the robot profile (``[contact]``):
 
 In the air, ascent vs descent is the sign of vz with a dead band (``vz_band``), switching to
 descent once per arc (at the apex), never back.
+
+Labels of past samples. The margins make a touchdown from telemetry 0-1 samples later than the
+sample on which the foot first went below the plane; a sample of the stance labelled aerial would
+put spring dynamics into the aerial data (the artificial-IO Hankel, the online windows). So once a
+touchdown is confirmed, :attr:`PhaseEstimator.backdate` says how many of the samples just before
+were already below the plane (at most ``backdate_ticks``): the loop relabels them ground. An
+aerial sample labelled ground is harmless (it is completed like the stance), so liftoffs are not
+back-dated. The contact signal belongs to its own sample: never back-dated.
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ class ContactConfig:
         touchdown_margin, liftoff_margin: foot-height thresholds below / above the plane [m].
         vz_band: dead band of the vertical velocity for touchdown / liftoff / apex [m/s].
         min_ground_ticks, min_air_ticks: shortest ground / aerial phase accepted [ticks].
+        backdate_ticks: most samples before a confirmed touchdown relabelled ground (estimate).
     """
 
     source: str = "estimate"
@@ -50,6 +59,7 @@ class ContactConfig:
     vz_band: float = 0.05
     min_ground_ticks: int = 3
     min_air_ticks: int = 10
+    backdate_ticks: int = 2
 
     def __post_init__(self) -> None:
         if self.source not in _SOURCES:
@@ -64,13 +74,18 @@ class ContactConfig:
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{key} must be an integer >= 1; got {v!r}")
+        v = self.backdate_ticks
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"backdate_ticks must be an integer >= 0; got {v!r}")
 
 
 @dataclass
 class PhaseEstimator:
     """Per-tick phase of a hopping robot (GROUND, ASCENT or DESCENT from design.phases).
 
-    Call :meth:`update` once per control tick. ``events`` collects (tick, "touchdown" | "liftoff").
+    Call :meth:`update` once per control tick. ``events`` collects (tick, "touchdown" | "liftoff");
+    ``backdate`` is, on the tick a touchdown is confirmed, the number of samples just before it
+    that were already below the plane (0 otherwise; see the module docstring).
     """
 
     config: ContactConfig
@@ -80,6 +95,8 @@ class PhaseEstimator:
     def __post_init__(self) -> None:
         self._k = -1
         self._since = 10**9  # ticks in the current phase (contact or air); large: free to switch
+        self._below = 0  # consecutive samples with the foot below the plane (estimate)
+        self.backdate = 0
 
     @property
     def contact(self) -> bool:
@@ -89,6 +106,8 @@ class PhaseEstimator:
         """Start over (e.g. released in the air: DESCENT)."""
         self.phase = phase
         self._since = 10**9
+        self._below = 0
+        self.backdate = 0
         self.events.clear()
 
     def foot_height(self, z: float, roll: float, pitch: float) -> float:
@@ -102,12 +121,14 @@ class PhaseEstimator:
         c = self.config
         self._k += 1
         self._since += 1
+        self.backdate = 0
         if c.source == "signal":
             if signal is None:
                 raise ValueError("contact source 'signal' needs the robot's contact flag every tick")
             touch, lift = bool(signal), not bool(signal)
         else:
             h = self.foot_height(z, roll, pitch)
+            self._below = self._below + 1 if h < 0.0 else 0
             # both conditions, each a few noise sigmas from 0: a foot resting near the plane
             # (noisy h and vz around 0) never switches
             touch = h < -c.touchdown_margin and vz < -c.vz_band
@@ -117,6 +138,8 @@ class PhaseEstimator:
                 self._switch(ASCENT, "liftoff")
         elif touch and self._since >= c.min_air_ticks:
             self._switch(GROUND, "touchdown")
+            if c.source == "estimate":
+                self.backdate = min(max(self._below - 1, 0), c.backdate_ticks)
         elif self.phase == ASCENT and vz < -c.vz_band:
             self.phase = DESCENT  # past the apex; the air-time counter keeps running
         return self.phase

@@ -145,6 +145,12 @@ class _History:
         self._u[self._n], self._y[self._n], self._ph[self._n] = u, y, phase
         self._n += 1
 
+    def relabel(self, n: int, phase: int) -> None:
+        """The phase of the last ``n`` samples (at most those held)."""
+        n = min(int(n), self._n)
+        if n > 0:
+            self._ph[self._n - n : self._n] = phase
+
     def views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = self._n
         return self._u[:n], self._y[:n], self._ph[:n]
@@ -190,6 +196,12 @@ class HoppingSteering:
         ground phase may sit in it), so any loss resets the history."""
         if n_missing > 0:
             self.reset()
+
+    def relabel(self, n: int, phase: int) -> None:
+        """The last ``n`` recorded ticks were in fact in ``phase`` (a touchdown estimated from
+        telemetry is confirmed a sample or two after the foot went down; see
+        :attr:`ddpc_codegen.robot.phases.PhaseEstimator.backdate`): later windows complete them."""
+        self.history.relabel(n, phase)
 
     def decide(self, phase: int, y: np.ndarray, r_nom: np.ndarray, y_des: np.ndarray,
                phases_ahead: np.ndarray) -> tuple[np.ndarray, SteerOutcome | None]:

@@ -109,3 +109,39 @@ def test_vehicle_survives_a_stuck_hybrid_integration(monkeypatch):
     _fly(veh, 3)  # no exception: the physics freezes, the autopilot goes on
     assert veh.stepper.stuck and any("physics stopped" in e for _, e in veh.events)
     assert veh.summary()["ticks"] == 3
+
+
+def test_contact_flag_goes_with_each_sample_and_is_read_back():
+    from firmware_bridge.telemetry import TelemetryState
+
+    link = _Link()
+    pub = TelemetryPublisher(link, {"ATTITUDE": 200.0, "LOCAL_POSITION_NED": 200.0}, SamplePattern("regular"), "CONTACT")
+    tel = TelemetryState("ATTITUDE", "LOCAL_POSITION_NED", contact_name="CONTACT")
+    flags = [k % 3 == 0 for k in range(12)]
+    for k, f in enumerate(flags):
+        st = MeasuredState(0.0, np.array([0.0, 0.0, 0.5]), np.zeros(3), np.zeros(3), np.zeros(3), contact=f)
+        pub.publish(0.005 * k, lambda age, st=st: st)
+        batch = link.sent[-1]
+        assert batch[0].get_type() == "NAMED_VALUE_INT" and batch[0].time_boot_ms == 5 * k  # ahead of the state
+        assert [tel.update(m, 0.0) for m in batch] == [False, True, True]  # the flag is no state stream
+        assert tel.contact is f and tel.contact_stamp == pytest.approx(0.005 * k)
+    other = link.mav.named_value_int_encode(0, b"OTHER", 1)
+    tel.update(other, 0.0)
+    assert tel.contact is flags[-1]  # another name is ignored
+
+
+def test_hopping_vehicle_logs_true_contact_events_in_vehicle_time(tmp_path):
+    from firmware_bridge.vehicle import MODE_LAND
+
+    veh = _vehicle(noise=False, scenario="hopping", truth_log=str(tmp_path / "truth.npz"))
+    assert veh.plant.state[2] == pytest.approx(0.7)  # the release height
+    _fly(veh, 20)
+    veh.autopilot.set_mode(MODE_LAND)
+    _fly(veh, 300)  # 0.3 m of leg clearance at 0.5 m/s
+    td = veh.contact_events["touchdown"]
+    assert len(td) >= 1 and td == pytest.approx(veh.stepper.touchdowns)  # armed from the start: plant = vehicle time
+    veh._write_truth()
+    with np.load(tmp_path / "truth.npz") as z:
+        assert z["touchdowns"].tolist() == td and z["liftoffs"].tolist() == veh.contact_events["liftoff"]
+    with pytest.raises(ValueError, match="scenario must be"):
+        VehicleConfig(scenario="swimming")

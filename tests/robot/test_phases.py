@@ -88,3 +88,32 @@ def test_bad_contact_config(kw, match):
 def test_signal_source_needs_the_signal():
     with pytest.raises(ValueError, match="needs the robot's contact flag"):
         PhaseEstimator(ContactConfig(source="signal")).update(0.5, 0.0, 0.0, 0.0)
+
+
+def _fall(est, v: float, dt: float = 0.005, z0: float = 0.46, n: int = 40):
+    """Foot falling onto the plane at v [m/s] then compressing; returns the heights fed."""
+    zs = []
+    for k in range(n):
+        z = z0 - v * dt * k
+        zs.append(z)
+        est.update(z, -v, 0.0, 0.0, signal=(z < 0.4) if est.config.source == "signal" else None)
+        if est.phase == GROUND:
+            return zs, k
+    raise AssertionError("no touchdown")
+
+
+@pytest.mark.parametrize("v, margin", [(1.7, 0.004), (0.5, 0.004), (1.7, 0.02)])
+def test_touchdown_backdates_the_samples_already_below_the_plane(v, margin):
+    est = PhaseEstimator(ContactConfig(leg_length=0.4, touchdown_margin=margin), phase=DESCENT)
+    zs, k = _fall(est, v)
+    below = [i for i, z in enumerate(zs) if z < 0.4]
+    # every sample below the plane before the confirming one is handed back, up to the cap
+    assert est.backdate == min(k - below[0], est.config.backdate_ticks)
+    est.update(0.39, -v, 0.0, 0.0)
+    assert est.backdate == 0  # only on the confirming tick
+
+
+def test_contact_signal_is_never_backdated():
+    est = PhaseEstimator(ContactConfig(source="signal"), phase=DESCENT)
+    _fall(est, 1.7)
+    assert est.backdate == 0 and est.events[-1][1] == "touchdown"

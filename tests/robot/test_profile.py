@@ -21,6 +21,16 @@ def test_pogox_profile_is_the_simulated_flying_robot():
     assert prof.contact.source == "estimate" and prof.contact.leg_length == PogoXParams().leg_rest_length
 
 
+def test_pogox_hopping_profile_is_the_simulated_hopping_robot():
+    from ddpc_codegen.sim.params import PogoXParams
+    from ddpc_codegen.sim.scenarios import HoppingScenario
+
+    prof = load_profile("pogox_hopping")
+    assert prof.controller == HoppingScenario().controller_config(PogoXParams())
+    assert prof.contact.source == "estimate" and prof.contact.signal_name == "CONTACT"
+    assert prof.contact.leg_length == PogoXParams().leg_rest_length
+
+
 def test_extends_overrides_only_given_keys(tmp_path):
     f = tmp_path / "heavy.toml"
     f.write_text('extends = "pogox"\n[controller]\nmodel_mass = 3.65\n[trajectory]\nperiod = 12.0\n')

@@ -103,6 +103,19 @@ def test_a_lost_sample_resets_the_hopping_history():
     assert hop.history.views()[0].shape[0] == 0
 
 
+def test_relabel_changes_only_the_last_samples_phase():
+    from ddpc_codegen.design.phases import DESCENT
+    from ddpc_codegen.runtime.policy import SteeringPolicy
+
+    hop = HoppingSteering(SteeringPolicy(_Steerer()), None, None, 0.005)
+    for k in range(6):
+        hop.decide(DESCENT, np.full(3, k), np.ones(3), np.zeros((6, 3)), np.zeros(6))
+    hop.relabel(2, GROUND)
+    u, y, ph = hop.history.views()
+    assert ph.tolist() == [DESCENT] * 4 + [GROUND] * 2
+    assert y[:, 0].tolist() == list(range(6))  # the samples themselves stay
+    hop.relabel(50, GROUND)  # more than held: all of them, nothing else
+    assert hop.history.views()[2].tolist() == [GROUND] * 6
 def test_denoised_clean_window_is_closer_to_the_truth(lti_factory):
     """A clean aerial window projected onto the data's dynamics (denoise=True): measurement noise
     on y shrinks, exact data stay exact."""

@@ -1,0 +1,154 @@
+"""The bridge's hopping part: phases on the companion computer and the hopping steering tick.
+
+Per tick, before the controller's stage (a)::
+
+    phase  = PhaseEstimator.update(z, vz, roll, pitch[, contact flag])   robot/phases.py, [contact]
+    state.contact = (phase == GROUND)                                     the controller's stance switch
+    r_nom  = controller.nominal_reference(state)                          hopping mode: arc / Raibert / stance
+
+and the mode's reference: passthrough r_nom; collect r_nom + PRBS in the air only (the ground phase
+keeps the spring leg's natural dynamics, as the in-process collection does); steer
+:class:`~ddpc_codegen.runtime.hopping.HoppingSteering` -- the same per-tick policy as the
+simulator's hook (ground ticks pass r_nom, aerial windows with the ground part completed by the
+solver's generated artificial-IO operator, the desired arc continued ballistically).
+
+The phase label logged and given to the steering is the controller's (GROUND from the contact
+estimate, ASCENT / DESCENT from its arc), as in :func:`ddpc_codegen.sim.simulate`, so a tick log
+splits into aerial segments and hops exactly like a simulated run.
+
+A touchdown estimated from telemetry is confirmed 0-1 samples after the foot went below the
+plane; the samples in between are relabelled ground in the steering history and the tick log
+(:attr:`PhaseEstimator.backdate`): spring dynamics labelled aerial would corrupt the aerial data.
+
+At the first engagement the controller is released at rest where the robot hovers (the first
+arc's apex is the measured height, trajectory time 0) and the estimator starts in DESCENT. A telemetry
+hole (lock-step: a missing stamp), stale telemetry or a re-engagement resets the hopping history
+(:meth:`HoppingSteering.lost` / ``reset``): a window cannot be bridged across a possible ground
+phase; the policy fades the offset back in (bumpless). In real time a late sample is held, as
+when flying.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ddpc_codegen.design.phases import DESCENT, GROUND
+from ddpc_codegen.robot.controller import HeightLegAngleController
+from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
+from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
+from ddpc_codegen.runtime.policy import SteeringPolicy
+
+__all__ = ["HoppingLoop", "hopping_window"]
+
+
+def hopping_window(solver, t_ini: int) -> HoppingWindow:
+    """The online ground-phase window of a generated hopping solver: its artificial-IO operator
+    (``solver.artificial_io``) with the manifest's ``t_d_online`` / ``min_ascent``.
+
+    Raises:
+        ValueError: the solver carries no artificial-IO operator (not generated from hopping data).
+    """
+    art = getattr(solver, "artificial_io", None)
+    spec = (solver.manifest.get("artificial_io") or {}) if hasattr(solver, "manifest") else {}
+    if art is None or "t_d_online" not in spec or "min_ascent" not in spec:
+        raise ValueError("the solver has no artificial-IO operator (manifest 'artificial_io'): hopping steering "
+                         "needs one; generate the solver from hopping data (ddpc-codegen codegen configs/hopping.toml "
+                         "--dataset <hopping tick log>)")
+    if (art.m, art.p) != (solver.manifest["dims"]["m"], solver.manifest["dims"]["p"]):
+        raise ValueError(f"artificial-IO operator has m={art.m}, p={art.p}, the solver {solver.manifest['dims']}")
+    # noise_level None: the sigma the operator was compiled with (the online one).
+    return HoppingWindow(art, t_ini, int(spec["t_d_online"]), int(spec["min_ascent"]), None)
+
+
+class HoppingLoop:
+    """Phase detection and the hopping reference of one bridge (see the module docstring).
+
+    Args:
+        ctrl: the hopping-mode controller.
+        contact: how contact is detected (``source`` "estimate" or "signal").
+        policy: steer mode: the shared policy around the loaded solver (None otherwise).
+        window: steer mode: the ground-phase completion (:func:`hopping_window`).
+    """
+
+    def __init__(self, ctrl: HeightLegAngleController, contact: ContactConfig,
+                 policy: SteeringPolicy | None = None, window: HoppingWindow | None = None) -> None:
+        if ctrl.mode != "hopping":
+            raise ValueError("HoppingLoop needs the controller in hopping mode")
+        self.ctrl = ctrl
+        c = ctrl.config
+        self.contact = contact
+        self.estimator = PhaseEstimator(contact)
+        self.steering = HoppingSteering(policy, window, c.g_eff, c.dt) if policy is not None else None
+        self.counts = {"contact_missing": 0, "contact_old": 0}
+        self.phase = DESCENT
+
+    @property
+    def uses_signal(self) -> bool:
+        return self.contact.source == "signal"
+
+    def observe(self, state, telem):
+        """This tick's phase from the measured state (trajectory frame) and, with a leg sensor, the
+        newest contact flag; returns the state with ``contact`` set for the controller."""
+        e = state.euler
+        z, vz = float(state.position[2]), float(state.velocity[2])
+        if self.uses_signal:
+            if telem.contact is None:
+                # No flag yet: keep the phase (the robot is released in the air).
+                self.counts["contact_missing"] += 1
+                return dataclasses.replace(state, contact=self.estimator.contact)
+            if not telem.contact_stamp >= telem.newest_stamp() - 1e-6:
+                self.counts["contact_old"] += 1  # an older flag than the state sample: used, counted
+            self.estimator.update(z, vz, float(e[0]), float(e[1]), signal=telem.contact)
+        else:
+            self.estimator.update(z, vz, float(e[0]), float(e[1]))
+            if self.estimator.backdate and self.steering is not None:
+                self.steering.relabel(self.estimator.backdate, GROUND)
+        return dataclasses.replace(state, contact=self.estimator.contact)
+
+    @property
+    def backdate(self) -> int:
+        """Ticks before this one to relabel ground (a touchdown confirmed late; see PhaseEstimator)."""
+        return self.estimator.backdate
+
+    def release(self, state) -> None:
+        """First engagement: the controller's first arc is a release from rest at the measured height
+        (trajectory time 0); phases start in DESCENT; no steering history."""
+        self.ctrl.reset(0.0, float(state.position[2]))
+        self.estimator.reset(DESCENT)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the steering history (re-engagement, stale telemetry, a long hole)."""
+        if self.steering is not None:
+            self.steering.reset()
+
+    def lost(self, n_missing: int) -> None:
+        if self.steering is not None:
+            self.steering.lost(n_missing)
+
+    def excitation(self, exc: np.ndarray) -> np.ndarray:
+        """Collect mode: the PRBS sample in the air, zeros on the ground."""
+        return np.zeros_like(exc) if self.ctrl.phase == GROUND else exc
+
+    def steer(self, y: np.ndarray, r_nom: np.ndarray, t_traj: float, ahead: np.ndarray) -> dict:
+        """Steer mode: this tick's reference and why (``u``, ``reason``, ``solve_us``, ``u_st``)."""
+        y_des, phases = self.ctrl.predict(t_traj + ahead)
+        u, out = self.steering.decide(self.ctrl.phase, y, r_nom, y_des, phases)
+        if out is None:
+            reason = "ground" if self.ctrl.phase == GROUND else "no_window"
+            return {"u": u, "reason": reason, "solve_us": math.nan, "u_st": None}
+        return {"u": out.u, "reason": out.reason, "solve_us": out.solve_us, "u_st": out.u if out.steered else None}
+
+    def summary(self) -> dict:
+        ev = self.estimator.events
+        out = {"contact_source": self.contact.source, **self.counts,
+               "touchdowns": sum(1 for _, k in ev if k == "touchdown"),
+               "liftoffs": sum(1 for _, k in ev if k == "liftoff")}
+        if self.steering is not None:
+            out["hopping"] = dict(self.steering.counts)
+            if self.steering.window is not None:
+                out["artificial_io"] = dict(self.steering.window.counts)
+        return out
