@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 import fcntl
 import hashlib
+import itertools
 import json
 import pickle
 import sys
@@ -249,6 +250,24 @@ def _prepare(spec: SweepSpec, out: Path, resume: bool) -> tuple[list[dict[str, s
     return rows, {**old, **meta}
 
 
+def spread_variants(points: list[Point], workers: int) -> list[Point]:
+    """Dispatch order for ``workers`` parallel workers: the points of ``workers`` consecutive variants
+    interleaved, so the workers start on different variants and build their solvers (fit + codegen, a
+    few seconds each) at the same time instead of one waiting on the other's lock; a worker then keeps
+    meeting the same few variants (its setup cache holds them). Serial: the order is unchanged."""
+    if workers <= 1:
+        return list(points)
+    groups: OrderedDict[str, list[Point]] = OrderedDict()
+    for p in points:
+        groups.setdefault(p.variant, []).append(p)
+    blocks = list(groups.values())
+    out: list[Point] = []
+    for i in range(0, len(blocks), workers):
+        chunk = blocks[i : i + workers]
+        out += [p for row in itertools.zip_longest(*chunk) for p in row if p is not None]
+    return out
+
+
 def run_sweep(spec: SweepSpec | str | Path, out_dir: str | Path, *, workers: int = 1, address: str | None = None,
               resume: bool = False, progress: bool = True, on_row: Callable[[dict], None] | None = None,
               report: bool = True) -> dict[str, Any]:
@@ -285,7 +304,8 @@ def run_sweep(spec: SweepSpec | str | Path, out_dir: str | Path, *, workers: int
     with engine(workers, address, quiet=not progress) as eng, \
             tqdm(total=len(points), initial=len(finished), desc="sweep", unit="pt", disable=not progress,
                  file=sys.stderr) as bar, open(results, "a", newline="") as f, \
-            closing(eng.imap_unordered(evaluate_point, todo, shared=ctx)) as finished_rows:
+            closing(eng.imap_unordered(evaluate_point, spread_variants(todo, eng.workers if eng.parallel else 1),
+                                       shared=ctx)) as finished_rows:
         writer = csv.DictWriter(f, cols, extrasaction="ignore")
         for _, row in finished_rows:
             cells = {k: _cell(row.get(k)) for k in cols}

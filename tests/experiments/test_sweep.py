@@ -157,3 +157,16 @@ def test_ray_sweep_equals_serial_and_resumes_after_an_interruption(serial, tiny_
     summary = run_sweep(spec, out, workers=2, progress=False, resume=True, on_row=lambda r: again.append(r["id"]))
     assert summary["resumed_from"] == 2 and summary["ran"] == 2 and not set(again) & set(seen)
     assert _table(out / "results.csv") == _table(out_serial / "results.csv")  # bit for bit, timing aside
+
+
+def test_spread_variants_starts_workers_on_different_variants():
+    from ddpc_codegen.experiments.sweep import spread_variants
+    from ddpc_codegen.experiments.sweep_spec import Point
+
+    pts = [Point(i, "steered", (("cost.R", [v, 1.0]),), None, s) for i, (v, s) in
+           enumerate((v, s) for v in range(5) for s in range(3))]
+    assert spread_variants(pts, 1) == pts  # serial: unchanged
+    for w in (2, 3, 4):
+        out = spread_variants(pts, w)
+        assert sorted(p.index for p in out) == list(range(len(pts)))  # a permutation
+        assert len({p.variant for p in out[:w]}) == w  # the first w workers get w different variants
