@@ -371,6 +371,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             q, thrust, field = self._level_setpoint()
             if c.stale_action == "land":
                 self._request_land()
+        elif not self.armed and not self._flown:
+            q, thrust, field = self._ground_setpoint(float(state.position[2]))
         else:
             q, thrust, _ = self._clamp(self.ctrl.track(ref["u"], state))
             field = self.profile.thrust_field(thrust, float(ref["u"][0]), float(state.position[2]))
