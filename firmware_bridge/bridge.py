@@ -10,6 +10,7 @@ One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
             passthrough: r_nom                              the model-based controller alone
             collect: r_nom + PRBS                           new data (hopping: in the air only)
             hopping steer: HoppingSteering.decide(phase, ...)  ground ticks r_nom, aerial windows completed
+            prefilter: PrefilterPolicy(y_des ahead, r_nom)  the gain + offset + lead baseline
     sp    = controller.track(u, state)                      stage (b): quaternion + thrust
     clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
 
@@ -59,6 +60,7 @@ import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig
+from ddpc_codegen.runtime.baselines import PrefilterPolicy
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
@@ -108,6 +110,12 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self.solver = None
         if c.mode == "steer":
             self._setup_solver(solver)
+        elif c.mode == "prefilter":
+            if self.hopping:
+                raise ValueError("prefilter mode flies the flying scenario (the hopping baselines run in-process)")
+            # The baseline behind the steering's interface; it needs y_des up to its longest lead ahead.
+            self.policy = PrefilterPolicy.load(c.prefilter)
+            self._ahead = self.period * np.arange(self.policy.horizon)
         if self.hopping:
             window = hopping_window(self.solver, self.steerer.t_ini) if self.steerer is not None else None
             self.hop = HoppingLoop(self.ctrl, contact, self.policy if self.steerer is not None else None, window)
@@ -200,6 +208,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self.hb_autopilot: int | None = None
         self.hb_type = 0
         self.last_hb = -math.inf
+        self.last_heard = -math.inf        # last heartbeat or telemetry sample from the vehicle [s]
         self.hb_seen = False
         self._link_lost = False
         self._t_offset = math.inf          # receive time - vehicle time stamp (clock sync estimate) [s]
@@ -213,6 +222,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self._stream_since_stamp = math.nan
         self._prev_stream_t = -math.inf
         self._stale_since: float | None = None
+        self._fresh_again = False          # telemetry fresh after a stale stretch: resume bumplessly
+        self._ref_offset = None            # u - y at the last fresh engaged tick
         self._engaged = False
         self._traj_t0: float | None = None  # vehicle time at which the trajectory started [s]
         self._last_stamp = math.nan
@@ -332,7 +343,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         else:
             age, tclk = now - tel.oldest_rx(), self.clock.time()  # grid time: uniform, no jitter
         fresh = age <= c.max_age
-        hb_ok = now - self.last_hb <= c.link_timeout
+        hb_ok = self.hb_seen and now - self.last_heard <= c.link_timeout
         engaged = self.armed and self.offboard and hb_ok
         n_new = max(tel.seq_total - self._seen_total, 0)
         self._seen_total = tel.seq_total
@@ -354,10 +365,14 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         if self.hop is not None:
             state = self.hop.observe(state, tel)
         ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
+        if fresh and engaged:
+            self._ref_offset = ref["u"] - ref["y"]  # applied reference - measured output (a stall resumes here)
         if not fresh and c.stale_action != "reference":
             q, thrust, field = self._level_setpoint()
             if c.stale_action == "land":
                 self._request_land()
+        elif not self.armed and not self._flown:
+            q, thrust, field = self._ground_setpoint(float(state.position[2]))
         else:
             q, thrust, _ = self._clamp(self.ctrl.track(ref["u"], state))
             field = self.profile.thrust_field(thrust, float(ref["u"][0]), float(state.position[2]))
@@ -410,6 +425,9 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             self.policy.lost(fill, y)
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None)
+        elif self.cfg.mode == "prefilter":
+            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
+            ref.update(u=out.u, reason=out.reason)
         elif self.cfg.mode == "collect":
             ref["exc"] = self._excitation() if self.hop is None else self.hop.excitation(self._excitation())
             ref.update(u=r_nom + ref["exc"], reason="collect")

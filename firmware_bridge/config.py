@@ -58,8 +58,11 @@ class BridgeConfig:
 
     Attributes:
         url, baud: MAVLink connection (see :func:`firmware_bridge.link.parse_url`).
-        mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS).
+        mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS),
+            "prefilter" (the static gain + offset + lead baseline; needs ``prefilter``).
         solver: folder of a generated solver (``ddpc-codegen codegen``), steer mode.
+        prefilter: prefilter JSON file (:meth:`ddpc_codegen.design.baselines.PrefilterModel.save`),
+            prefilter mode.
         autopilot: "px4" or "ardupilot" (checked against the vehicle's heartbeat before anything is sent).
         guid_options: ArduPilot GUID_OPTIONS expected (None: the vehicle's value, read before engaging);
             force_guid_options: encode for ``guid_options`` even if the vehicle disagrees.
@@ -72,7 +75,7 @@ class BridgeConfig:
             request the autopilot's LAND mode).
         stale_stream_limit: stop streaming after telemetry has been stale this long [s] so the
             autopilot's off-board-loss failsafe takes over (0: never stop).
-        link_timeout: no vehicle heartbeat for this long [s] -> link lost.
+        link_timeout: nothing heard from the vehicle (heartbeat or telemetry) for this long [s] -> link lost.
         max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
         max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard; hopping's
             default, as in the simulator's loop).
@@ -118,6 +121,7 @@ class BridgeConfig:
     baud: int | None = None
     mode: str = "steer"
     solver: str | None = None
+    prefilter: str | None = None
     autopilot: str = "px4"
     guid_options: int | None = None
     force_guid_options: bool = False
@@ -170,10 +174,12 @@ class BridgeConfig:
         for key, flag in (("log", "--log"), ("summary", "--summary")):
             if getattr(self, key):
                 check_output_path(getattr(self, key), flag)
-        if self.mode not in ("steer", "passthrough", "collect"):
-            raise ValueError(f"mode must be steer, passthrough or collect; got {self.mode!r}")
+        if self.mode not in ("steer", "passthrough", "collect", "prefilter"):
+            raise ValueError(f"mode must be steer, passthrough, collect or prefilter; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:
             raise ValueError("steer mode needs a generated solver folder (--solver generated/<name>)")
+        if self.mode == "prefilter" and not self.prefilter:
+            raise ValueError("prefilter mode needs a prefilter JSON file (--prefilter prefilter.json)")
         if self.stale_action not in ("reference", "hover", "land"):
             raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
         if not (self.rate_hz > 0 and self.max_age > 0):

@@ -143,6 +143,8 @@ class Reporting:
             out["steering"] = self.steerer.summary()
             if isinstance(self.solver, FaultInjectingSolver):
                 out["steering"]["injected_failures"] = self.solver.injected
+        if self.cfg.mode == "prefilter":
+            out["prefilter"] = {"model": self.policy.model.to_dict(), "counts": self.policy.summary()}
         return out
 
     def _telemetry_summary(self) -> dict:

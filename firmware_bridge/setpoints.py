@@ -42,6 +42,16 @@ class SetpointShaping:
         thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
         return q, thrust, self.profile.hover_field(thrust)
 
+    def _ground_setpoint(self, z: float) -> tuple[tuple, float, float]:
+        """Level, idle thrust (the lower clamp) / zero climb rate: what a disarmed vehicle is sent.
+        A vehicle left in OFFBOARD by the previous flight (PX4 returns to it after LAND and disarm)
+        flies the streamed setpoint the moment our ARM is accepted, up to a heartbeat (1 s) before
+        we know it is armed; the controller's thrust toward the trajectory start then throws it up
+        (measured on PX4 SIH: 1.5 m/s, the heights' origin captured 1.2 m in the air)."""
+        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
+        thrust = self.cfg.thrust_min
+        return q, thrust, self.profile.thrust_field(thrust, z, z)
+
     def _clamp(self, sp) -> tuple[tuple, float, tuple]:
         roll, pitch, yaw = (float(v) for v in sp.euler)
         lim = self.tilt_max

@@ -26,7 +26,7 @@ import numpy as np
 from firmware_bridge.sitl import make_sitl, missing_reason, run_isolated
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
-__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "fly", "flight_figures", "run_pipeline", "main"]
+__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "bridge_command", "fly", "flight_figures", "run_pipeline", "main"]
 
 ROOT = Path(__file__).resolve().parent.parent
 # ArduCopter: SET_ATTITUDE_TARGET.thrust as a thrust (GUID_OPTIONS bit 3), as the profile assumes.
@@ -40,21 +40,30 @@ COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
 _STEERED = REASONS.index("steered")
 
 
+def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, timeout: float,
+                   extra: tuple[str, ...] = ()) -> list[str]:
+    """The ``ddpc-bridge`` command of one flight from the ground (arm, take off, fly ``duration`` s,
+    land); log ``<out>/<autopilot>_<mode>.npz``, summary ``.json``."""
+    name = f"{autopilot}_{mode}"
+    return [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
+            "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
+            "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
+            "--log", str(out / f"{name}.npz"), "--summary", str(out / f"{name}.json"), "--verbose",
+            "--rt-priority", "10", *extra]
+
+
 def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: Path | None = None,
         timeout: float = 150.0, extra: tuple[str, ...] = ()) -> dict:
-    """One bridge flight from the ground (arm, take off, fly ``duration`` s, land); its summary."""
+    """One bridge flight from the ground (:func:`bridge_command`); its summary."""
     name = f"{autopilot}_{mode}"
-    cmd = [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
-           "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
-           "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
-           "--log", str(out / f"{name}.npz"), "--summary", str(out / f"{name}.json"), "--verbose",
-           "--rt-priority", "10", *extra]
+    cmd = bridge_command(sitl, autopilot, mode, out, duration, timeout, extra)
     if solver is not None:
         cmd += ["--solver", str(solver)]
     with open(out / f"{name}.out", "w") as f:
         rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, timeout=timeout + 90, cwd=out).returncode
     if rc != 0:
-        raise RuntimeError(f"{name}: ddpc-bridge exited {rc}:\n{(out / f'{name}.out').read_text()[-3000:]}")
+        raise RuntimeError(f"{name}: ddpc-bridge exited {rc}:\n{(out / f'{name}.out').read_text()[-3000:]}\n"
+                           f"{autopilot} SITL console tail:\n{sitl.log_tail()}")
     return json.loads((out / f"{name}.json").read_text())
 
 
@@ -86,9 +95,18 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
             "ticks": int(on.sum())}
 
 
+def fit_prefilter_from_log(collect: Path, out: Path) -> Path:
+    """The ``prefilter`` baseline (per channel gain + offset + lead) fitted on the collect flight's
+    tick log as the in-process demo fits it (u and y low-passed at 1 Hz, leads up to 1 s); its JSON."""
+    from ddpc_codegen.design.baselines import fit_prefilter
+
+    return fit_prefilter(load_ticklog(collect).to_dataset(), max_lead=200, smooth_hz=1.0).save(out)
+
+
 def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect_s: float = 25.0,
-                 steer_s: float = 12.0, sitl_params: dict | None = None) -> dict:
-    """Start the SITL here, fly baseline -> collect -> codegen -> steer; the figures (JSON-ready).
+                 steer_s: float = 12.0, sitl_params: dict | None = None, baselines: bool = True) -> dict:
+    """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> the prefilter baseline,
+    identified from the same collect log, with ``baselines``); the figures (JSON-ready).
     ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
     climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
     out = Path(out_dir)
@@ -100,7 +118,21 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect
         fly(sitl, autopilot, "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT[autopilot]))
         solver = codegen(ROOT / "configs" / CONFIGS[autopilot], out / f"{autopilot}_collect.npz", out / "generated")
         steer = fly(sitl, autopilot, "steer", out, steer_s, solver=solver)
+        if baselines:
+            pf = fit_prefilter_from_log(out / f"{autopilot}_collect.npz", out / "prefilter.json")
+            fly(sitl, autopilot, "prefilter", out, baseline_s, extra=("--prefilter", str(pf)))
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
+    if baselines:
+        fp = flight_figures(out / f"{autopilot}_prefilter.npz")
+        res["baselines"] = {
+            "rmse_z": {"passthrough": fb["rmse_z"], "prefilter": fp["rmse_z"], "steered": fs["rmse_z"]},
+            "rmse_z_truth": {"passthrough": fb["rmse_z_truth"], "prefilter": fp["rmse_z_truth"],
+                             "steered": fs["rmse_z_truth"]},
+            "thrust_step_rms": {"passthrough": fb["thrust_step_rms"], "prefilter": fp["thrust_step_rms"],
+                                "steered": fs["thrust_step_rms"]},
+            "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"],
+            "ilc": "not flown (needs repeated flights of the same trajectory)",
+        }
     res.update({
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
         "rmse_z_truth": {"baseline": fb["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
@@ -136,6 +168,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[sitl-demo] {ap}: rmse z {1e3 * r['baseline']:.1f} -> {1e3 * r['steered']:.1f} mm{truth}, "
               f"steered {100 * res['engaged_fraction']:.1f} %, rate {res['rate_hz']:.1f} Hz, "
               f"fallbacks {res['fallbacks']}, {res['wall_s']:.0f} s", flush=True)
+        if "baselines" in res:
+            b = res["baselines"]["rmse_z"]
+            print(f"[sitl-demo] {ap}: baselines rmse z: passthrough {1e3 * b['passthrough']:.1f}, prefilter "
+                  f"{1e3 * b['prefilter']:.1f}, steered {1e3 * b['steered']:.1f} mm", flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "sitl.json").write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
     return 0 if report else 1

@@ -33,6 +33,7 @@ class Supervisor:
             before = (tel.att.stamp, tel.pos.stamp)
             if not tel.update(msg, rx):
                 return  # the contact flag: kept, not a state sample
+            self.last_heard = rx
             if before[0] - tel.att.stamp > 1.0 or before[1] - tel.pos.stamp > 1.0:
                 # Vehicle clock went back: it rebooted. Forget its state and ask for the streams again.
                 self.counts["reboots"] += 1
@@ -53,13 +54,13 @@ class Supervisor:
                 self.hb_autopilot, self.hb_type = int(msg.autopilot), int(msg.type)
                 self._event(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, autopilot {msg.autopilot}, "
                             f"{vm.name}, armed={vm.armed}")
-            elif rx - self.last_hb > self.cfg.link_timeout:
+            elif self._link_lost or rx - self.last_heard > self.cfg.link_timeout:
                 self._event("vehicle heartbeat back: link restored, re-requesting streams")
                 self._request_streams()
             if self.hb_seen and (vm.armed != self.armed or vm.name != self.mode_name):
                 self._event(f"vehicle {vm.name}, armed={vm.armed}")
             self.hb_seen = True
-            self.last_hb = rx
+            self.last_hb = self.last_heard = rx
             self.armed, self.offboard, self.mode_name = vm.armed, vm.offboard, vm.name
         elif typ == "COMMAND_ACK":
             pc = self.tracker.on_ack(msg)
@@ -159,6 +160,7 @@ class Supervisor:
         if fresh:
             if self._stale_since is not None:
                 self._event(f"telemetry fresh again after {now - self._stale_since:.3f} s")
+                self._fresh_again = True  # resume bumplessly (see _update_engagement)
             self._stale_since = None
             return True
         if self._stale_since is None:
@@ -213,8 +215,22 @@ class Supervisor:
             else:
                 self._event(f"re-engaged ({self.mode_name}): trajectory continues at t = "
                             f"{tclk - self._traj_t0:.3f} s, same frame")
+        elif engaged and self._fresh_again and self._flown:
+            # Still engaged, but the telemetry was stale (a stall): the vehicle moved, or, frozen with
+            # its autopilot, did not, while the trajectory clock ran on. Resume as at a re-engagement
+            # (same clock and frame), the reference rate-limited from where it stood relative to the
+            # measured outputs at the last fresh tick: a frozen vehicle gets its last fresh setpoint
+            # again (no thrust kick from the tracking error it had), a moved one the same offset.
+            if self.steerer is not None:
+                self.policy.reset()
+            if c.blend_rates and self.approach is None:
+                off = 0.0 if self._ref_offset is None else self._ref_offset
+                self.blend.start(self.ctrl.outputs(state) + off)
+            self._event(f"resumed after stale telemetry: trajectory continues at t = {tclk - self._traj_t0:.3f} s, "
+                        "same frame")
         elif not engaged and self._engaged:
             self._event("disengaged: vehicle no longer armed + off-board (or link lost)")
+        self._fresh_again = False
         self._engaged = engaged
         if engaged and self.approach is not None:
             self._traj_t0 = tclk  # the trajectory clock waits at its start until the vehicle is there
@@ -245,11 +261,13 @@ class Supervisor:
         if c.timeout is not None and now - self.t0 > c.timeout:
             self.stop_reason = self.stop_reason or f"timeout {c.timeout:g} s"
             self._stop = True
-        if self.hb_seen and now - self.last_hb > c.link_timeout and not self._link_lost:
+        # The link lives while the vehicle is heard at all: PX4 sends its heartbeat once a second, so
+        # after a 2 s stall the next one can be 4 s after the last, while telemetry is already back.
+        if self.hb_seen and now - self.last_heard > c.link_timeout and not self._link_lost:
             self._link_lost = True
             self.counts["link_losses"] += 1
-            self._event(f"no vehicle heartbeat for {c.link_timeout:g} s: link lost")
-        elif now - self.last_hb <= c.link_timeout:
+            self._event(f"vehicle silent (no heartbeat, no telemetry) for {c.link_timeout:g} s: link lost")
+        elif now - self.last_heard <= c.link_timeout:
             self._link_lost = False
 
     def _supervise_arming(self, now: float) -> None:

@@ -59,6 +59,7 @@ REASONS = (
     "blend",          # 14 bumpless hand-over after (re-)engagement: reference rate-limited, history filling
     "ground",         # 15 hopping steer mode, ground phase: the controller's reference (never steered)
     "no_window",      # 16 hopping steer mode, in the air without a window yet (history, early ascent)
+    "prefilter",      # 17 mode prefilter: the static gain + offset + lead baseline
 )
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",
@@ -75,6 +76,8 @@ def reason_code(reason: str) -> int:
         return _CODE["nonfinite"]
     if reason.startswith("exception"):
         return _CODE["exception"]
+    if reason.startswith("prefilter"):
+        return _CODE["prefilter"]
     return _CODE["solver_failed"]
 
 

@@ -109,6 +109,7 @@ class FakeVehicle(threading.Thread):
         self.armed = True
         self.arm_refusals = 0  # refuse this many ARM commands (TEMPORARILY_REJECTED) before accepting; -1: always
         self.commands: list[int] = []  # COMMAND_LONG ids received
+        self.armed_hb_at: float | None = None  # when the first heartbeat saying "armed" went out (monotonic)
         self.sent = {"attitude": 0, "position": 0}
 
     def run(self) -> None:
@@ -141,6 +142,8 @@ class FakeVehicle(threading.Thread):
                                          MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
                                          | (MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0),
                                          px4_custom_mode(6), mavlink.MAV_STATE_ACTIVE)
+                if self.armed and self.armed_hb_at is None:
+                    self.armed_hb_at = time.monotonic()
             if self.telemetry:
                 self._send_telemetry(mav, q_level)
             for f in list(self.extra):

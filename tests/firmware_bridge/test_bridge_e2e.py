@@ -207,3 +207,29 @@ def test_a_trajectory_file_flies_over_the_link(tmp_path):
     want = load_trajectory(traj_file).sample(ticks["t_traj"][on])["z"]
     np.testing.assert_allclose(ticks["y_des"][on, 0], want, atol=1e-9)
     assert want.max() > 1.1  # the file's climb, not the default ellipse
+
+
+def test_prefilter_mode_sends_the_prefilter_law_over_the_link(tmp_path):
+    """``--mode prefilter``: every engaged tick after the hand-over applies
+    u_z = r_nom_z + (y_des_z[k + d] - c) / g - y_des_z[k] (checked against the logged desired heights
+    d ticks later), the pitch channel with gain 1 / offset 0 / lead 0 is left alone."""
+    from ddpc_codegen.design.baselines import PrefilterModel
+    from firmware_bridge.ticklog import REASONS
+
+    g, c, d = 0.9, -0.03, 20
+    pf = PrefilterModel((g, 1.0), (c, 0.0), (d, 0), 0.005, ("z_ref", "pitch_ref")).save(tmp_path / "pf.json")
+    pr = Procs(tmp_path)
+    try:
+        s = _fly(pr, tmp_path, "pf", ["--mode", "prefilter", "--prefilter", str(pf)])
+    finally:
+        pr.cleanup()
+    t = load_ticklog(tmp_path / "pf.npz").ticks
+    k = np.flatnonzero(t["reason"] == REASONS.index("prefilter"))
+    k = k[k + d < len(t["reason"])]
+    assert k.size > 1000 and s["prefilter"]["counts"]["prefilter"] >= k.size
+    # one tick apart on the trajectory clock (lock-step: every tick is one period)
+    np.testing.assert_allclose(t["t_traj"][k + d] - t["t_traj"][k], d * 0.005, atol=1e-9)
+    want = t["r_nom"][k, 0] + (t["y_des"][k + d, 0] - c) / g - t["y_des"][k, 0]
+    np.testing.assert_allclose(t["u"][k, 0], want, atol=1e-9)
+    np.testing.assert_allclose(t["u"][k, 1], t["r_nom"][k, 1], atol=1e-12)
+    assert s["prefilter"]["model"]["lead"] == [d, 0]

@@ -101,6 +101,33 @@ def test_wrong_autopilot_is_refused_before_any_command(tmp_path):
 
 
 @pytest.mark.e2e
+def test_a_disarmed_vehicle_left_in_offboard_gets_idle_thrust_until_it_reports_armed(tmp_path):
+    # PX4 returns to OFFBOARD after LAND and disarm: the next flight's ARM puts it straight into
+    # off-board flight, a heartbeat before the bridge knows. Until then it must get idle thrust.
+    pr = Procs(tmp_path)
+    port = free_port()
+    veh = FakeVehicle(port, z=0.0)
+    veh.armed = False
+    try:
+        veh.start()
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--arm", "--takeoff",
+                      "--duration", "1", "--log", str(tmp_path / "t.npz"), "--timeout", "30", name="bridge")
+        assert pr.wait(br, 60) == 0, pr.log(br)
+    finally:
+        veh.close()
+        pr.cleanup()
+    assert veh.armed_hb_at is not None
+    before = [m.thrust for rx, m in veh.setpoints if rx < veh.armed_hb_at]
+    after = [m.thrust for rx, m in veh.setpoints if rx > veh.armed_hb_at + 0.1]
+    assert len(before) > 20 and max(before) == 0.0
+    assert min(after) > 0.2  # then the take-off: the controller's thrust
+    from firmware_bridge.ticklog import load_ticklog
+
+    t = load_ticklog(tmp_path / "t.npz").ticks
+    assert np.all(t["sp_thrust"][~t["armed"].astype(bool)] == 0.0)
+
+
+@pytest.mark.e2e
 @pytest.mark.parametrize("refusals", [2, -1])
 def test_arming_refused_then_accepted_or_refused_forever(tmp_path, refusals):
     pr = Procs(tmp_path)

@@ -92,3 +92,50 @@ def _record_tlog(url: str, path, stop) -> None:
             conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
         conn.recv_match(blocking=True, timeout=0.2)
     conn.close()
+
+
+def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.0, duration: float = 9.0) -> dict:
+    """A passthrough PX4 flight from the ground in which the PX4 daemon is frozen (SIGSTOP) for
+    ``stall_s`` seconds, ``stall_after`` seconds into the trajectory, then continued (SIGCONT).
+
+    Returns the bridge's exit code, the stall's length as timed here [s], the paths of the bridge's
+    tick log and summary and the tail of its console.
+    """
+    import os
+    import signal
+    import subprocess
+    from pathlib import Path
+
+    from firmware_bridge.sitl import make_sitl
+    from firmware_bridge.sitl_demo import bridge_command
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    console = out / "px4_passthrough.out"
+    with make_sitl("px4") as sitl, open(console, "w") as f:
+        cmd = bridge_command(sitl, "px4", "passthrough", out, duration, timeout=90.0)
+        br = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=out, start_new_session=True)
+        stall = None
+        try:
+            t_end = time.monotonic() + 80.0
+            while time.monotonic() < t_end and br.poll() is None:
+                if "at the trajectory's start height: trajectory starts" in console.read_text():
+                    break
+                time.sleep(0.05)
+            else:
+                raise RuntimeError(f"the trajectory never started:\n{console.read_text()[-3000:]}")
+            time.sleep(stall_after)
+            t0 = time.monotonic()
+            os.kill(sitl.proc.pid, signal.SIGSTOP)
+            try:
+                time.sleep(stall_s)
+            finally:
+                os.kill(sitl.proc.pid, signal.SIGCONT)
+            stall = time.monotonic() - t0
+            rc = br.wait(timeout=120)
+        finally:
+            if br.poll() is None:
+                os.killpg(br.pid, signal.SIGKILL)
+                br.wait()
+    return {"rc": rc, "stall_s": stall, "log": str(out / "px4_passthrough.npz"),
+            "summary": str(out / "px4_passthrough.json"), "console": console.read_text()[-4000:]}

@@ -20,7 +20,7 @@ def test_from_the_ground_to_steered_flight(tmp_path, autopilot):
         pytest.skip(why)
     res = run_isolated("firmware_bridge.sitl_demo:run_pipeline",
                        {"autopilot": autopilot, "out_dir": str(tmp_path), "baseline_s": 10.0, "collect_s": 20.0,
-                        "steer_s": 10.0}, timeout=420)
+                        "steer_s": 10.0, "baselines": False}, timeout=420)
     r = res["rmse_z"]
     assert r["steered"] * 3.0 <= r["baseline"], res
     assert res["engaged_fraction"] >= 0.95, res
