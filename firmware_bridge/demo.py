@@ -227,10 +227,16 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
                                         "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "pin": pin,
                                         "settle_s": 3.0})
     report["machine_wakeup_latency"] = machine
+    return write_report(report, out, t_start, format_table, log)
+
+
+def write_report(report: dict, out: Path, t_start: float, table, log=print) -> dict:
+    """Finish a demo: its wall time (since ``t_start``, monotonic) into ``report``, the JSON to
+    ``out``, the README table (``table(report)``) to ``log``."""
     report["wall_s"] = time.monotonic() - t_start
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2, default=str) + "\n")
-    log(format_table(report))
+    log(table(report))
     log(f"wrote {out}")
     return report
 

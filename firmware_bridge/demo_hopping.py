@@ -197,7 +197,7 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
     import subprocess
     import time
 
-    from firmware_bridge.demo import ROOT, _env, _py, fly
+    from firmware_bridge.demo import ROOT, _env, _py, fly, write_report
 
     config = config or ROOT / "configs" / "hopping.toml"
     work.mkdir(parents=True, exist_ok=True)
@@ -238,14 +238,7 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
                      "config": str(config), "lockstep": lockstep, "noise": noise, "contact": contact,
                      "settle_hops": 3},
     }
-    report["wall_s"] = time.monotonic() - t_start
-    out.parent.mkdir(parents=True, exist_ok=True)
-    import json
-
-    out.write_text(json.dumps(report, indent=2, default=str) + "\n")
-    log(format_table(report))
-    log(f"wrote {out}")
-    return report
+    return write_report(report, out, t_start, format_table, log)
 
 
 def format_table(r: dict) -> str:

@@ -46,21 +46,21 @@ __all__ = ["HoppingLoop", "hopping_window"]
 
 def hopping_window(solver, t_ini: int) -> HoppingWindow:
     """The online ground-phase window of a generated hopping solver: its artificial-IO operator
-    (``solver.artificial_io``) with the manifest's ``t_d_online`` / ``min_ascent``.
+    (``solver.artificial_io``) with the window settings it was generated with (manifest
+    ``artificial_io``: t_d_online, min_ascent, the online sigma, denoise_online) -- the same window
+    the in-process loop builds from the config.
 
     Raises:
         ValueError: the solver carries no artificial-IO operator (not generated from hopping data).
     """
     art = getattr(solver, "artificial_io", None)
-    spec = (solver.manifest.get("artificial_io") or {}) if hasattr(solver, "manifest") else {}
-    if art is None or "t_d_online" not in spec or "min_ascent" not in spec:
+    if art is None:
         raise ValueError("the solver has no artificial-IO operator (manifest 'artificial_io'): hopping steering "
                          "needs one; generate the solver from hopping data (ddpc-codegen codegen configs/hopping.toml "
                          "--dataset <hopping tick log>)")
     if (art.m, art.p) != (solver.manifest["dims"]["m"], solver.manifest["dims"]["p"]):
         raise ValueError(f"artificial-IO operator has m={art.m}, p={art.p}, the solver {solver.manifest['dims']}")
-    # noise_level None: the sigma the operator was compiled with (the online one).
-    return HoppingWindow(art, t_ini, int(spec["t_d_online"]), int(spec["min_ascent"]), None)
+    return HoppingWindow(art, t_ini, **art.window_settings())
 
 
 class HoppingLoop:

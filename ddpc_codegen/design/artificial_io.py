@@ -64,6 +64,7 @@ from ddpc_codegen.design.hankel import PEReport, persistency_of_excitation
 
 __all__ = [
     "ArtificialIO",
+    "check_window",
     "Completion",
     "ground_runs",
     "stitch_hops",
@@ -88,6 +89,28 @@ class Completion:
     g_norm: float
     bounded: bool = False
     status: str = "solved"
+
+
+def check_window(u: np.ndarray, y: np.ndarray, missing: np.ndarray, m: int, p: int, depth: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A completion window as arrays: u (L, m), y (L, p) and the mask (L, m+p) of missing entries
+    (``missing`` per sample (L,) or per entry); DataError when the shapes disagree, L is outside
+    1..depth or a known entry is NaN / inf. One check for the interpreted and the generated operator."""
+    u = np.asarray(u, float).reshape(-1, m)
+    y = np.asarray(y, float).reshape(-1, p)
+    L = u.shape[0]
+    if y.shape[0] != L:
+        raise DataError(f"u has {L} samples but y has {y.shape[0]}")
+    if not 1 <= L <= depth:
+        raise DataError(f"window of {L} samples: the artificial-IO depth is {depth} (1..{depth} allowed)")
+    mask = np.asarray(missing, dtype=bool)
+    if mask.ndim == 1:
+        mask = np.repeat(mask[:, None], m + p, axis=1)
+    if mask.shape != (L, m + p):
+        raise DataError(f"missing must be ({L},) or ({L}, {m + p}); got {mask.shape}")
+    if not np.all(np.isfinite(np.hstack([u, y])[~mask])):
+        raise DataError("the known samples of the window contain NaN or inf")
+    return u, y, mask
 
 
 def _row_index(t: np.ndarray, c: np.ndarray, d: int) -> np.ndarray:
@@ -215,25 +238,13 @@ class ArtificialIO:
         Returns:
             :class:`Completion` with the filled window.
         """
-        u = np.asarray(u, float).reshape(-1, self.m)
-        y = np.asarray(y, float).reshape(-1, self.p)
+        u, y, mask = check_window(u, y, missing, self.m, self.p, self.depth)
         L = u.shape[0]
-        if y.shape[0] != L:
-            raise DataError(f"u has {L} samples but y has {y.shape[0]}")
-        if L > self.depth:
-            raise DataError(f"window of {L} samples is longer than the artificial-IO depth {self.depth}")
-        mask = np.asarray(missing, dtype=bool)
-        if mask.ndim == 1:
-            mask = np.repeat(mask[:, None], self.d, axis=1)
-        if mask.shape != (L, self.d):
-            raise DataError(f"missing must be ({L},) or ({L}, {self.d}); got {mask.shape}")
         w = np.hstack([u, y]).reshape(-1)
         sig = self.noise_level if noise_level is None else float(noise_level)
         lam = self.n_columns * sig * sig
         K, F, pinv, fill_op, _ = self._operators(mask, lam)
         b = w[K]
-        if not np.all(np.isfinite(b)):
-            raise DataError("the known samples of the window contain NaN or inf")
         self.counts["calls"] += 1
         z = pinv @ b
         fill = fill_op @ b

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.artificial_io import Completion
+from ddpc_codegen.design.artificial_io import Completion, check_window
 from ddpc_codegen.errors import DataError, ManifestError
 
 __all__ = ["GeneratedArtificialIO", "ARTIO_STATUS"]
@@ -95,21 +95,9 @@ class GeneratedArtificialIO:
         if noise_level is not None and float(noise_level) != self.noise_level:
             raise DataError(f"the generated artificial-IO operator was compiled for noise_level = {self.noise_level}; "
                             f"got {noise_level} (regenerate with [artificial_io] noise_level_online = {noise_level})")
-        u = np.asarray(u, float).reshape(-1, self.m)
-        y = np.asarray(y, float).reshape(-1, self.p)
+        u, y, mask = check_window(u, y, missing, self.m, self.p, self.depth)
         L = u.shape[0]
-        if y.shape[0] != L:
-            raise DataError(f"u has {L} samples but y has {y.shape[0]}")
-        if not 1 <= L <= self.depth:
-            raise DataError(f"window of {L} samples: the artificial-IO depth is {self.depth} (1..{self.depth} allowed)")
-        mask = np.asarray(missing, dtype=bool)
-        if mask.ndim == 1:
-            mask = np.repeat(mask[:, None], self.d, axis=1)
-        if mask.shape != (L, self.d):
-            raise DataError(f"missing must be ({L},) or ({L}, {self.d}); got {mask.shape}")
         w = np.ascontiguousarray(np.hstack([u, y]).reshape(-1))
-        if not np.all(np.isfinite(w[~mask.reshape(-1)])):
-            raise DataError("the known samples of the window contain NaN or inf")
         flags = np.ascontiguousarray(mask.reshape(-1), dtype=np.uint8)
         out = np.empty_like(w)
         fb = self._ffi.from_buffer

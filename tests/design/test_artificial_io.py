@@ -166,3 +166,24 @@ def test_steering_cuts_the_apex_error_3x(hop_setup):
     st = steered.steering
     assert st["fallbacks"] == 0 and st["artificial_io"]["filled"] > 0
     assert steered.metrics["rmse_pitch"] <= base.metrics["rmse_pitch"] * 1.05  # leg angles not worse
+
+
+def test_bad_windows_are_refused_with_the_reason(lti_factory):
+    sys_ = lti_factory(4, 1, 2, seed=3)
+    art = ArtificialIO(_lti_data(sys_, 2, 200, seed=0), 12)
+    u, y = _window(sys_, 12, seed=1)
+    miss = np.zeros(12, dtype=bool)
+    from ddpc_codegen.errors import DataError
+
+    with pytest.raises(DataError, match="u has 12 samples but y has 11"):
+        art.complete(u, y[:11], miss)
+    with pytest.raises(DataError, match="window of 13 samples: the artificial-IO depth is 12"):
+        art.complete(np.vstack([u, u[:1]]), np.vstack([y, y[:1]]), np.zeros(13, bool))
+    with pytest.raises(DataError, match=r"missing must be \(12,\) or \(12, 3\); got \(12, 2\)"):
+        art.complete(u, y, np.zeros((12, 2), bool))
+    y_bad = y.copy()
+    y_bad[3, 1] = np.nan
+    with pytest.raises(DataError, match="known samples of the window contain NaN"):
+        art.complete(u, y_bad, miss)
+    miss[3] = True  # a missing sample may be NaN
+    assert np.all(np.isfinite(art.complete(u, y_bad, miss).y))

@@ -169,6 +169,11 @@ def test_steering_needs_the_artificial_io_operator():
     solver = SimpleNamespace(manifest={"dims": {"m": 3, "p": 3}, "artificial_io": None}, artificial_io=None)
     with pytest.raises(ValueError, match="no artificial-IO operator"):
         hopping_window(solver, 20)
+    # With one: the window the operator was generated with (as the in-process loop builds it).
+    settings = {"t_d": 0, "min_ascent": 7, "noise_level": 2e-3, "denoise": True}
+    art = SimpleNamespace(m=3, p=3, depth=60, noise_level=2e-3, window_settings=lambda: settings)
+    win = hopping_window(SimpleNamespace(manifest={"dims": {"m": 3, "p": 3}}, artificial_io=art), 20)
+    assert (win.t_ini, win.t_d, win.min_ascent, win.noise_level, win.denoise) == (20, 0, 7, 2e-3, True)
 
 
 class _Steerer:
