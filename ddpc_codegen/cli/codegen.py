@@ -23,7 +23,7 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.match import conform_dataset, parse_channel_map
 from ddpc_codegen.errors import ConfigError, DataError
-from ddpc_codegen.design.predictor import fit_predictor
+from ddpc_codegen.design.fit import fit_configured
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.hopping_data import is_hopping_config, prepare_hopping
 from ddpc_codegen.codegen import BACKENDS, OnlineCompletion, generate
@@ -76,9 +76,8 @@ def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = Non
         ds = hd.dataset
         online = OnlineCompletion.from_spec(hd.art, hd.spec)
         online.check()  # refused before the fit
-    opts = {k: v for k, v in config.predictor.items() if k != "method"}
     t0 = time.perf_counter()
-    pred = fit_predictor(ds, config.t_ini, config.t_f, config.predictor["method"], **opts)
+    pred = fit_configured(config, ds)
     pe = pred.excitation()
     log(f"  data: {ds.n_trajectories} trajectories, {ds.n_samples} samples -> {pred.n_columns} Hankel columns")
     log(f"  excitation: {pe.summary()}")

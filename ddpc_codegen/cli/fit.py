@@ -45,7 +45,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     paths = expand_paths(args.data)
     say(f"[{cfg.name}] {len(paths)} files, Tini={cfg.t_ini} Tf={cfg.t_f} {cfg.predictor['method']}, "
         f"{args.workers} worker(s){' on ' + args.address if args.address else ''}")
-    opts = {k: v for k, v in cfg.predictor.items() if k != "method"}
+    opts = {k: v for k, v in cfg.predictor.items() if k not in ("method", "form")}
+    if cfg.predictor.get("form", "absolute") != "absolute":
+        raise ConfigError(f"{cfg.source}: [predictor] form = {cfg.predictor['form']!r}: the fleet fit streams "
+                          "samples, not increments; fit this config with `ddpc-codegen codegen` on one dataset")
     fit = fit_files(paths, cfg.t_ini, cfg.t_f, cfg.predictor["method"], workers=args.workers, address=args.address,
                     chunk_columns=args.chunk_columns, log=say, **opts)
     pred = fit.predictor

@@ -22,6 +22,7 @@ __all__ = ["SteeringConfig", "R_MODES", "BACKENDS"]
 R_MODES = ("absolute", "offset", "increment")
 BACKENDS = ("daqp", "osqp")
 _PREDICTOR_METHODS = ("pem", "lsq")
+_PREDICTOR_FORMS = ("absolute", "incremental")
 
 # section -> allowed keys (unknown keys are errors: a typo must not silently fall back to a default)
 _SCHEMA: dict[str, tuple[str, ...]] = {
@@ -30,7 +31,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "signals": ("inputs", "outputs", "input_units", "output_units"),
     "cost": ("Q", "R", "R_mode", "R_du", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
-    "predictor": ("method", "slack_weight", "ridge", "rcond"),
+    "predictor": ("method", "form", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
     "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online",
                       "denoise_online"),
@@ -169,6 +170,12 @@ class SteeringConfig:
         pred.setdefault("method", "pem")
         if pred["method"] not in _PREDICTOR_METHODS:
             raise _err(src, "[predictor] method", f"must be one of {list(_PREDICTOR_METHODS)}; got {pred['method']!r}")
+        pred.setdefault("form", "absolute")
+        if pred["form"] not in _PREDICTOR_FORMS:
+            raise _err(src, "[predictor] form", f"must be one of {list(_PREDICTOR_FORMS)}; got {pred['form']!r}")
+        if pred["form"] == "incremental" and pred["method"] != "lsq":
+            raise _err(src, "[predictor] form", f"\"incremental\" needs method = \"lsq\"; got method "
+                       f"{pred['method']!r} (pem's slack on y_ini has no meaning for increments)")
         for k, lo in (("slack_weight", 0.0), ("ridge", -1e-300), ("rcond", 0.0)):
             if k in pred and not (_is_num(pred[k]) and np.isfinite(pred[k]) and pred[k] > lo):
                 what = "a number >= 0" if k == "ridge" else "a positive number"

@@ -13,7 +13,7 @@ import numpy as np
 from ddpc_codegen.runtime.hopping import HoppingWindow
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.hopping_data import prepare_hopping
-from ddpc_codegen.design.predictor import fit_predictor
+from ddpc_codegen.design.fit import fit_configured
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.experiments.pipeline import CollectSpec, collect, default_config
 
@@ -46,8 +46,7 @@ def completion_timing(log=print, duration: float = 40.0) -> dict:
     cfg = SteeringConfig.from_toml(default_config("hopping"))
     raw = collect("hopping", CollectSpec(duration=duration, seed=1, amplitude=(0.01, 0.02, 0.02))).to_dataset("none")
     hd = prepare_hopping(raw, cfg)
-    opts = {k: v for k, v in cfg.predictor.items() if k != "method"}
-    prob = SteeringProblem(fit_predictor(hd.dataset, cfg.t_ini, cfg.t_f, cfg.predictor["method"], **opts), cfg)
+    prob = SteeringProblem(fit_configured(cfg, hd.dataset), cfg)
     sp = hd.spec
     held = collect("hopping", CollectSpec(duration=20.0, seed=5, noise=True, amplitude=(0.01, 0.02, 0.02)))
     with tempfile.TemporaryDirectory() as tmp:

@@ -52,7 +52,8 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.design.artificial_io import ArtificialIO
 from ddpc_codegen.design.hopping_data import ArtificialIOSpec, prepare_hopping
-from ddpc_codegen.design.predictor import Predictor, fit_predictor
+from ddpc_codegen.design.fit import fit_configured
+from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, SimResult, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
@@ -154,8 +155,7 @@ class SteeringSetup:
 
 
 def _fit(cfg: SteeringConfig, ds: IODataset) -> Predictor:
-    opts = {k: v for k, v in cfg.predictor.items() if k != "method"}
-    return fit_predictor(ds, cfg.t_ini, cfg.t_f, cfg.predictor["method"], **opts)
+    return fit_configured(cfg, ds)
 
 
 def build_setup(
@@ -182,8 +182,8 @@ def build_setup(
         generate_dir: root of the generated solver folder (``<dir>/<solver_name>``); None = do
             not generate (interpreted runs only).
         solver_name: default ``steer_<scenario>``.
-        fit: fits the predictor from (config, dataset) (default: ``fit_predictor`` with the config's
-            [predictor] options); a sweep passes a cached one.
+        fit: fits the predictor from (config, dataset) (default: ``fit_configured``, the predictor the config's
+            [predictor] table asks for); a sweep passes a cached one.
         save_data: write the recorded data (flying: the config's [data] dataset; hopping: the raw
             log as the [data] dataset and the stitched hops next to it as ``hopping_stitched.npz``).
     """

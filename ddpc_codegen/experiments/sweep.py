@@ -42,7 +42,8 @@ import numpy as np
 from ddpc_codegen.cluster import engine
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.design.predictor import Predictor, fit_predictor
+from ddpc_codegen.design.fit import fit_configured
+from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import ConfigError, ManifestError
 from ddpc_codegen.experiments.pipeline import SteeringSetup, build_setup, collect
 from ddpc_codegen.experiments.evaluate import run
@@ -97,7 +98,7 @@ def _locked(path: Path) -> Iterator[None]:
 
 
 def _cached_fit(cfg: SteeringConfig, ds: IODataset, cache_dir: str) -> Predictor:
-    """fit_predictor with the config's options, memoised on (data, horizons, predictor options):
+    """fit_configured (the config's [predictor] table), memoised on (data, horizons, predictor options):
     in this process, then on disk (the first worker of a node fits, the others read its result)."""
     h = hashlib.sha256(json.dumps([cfg.t_ini, cfg.t_f, cfg.predictor], sort_keys=True).encode())
     for a in (*ds.u, *ds.y):
@@ -112,8 +113,7 @@ def _cached_fit(cfg: SteeringConfig, ds: IODataset, cache_dir: str) -> Predictor
             with open(path, "rb") as f:
                 pred = pickle.load(f)  # written by this sweep's own workers (same cache folder)
         else:
-            opts = {k: v for k, v in cfg.predictor.items() if k != "method"}
-            pred = fit_predictor(ds, cfg.t_ini, cfg.t_f, cfg.predictor["method"], **opts)
+            pred = fit_configured(cfg, ds)
             tmp = path.with_suffix(".tmp")
             with open(tmp, "wb") as f:
                 pickle.dump(pred, f)

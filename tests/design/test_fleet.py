@@ -165,3 +165,7 @@ def test_cli_fit_over_a_folder(fleet, tmp_path, capsys):
     assert rep["columns"] == ref.columns(T_INI + T_F) and rep["rank"] == fit_predictor(ref, T_INI, T_F, "lsq", ridge=1e-3).rank
     assert main(["fit", str(cfg), str(tmp_path / "nowhere")]) == 2  # a ConfigError, named
     assert "nowhere does not exist" in capsys.readouterr().err
+    inc = tmp_path / "inc.toml"
+    inc.write_text(cfg.read_text().replace('method = "lsq"\n', 'method = "lsq"\nform = "incremental"\n'))
+    assert main(["fit", str(inc), str(paths[0].parent), "--no-codegen", "--quiet"]) == 2  # refused, not fitted wrong
+    assert "streams samples, not increments" in capsys.readouterr().err
