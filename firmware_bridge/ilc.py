@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.baselines import PrefilterModel, error_on_grid, ilc_step
+from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, PrefilterModel, error_on_grid, ilc_step
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy
 
 from firmware_bridge.ticklog import TickLog, load_ticklog
@@ -40,9 +40,12 @@ def ticklog_error(log: TickLog, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def next_table(log_path: str | Path, table: FeedforwardPolicy | None, prefilter: PrefilterModel,
-               duration: float) -> FeedforwardPolicy:
+               duration: float, *, gain_scale: float = 1.0,
+               cutoff_hz: float | None = ILC_CUTOFF_HZ) -> FeedforwardPolicy:
     """The ILC update after one flight: ``table`` (None: zeros, the passthrough flight) corrected by
-    the flight's error (:func:`ticklog_error`); clock "trajectory", dt = the log's tick."""
+    the flight's error (:func:`ticklog_error`); clock "trajectory", dt = the log's tick.
+    ``gain_scale``, ``cutoff_hz``: of :func:`~ddpc_codegen.design.baselines.ilc_step` (the defaults
+    are the in-process demo's)."""
     log = load_ticklog(log_path)
     n = table_rows(duration, log.dt)
     delta = np.zeros((n, prefilter.m)) if table is None else table.delta
@@ -52,4 +55,5 @@ def next_table(log_path: str | Path, table: FeedforwardPolicy | None, prefilter:
     err, seen = ticklog_error(log, n)
     if not seen.any():
         raise ValueError(f"{log_path}: no engaged tick on the trajectory to learn from")
-    return FeedforwardPolicy(ilc_step(delta, err, prefilter, dt=log.dt, mask=seen), log.dt, "trajectory")
+    new = ilc_step(delta, err, prefilter, dt=log.dt, mask=seen, gain_scale=gain_scale, cutoff_hz=cutoff_hz)
+    return FeedforwardPolicy(new, log.dt, "trajectory")

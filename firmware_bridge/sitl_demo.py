@@ -109,13 +109,14 @@ def fit_prefilter_from_log(collect: Path, out: Path) -> Path:
 
 
 def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
-            iterations: int = ILC_ITERATIONS) -> dict:
+            iterations: int = ILC_ITERATIONS, law: dict | None = None) -> dict:
     """ILC against the SITL: iteration 0 is the passthrough flight already flown
     (``<autopilot>_passthrough.npz``); each next one flies the same ellipse for ``duration`` s with
     the table learned so far (``--mode feedforward``, ``ilc_<i>.npz``), then its tick log updates
     the table (:func:`firmware_bridge.ilc.next_table`, the in-process demo's law with this loop's
-    prefilter). The figures per iteration, the iteration it settled at, the last one's."""
-    from ddpc_codegen.design.baselines import PrefilterModel, iterations_to_settle
+    prefilter; ``law``: other ``gain_scale`` / ``cutoff_hz``). The figures per iteration, the
+    iteration it settled at, the last one's."""
+    from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, PrefilterModel, iterations_to_settle
     from firmware_bridge.ilc import next_table
 
     if iterations < 1:
@@ -126,7 +127,7 @@ def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
     per = [flight_figures(logs[0])]
     table = None
     for it in range(1, iterations + 1):
-        table = next_table(logs[-1], table, pf, duration)
+        table = next_table(logs[-1], table, pf, duration, **(law or {}))
         path = table.save(out / f"ilc_{it}.npz")
         fly(sitl, autopilot, "feedforward", out, duration, extra=("--feedforward", str(path)), tag=f"ilc{it}")
         logs.append(out / f"{autopilot}_ilc{it}.npz")
@@ -137,16 +138,18 @@ def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
             "iterations_run": iterations, "iterations_to_settle": iterations_to_settle(pick("rmse_z")),
             "rmse_z": per[-1]["rmse_z"], "rmse_z_truth": per[-1]["rmse_z_truth"],
             "duration_s": duration, "wall_s": round(time.monotonic() - t0, 1),
-            "law": "P-type, per channel lead d and gain 1/g of this loop's prefilter, zero-phase 2nd-order "
-                   "Butterworth Q-filter at 1 Hz; iteration 0 = passthrough; table row = trajectory tick"}
+            "law": {"gain_scale": 1.0, "cutoff_hz": ILC_CUTOFF_HZ, **(law or {}),
+                    "what": "P-type, per channel lead d and gain gain_scale/g of this loop's prefilter, zero-phase "
+                            "2nd-order Butterworth Q-filter at cutoff_hz; iteration 0 = passthrough; table row = "
+                            "trajectory tick"}}
 
 
 def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect_s: float = 25.0,
                  steer_s: float = 12.0, sitl_params: dict | None = None, baselines: bool = True,
-                 ilc_iterations: int = ILC_ITERATIONS) -> dict:
+                 ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None) -> dict:
     """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> with ``baselines``: the
     prefilter baseline, identified from the same collect log, and ``ilc_iterations`` ILC flights of
-    ``baseline_s`` each, :func:`fly_ilc`); the figures (JSON-ready).
+    ``baseline_s`` each, :func:`fly_ilc`, with ``ilc_law`` if given); the figures (JSON-ready).
     ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
     climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
     out = Path(out_dir)
@@ -161,7 +164,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect
         if baselines:
             pf = fit_prefilter_from_log(out / f"{autopilot}_collect.npz", out / "prefilter.json")
             fly(sitl, autopilot, "prefilter", out, baseline_s, extra=("--prefilter", str(pf)))
-            ilc = fly_ilc(sitl, autopilot, out, baseline_s, pf, ilc_iterations)
+            ilc = fly_ilc(sitl, autopilot, out, baseline_s, pf, ilc_iterations, ilc_law)
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     if baselines:
         fp = flight_figures(out / f"{autopilot}_prefilter.npz")
