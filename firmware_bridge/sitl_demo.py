@@ -41,7 +41,7 @@ COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
            "px4": ("--excitation", "0.15,0.03", "--excitation-hold", "30")}
 _STEERED = REASONS.index("steered")
 # ILC flights after the passthrough one (iteration 0): the in-process flying ILC settles at its
-# second iteration; each flight here is a take-off, the ellipse and a landing (~25 s of wall time).
+# second iteration; each flight here is a take-off, the ellipse and a landing (27-30 s of wall time).
 ILC_ITERATIONS = 3
 
 
