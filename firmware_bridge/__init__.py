@@ -10,6 +10,8 @@
 * :mod:`.phases` -- arming retries, take-off ramp, bumpless (re-)engagement.
 * :mod:`.setpoints` -- setpoint shaping: PRBS in collect mode, clamps, the SET_ATTITUDE_TARGET send.
 * :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
+* :mod:`.baseline_modes` -- the prefilter and feedforward (ILC table) modes, checked before flying;
+  :mod:`.ilc` -- ILC between flights: a tick log -> the next feed-forward table.
 * :mod:`.hopping` -- hopping: phases from telemetry or a contact signal, the hopping steering tick.
 * :mod:`.sitl`, :mod:`.sitl_demo` -- real autopilot SITLs (PX4 SIH, ArduCopter) for tests and
   ``make sitl-demo``.

@@ -11,6 +11,7 @@ One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
             collect: r_nom + PRBS                           new data (hopping: in the air only)
             hopping steer: HoppingSteering.decide(phase, ...)  ground ticks r_nom, aerial windows completed
             prefilter: PrefilterPolicy(y_des ahead, r_nom)  the gain + offset + lead baseline
+            feedforward: r_nom + delta[trajectory tick]     a learned (ILC) table  (:mod:`.baseline_modes`)
     sp    = controller.track(u, state)                      stage (b): quaternion + thrust
     clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
 
@@ -60,10 +61,10 @@ import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig
-from ddpc_codegen.runtime.baselines import PrefilterPolicy
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
+from firmware_bridge.baseline_modes import BASELINE_MODES, baseline_policy, feedforward_row
 from firmware_bridge.clock import TickClock
 from firmware_bridge.config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
                                     default_controller_config)
@@ -110,12 +111,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self.solver = None
         if c.mode == "steer":
             self._setup_solver(solver)
-        elif c.mode == "prefilter":
-            if self.hopping:
-                raise ValueError("prefilter mode flies the flying scenario (the hopping baselines run in-process)")
-            # The baseline behind the steering's interface; it needs y_des up to its longest lead ahead.
-            self.policy = PrefilterPolicy.load(c.prefilter)
-            self._ahead = self.period * np.arange(self.policy.horizon)
+        elif c.mode in BASELINE_MODES:  # a baseline behind the steering's interface
+            self.policy, self._ahead = baseline_policy(c.mode, getattr(c, c.mode), c.rate_hz, self.m, self.hopping)
         if self.hopping:
             window = hopping_window(self.solver, self.steerer.t_ini) if self.steerer is not None else None
             self.hop = HoppingLoop(self.ctrl, contact, self.policy if self.steerer is not None else None, window)
@@ -425,7 +422,9 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             self.policy.lost(fill, y)
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None)
-        elif self.cfg.mode == "prefilter":
+        elif self.cfg.mode in BASELINE_MODES:
+            if self.cfg.mode == "feedforward":  # the row of this trajectory tick (a re-engagement continues it)
+                self.policy.seek(feedforward_row(t_traj, self.period))
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             ref.update(u=out.u, reason=out.reason)
         elif self.cfg.mode == "collect":

@@ -109,19 +109,24 @@ def build_bridge_parser() -> argparse.ArgumentParser:
                     "MAVLink: telemetry in, SET_ATTITUDE_TARGET out at 200 Hz.",
         epilog="Modes: steer (DDPC on), passthrough (model-based controller alone, the baseline), collect (PRBS "
                "on the references; the --log file is an IODataset for `ddpc-codegen codegen --dataset`), "
-               "prefilter (the static gain + offset + lead baseline fitted from a collect log).",
+               "prefilter (the static gain + offset + lead baseline fitted from a collect log), feedforward "
+               "(r_nom + a learned ILC table, row = trajectory tick).",
     )
     p.add_argument("connection", nargs="?", default=_D["url"],
                    help="pymavlink-style connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
                         "device (/dev/ttyACM0[:BAUD]) (default udpin:127.0.0.1:14540)")
     p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 921600)")
-    p.add_argument("--mode", choices=("steer", "passthrough", "collect", "prefilter"), default=_D["mode"])
+    p.add_argument("--mode", choices=("steer", "passthrough", "collect", "prefilter", "feedforward"),
+                   default=_D["mode"])
     p.add_argument("--solver", default=None, help="generated solver folder (steer mode), e.g. generated/flying")
     p.add_argument("--scenario", choices=("flying", "hopping"), default=None,
                    help="flying (default) or hopping: the profile's controller mode; hopping without --profile is the "
                         "shipped pogox_hopping (phases from telemetry or a contact signal, see --contact)")
     p.add_argument("--prefilter", default=None,
                    help="prefilter JSON (prefilter mode; PrefilterModel.save, e.g. written by make sitl-demo)")
+    p.add_argument("--feedforward", default=None,
+                   help="feed-forward table npz (feedforward mode; FeedforwardPolicy.save with clock 'trajectory' "
+                        "and dt = 1 / --rate, e.g. an ILC iteration of make sitl-demo)")
     _bridge_autopilot_args(p.add_argument_group("autopilot"))
     _bridge_loop_args(p.add_argument_group("loop"))
     _bridge_safety_args(p.add_argument_group("safety"))
@@ -253,7 +258,8 @@ def bridge_config_from_args(a: argparse.Namespace):
         traj = trajectory_from_arg(a.trajectory)
     max_step = None if str(a.max_step).lower() == "none" else _floats(a.max_step)
     return BridgeConfig(
-        url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, prefilter=a.prefilter, autopilot=a.autopilot,
+        url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, prefilter=a.prefilter, feedforward=a.feedforward,
+        autopilot=a.autopilot,
         guid_options=a.guid_options, force_guid_options=a.force_guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
         target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
         position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,

@@ -15,6 +15,7 @@ from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
+from firmware_bridge.baseline_modes import load_feedforward
 from firmware_bridge.link import mavlink
 
 
@@ -59,10 +60,13 @@ class BridgeConfig:
     Attributes:
         url, baud: MAVLink connection (see :func:`firmware_bridge.link.parse_url`).
         mode: "steer" (DDPC on; needs ``solver``), "passthrough" (baseline), "collect" (PRBS),
-            "prefilter" (the static gain + offset + lead baseline; needs ``prefilter``).
+            "prefilter" (the static gain + offset + lead baseline; needs ``prefilter``),
+            "feedforward" (r_nom + a learned table indexed by trajectory tick; needs ``feedforward``).
         solver: folder of a generated solver (``ddpc-codegen codegen``), steer mode.
         prefilter: prefilter JSON file (:meth:`ddpc_codegen.design.baselines.PrefilterModel.save`),
             prefilter mode.
+        feedforward: feed-forward table npz (:meth:`ddpc_codegen.runtime.baselines.FeedforwardPolicy.save`,
+            clock "trajectory", dt = 1 / rate_hz, one column per reference), feedforward mode.
         autopilot: "px4" or "ardupilot" (checked against the vehicle's heartbeat before anything is sent).
         guid_options: ArduPilot GUID_OPTIONS expected (None: the vehicle's value, read before engaging);
             force_guid_options: encode for ``guid_options`` even if the vehicle disagrees.
@@ -122,6 +126,7 @@ class BridgeConfig:
     mode: str = "steer"
     solver: str | None = None
     prefilter: str | None = None
+    feedforward: str | None = None
     autopilot: str = "px4"
     guid_options: int | None = None
     force_guid_options: bool = False
@@ -174,12 +179,19 @@ class BridgeConfig:
         for key, flag in (("log", "--log"), ("summary", "--summary")):
             if getattr(self, key):
                 check_output_path(getattr(self, key), flag)
-        if self.mode not in ("steer", "passthrough", "collect", "prefilter"):
-            raise ValueError(f"mode must be steer, passthrough, collect or prefilter; got {self.mode!r}")
+        if self.mode not in ("steer", "passthrough", "collect", "prefilter", "feedforward"):
+            raise ValueError(f"mode must be steer, passthrough, collect, prefilter or feedforward; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:
             raise ValueError("steer mode needs a generated solver folder (--solver generated/<name>)")
         if self.mode == "prefilter" and not self.prefilter:
             raise ValueError("prefilter mode needs a prefilter JSON file (--prefilter prefilter.json)")
+        if self.mode == "feedforward":
+            if not self.feedforward:
+                raise ValueError("feedforward mode needs a feed-forward table (--feedforward table.npz)")
+            if self.scenario != "flying":
+                raise ValueError("feedforward mode flies the flying scenario (the hopping ILC runs in-process)")
+            # Checked here, before anything connects: the table's clock, tick and columns.
+            load_feedforward(self.feedforward, self.rate_hz, 2)  # the flying loop: z_ref, pitch_ref
         if self.stale_action not in ("reference", "hover", "land"):
             raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
         if not (self.rate_hz > 0 and self.max_age > 0):

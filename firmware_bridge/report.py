@@ -145,6 +145,9 @@ class Reporting:
                 out["steering"]["injected_failures"] = self.solver.injected
         if self.cfg.mode == "prefilter":
             out["prefilter"] = {"model": self.policy.model.to_dict(), "counts": self.policy.summary()}
+        if self.cfg.mode == "feedforward":  # beyond_table: ticks past the table's end (its last row held)
+            out["feedforward"] = {"file": str(self.cfg.feedforward), "rows": int(self.policy.delta.shape[0]),
+                                  "dt": self.policy.dt, "counts": self.policy.summary()}
         return out
 
     def _telemetry_summary(self) -> dict:

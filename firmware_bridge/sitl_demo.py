@@ -1,5 +1,6 @@
 """The documented workflow against a real autopilot SITL: take off from the ground, fly the
-baseline (passthrough), collect, generate the solver, steer -- and the figures (``make sitl-demo``).
+baseline (passthrough), collect, generate the solver, steer, then the simple baselines (prefilter;
+ILC: repeated flights of the same ellipse, :func:`fly_ilc`) -- and the figures (``make sitl-demo``).
 
 Each flight is one ``ddpc-bridge`` process with ``--arm --offboard --takeoff --land``: it arms the
 vehicle on the ground (retrying while the EKF initialises), takes off to the trajectory start,
@@ -26,7 +27,8 @@ import numpy as np
 from firmware_bridge.sitl import make_sitl, missing_reason, run_isolated
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
-__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "bridge_command", "fly", "flight_figures", "run_pipeline", "main"]
+__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "bridge_command", "fly", "flight_figures",
+           "fly_ilc", "run_pipeline", "main"]
 
 ROOT = Path(__file__).resolve().parent.parent
 # ArduCopter: SET_ATTITUDE_TARGET.thrust as a thrust (GUID_OPTIONS bit 3), as the profile assumes.
@@ -38,13 +40,16 @@ CONFIGS = {"ardupilot": "sitl_ardupilot.toml", "px4": "sitl_px4.toml"}
 COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
            "px4": ("--excitation", "0.15,0.03", "--excitation-hold", "30")}
 _STEERED = REASONS.index("steered")
+# ILC flights after the passthrough one (iteration 0): the in-process flying ILC settles at its
+# second iteration; each flight here is a take-off, the ellipse and a landing (27-30 s of wall time).
+ILC_ITERATIONS = 3
 
 
 def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, timeout: float,
-                   extra: tuple[str, ...] = ()) -> list[str]:
+                   extra: tuple[str, ...] = (), tag: str | None = None) -> list[str]:
     """The ``ddpc-bridge`` command of one flight from the ground (arm, take off, fly ``duration`` s,
-    land); log ``<out>/<autopilot>_<mode>.npz``, summary ``.json``."""
-    name = f"{autopilot}_{mode}"
+    land); log ``<out>/<autopilot>_<tag or mode>.npz``, summary ``.json``."""
+    name = f"{autopilot}_{tag or mode}"
     return [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
             "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
             "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
@@ -53,10 +58,10 @@ def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, 
 
 
 def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: Path | None = None,
-        timeout: float = 150.0, extra: tuple[str, ...] = ()) -> dict:
+        timeout: float = 150.0, extra: tuple[str, ...] = (), tag: str | None = None) -> dict:
     """One bridge flight from the ground (:func:`bridge_command`); its summary."""
-    name = f"{autopilot}_{mode}"
-    cmd = bridge_command(sitl, autopilot, mode, out, duration, timeout, extra)
+    name = f"{autopilot}_{tag or mode}"
+    cmd = bridge_command(sitl, autopilot, mode, out, duration, timeout, extra, tag)
     if solver is not None:
         cmd += ["--solver", str(solver)]
     with open(out / f"{name}.out", "w") as f:
@@ -103,10 +108,48 @@ def fit_prefilter_from_log(collect: Path, out: Path) -> Path:
     return fit_prefilter(load_ticklog(collect).to_dataset(), max_lead=200, smooth_hz=1.0).save(out)
 
 
+def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
+            iterations: int = ILC_ITERATIONS, law: dict | None = None) -> dict:
+    """ILC against the SITL: iteration 0 is the passthrough flight already flown
+    (``<autopilot>_passthrough.npz``); each next one flies the same ellipse for ``duration`` s with
+    the table learned so far (``--mode feedforward``, ``ilc_<i>.npz``), then its tick log updates
+    the table (:func:`firmware_bridge.ilc.next_table`, the in-process demo's law with this loop's
+    prefilter; ``law``: other ``gain_scale`` / ``cutoff_hz``). The figures per iteration, the
+    iteration it settled at, the last one's."""
+    from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, PrefilterModel, iterations_to_settle
+    from firmware_bridge.ilc import next_table
+
+    if iterations < 1:
+        raise ValueError(f"ILC needs at least one iteration after the passthrough flight; got {iterations}")
+    t0 = time.monotonic()
+    pf = PrefilterModel.load(prefilter)
+    logs = [out / f"{autopilot}_passthrough.npz"]
+    per = [flight_figures(logs[0])]
+    table = None
+    for it in range(1, iterations + 1):
+        table = next_table(logs[-1], table, pf, duration, **(law or {}))
+        path = table.save(out / f"ilc_{it}.npz")
+        fly(sitl, autopilot, "feedforward", out, duration, extra=("--feedforward", str(path)), tag=f"ilc{it}")
+        logs.append(out / f"{autopilot}_ilc{it}.npz")
+        per.append(flight_figures(logs[-1]))
+    pick = lambda k: [f[k] for f in per]  # noqa: E731
+    return {"rmse_z_per_iteration": pick("rmse_z"), "rmse_z_truth_per_iteration": pick("rmse_z_truth"),
+            "thrust_step_rms_per_iteration": pick("thrust_step_rms"),
+            "iterations_run": iterations, "iterations_to_settle": iterations_to_settle(pick("rmse_z")),
+            "rmse_z": per[-1]["rmse_z"], "rmse_z_truth": per[-1]["rmse_z_truth"],
+            "duration_s": duration, "wall_s": round(time.monotonic() - t0, 1),
+            "law": {"gain_scale": 1.0, "cutoff_hz": ILC_CUTOFF_HZ, **(law or {}),
+                    "what": "P-type, per channel lead d and gain gain_scale/g of this loop's prefilter, zero-phase "
+                            "2nd-order Butterworth Q-filter at cutoff_hz; iteration 0 = passthrough; table row = "
+                            "trajectory tick"}}
+
+
 def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect_s: float = 25.0,
-                 steer_s: float = 12.0, sitl_params: dict | None = None, baselines: bool = True) -> dict:
-    """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> the prefilter baseline,
-    identified from the same collect log, with ``baselines``); the figures (JSON-ready).
+                 steer_s: float = 12.0, sitl_params: dict | None = None, baselines: bool = True,
+                 ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None) -> dict:
+    """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> with ``baselines``: the
+    prefilter baseline, identified from the same collect log, and ``ilc_iterations`` ILC flights of
+    ``baseline_s`` each, :func:`fly_ilc`, with ``ilc_law`` if given); the figures (JSON-ready).
     ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
     climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
     out = Path(out_dir)
@@ -121,17 +164,19 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect
         if baselines:
             pf = fit_prefilter_from_log(out / f"{autopilot}_collect.npz", out / "prefilter.json")
             fly(sitl, autopilot, "prefilter", out, baseline_s, extra=("--prefilter", str(pf)))
+            ilc = fly_ilc(sitl, autopilot, out, baseline_s, pf, ilc_iterations, ilc_law)
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     if baselines:
         fp = flight_figures(out / f"{autopilot}_prefilter.npz")
         res["baselines"] = {
-            "rmse_z": {"passthrough": fb["rmse_z"], "prefilter": fp["rmse_z"], "steered": fs["rmse_z"]},
+            "rmse_z": {"passthrough": fb["rmse_z"], "prefilter": fp["rmse_z"], "ilc": ilc["rmse_z"],
+                       "steered": fs["rmse_z"]},
             "rmse_z_truth": {"passthrough": fb["rmse_z_truth"], "prefilter": fp["rmse_z_truth"],
-                             "steered": fs["rmse_z_truth"]},
+                             "ilc": ilc["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
             "thrust_step_rms": {"passthrough": fb["thrust_step_rms"], "prefilter": fp["thrust_step_rms"],
-                                "steered": fs["thrust_step_rms"]},
+                                "ilc": ilc["thrust_step_rms_per_iteration"][-1], "steered": fs["thrust_step_rms"]},
             "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"],
-            "ilc": "not flown (needs repeated flights of the same trajectory)",
+            "ilc": ilc,
         }
     res.update({
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
@@ -169,12 +214,31 @@ def main(argv: list[str] | None = None) -> int:
               f"steered {100 * res['engaged_fraction']:.1f} %, rate {res['rate_hz']:.1f} Hz, "
               f"fallbacks {res['fallbacks']}, {res['wall_s']:.0f} s", flush=True)
         if "baselines" in res:
-            b = res["baselines"]["rmse_z"]
-            print(f"[sitl-demo] {ap}: baselines rmse z: passthrough {1e3 * b['passthrough']:.1f}, prefilter "
-                  f"{1e3 * b['prefilter']:.1f}, steered {1e3 * b['steered']:.1f} mm", flush=True)
+            print(format_baselines(ap, res["baselines"]), flush=True)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "sitl.json").write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
     return 0 if report else 1
+
+
+def format_baselines(ap: str, b: dict) -> str:
+    """The printed baselines lines: height RMSE of each method (EKF; true height where the SITL
+    sends it) and the ILC's per iteration [mm]."""
+    mm = lambda v: "-" if v is None else f"{1e3 * v:.1f}"  # noqa: E731
+    lines = []
+    for key, what in (("rmse_z", "rmse z"), ("rmse_z_truth", "true height rmse")):
+        r = b[key]
+        if r["passthrough"] is None:
+            continue
+        lines.append(f"[sitl-demo] {ap}: baselines {what}: passthrough {mm(r['passthrough'])}, prefilter "
+                     f"{mm(r['prefilter'])}, ilc {mm(r['ilc'])}, steered {mm(r['steered'])} mm")
+    il = b["ilc"]
+    for key, what in (("rmse_z_per_iteration", "rmse z"), ("rmse_z_truth_per_iteration", "true height")):
+        if il[key][0] is not None:
+            lines.append(f"[sitl-demo] {ap}: ilc {what} per iteration: {', '.join(mm(v) for v in il[key])} mm "
+                         f"(0 = passthrough)")
+    lines.append(f"[sitl-demo] {ap}: ilc within 10 % of its best at iteration {il['iterations_to_settle']} "
+                 f"of {il['iterations_run']}")
+    return "\n".join(lines)
 
 
 def _nan_none(o):

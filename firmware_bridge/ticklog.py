@@ -60,6 +60,7 @@ REASONS = (
     "ground",         # 15 hopping steer mode, ground phase: the controller's reference (never steered)
     "no_window",      # 16 hopping steer mode, in the air without a window yet (history, early ascent)
     "prefilter",      # 17 mode prefilter: the static gain + offset + lead baseline
+    "feedforward",    # 18 mode feedforward: r_nom + a learned (ILC) table row of this trajectory tick
 )
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",

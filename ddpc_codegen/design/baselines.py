@@ -34,6 +34,10 @@ __all__ = [
     "fit_impulse_response",
     "lifted_matrix",
     "shift_ahead",
+    "ILC_CUTOFF_HZ",
+    "ilc_step",
+    "error_on_grid",
+    "iterations_to_settle",
 ]
 
 
@@ -211,6 +215,69 @@ def ilc_update_p(delta: np.ndarray, error: np.ndarray, gain: float | Sequence[fl
     if mask is not None:
         new = np.where(np.asarray(mask, bool)[:, None], new, delta)
     return new
+
+
+# The Q-filter cut-off of the demos' ILC (in-process and against the SITLs): the flying loops pass
+# ~1 Hz (the ellipse is 0.2 Hz), the table above it would only learn noise.
+ILC_CUTOFF_HZ = 1.0
+
+
+def ilc_step(delta: np.ndarray, error: np.ndarray, prefilter: PrefilterModel, *, dt: float,
+             mask: np.ndarray | None = None, gain_scale: float = 1.0,
+             cutoff_hz: float | None = ILC_CUTOFF_HZ) -> np.ndarray:
+    """The demos' ILC law: :func:`ilc_update_p` with the lead d_i and gain gain_scale / g_i of a
+    prefilter fitted on the same loop, Q-filtered at ``cutoff_hz``.
+
+    Args: delta (N, m) this iteration's table; error (N, p) y - y_des on the table's grid; dt tick [s];
+        mask (N,) where the error was observed (elsewhere delta is kept).
+    Returns: (N, m) the next table.
+    """
+    gains = gain_scale / np.asarray(prefilter.gain, dtype=float)
+    return ilc_update_p(delta, error, gains, prefilter.lead, cutoff_hz=cutoff_hz, dt=dt, mask=mask)
+
+
+def error_on_grid(t: np.ndarray, e: np.ndarray, n: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Errors sampled at times ``t`` put on the table's grid j = round(t / dt), j = 0..n-1.
+
+    Args:
+        t: (T,) trajectory time of each sample [s] (NaN: not on the trajectory, ignored).
+        e: (T, p) error y - y_des of each sample.
+        n: rows of the table; dt: its tick [s].
+    Returns:
+        (error (n, p), observed (n,) bool). Several samples on one grid point are averaged; grid
+        points between observed ones (a missed tick) are interpolated linearly and count as
+        observed; before the first / after the last observed point nothing is (mask False) and the
+        edge value is held there (so that a Q-filter over the whole grid sees no step to zero).
+    """
+    t = np.asarray(t, dtype=float)
+    e = np.asarray(e, dtype=float).reshape(t.shape[0], -1)
+    ok = np.isfinite(t) & np.all(np.isfinite(e), axis=1)
+    j = np.rint(t[ok] / dt).astype(int)
+    keep = (j >= 0) & (j < n)
+    j, ev = j[keep], e[ok][keep]
+    acc, cnt = np.zeros((n, e.shape[1])), np.zeros(n)
+    np.add.at(acc, j, ev)
+    np.add.at(cnt, j, 1.0)
+    seen = cnt > 0
+    out = np.zeros_like(acc)
+    if not seen.any():
+        return out, seen
+    out[seen] = acc[seen] / cnt[seen, None]
+    idx = np.flatnonzero(seen)
+    for c in range(out.shape[1]):  # np.interp holds the edge values outside [idx[0], idx[-1]]
+        out[:, c] = np.interp(np.arange(n), idx, out[idx, c])
+    mask = np.zeros(n, dtype=bool)
+    mask[idx[0] : idx[-1] + 1] = True
+    return out, mask
+
+
+def iterations_to_settle(metric: Sequence[float], tol: float = 0.1) -> int:
+    """The first ILC iteration whose metric is within ``tol`` (relative) of the best one (NaN: ignored)."""
+    v = np.asarray(metric, dtype=float)
+    if not np.isfinite(v).any():
+        raise DataError(f"no finite ILC metric to settle on: {list(metric)}")
+    best = np.nanmin(v)
+    return int(np.flatnonzero(np.isfinite(v) & (v <= (1.0 + tol) * best))[0])
 
 
 def ilc_update_norm_optimal(delta: np.ndarray, error: np.ndarray, G: np.ndarray, weight: float) -> np.ndarray:

@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.baselines import PrefilterModel, fit_prefilter, ilc_update_p
+from ddpc_codegen.design.baselines import (ILC_CUTOFF_HZ, PrefilterModel, error_on_grid, fit_prefilter, ilc_step,
+                                           iterations_to_settle)
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.design.hopping_data import split_hopping
 from ddpc_codegen.experiments.pipeline import ROOT, SteeringSetup
@@ -173,11 +174,8 @@ class ILCResult:
 def _ilc_error(res: SimResult, clock: str, n: int, settle_hops: int) -> tuple[np.ndarray, np.ndarray]:
     """(error (n, p) on the table's clock, mask (n,) where it was observed); measured y - y_des."""
     e = res.y - res.y_des
-    if clock == "trajectory":
-        out = np.zeros((n, e.shape[1]))
-        k = min(n, res.n)
-        out[:k] = e[:k]
-        return out, np.arange(n) < k
+    if clock == "trajectory":  # tick k of the run is tick k of the trajectory
+        return error_on_grid(np.arange(res.n) * res.dt, e, n, res.dt)
     # Hopping: average the aerial error over the scored hops, indexed by ticks since liftoff.
     acc, cnt = np.zeros((n, e.shape[1])), np.zeros(n)
     ground = res.phase == GROUND
@@ -194,10 +192,12 @@ def _ilc_error(res: SimResult, clock: str, n: int, settle_hops: int) -> tuple[np
 
 
 def learn_ilc(setup: SteeringSetup, prefilter: PrefilterModel, *, duration: float, iterations: int = 8,
-              gain_scale: float = 1.0, cutoff_hz: float = 1.0, seed: int = 0, quiet: bool = True) -> ILCResult:
+              gain_scale: float = 1.0, cutoff_hz: float = ILC_CUTOFF_HZ, seed: int = 0,
+              quiet: bool = True) -> ILCResult:
     """P-type ILC on repeated runs of the periodic case (fresh simulation per iteration).
 
-    Lead and gain per channel from the prefilter (d_i, gain_scale / g_i). Flying: the table spans
+    The law is :func:`~ddpc_codegen.design.baselines.ilc_step` (lead d_i and gain gain_scale / g_i
+    from the prefilter; the SITL demo flies the same one). Flying: the table spans
     the run (trajectory time); hopping: 0.6 s after liftoff, the mean error over the hops of the run.
     """
     t0 = time.perf_counter()
@@ -209,7 +209,6 @@ def learn_ilc(setup: SteeringSetup, prefilter: PrefilterModel, *, duration: floa
     n = int(round(duration / dt)) if clock == "trajectory" else int(round(0.6 / dt))
     m = prefilter.m
     pol = FeedforwardPolicy(np.zeros((n, m)), dt, clock)
-    gains = gain_scale / np.asarray(prefilter.gain)
     metric: list[float] = []
     for it in range(iterations + 1):
         res = _policy_run(pol, sc, duration, params, None, seed)
@@ -219,11 +218,9 @@ def learn_ilc(setup: SteeringSetup, prefilter: PrefilterModel, *, duration: floa
         if it == iterations:
             break
         err, mask = _ilc_error(res, clock, n, int(getattr(sc, "settle_hops", 0)))
-        pol = FeedforwardPolicy(ilc_update_p(pol.delta, err, gains, prefilter.lead, cutoff_hz=cutoff_hz, dt=dt,
-                                             mask=mask), dt, clock)
-    best = np.nanmin(metric)
-    settled = next(i for i, v in enumerate(metric) if v <= 1.1 * best)
-    return ILCResult(pol, metric, settled, round(time.perf_counter() - t0, 1))
+        pol = FeedforwardPolicy(ilc_step(pol.delta, err, prefilter, dt=dt, mask=mask, gain_scale=gain_scale,
+                                         cutoff_hz=cutoff_hz), dt, clock)
+    return ILCResult(pol, metric, iterations_to_settle(metric), round(time.perf_counter() - t0, 1))
 
 
 # ----------------------------------------------------------------------------- evaluation

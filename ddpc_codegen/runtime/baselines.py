@@ -10,7 +10,8 @@ loop that runs the steering (the simulator hook, the MAVLink bridge) can run the
   :class:`~ddpc_codegen.design.baselines.PrefilterModel` fitted offline); needs H = max lead + 1.
 * :class:`FeedforwardPolicy`: u = r_nom + delta[j], a learned table (the ILC's last iteration),
   j = ticks since :meth:`~FeedforwardPolicy.reset` (trajectory time, or time since liftoff when the
-  loop resets it at every liftoff); beyond the table the last row is held.
+  loop resets it at every liftoff), or set by :meth:`~FeedforwardPolicy.seek` from the loop's own
+  trajectory clock (the bridge); beyond the table the last row is held.
 
 numpy only: no CasADi, no simulator.
 """
@@ -130,8 +131,17 @@ class FeedforwardPolicy:
         """A tick the policy did not decide: the clock still advances."""
         self._k += 1
 
+    def seek(self, j: int) -> None:
+        """The next :meth:`decide` applies row j (a loop with its own clock: the trajectory tick,
+        which a stall or a re-engagement does not restart)."""
+        if j < 0:
+            raise ValueError(f"a feed-forward table row must be >= 0; got {j}")
+        self._k = int(j)
+
     def decide(self, y: np.ndarray, r_nom: np.ndarray, y_des: np.ndarray) -> SteerOutcome:
         j = min(self._k, self.delta.shape[0] - 1)
+        if self._k >= self.delta.shape[0]:
+            self.counts["beyond_table"] = self.counts.get("beyond_table", 0) + 1
         self._k += 1
         self.counts["ticks"] = self.counts.get("ticks", 0) + 1
         return SteerOutcome(np.asarray(r_nom, dtype=float) + self.delta[j], True, "feedforward")

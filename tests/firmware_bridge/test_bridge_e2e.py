@@ -233,3 +233,29 @@ def test_prefilter_mode_sends_the_prefilter_law_over_the_link(tmp_path):
     np.testing.assert_allclose(t["u"][k, 0], want, atol=1e-9)
     np.testing.assert_allclose(t["u"][k, 1], t["r_nom"][k, 1], atol=1e-12)
     assert s["prefilter"]["model"]["lead"] == [d, 0]
+
+
+def test_feedforward_mode_applies_the_table_row_of_the_trajectory_tick(tmp_path):
+    """``--mode feedforward``: every engaged tick after the hand-over sends u = r_nom + delta[j] with
+    j = round(t_traj / dt), the trajectory tick -- not the number of calls (the blend ticks before
+    the first feedforward tick are on the trajectory clock too); past the table its last row."""
+    from ddpc_codegen.runtime.baselines import FeedforwardPolicy
+    from firmware_bridge.ticklog import REASONS
+
+    j = np.arange(1000)  # 5 s of the 8 s flight
+    delta = np.column_stack([0.02 * np.sin(2 * np.pi * j / 300), 0.004 * np.cos(2 * np.pi * j / 500)])
+    table = FeedforwardPolicy(delta, 0.005).save(tmp_path / "ilc.npz")
+    pr = Procs(tmp_path)
+    try:
+        s = _fly(pr, tmp_path, "ff", ["--mode", "feedforward", "--feedforward", str(table)])
+    finally:
+        pr.cleanup()
+    t = load_ticklog(tmp_path / "ff.npz").ticks
+    k = np.flatnonzero(t["reason"] == REASONS.index("feedforward"))
+    assert k.size > 1000 and s["feedforward"]["counts"]["ticks"] == k.size
+    row = np.rint(t["t_traj"][k] / 0.005).astype(int)
+    assert row[0] >= 1  # the hand-over blend (a few ticks) came first: the table starts where the trajectory is
+    np.testing.assert_array_equal(np.diff(row), 1)  # lock-step: one trajectory tick per tick
+    np.testing.assert_allclose(t["u"][k], t["r_nom"][k] + delta[np.minimum(row, 999)], atol=1e-12)
+    assert s["feedforward"]["counts"]["beyond_table"] == int((row >= 1000).sum()) > 0
+    assert s["feedforward"]["rows"] == 1000 and s["stop_reason"].startswith("duration")

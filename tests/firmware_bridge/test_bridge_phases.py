@@ -157,17 +157,23 @@ def test_arming_refused_then_accepted_or_refused_forever(tmp_path, refusals):
 
 @pytest.mark.e2e
 @pytest.mark.realtime
-def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path):
+@pytest.mark.parametrize("mode", ["passthrough", "feedforward"])
+def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path, mode):
     # The fake vehicle is armed and in OFFBOARD from the start (engaged on the first tick: the frame
     # is captured on that tick, before anything is commanded); then it goes silent for 2 s.
+    # feedforward: the table's row follows the trajectory clock across the re-engagement.
+    from ddpc_codegen.runtime.baselines import FeedforwardPolicy
     from firmware_bridge.ticklog import REASONS, load_ticklog
 
+    delta = np.column_stack([0.01 * np.sin(2 * np.pi * np.arange(4000) / 400), np.zeros(4000)])
+    table = FeedforwardPolicy(delta, 0.005).save(tmp_path / "ff.npz")
+    extra = ["--feedforward", str(table)] if mode == "feedforward" else []
     pr = Procs(tmp_path)
     port = free_port()
     veh = FakeVehicle(port, z=1.0)
     try:
         veh.start()
-        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--link-timeout", "1.0",
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", mode, *extra, "--link-timeout", "1.0",
                       "--log", str(tmp_path / "t.npz"), "--summary", str(tmp_path / "s.json"), "--timeout", "30",
                       name="bridge")
         assert veh.first_setpoint.wait(30), pr.log(br)
@@ -198,6 +204,12 @@ def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path):
     both = act[1:] & act[:-1]
     assert np.max(np.abs(np.diff(t["u"][:, 0]))[both]) < 0.5 * 0.005 + 0.19 * 0.005 * 2
     assert (t["reason"] == REASONS.index("blend")).sum() > 0
+    if mode == "feedforward":
+        k = np.flatnonzero(t["reason"] == REASONS.index("feedforward"))
+        row = np.rint(t["t_traj"][k] / 0.005).astype(int)
+        np.testing.assert_allclose(t["u"][k], t["r_nom"][k] + delta[row], atol=1e-12)
+        step = np.diff(row)  # the stall: the rows skip the stalled time, never go back to 0
+        assert step.min() >= 1 and step.max() > 300 and row[0] < 100
 
 
 def test_a_trajectory_outside_the_solver_bounds_is_refused_at_start(flying_solver):

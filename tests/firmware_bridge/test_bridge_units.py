@@ -395,3 +395,31 @@ def test_bad_ports_paths_and_devices_are_refused_before_anything_flies(capsys, a
 
     assert bridge_main([*args, "--mode", "passthrough", "--wait-heartbeat", "1"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_feedforward_mode_checks_its_table_before_flying(tmp_path):
+    from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.runtime.baselines import FeedforwardPolicy
+    from firmware_bridge.config import BridgeConfig
+
+    with pytest.raises(ValueError, match=r"feedforward mode needs a feed-forward table \(--feedforward table.npz\)"):
+        BridgeConfig(mode="feedforward")
+    ok = FeedforwardPolicy(np.zeros((10, 2)), 0.005).save(tmp_path / "ok.npz")
+    assert BridgeConfig(mode="feedforward", feedforward=str(ok)).feedforward == str(ok)
+    bad_dt = FeedforwardPolicy(np.zeros((10, 2)), 0.01).save(tmp_path / "dt.npz")
+    with pytest.raises(ValueError, match=r"dt.npz: table tick 0.01 s does not match the bridge rate 200 Hz \(0.005 s\)"):
+        BridgeConfig(mode="feedforward", feedforward=str(bad_dt))
+    with pytest.raises(ValueError, match=r"ok.npz: table tick 0.005 s does not match the bridge rate 100 Hz"):
+        BridgeConfig(mode="feedforward", feedforward=str(ok), rate_hz=100.0)
+    cols = FeedforwardPolicy(np.zeros((10, 3)), 0.005).save(tmp_path / "cols.npz")
+    with pytest.raises(ValueError, match=r"cols.npz: table has 3 columns \(shape \(10, 3\)\); the loop has m=2"):
+        BridgeConfig(mode="feedforward", feedforward=str(cols))
+    hop = FeedforwardPolicy(np.zeros((10, 2)), 0.005, "liftoff").save(tmp_path / "hop.npz")
+    with pytest.raises(ValueError, match=r"hop.npz: table clock 'liftoff'; .* needs clock 'trajectory'"):
+        BridgeConfig(mode="feedforward", feedforward=str(hop))
+    (tmp_path / "junk.npz").write_bytes(b"not an npz")
+    with pytest.raises(ValueError, match=r"--feedforward .*junk.npz: not a feed-forward table"):
+        BridgeConfig(mode="feedforward", feedforward=str(tmp_path / "junk.npz"))
+    with pytest.raises(ValueError, match="feedforward mode flies the flying scenario"):
+        BridgeConfig(mode="feedforward", feedforward=str(ok),
+                     controller=load_profile("pogox_hopping").controller)

@@ -87,3 +87,51 @@ def test_sitl_starts_answers_and_stops(autopilot):
     assert res["heartbeat_s"] < 30
     assert 0.2 < res["value"] < 0.8  # hover thrust parameter
     assert res["rc"] and not Path(res["workdir"]).exists()
+
+
+def test_fly_ilc_learns_each_table_from_the_previous_flight(tmp_path, monkeypatch):
+    """The ILC iterations of the SITL demo without a SITL: ``fly`` replaced by a loop whose height
+    error is e0(t) + delta_z[j] (gain 1, no lead: the prefilter below is exact), so the table after
+    the passthrough flight is -Q(e0) and the error left is what the 1 Hz Q-filter does not pass."""
+    import numpy as np
+
+    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.runtime.baselines import FeedforwardPolicy
+    from firmware_bridge import sitl_demo
+    from firmware_bridge.ticklog import TickRecorder
+
+    dt, dur = 0.005, 6.0
+    e0 = lambda t: 0.05 + 0.03 * np.sin(2 * np.pi * 0.2 * t)  # noqa: E731
+
+    def write_flight(name: str, delta) -> None:
+        rec = TickRecorder(2, 2)
+        for j in range(int(round(dur / dt)) + 1):
+            i, a = rec.new_row(), rec.arrays
+            a["t_traj"][i] = j * dt
+            a["y_des"][i] = (1.0, 0.0)
+            a["y"][i] = (1.0 + e0(j * dt) + (0.0 if delta is None else delta[j, 0]), 0.0)
+            a["u"][i] = a["r_nom"][i] = (1.0, 0.0)
+            a["sp_thrust"][i] = 0.4
+            a["active"][i] = a["fresh"][i] = a["valid"][i] = True
+        rec.to_log(dt=dt, input_names=("z_ref", "pitch_ref"), output_names=("z", "pitch")).save(
+            tmp_path / f"ap_{name}.npz")
+
+    calls = []
+
+    def fake_fly(sitl, autopilot, mode, out, duration, *, extra=(), tag=None, **kw):
+        calls.append((mode, duration, extra, tag))
+        write_flight(tag, FeedforwardPolicy.load(extra[1]).delta)
+        return {}
+
+    monkeypatch.setattr(sitl_demo, "fly", fake_fly)
+    write_flight("passthrough", None)
+    pf = PrefilterModel((1.0, 1.0), (0.0, 0.0), (0, 0), dt).save(tmp_path / "pf.json")
+    res = sitl_demo.fly_ilc(None, "ap", tmp_path, dur, pf, iterations=2)
+    assert [(c[0], c[1], c[3]) for c in calls] == [("feedforward", dur, "ilc1"), ("feedforward", dur, "ilc2")]
+    assert [c[2] for c in calls] == [("--feedforward", str(tmp_path / f"ilc_{i}.npz")) for i in (1, 2)]
+    r = res["rmse_z_per_iteration"]
+    assert r[0] == pytest.approx(np.sqrt(np.mean(e0(np.arange(600, 1201) * dt) ** 2)))  # after the 3 s settle
+    assert r[1] < 0.02 * r[0] and r[2] <= r[1]
+    assert res["rmse_z"] == r[2] and res["iterations_run"] == 2 and res["rmse_z_truth_per_iteration"] == [None] * 3
+    with pytest.raises(ValueError, match="at least one iteration"):
+        sitl_demo.fly_ilc(None, "ap", tmp_path, dur, pf, iterations=0)

@@ -1,0 +1,70 @@
+"""The bridge's baseline modes behind the steering's per-tick interface, loaded and checked against
+the loop before anything flies:
+
+* ``prefilter``: :class:`~ddpc_codegen.runtime.baselines.PrefilterPolicy` (gain + offset + lead,
+  a :meth:`~ddpc_codegen.design.baselines.PrefilterModel.save` JSON file); needs y_des up to its
+  longest lead ahead.
+* ``feedforward``: :class:`~ddpc_codegen.runtime.baselines.FeedforwardPolicy` (an ILC table, a
+  :meth:`~ddpc_codegen.runtime.baselines.FeedforwardPolicy.save` npz): u = r_nom + delta[j] with
+  j the *trajectory* tick, round(t_traj / dt) -- the grid of the tick log's ``t_traj`` -- derived
+  from the trajectory clock at every tick, so a re-engagement or a stall mid-flight continues the
+  table where the trajectory is (the clock is never restarted).
+
+Both fly the flying scenario only (the hopping baselines run in-process: their clock is the
+liftoff, which a hopping bridge would have to reset per hop).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PrefilterPolicy
+
+__all__ = ["BASELINE_MODES", "load_feedforward", "baseline_policy", "feedforward_row"]
+
+BASELINE_MODES = ("prefilter", "feedforward")
+
+
+def load_feedforward(path: str, rate_hz: float, m: int) -> FeedforwardPolicy:
+    """The table of ``--feedforward path``, or ValueError saying what does not fit the loop.
+
+    Args:
+        path: npz written by :meth:`FeedforwardPolicy.save`.
+        rate_hz: the bridge's control rate: the table's dt must be its period.
+        m: the loop's number of references (the table's columns).
+    """
+    try:
+        pol = FeedforwardPolicy.load(path)
+    except ConfigError as e:
+        raise ValueError(f"--feedforward {e}") from None
+    if pol.clock != "trajectory":
+        raise ValueError(f"--feedforward {path}: table clock {pol.clock!r}; the bridge indexes the table by "
+                         "trajectory tick and needs clock 'trajectory'")
+    if abs(pol.dt - 1.0 / rate_hz) > 1e-9:
+        raise ValueError(f"--feedforward {path}: table tick {pol.dt:g} s does not match the bridge rate "
+                         f"{rate_hz:g} Hz ({1.0 / rate_hz:g} s); learn the table at the rate it is flown at")
+    if pol.delta.shape[1] != m:
+        raise ValueError(f"--feedforward {path}: table has {pol.delta.shape[1]} columns (shape "
+                         f"{pol.delta.shape}); the loop has m={m} references")
+    return pol
+
+
+def baseline_policy(mode: str, path: str, rate_hz: float, m: int, hopping: bool) -> tuple[object, np.ndarray]:
+    """(policy, ahead): the baseline of ``mode`` and the trajectory-time offsets [s] of the desired
+    outputs its ``decide`` needs (0 .. horizon - 1 ticks ahead)."""
+    if hopping:
+        raise ValueError(f"{mode} mode flies the flying scenario (the hopping baselines run in-process)")
+    if mode == "prefilter":
+        pol: object = PrefilterPolicy.load(path)
+    elif mode == "feedforward":
+        pol = load_feedforward(path, rate_hz, m)
+    else:
+        raise ValueError(f"not a baseline mode: {mode!r} (one of {BASELINE_MODES})")
+    return pol, np.arange(pol.horizon) / rate_hz
+
+
+def feedforward_row(t_traj: float, period: float) -> int:
+    """The table row of trajectory time ``t_traj`` [s]: round(t_traj / period), >= 0 (the tick log's
+    ``t_traj`` grid, which :func:`ddpc_codegen.design.baselines.error_on_grid` learns on)."""
+    return max(int(round(t_traj / period)), 0)
