@@ -144,8 +144,8 @@ def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
                             "trajectory tick"}}
 
 
-def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 12.0, collect_s: float = 25.0,
-                 steer_s: float = 12.0, sitl_params: dict | None = None, baselines: bool = True,
+def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect_s: float = 30.0,
+                 steer_s: float = 13.0, sitl_params: dict | None = None, baselines: bool = True,
                  ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None) -> dict:
     """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> with ``baselines``: the
     prefilter baseline, identified from the same collect log, and ``ilc_iterations`` ILC flights of
