@@ -5,6 +5,8 @@ All identified from the same recorded PRBS data the steering predictor is built 
 steering policy's interface (:mod:`ddpc_codegen.runtime.baselines`):
 
 * ``passthrough``: the model-based controller alone.
+* ``ctrl_ff``: the controller with its own feed-forward of the trajectory's velocity (flying; the
+  hopping controller always has it, so there it equals passthrough).
 * ``prefilter``: per-channel gain + offset + lead (:func:`~ddpc_codegen.design.baselines.fit_prefilter`).
 * ``ilc``: P-type ILC with the prefilter's lead, gain 1/g and a zero-phase Q-filter, learned over
   repeated runs of the periodic case (flying: the ellipse, indexed by trajectory time; hopping:
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,9 +44,10 @@ from ddpc_codegen.sim.scenarios import HoppingScenario
 
 __all__ = ["ApexSchedule", "BaselineHook", "ScheduledHoppingScenario", "fit_scenario_prefilter", "learn_ilc", "ILCResult",
            "conditions", "evaluate_baselines", "reuse_from_summary", "format_baselines", "METHODS", "SMOOTH_HZ",
-           "ILC_ITERATIONS"]
+           "ILC_ITERATIONS", "SIMPLE", "controller_ff_scenario"]
 
-METHODS = ("passthrough", "prefilter", "ilc", "ddpc")
+METHODS = ("passthrough", "ctrl_ff", "prefilter", "ilc", "ddpc")
+SIMPLE = ("passthrough", "ctrl_ff", "prefilter", "ilc")  # what an engineer tries before steering
 # Prefilter fit: low-pass cut-off of u and y before the static fit (the flying PRBS is fast against
 # the 0.5 s height loop; hopping's aerial segments are 0.3 s long, so a higher cut-off).
 SMOOTH_HZ = {"flying": 1.0, "hopping": 2.0}
@@ -259,6 +262,8 @@ def _condition_row(sc_name: str, c: dict, setup: SteeringSetup, policies: dict, 
     for meth in METHODS:
         if meth in reused:
             row[meth] = reused[meth]
+        elif meth == "ctrl_ff":
+            row[meth] = _controller_ff_metric(sc_name, c, row, dur, seed)
         elif meth == "ddpc":
             r: RunResult = run(setup, c["scenario"], dur, params=c["params"], pushes=c["pushes"], seed=seed,
                                interpreted=interpreted)
@@ -268,6 +273,22 @@ def _condition_row(sc_name: str, c: dict, setup: SteeringSetup, policies: dict, 
             row[meth] = _metric(_policy_run(policies[meth], c["scenario"], dur, c["params"], c["pushes"], seed))
     row["ilc_learned_here"] = bool(c["periodic"])
     return row
+
+
+def controller_ff_scenario(scenario: Any) -> Any:
+    """The same scenario with the model-based controller's own feed-forward on: the D term acts on
+    the filtered derivative of the reference (ref_velocity_gain 1), i.e. the trajectory's velocity
+    is fed forward. Flying runs without it by default (D on the measurement: the loop from u to y
+    stays LTI); hopping's controller always has it."""
+    return replace(scenario, controller={**scenario.controller, "ref_velocity_gain": 1.0})
+
+
+def _controller_ff_metric(sc_name: str, c: dict, row: dict, dur: float, seed: int) -> dict[str, Any]:
+    """ctrl_ff: passthrough with the controller's own feed-forward (hopping: that is its passthrough)."""
+    if sc_name == "hopping":
+        return {**row["passthrough"], "same_as_passthrough": True}
+    return _metric(_policy_run(PassthroughPolicy(), controller_ff_scenario(c["scenario"]), dur, c["params"],
+                               c["pushes"], seed))
 
 
 def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str, float],
@@ -323,7 +344,7 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
 
 def format_baselines(b: dict[str, Any]) -> str:
     """The baselines table: key metric per condition and method [mm], and the best of passthrough,
-    prefilter and ILC divided by DDPC's (> 1: steering is better)."""
+    the controller's own feed-forward, prefilter and ILC divided by DDPC's (> 1: steering is better)."""
     head = ("scenario", "condition", "metric", *METHODS, "best simple / ddpc")
     rows = []
     for sc, blk in b.items():
@@ -337,7 +358,7 @@ def format_baselines(b: dict[str, Any]) -> str:
                 if mm == "ilc" and not row["ilc_learned_here"]:
                     txt += "*"
                 cells.append(txt)
-            simple = [vals[mm] for mm in ("passthrough", "prefilter", "ilc")
+            simple = [vals[mm] for mm in SIMPLE
                       if vals[mm] is not None and np.isfinite(vals[mm]) and not row[mm].get("crashed")]
             d = vals["ddpc"]
             ratio = f"{min(simple) / d:.1f}x" if simple and d and np.isfinite(d) else "-"
