@@ -19,6 +19,16 @@ pytestmark = [pytest.mark.e2e, pytest.mark.compiler, pytest.mark.realtime]
 FLIGHT = 8.0  # s of off-board flight per run (RMSE over t >= 3 s)
 
 
+def _fly_once(tmp_path, name: str, bridge_args: list[str]) -> tuple[dict, dict]:
+    """One flight in its own processes: (bridge summary, tick-log columns)."""
+    pr = Procs(tmp_path)
+    try:
+        s = _fly(pr, tmp_path, name, bridge_args)
+    finally:
+        pr.cleanup()
+    return s, load_ticklog(tmp_path / f"{name}.npz").ticks
+
+
 def _fly(procs, tmp_path, name: str, bridge_args: list[str], *, seed: int = 2) -> dict:
     port = free_port()
     truth = tmp_path / f"{name}_truth.npz"
@@ -218,12 +228,7 @@ def test_prefilter_mode_sends_the_prefilter_law_over_the_link(tmp_path):
 
     g, c, d = 0.9, -0.03, 20
     pf = PrefilterModel((g, 1.0), (c, 0.0), (d, 0), 0.005, ("z_ref", "pitch_ref")).save(tmp_path / "pf.json")
-    pr = Procs(tmp_path)
-    try:
-        s = _fly(pr, tmp_path, "pf", ["--mode", "prefilter", "--prefilter", str(pf)])
-    finally:
-        pr.cleanup()
-    t = load_ticklog(tmp_path / "pf.npz").ticks
+    s, t = _fly_once(tmp_path, "pf", ["--mode", "prefilter", "--prefilter", str(pf)])
     k = np.flatnonzero(t["reason"] == REASONS.index("prefilter"))
     k = k[k + d < len(t["reason"])]
     assert k.size > 1000 and s["prefilter"]["counts"]["prefilter"] >= k.size
@@ -245,12 +250,7 @@ def test_feedforward_mode_applies_the_table_row_of_the_trajectory_tick(tmp_path)
     j = np.arange(1000)  # 5 s of the 8 s flight
     delta = np.column_stack([0.02 * np.sin(2 * np.pi * j / 300), 0.004 * np.cos(2 * np.pi * j / 500)])
     table = FeedforwardPolicy(delta, 0.005).save(tmp_path / "ilc.npz")
-    pr = Procs(tmp_path)
-    try:
-        s = _fly(pr, tmp_path, "ff", ["--mode", "feedforward", "--feedforward", str(table)])
-    finally:
-        pr.cleanup()
-    t = load_ticklog(tmp_path / "ff.npz").ticks
+    s, t = _fly_once(tmp_path, "ff", ["--mode", "feedforward", "--feedforward", str(table)])
     k = np.flatnonzero(t["reason"] == REASONS.index("feedforward"))
     assert k.size > 1000 and s["feedforward"]["counts"]["ticks"] == k.size
     row = np.rint(t["t_traj"][k] / 0.005).astype(int)
