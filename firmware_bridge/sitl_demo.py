@@ -72,6 +72,16 @@ def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: 
     return json.loads((out / f"{name}.json").read_text())
 
 
+def ctrl_ff_profile(autopilot: str, out: Path) -> Path:
+    """The autopilot's profile with the controller's own feed-forward of the trajectory velocity
+    (``ref_velocity_gain`` 1, the in-process ``ctrl_ff`` baseline), written to ``out``; its path."""
+    base = PROFILES[autopilot]
+    path = out / f"ctrl_ff_{base}.toml"
+    path.write_text(f'name = "{base}_ctrl_ff"\ndescription = "{base} with the velocity feed-forward of the '
+                    f'trajectory"\nextends = "{base}"\n\n[controller]\nref_velocity_gain = 1.0\n')
+    return path
+
+
 def codegen(config: Path, dataset: Path, out: Path) -> Path:
     """``ddpc-codegen codegen`` on a tick log; the generated solver folder."""
     cmd = [sys.executable, "-m", "ddpc_codegen.cli.main", "codegen", str(config), "--dataset", str(dataset),
@@ -164,17 +174,21 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         if baselines:
             pf = fit_prefilter_from_log(out / f"{autopilot}_collect.npz", out / "prefilter.json")
             fly(sitl, autopilot, "prefilter", out, baseline_s, extra=("--prefilter", str(pf)))
+            fly(sitl, autopilot, "passthrough", out, baseline_s, extra=("--profile", str(ctrl_ff_profile(autopilot, out))),
+                tag="ctrl_ff")
             ilc = fly_ilc(sitl, autopilot, out, baseline_s, pf, ilc_iterations, ilc_law)
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     if baselines:
         fp = flight_figures(out / f"{autopilot}_prefilter.npz")
+        fc = flight_figures(out / f"{autopilot}_ctrl_ff.npz")
         res["baselines"] = {
-            "rmse_z": {"passthrough": fb["rmse_z"], "prefilter": fp["rmse_z"], "ilc": ilc["rmse_z"],
-                       "steered": fs["rmse_z"]},
-            "rmse_z_truth": {"passthrough": fb["rmse_z_truth"], "prefilter": fp["rmse_z_truth"],
-                             "ilc": ilc["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
-            "thrust_step_rms": {"passthrough": fb["thrust_step_rms"], "prefilter": fp["thrust_step_rms"],
-                                "ilc": ilc["thrust_step_rms_per_iteration"][-1], "steered": fs["thrust_step_rms"]},
+            "rmse_z": {"passthrough": fb["rmse_z"], "ctrl_ff": fc["rmse_z"], "prefilter": fp["rmse_z"],
+                       "ilc": ilc["rmse_z"], "steered": fs["rmse_z"]},
+            "rmse_z_truth": {"passthrough": fb["rmse_z_truth"], "ctrl_ff": fc["rmse_z_truth"],
+                             "prefilter": fp["rmse_z_truth"], "ilc": ilc["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
+            "thrust_step_rms": {"passthrough": fb["thrust_step_rms"], "ctrl_ff": fc["thrust_step_rms"],
+                                "prefilter": fp["thrust_step_rms"], "ilc": ilc["thrust_step_rms_per_iteration"][-1],
+                                "steered": fs["thrust_step_rms"]},
             "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"],
             "ilc": ilc,
         }
@@ -229,8 +243,9 @@ def format_baselines(ap: str, b: dict) -> str:
         r = b[key]
         if r["passthrough"] is None:
             continue
-        lines.append(f"[sitl-demo] {ap}: baselines {what}: passthrough {mm(r['passthrough'])}, prefilter "
-                     f"{mm(r['prefilter'])}, ilc {mm(r['ilc'])}, steered {mm(r['steered'])} mm")
+        lines.append(f"[sitl-demo] {ap}: baselines {what}: passthrough {mm(r['passthrough'])}, ctrl ff "
+                     f"{mm(r.get('ctrl_ff'))}, prefilter {mm(r['prefilter'])}, ilc {mm(r['ilc'])}, "
+                     f"steered {mm(r['steered'])} mm")
     il = b["ilc"]
     for key, what in (("rmse_z_per_iteration", "rmse z"), ("rmse_z_truth_per_iteration", "true height")):
         if il[key][0] is not None:

@@ -135,3 +135,22 @@ def test_fly_ilc_learns_each_table_from_the_previous_flight(tmp_path, monkeypatc
     assert res["rmse_z"] == r[2] and res["iterations_run"] == 2 and res["rmse_z_truth_per_iteration"] == [None] * 3
     with pytest.raises(ValueError, match="at least one iteration"):
         sitl_demo.fly_ilc(None, "ap", tmp_path, dur, pf, iterations=0)
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_ctrl_ff_profile_is_the_autopilot_profile_with_velocity_feed_forward(tmp_path, autopilot):
+    """The ctrl_ff flight flies the autopilot's own profile with only ref_velocity_gain changed."""
+    import dataclasses
+
+    from ddpc_codegen.robot.profile import load_profile
+    from firmware_bridge.sitl_demo import PROFILES, ctrl_ff_profile, format_baselines
+
+    base, ff = load_profile(PROFILES[autopilot]), load_profile(ctrl_ff_profile(autopilot, tmp_path))
+    assert ff.controller.ref_velocity_gain == 1.0 and base.controller.ref_velocity_gain in (None, 0.0)
+    assert dataclasses.replace(ff.controller, ref_velocity_gain=base.controller.ref_velocity_gain) == base.controller
+    assert ff.trajectory == base.trajectory
+    b = {"rmse_z": {"passthrough": 0.08, "ctrl_ff": 0.05, "prefilter": 0.01, "ilc": 0.002, "steered": 0.005},
+         "rmse_z_truth": {"passthrough": None},
+         "ilc": {"rmse_z_per_iteration": [0.08, 0.002], "rmse_z_truth_per_iteration": [None, None],
+                 "iterations_to_settle": 1, "iterations_run": 1}}
+    assert "passthrough 80.0, ctrl ff 50.0, prefilter 10.0, ilc 2.0, steered 5.0 mm" in format_baselines(autopilot, b)
