@@ -99,6 +99,12 @@ def _bridge_defaults() -> dict:
     return {f.name: f.default for f in fields(BridgeConfig)}
 
 
+def _bridge_modes() -> tuple[str, ...]:
+    from firmware_bridge.config import BRIDGE_MODES
+
+    return BRIDGE_MODES
+
+
 _D = _bridge_defaults()
 
 
@@ -116,8 +122,7 @@ def build_bridge_parser() -> argparse.ArgumentParser:
                    help="pymavlink-style connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
                         "device (/dev/ttyACM0[:BAUD]) (default udpin:127.0.0.1:14540)")
     p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 921600)")
-    p.add_argument("--mode", choices=("steer", "passthrough", "collect", "prefilter", "feedforward"),
-                   default=_D["mode"])
+    p.add_argument("--mode", choices=_bridge_modes(), default=_D["mode"])
     p.add_argument("--solver", default=None, help="generated solver folder (steer mode), e.g. generated/flying")
     p.add_argument("--scenario", choices=("flying", "hopping"), default=None,
                    help="flying (default) or hopping: the profile's controller mode; hopping without --profile is the "

@@ -18,6 +18,8 @@ from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from firmware_bridge.baseline_modes import load_feedforward
 from firmware_bridge.link import mavlink
 
+BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
+
 
 def check_output_path(path: str, flag: str) -> None:
     """Before anything flies: ``path`` must be writable (its folder exists and takes new files), or
@@ -179,8 +181,8 @@ class BridgeConfig:
         for key, flag in (("log", "--log"), ("summary", "--summary")):
             if getattr(self, key):
                 check_output_path(getattr(self, key), flag)
-        if self.mode not in ("steer", "passthrough", "collect", "prefilter", "feedforward"):
-            raise ValueError(f"mode must be steer, passthrough, collect, prefilter or feedforward; got {self.mode!r}")
+        if self.mode not in BRIDGE_MODES:
+            raise ValueError(f"mode must be one of {', '.join(BRIDGE_MODES)}; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:
             raise ValueError("steer mode needs a generated solver folder (--solver generated/<name>)")
         if self.mode == "prefilter" and not self.prefilter:

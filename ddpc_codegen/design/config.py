@@ -173,9 +173,12 @@ class SteeringConfig:
         pred.setdefault("form", "absolute")
         if pred["form"] not in _PREDICTOR_FORMS:
             raise _err(src, "[predictor] form", f"must be one of {list(_PREDICTOR_FORMS)}; got {pred['form']!r}")
-        if pred["form"] == "incremental" and pred["method"] != "lsq":
-            raise _err(src, "[predictor] form", f"\"incremental\" needs method = \"lsq\"; got method "
-                       f"{pred['method']!r} (pem's slack on y_ini has no meaning for increments)")
+        if pred["form"] == "incremental":
+            from ddpc_codegen.design.fit import incremental_problem
+
+            why = incremental_problem(pred["method"], self.t_ini)
+            if why:
+                raise _err(src, "[predictor] form", f"\"incremental\" {why}")
         for k, lo in (("slack_weight", 0.0), ("ridge", -1e-300), ("rcond", 0.0)):
             if k in pred and not (_is_num(pred[k]) and np.isfinite(pred[k]) and pred[k] > lo):
                 what = "a number >= 0" if k == "ridge" else "a positive number"

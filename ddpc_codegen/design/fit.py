@@ -14,7 +14,7 @@ Two forms (``[predictor] form``):
 
 Why: on the PX4 SIH collect flights the absolute lsq predictor (ridge 1e-2) misses the measured
 height by 7 mm one tick ahead and 21 mm at the horizon's end (held-out steered flight); the
-incremental one by 0.2 mm and 6 mm (``docs``/README: the PX4 section).
+incremental one by 0.2 mm and 6 mm (README: the PX4 section).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.errors import ConfigError, DataError
 
-__all__ = ["fit_configured", "fit_incremental", "difference_dataset", "compose_increments"]
+__all__ = ["fit_configured", "fit_incremental", "incremental_problem", "difference_dataset", "compose_increments"]
 
 
 def fit_configured(config, dataset: IODataset) -> Predictor:
@@ -67,13 +67,21 @@ def fit_incremental(dataset: IODataset, t_ini: int, t_f: int, method: str = "lsq
         method: must be ``"lsq"`` (pem's slack on y_ini has no meaning on increments).
         **opts: ridge, rcond, ... as :func:`fit_predictor`.
     """
-    if method != "lsq":
-        raise ConfigError(f"[predictor] form = \"incremental\" needs method = \"lsq\"; got method {method!r} "
-                          "(pem's slack on y_ini has no meaning for increments)")
-    if int(t_ini) < 2:
-        raise ConfigError(f"[predictor] form = \"incremental\" needs t_ini >= 2 (one increment); got {t_ini}")
+    why = incremental_problem(method, t_ini)
+    if why:
+        raise ConfigError(f"[predictor] form = \"incremental\" {why}")
     inc = fit_predictor(difference_dataset(dataset), int(t_ini) - 1, int(t_f), "lsq", **opts)
     return compose_increments(inc)
+
+
+def incremental_problem(method: str, t_ini: int) -> str | None:
+    """Why ``form = "incremental"`` cannot be fitted with this method and Tini, or None (the one rule
+    the config loader and :func:`fit_incremental` both apply)."""
+    if method != "lsq":
+        return f"needs method = \"lsq\"; got method {method!r} (pem's slack on y_ini has no meaning for increments)"
+    if int(t_ini) < 2:
+        return f"needs t_ini >= 2 (one increment); got {t_ini}"
+    return None
 
 
 def compose_increments(inc: Predictor) -> Predictor:

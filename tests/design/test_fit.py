@@ -110,4 +110,6 @@ def test_config_form_dispatch_and_validation():
         _cfg(method="lsq", form="delta")
     with pytest.raises(ConfigError, match=r"\[predictor\] form.*needs method"):
         _cfg(method="pem", form="incremental")
+    with pytest.raises(ConfigError, match=r"\[predictor\] form.*needs t_ini >= 2 \(one increment\); got 1"):
+        _cfg(method="lsq", form="incremental").replace(t_ini=1)
     assert dataclasses.asdict(_cfg(method="lsq"))["predictor"]["form"] == "absolute"

@@ -361,6 +361,9 @@ def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
         BridgeConfig(mode="passthrough", max_gap_fill=-1)
     with pytest.raises(ValueError, match=r"prefilter mode needs a prefilter JSON file \(--prefilter"):
         BridgeConfig(mode="prefilter")
+    with pytest.raises(ValueError, match="mode must be one of steer, passthrough, collect, prefilter, feedforward; "
+                                         "got 'ilc'"):
+        BridgeConfig(mode="ilc")
     with pytest.raises(ValueError, match=r"start_offset must be two finite numbers \(x, y\) \[m\]; got \(1.0,\)"):
         VehicleConfig(start_offset=(1.0,))
     with pytest.raises(ValueError, match="start_yaw must be finite"):
