@@ -100,7 +100,9 @@ class HoppingWindow:
         if g1 >= k or k - g1 < self.min_ascent:
             self.counts["unavailable"] += 1
             return "early_ascent"
-        a = g0 - self.t_d
+        # The fill is conditioned on t_d descent samples, and the window it returns must still hold
+        # Tini samples when the ground phase and the ascent are short against Tini.
+        a = min(g0 - self.t_d, k - Ti)
         if a < 0 or np.any(ph[a:g0] == GROUND) or k - a > self.art.depth:
             self.counts["unavailable"] += 1
             return "no_context"

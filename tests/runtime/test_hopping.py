@@ -148,3 +148,38 @@ def test_denoised_clean_window_is_closer_to_the_truth(lti_factory):
     # directions: rms x sqrt(24 / 60) = 0.63 expected.
     assert e[0] < 0.75 * e[1], e
     assert HoppingWindow(art, L, t_d=0).window(u, y, ph) is None  # without denoise: the real window
+
+
+class _Identity:
+    """A completion operator that returns the window it is given (and records its length)."""
+
+    depth, noise_level = 200, 0.0
+
+    def __init__(self) -> None:
+        self.lengths: list[int] = []
+
+    def complete(self, u, y, missing, *, replace_known=False, noise_level=None):
+        from types import SimpleNamespace
+
+        self.lengths.append(u.shape[0])
+        return SimpleNamespace(u=u.copy(), y=y.copy(), status="solved")
+
+
+def test_window_keeps_t_ini_rows_when_ground_and_ascent_are_short():
+    """Tini longer than descent context + ground + ascent (t_ini 40 crashed the hopping loop with
+    a 36-row window): the fill then starts Tini samples back and the window has Tini rows."""
+    from ddpc_codegen.design.phases import ASCENT, DESCENT
+
+    ti, t_d = 40, 10
+    ph = np.array([DESCENT] * 60 + [GROUND] * 12 + [ASCENT] * 14, dtype=np.int8)
+    k = ph.size
+    u = np.arange(k, dtype=float)[:, None] * np.ones((1, 3))
+    y = -u
+    art = _Identity()
+    ui, yi = HoppingWindow(art, ti, t_d=t_d, min_ascent=10).window(u, y, ph)
+    assert ui.shape == (ti, 3) and yi.shape == (ti, 3)
+    np.testing.assert_array_equal(ui, u[-ti:])  # the identity fill: exactly the last Tini samples
+    assert art.lengths == [ti]  # conditioned on 40 - 12 - 14 = 14 >= t_d descent samples
+    # A short Tini keeps its t_d descent samples of context: 10 + 12 + 14 = 36 > Tini.
+    ui, _ = HoppingWindow(art, 20, t_d=t_d, min_ascent=10).window(u, y, ph)
+    assert ui.shape == (20, 3) and art.lengths[-1] == t_d + 12 + 14
