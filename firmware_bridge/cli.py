@@ -35,6 +35,11 @@ def _floats(s: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {s!r}") from None
 
 
+def _floats_or_none(s: str) -> tuple[float, ...] | None:
+    """``none`` (any case) or comma-separated numbers."""
+    return None if str(s).strip().lower() == "none" else _floats(s)
+
+
 def _window(s: str) -> tuple[float, float]:
     a, sep, b = s.partition(":")
     if not sep:
@@ -165,7 +170,7 @@ def _bridge_autopilot_args(g) -> None:
     g.add_argument("--climb-rate", type=float, default=_D["climb_rate"], help="--takeoff ramp rate [m/s] (default 0.5)")
     g.add_argument("--land", action="store_true",
                    help="at exit hand back with LAND and wait for the vehicle to disarm (default: HOLD)")
-    g.add_argument("--blend-rates", default=",".join(map(str, _D["blend_rates"])), metavar="Z,PITCH|none",
+    g.add_argument("--blend-rates", type=_floats_or_none, default=",".join(map(str, _D["blend_rates"])), metavar="Z,PITCH|none",
                    help="bumpless (re-)engagement: the references start at the measured outputs and move toward the "
                         "nominal ones at most this fast [m/s, rad/s] (default 0.5,0.5; none: off)")
 
@@ -207,7 +212,7 @@ def _bridge_safety_args(g) -> None:
     g.add_argument("--max-tilt-deg", type=float, default=_D["max_tilt_deg"], help="clamp on commanded roll and pitch")
     g.add_argument("--thrust-min", type=float, default=_D["thrust_min"])
     g.add_argument("--thrust-max", type=float, default=_D["thrust_max"])
-    g.add_argument("--max-step", default=",".join(map(str, _D["max_step"])),
+    g.add_argument("--max-step", type=_floats_or_none, default=",".join(map(str, _D["max_step"])),
                    help="largest |steered - nominal| per reference, comma-separated, or 'none'")
     g.add_argument("--max-gap-fill", type=int, default=_D["max_gap_fill"],
                    help="bridge up to this many lost telemetry samples in the steering history instead of "
@@ -261,7 +266,6 @@ def bridge_config_from_args(a: argparse.Namespace):
         from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
 
         traj = trajectory_from_arg(a.trajectory)
-    max_step = None if str(a.max_step).lower() == "none" else _floats(a.max_step)
     return BridgeConfig(
         url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, prefilter=a.prefilter, feedforward=a.feedforward,
         autopilot=a.autopilot,
@@ -269,9 +273,9 @@ def bridge_config_from_args(a: argparse.Namespace):
         target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
         position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
-        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=max_step, max_gap_fill=a.max_gap_fill,
+        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=a.max_step, max_gap_fill=a.max_gap_fill,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
-        land=a.land, blend_rates=None if str(a.blend_rates).lower() == "none" else _floats(a.blend_rates),
+        land=a.land, blend_rates=a.blend_rates,
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,

@@ -206,6 +206,7 @@ class BridgeConfig:
             raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
         if self.scenario == "hopping":
             self._hopping_defaults()
+        self._check_channel_values()
 
     @property
     def scenario(self) -> str:
@@ -218,11 +219,22 @@ class BridgeConfig:
         for key, hop in (("max_step", None), ("blend_rates", None), ("excitation", _HOP_EXCITATION)):
             if getattr(self, key) == _FLYING_DEFAULTS[key]:
                 setattr(self, key, hop)
-            v = getattr(self, key)
-            if v is not None and len(v) != 3:
-                raise ValueError(f"{key} needs 3 values on the hopping loop (z_ref, roll_ref, pitch_ref); got {v!r}")
         if self.takeoff:
             raise ValueError("takeoff is for flying: hopping is released from where the robot hovers")
+
+    def _check_channel_values(self) -> None:
+        """One value per reference channel, finite; a step guard or blend rate of 0 or below would
+        refuse every steered tick (NaN: never), an excitation below 0 has no meaning."""
+        n, refs = (3, "z_ref, roll_ref, pitch_ref") if self.scenario == "hopping" else (2, "z_ref, pitch_ref")
+        for key, zero_ok in (("max_step", False), ("blend_rates", False), ("excitation", True)):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            a = np.asarray(v, dtype=float)
+            if a.shape != (n,):
+                raise ValueError(f"{key} needs {n} values on the {self.scenario} loop ({refs}); got {v!r}")
+            if not (np.all(np.isfinite(a)) and np.all(a >= 0.0 if zero_ok else a > 0.0)):
+                raise ValueError(f"{key} must be finite and {'>= 0' if zero_ok else '> 0'} per reference; got {v!r}")
 
 
 _FLYING_DEFAULTS = {"max_step": (0.3, 0.5), "blend_rates": (0.5, 0.5), "excitation": (0.05, 0.03)}

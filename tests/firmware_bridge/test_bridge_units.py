@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import socket
 import time
 
@@ -426,3 +427,38 @@ def test_feedforward_mode_checks_its_table_before_flying(tmp_path):
     with pytest.raises(ValueError, match="feedforward mode flies the flying scenario"):
         BridgeConfig(mode="feedforward", feedforward=str(ok),
                      controller=load_profile("pogox_hopping").controller)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--max-step", "abc"], "argument --max-step: expected comma-separated numbers"),
+    (["--max-step", "0.6"], r"max_step needs 2 values on the flying loop \(z_ref, pitch_ref\)"),
+    (["--max-step=-1,0.5"], r"max_step must be finite and > 0 per reference"),
+    (["--max-step", "nan,0.5"], r"max_step must be finite and > 0 per reference"),
+    (["--blend-rates", "0,0.5"], r"blend_rates must be finite and > 0 per reference"),
+    (["--excitation", "0.05,-0.01"], r"excitation must be finite and >= 0 per reference"),
+])
+def test_bad_channel_values_are_refused_before_connecting(flags, message, capsys):
+    """A step guard of 0 or below would refuse every steered tick, NaN would never trip: refused with
+    the key and the rule (exit 2 from the command line)."""
+    from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
+
+    p = build_bridge_parser()
+    try:
+        a = p.parse_args(["udpin:127.0.0.1:14540", "--mode", "passthrough", *flags])
+    except SystemExit as e:
+        assert e.code == 2 and re.search(message, capsys.readouterr().err)
+        return
+    with pytest.raises(ValueError, match=message):
+        bridge_config_from_args(a)
+
+
+def test_sitl_demo_steer_flags_parse_to_the_guard_they_name():
+    """The PX4 steered flight's --max-step (sitl_demo.STEER) reaches the bridge config as numbers."""
+    from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
+    from firmware_bridge.sitl_demo import STEER
+
+    cfg = bridge_config_from_args(build_bridge_parser().parse_args(
+        ["udpin:127.0.0.1:14540", "--mode", "passthrough", *STEER["px4"]]))
+    assert cfg.max_step == (0.6, 0.5)
+    assert bridge_config_from_args(build_bridge_parser().parse_args(
+        ["udpin:127.0.0.1:14540", "--mode", "passthrough", *STEER["ardupilot"]])).max_step == (0.3, 0.5)

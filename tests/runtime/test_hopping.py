@@ -3,6 +3,8 @@ ground ticks pass the controller's reference, a hole in the samples resets the h
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from ddpc_codegen.design.phases import GROUND
@@ -159,8 +161,6 @@ class _Identity:
         self.lengths: list[int] = []
 
     def complete(self, u, y, missing, *, replace_known=False, noise_level=None):
-        from types import SimpleNamespace
-
         self.lengths.append(u.shape[0])
         return SimpleNamespace(u=u.copy(), y=y.copy(), status="solved")
 
