@@ -212,8 +212,9 @@ def _bridge_safety_args(g) -> None:
     g.add_argument("--max-tilt-deg", type=float, default=_D["max_tilt_deg"], help="clamp on commanded roll and pitch")
     g.add_argument("--thrust-min", type=float, default=_D["thrust_min"])
     g.add_argument("--thrust-max", type=float, default=_D["thrust_max"])
-    g.add_argument("--max-step", type=_floats_or_none, default=",".join(map(str, _D["max_step"])),
-                   help="largest |steered - nominal| per reference, comma-separated, or 'none'")
+    g.add_argument("--max-step", type=_floats_or_none, default=argparse.SUPPRESS, metavar="Z,PITCH|none",
+                   help="largest |steered - nominal| per reference, comma-separated, or 'none' (default: the "
+                        "profile's [steering] max_step, else 0.3,0.5 flying / none hopping)")
     g.add_argument("--max-gap-fill", type=int, default=_D["max_gap_fill"],
                    help="bridge up to this many lost telemetry samples in the steering history instead of "
                         "resetting it (0: always reset)")
@@ -235,8 +236,8 @@ def _bridge_logging_args(g) -> None:
 
 
 def _profile_from_args(a: argparse.Namespace):
-    """(ControllerConfig, EllipseTrajectory, ContactConfig) of the robot profile named by --profile /
-    --scenario (None, None, None: the flying default), with --contact / --contact-name applied."""
+    """(ControllerConfig, EllipseTrajectory, ContactConfig, SteeringGuards) of the robot profile named
+    by --profile / --scenario (all None: the flying default), with --contact / --contact-name applied."""
     from dataclasses import replace
 
     from ddpc_codegen.robot.profile import load_profile
@@ -245,7 +246,7 @@ def _profile_from_args(a: argparse.Namespace):
     if name is None:
         if a.contact or a.contact_name:
             raise ValueError("--contact / --contact-name are for hopping (--scenario hopping)")
-        return None, None, None
+        return None, None, None, None
     prof = load_profile(name)
     if a.scenario and prof.controller.mode != a.scenario:
         raise ValueError(f"--scenario {a.scenario} but profile {prof.name} has controller mode {prof.controller.mode!r}")
@@ -255,13 +256,22 @@ def _profile_from_args(a: argparse.Namespace):
     if a.contact_name:
         contact = replace(contact, signal_name=a.contact_name)
     traj = prof.trajectory if prof.controller.mode == "flying" else None  # hopping: the hop cycle, no path
-    return prof.controller, traj, contact
+    return prof.controller, traj, contact, prof.steering
+
+
+def _max_step(a: argparse.Namespace, guards) -> tuple | None:
+    """--max-step if given, else the profile's [steering] max_step, else the bridge's default."""
+    if hasattr(a, "max_step"):
+        return a.max_step
+    if guards is not None and guards.max_step is not None:
+        return guards.max_step
+    return _D["max_step"]
 
 
 def bridge_config_from_args(a: argparse.Namespace):
     from firmware_bridge.bridge import BridgeConfig
 
-    ctrl, traj, contact = _profile_from_args(a)
+    ctrl, traj, contact, guards = _profile_from_args(a)
     if a.trajectory:
         from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
 
@@ -273,7 +283,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
         position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
-        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=a.max_step, max_gap_fill=a.max_gap_fill,
+        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), max_gap_fill=a.max_gap_fill,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
         land=a.land, blend_rates=a.blend_rates,
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,

@@ -27,7 +27,7 @@ import numpy as np
 from firmware_bridge.sitl import make_sitl, missing_reason, run_isolated
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
-__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "STEER", "ILC_ITERATIONS", "bridge_command", "fly", "flight_figures",
+__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "bridge_command", "fly", "flight_figures",
            "fly_ilc", "run_pipeline", "main"]
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -39,9 +39,8 @@ PROFILES = {"ardupilot": "arducopter_sitl", "px4": "px4_sih"}
 CONFIGS = {"ardupilot": "sitl_ardupilot.toml", "px4": "sitl_px4.toml"}
 COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
            "px4": ("--excitation", "0.15,0.03", "--excitation-hold", "30")}
-# Bridge flags of the steered flight: PX4's config lets z_ref move 1.2 m/s, and when SIH's EKF height
-# jumps (0.5 m in 0.3 s seen) the steering offset legitimately passes the default 0.3 m step guard.
-STEER = {"ardupilot": (), "px4": ("--max-step", "0.6,0.5")}
+# The steered flight takes its step guard from the profile ([steering] max_step: px4_sih 0.6 m, as a
+# user flying the shipped PX4 config by hand gets it).
 _STEERED = REASONS.index("steered")
 # ILC flights after the passthrough one (iteration 0): the in-process flying ILC settles at its
 # second iteration; each flight here is a take-off, the ellipse and a landing (27-30 s of wall time).
@@ -173,7 +172,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         base = fly(sitl, autopilot, "passthrough", out, baseline_s)
         fly(sitl, autopilot, "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT[autopilot]))
         solver = codegen(ROOT / "configs" / CONFIGS[autopilot], out / f"{autopilot}_collect.npz", out / "generated")
-        steer = fly(sitl, autopilot, "steer", out, steer_s, solver=solver, extra=STEER[autopilot])
+        steer = fly(sitl, autopilot, "steer", out, steer_s, solver=solver)
         if baselines:
             pf = fit_prefilter_from_log(out / f"{autopilot}_collect.npz", out / "prefilter.json")
             fly(sitl, autopilot, "prefilter", out, baseline_s, extra=("--prefilter", str(pf)))

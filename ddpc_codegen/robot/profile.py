@@ -1,12 +1,14 @@
 """Robot profiles: the companion controller's model and gains and the trajectory it flies, as a
 validated TOML file (``[controller]``: :class:`ControllerConfig` fields, ``[trajectory]``:
 :class:`EllipseTrajectory` fields, ``[contact]``: :class:`ContactConfig` fields, hopping phase
-detection). Shipped profiles live in ``ddpc_codegen/robot/profiles/``
+detection, ``[steering]``: :class:`SteeringGuards`, the bridge's guards this robot needs when
+steered). Shipped profiles live in ``ddpc_codegen/robot/profiles/``
 and are named by their file stem (``pogox``); any other profile is a path.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,10 +18,34 @@ from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
 
-__all__ = ["RobotProfile", "load_profile", "shipped_profiles", "PROFILE_DIR"]
+__all__ = ["RobotProfile", "SteeringGuards", "load_profile", "shipped_profiles", "PROFILE_DIR"]
 
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
-_TOP = ("name", "description", "extends", "controller", "trajectory", "contact")
+_TOP = ("name", "description", "extends", "controller", "trajectory", "contact", "steering")
+_REFERENCES = {"flying": ("z_ref", "pitch_ref"), "hopping": ("z_ref", "roll_ref", "pitch_ref")}
+
+
+@dataclass(frozen=True)
+class SteeringGuards:
+    """The bridge's guards this robot needs when steered (``[steering]``; unset: the bridge's defaults).
+
+    Attributes:
+        max_step: largest |steered - nominal| reference per channel (flying: z_ref [m], pitch_ref
+            [rad]; hopping: z_ref, roll_ref, pitch_ref); a larger steering offset falls back to the
+            nominal reference. A vehicle whose height estimate jumps (PX4 SIH's EKF) needs more room
+            than the default 0.3 m, and a user flying it by hand should not have to know that.
+    """
+
+    max_step: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        v = self.max_step
+        if v is None:
+            return
+        ok = isinstance(v, tuple) and len(v) > 0 and all(
+            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) and x > 0 for x in v)
+        if not ok:
+            raise ValueError(f"max_step must be a list of numbers > 0, one per reference; got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -32,6 +58,7 @@ class RobotProfile:
         controller: the model-based controller's model and gains (SI units).
         trajectory: the default desired trajectory (world ENU / trajectory frame, m, s).
         contact: how hopping phases are detected (``[contact]``; :class:`ContactConfig`).
+        steering: the bridge's guards when steered (``[steering]``; :class:`SteeringGuards`).
         source: where it was loaded from.
     """
 
@@ -40,6 +67,7 @@ class RobotProfile:
     controller: ControllerConfig
     trajectory: EllipseTrajectory
     contact: ContactConfig = ContactConfig()
+    steering: SteeringGuards = SteeringGuards()
     source: str = "<profile>"
 
 
@@ -78,8 +106,14 @@ def load_profile(name_or_path: str | Path) -> RobotProfile:
                                 base.trajectory if base else None)
     contact = dataclass_from_table(ContactConfig, raw.get("contact", {}), "[contact]", src,
                                    base.contact if base else None)
+    steering = dataclass_from_table(SteeringGuards, raw.get("steering", {}), "[steering]", src,
+                                    base.steering if base else None)
+    refs = _REFERENCES.get(ctrl.mode, ())
+    if steering.max_step is not None and len(steering.max_step) != len(refs):
+        raise ConfigError(f"{src}: [steering] max_step needs {len(refs)} values on the {ctrl.mode} loop "
+                          f"({', '.join(refs)}); got {list(steering.max_step)}")
     for key in ("name", "description"):
         if key in raw and not isinstance(raw[key], str):
             raise ConfigError(f"{src}: {key} must be a string; got {raw[key]!r}")
     return RobotProfile(name=raw.get("name", path.stem), description=raw.get("description", ""),
-                        controller=ctrl, trajectory=traj, contact=contact, source=src)
+                        controller=ctrl, trajectory=traj, contact=contact, steering=steering, source=src)

@@ -192,4 +192,5 @@ class ReferenceSteerer:
             "gap_filled_ticks": self.counts["gap_filled_ticks"],
             "fallback_reasons": {k.split(":", 1)[1]: v for k, v in self.counts.items() if k.startswith("fallback:")},
             "solve_us": percentiles(self.solve_us),
+            "max_step": None if self.max_step is None else [float(v) for v in self.max_step],
         }

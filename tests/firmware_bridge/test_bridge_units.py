@@ -452,13 +452,35 @@ def test_bad_channel_values_are_refused_before_connecting(flags, message, capsys
         bridge_config_from_args(a)
 
 
-def test_sitl_demo_steer_flags_parse_to_the_guard_they_name():
-    """The PX4 steered flight's --max-step (sitl_demo.STEER) reaches the bridge config as numbers."""
+def _parsed(*flags):
     from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
-    from firmware_bridge.sitl_demo import STEER
 
-    cfg = bridge_config_from_args(build_bridge_parser().parse_args(
-        ["udpin:127.0.0.1:14540", "--mode", "passthrough", *STEER["px4"]]))
-    assert cfg.max_step == (0.6, 0.5)
-    assert bridge_config_from_args(build_bridge_parser().parse_args(
-        ["udpin:127.0.0.1:14540", "--mode", "passthrough", *STEER["ardupilot"]])).max_step == (0.3, 0.5)
+    return bridge_config_from_args(build_bridge_parser().parse_args(["udpin:127.0.0.1:14540", "--mode", "passthrough", *flags]))
+
+
+def test_step_guard_comes_from_the_flag_then_the_profile_then_the_default():
+    """PX4's profile carries the 0.6 m guard its shipped config needs ([steering] max_step), so a user
+    flying it by hand gets it; --max-step (numbers or none) overrides; other profiles keep 0.3 m."""
+    assert _parsed("--profile", "px4_sih").max_step == (0.6, 0.5)
+    assert _parsed("--profile", "px4_sih", "--max-step", "0.4,0.2").max_step == (0.4, 0.2)
+    assert _parsed("--profile", "px4_sih", "--max-step", "none").max_step is None
+    assert _parsed("--profile", "arducopter_sitl").max_step == (0.3, 0.5)
+    assert _parsed().max_step == (0.3, 0.5)
+    assert _parsed("--scenario", "hopping").max_step is None  # hopping's default: no guard
+
+
+@pytest.mark.parametrize("table, message", [
+    ("max_step = [0.6]", r"\[steering\] max_step needs 2 values on the flying loop \(z_ref, pitch_ref\)"),
+    ("max_step = [0.6, 0]", r"\[steering\] max_step must be a list of numbers > 0"),
+    ("max_step = [0.6, nan]", r"\[steering\] max_step must be a list of numbers > 0"),
+    ("max_step = 0.6", r"\[steering\] max_step must be a list of numbers > 0"),
+    ("max_stp = [0.6, 0.5]", r"\[steering\].*max_stp"),
+])
+def test_profile_step_guard_is_validated(tmp_path, table, message):
+    from ddpc_codegen.errors import ConfigError
+    from ddpc_codegen.robot.profile import load_profile
+
+    p = tmp_path / "robot.toml"
+    p.write_text(f'extends = "px4_sih"\n\n[steering]\n{table}\n')
+    with pytest.raises(ConfigError, match=message):
+        load_profile(p)
