@@ -30,6 +30,8 @@ def test_reused_demo_runs_are_the_same_conditions(scenario):
     conds = conditions(scenario)
     assert conds["push"]["pushes"] == ROBUSTNESS[scenario]["push"]["pushes"]
     assert conds["mass -300 g"]["params"] == ROBUSTNESS[scenario]["mass -300 g"]["params"]
+    assert ROBUSTNESS[scenario]["sensor noise"] == {"noise": True} and conds["sensor noise"]["noise"] is True
+    assert not any(c["noise"] for name, c in conds.items() if name != "sensor noise")
     first = next(iter(conds.values()))
     assert first["periodic"] and first["pushes"] is None and first["params"].controller_mass_error == -0.2
 
