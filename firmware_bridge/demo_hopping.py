@@ -143,15 +143,42 @@ def detection_delays(t: np.ndarray, ground: np.ndarray, touchdowns, liftoffs, dt
     return out
 
 
+def foot_heights_at_contact_changes(ticks_path: Path, contact: ContactConfig) -> dict:
+    """Where the robot's own contact flag switches, the foot height the estimate sees [m]: h of the
+    first sample with the flag set (touchdown) / cleared (liftoff), min / median / max. The thresholds
+    that detect on the sensor's sample: touchdown_margin <= -max(touchdown h), liftoff_margin below
+    min(liftoff h) (how the pogox_hopping profile's were chosen)."""
+    from firmware_bridge.ticklog import load_ticklog
+
+    tl = load_ticklog(ticks_path).ticks
+    act = np.flatnonzero(tl["active"] & (tl["contact"] >= 0))
+    if act.size < 2:
+        return {}
+    est = PhaseEstimator(contact)
+    h = np.array([est.foot_height(float(tl["position"][i, 2]), float(tl["euler"][i, 0]), float(tl["euler"][i, 1]))
+                  for i in act])
+    flag = tl["contact"][act] == 1
+    edge = np.diff(flag.astype(np.int8))
+    out = {}
+    for kind, sign in (("touchdown", 1), ("liftoff", -1)):
+        v = h[1:][edge == sign]
+        if v.size:
+            out[kind] = {"min": float(v.min()), "median": float(np.median(v)), "max": float(v.max()), "n": int(v.size)}
+    return out
+
+
 def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | None = None) -> dict:
     """The in-process hopping metrics of a flight over the link, plus the phase-detection delays from
-    telemetry alone and (if the vehicle sent it) from the contact signal."""
+    telemetry alone and (if the vehicle sent it) from the contact signal, replayed with ``contact``
+    (default: the thresholds the bridge flew with, from the tick log)."""
     from ddpc_codegen.experiments.evaluate import scenario_metrics
     from firmware_bridge.ticklog import load_ticklog
 
     run = link_run(ticks_path, truth_path)
     met = scenario_metrics(run)
-    contact = contact or ContactConfig(leg_length=run.config.leg_length)
+    if contact is None:  # the thresholds the bridge flew with (its tick log's metadata)
+        flown = (load_ticklog(ticks_path).metadata.get("bridge") or {}).get("contact")
+        contact = ContactConfig(**flown) if flown else ContactConfig(leg_length=run.config.leg_length)
     with np.load(truth_path) as z:
         td, lo = z["touchdowns"], z["liftoffs"]
     tl = load_ticklog(ticks_path).ticks
@@ -162,6 +189,8 @@ def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | No
     for src in sources:
         t, g = replay_phases(ticks_path, replace(contact, source=src))
         met["phase_detection"][src] = detection_delays(t, g, td, lo, run.dt)
+    if "signal" in sources:
+        met["foot_height_at_contact_changes"] = foot_heights_at_contact_changes(ticks_path, contact)
     return met
 
 
@@ -260,4 +289,8 @@ def format_table(r: dict) -> str:
             lines.append(f"| {run}, {srcname} | {d['touchdown_mean_ticks']:.2f} / {d['touchdown_max_ticks']} | "
                          f"{d['liftoff_mean_ticks']:.2f} / {d['liftoff_max_ticks']} | "
                          f"{100 * d['within_2_ticks']:.1f} % of {d['events']} | {d['spurious']} |")
+    fh = r["link"]["baseline"].get("foot_height_at_contact_changes") or {}
+    if fh:  # the numbers to place the estimate's thresholds by (the profile's [contact])
+        lines.append("foot height at the contact flag's changes (baseline) [mm], min / median / max: " + "; ".join(
+            f"{k} {v['min'] * 1e3:.1f} / {v['median'] * 1e3:.1f} / {v['max'] * 1e3:.1f}" for k, v in fh.items()))
     return "\n".join(lines)

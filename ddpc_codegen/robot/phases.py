@@ -8,8 +8,11 @@ Two sources, configured in the robot profile (``[contact]``):
 * ``estimate``: from telemetry alone. The leg points along body -z, so the foot height above the
   contact plane is h = z - L0 cos(roll) cos(pitch) (L0: leg rest length, body COM to foot). A
   touchdown is h below ``-touchdown_margin`` while vz < -``vz_band``; a liftoff is h above
-  ``+liftoff_margin`` while vz > ``vz_band``. The margins sit a few position-noise sigmas from 0 and, with
-  the minimum dwell times, make the estimate hysteretic: noise near h = 0 never chatters.
+  ``+liftoff_margin`` while vz > ``vz_band``. The velocity conditions and the minimum dwell times
+  make the estimate hysteretic: noise near h = 0 at rest never switches it. ``liftoff_margin`` may be
+  negative: a springy leg still extending when the foot leaves the ground lifts off before it
+  reaches its rest length (PogoX: h = -3.7 mm at the true liftoff, 0 at the touchdown; thresholds
+  placed there detect both on the sample a contact sensor would).
 
 In the air, ascent vs descent is the sign of vz with a dead band (``vz_band``), switching to
 descent once per arc (at the apex), never back.
@@ -44,7 +47,8 @@ class ContactConfig:
         signal_name: name of the NAMED_VALUE_INT / NAMED_VALUE_FLOAT carrying contact (signal).
         leg_length: leg rest length L0, body COM to foot [m].
         ground_z: height of the contact plane in the trajectory frame [m] (0: take-off plane).
-        touchdown_margin, liftoff_margin: foot-height thresholds below / above the plane [m].
+        touchdown_margin, liftoff_margin: foot-height thresholds below / above the plane [m]
+            (liftoff_margin < 0: the foot leaves the ground below the leg's rest length).
         vz_band: dead band of the vertical velocity for touchdown / liftoff / apex [m/s].
         min_ground_ticks, min_air_ticks: shortest ground / aerial phase accepted [ticks].
         backdate_ticks: most samples before a confirmed touchdown relabelled ground (estimate).
@@ -66,10 +70,14 @@ class ContactConfig:
             raise ValueError(f"source must be one of {list(_SOURCES)}; got {self.source!r}")
         for key in ("leg_length", "touchdown_margin", "liftoff_margin", "vz_band"):
             v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{key} must be a number; got {v!r}")
+            if v < 0 and key != "liftoff_margin":
                 raise ValueError(f"{key} must be a number >= 0; got {v!r}")
         if self.leg_length <= 0:
             raise ValueError(f"leg_length must be > 0; got {self.leg_length!r}")
+        if not -self.leg_length < self.liftoff_margin:
+            raise ValueError(f"liftoff_margin must be > -leg_length ({-self.leg_length!r}); got {self.liftoff_margin!r}")
         for key in ("min_ground_ticks", "min_air_ticks"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:

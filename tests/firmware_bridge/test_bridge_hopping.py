@@ -122,6 +122,11 @@ def test_phase_detection_against_the_true_events(hops):
     h = hops.base["summary"]["hopping"]
     assert h["contact_source"] == "estimate"
     assert abs(h["touchdowns"] - len(hops.base["true"]["touchdowns"])) <= 1
+    # where the profile's thresholds come from: the foot height the estimate sees when the sensor's flag
+    # changes (touchdown at h <= 0, liftoff a few mm below the rest length, the leg still extending)
+    fh = hops.base["metrics"]["foot_height_at_contact_changes"]
+    assert fh["touchdown"]["n"] >= 5 and fh["touchdown"]["max"] <= 0.0005, fh
+    assert -0.005 < fh["liftoff"]["min"] < 0.0 < fh["liftoff"]["max"], fh
 
 
 @pytest.mark.e2e
@@ -132,7 +137,7 @@ def test_noisy_telemetry_does_not_chatter(hops):
     h = hops.noisy["summary"]["hopping"]
     td = hops.noisy["true"]["touchdowns"]
     assert h["touchdowns"] in (len(td), len(td) - 1) and pd["spurious"] == 0
-    assert pd["within_2_ticks"] >= 0.9, pd
+    assert pd["within_2_ticks"] >= 0.95, pd
 
 
 # ----------------------------------------------------------------------------- configuration

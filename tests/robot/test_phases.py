@@ -52,6 +52,39 @@ def test_estimate_from_telemetry_within_two_ticks(noise, seed):
     assert set(ds) == {1}
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("noise, seed", [(False, 0), (True, 1), (True, 2)])
+def test_profile_thresholds_detect_on_the_sensors_sample(noise, seed):
+    """pogox_hopping's [contact] thresholds sit where the foot meets (h = 0) and leaves (h = -3.7 mm,
+    the leg still extending) the ground: noise-free, every touchdown and liftoff from telemetry alone
+    on the sample the contact flag reports it (1 tick, the measurement delay) or one after; with
+    sensor noise >= 95 % within 2 ticks, none spurious or missed."""
+    from ddpc_codegen.robot.profile import load_profile
+
+    res, states = _hop(noise, seed)
+    est = PhaseEstimator(load_profile("pogox_hopping").contact)
+    for s in states:
+        est.update(s.position[2], s.velocity[2], s.euler[0], s.euler[1])
+    assert sum(1 for _, k in est.events if k == "touchdown") == len(res.touchdowns)
+    assert sum(1 for _, k in est.events if k == "liftoff") == len(res.liftoffs)
+    d = _delays(est.events, "touchdown", res.touchdowns, res.dt) + _delays(est.events, "liftoff", res.liftoffs, res.dt)
+    if noise:
+        assert np.mean([x is not None and 0 <= x <= 2 for x in d]) >= 0.95, d
+    else:
+        assert set(d) <= {1, 2} and np.mean([x == 1 for x in d]) >= 0.75, d
+
+
+def test_profile_thresholds_resting_on_the_leg_do_not_chatter():
+    """Standing on the compressed leg (h = -7 mm, half the weight on the spring), noisy: no liftoff."""
+    from ddpc_codegen.robot.profile import load_profile
+
+    rng = np.random.default_rng(0)
+    est = PhaseEstimator(load_profile("pogox_hopping").contact, phase=GROUND)
+    for _ in range(2000):
+        est.update(0.4 - 0.007 + rng.normal(0, 0.002), rng.normal(0, 0.02), 0.0, 0.0)
+    assert est.events == []
+
+
 def test_noise_around_the_contact_plane_does_not_chatter():
     rng = np.random.default_rng(0)
     est = PhaseEstimator(ContactConfig(leg_length=0.4), phase=DESCENT)
@@ -78,6 +111,8 @@ def test_tilted_leg_reaches_the_ground_later():
     ({"source": "sensor"}, "source must be one of"),
     ({"leg_length": 0.0}, "leg_length must be > 0"),
     ({"touchdown_margin": -0.001}, "touchdown_margin must be a number >= 0"),
+    ({"liftoff_margin": -0.5}, "liftoff_margin must be > -leg_length"),
+    ({"liftoff_margin": float("nan")}, "liftoff_margin must be a number"),
     ({"min_air_ticks": 0}, "min_air_ticks must be an integer >= 1"),
 ])
 def test_bad_contact_config(kw, match):
