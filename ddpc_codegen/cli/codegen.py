@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import numpy as np
 import time
 from pathlib import Path
 from typing import Any
 
 from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.data import IODataset, output_noise
 from ddpc_codegen.design.match import conform_dataset, parse_channel_map
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.fit import fit_configured
@@ -67,6 +68,11 @@ def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = Non
     ds = conform_dataset(config, raw, channel_map, where=f"{config.source} with dataset {path}")
     if channel_map:
         log(f"  channels mapped (config=dataset): {channel_map}")
+    noise = output_noise(ds)
+    log(f"  recording noise (white, from third differences): {_per_output(config, noise)}")
+    warning = noise_warning(config, noise)
+    if warning:
+        log("  " + warning)
     online = None
     if is_hopping_config(config):
         hd = prepare_hopping(ds, config, where=str(path))
@@ -83,8 +89,28 @@ def prepare_from_config(config: SteeringConfig, dataset: str | Path | None = Non
     log(f"  excitation: {pe.summary()}")
     log(f"  predictor: {pred.method}, rank {pred.rank}, fitted in {time.perf_counter() - t0:.2f} s")
     meta = raw.metadata
-    provenance = {"path": str(path), **{k: meta[k] for k in PROVENANCE_KEYS if isinstance(meta.get(k), str)}}
+    provenance = {"path": str(path), **{k: meta[k] for k in PROVENANCE_KEYS if isinstance(meta.get(k), str)},
+                  "output_noise": [float(v) for v in noise], "noise_warning": warning}
     return SteeringProblem(pred, config), online, provenance
+
+
+def _per_output(config: SteeringConfig, values: np.ndarray) -> str:
+    units = config.output_units or ("",) * config.p
+    return ", ".join(f"{n} {v * 1e3:.3g} m{u}" if u in ("m", "rad") else f"{n} {v:.3g} {u}".rstrip()
+                     for n, v, u in zip(config.output_names, values, units))
+
+
+def noise_warning(config: SteeringConfig, noise: np.ndarray) -> str | None:
+    """A warning when the recording is noisier than the config was tuned for (``[data]
+    max_output_noise``): least squares on noisy past outputs misjudges the dynamics, and the solver
+    still reports every QP solved (measured: a hopping solver from a 2 mm-noise recording with the
+    clean recordings' ridge steered 45 mm against 33 mm unsteered)."""
+    lim = config.max_output_noise
+    if lim is None or not np.any(noise > lim):
+        return None
+    return (f"WARNING: the recording is noisier than {config.source} was tuned for: {_per_output(config, noise)} "
+            f"against [data] max_output_noise {_per_output(config, lim)}; a predictor fitted on it can steer worse "
+            f"than no steering with every QP solved -- see the config's [predictor] ridge notes")
 
 
 def _cmd_codegen(args: argparse.Namespace) -> int:

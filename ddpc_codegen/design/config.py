@@ -35,7 +35,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
     "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online",
                       "denoise_online"),
-    "data": ("dataset",),
+    "data": ("dataset", "max_output_noise"),
 }
 # [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.
 _ART_INT_MIN = {"t_d": 1, "t_a": 1, "t_d_online": 0, "min_ascent": 1, "ground_margin": 0}
@@ -128,6 +128,7 @@ class SteeringConfig:
     codegen: dict = field(default_factory=dict)
     artificial_io: dict = field(default_factory=dict)
     dataset: str | None = None
+    max_output_noise: np.ndarray | None = None
     source: str = "<config>"
 
     def __post_init__(self) -> None:
@@ -153,6 +154,11 @@ class SteeringConfig:
         set_("y_min", _bound(self.y_min, p, "[bounds] y_min", src, -np.inf))
         set_("y_max", _bound(self.y_max, p, "[bounds] y_max", src, np.inf))
         set_("du_max", _bound(self.du_max, m, "[bounds] du_max", src, np.inf))
+        if self.max_output_noise is not None:
+            a = _bound(self.max_output_noise, p, "[data] max_output_noise", src, np.inf)
+            if np.any(a < 0):
+                raise _err(src, "[data] max_output_noise", f"must be >= 0 per output; got {a.tolist()}")
+            set_("max_output_noise", a)
         for lo, hi in (("u_min", "u_max"), ("y_min", "y_max")):
             # Equal bounds are refused too: a box without interior is an equality the QP cannot meet soundly.
             bad = np.nonzero(getattr(self, lo) >= getattr(self, hi))[0]
@@ -300,6 +306,7 @@ class SteeringConfig:
             codegen=raw.get("codegen", {}),
             artificial_io=raw.get("artificial_io", {}),
             dataset=raw.get("data", {}).get("dataset"),
+            max_output_noise=raw.get("data", {}).get("max_output_noise"),
             source=source,
         )
 

@@ -19,7 +19,7 @@ from scipy.signal import max_len_seq
 
 from ddpc_codegen.errors import DataError
 
-__all__ = ["IODataset", "prbs"]
+__all__ = ["IODataset", "prbs", "output_noise"]
 
 
 def _as_signal(x: Any, what: str, index: int) -> np.ndarray:
@@ -317,3 +317,19 @@ def prbs(
         bits, _ = max_len_seq(int(order), state=state, length=n_bits)
         out[:, c] = np.repeat(2.0 * bits - 1.0, min_hold)[:n_samples] * amp[c]
     return out
+
+
+def output_noise(dataset: IODataset) -> np.ndarray:
+    """White measurement noise on each output, estimated from the recording: sigma (p,), output units.
+
+    The third difference of a smooth motion sampled at 200 Hz is jerk * dt^3 (micrometres); that of
+    white noise of standard deviation sigma has variance 20 sigma^2. A robust scale (1.4826 x median
+    absolute deviation) of the third differences over every trajectory, divided by sqrt(20), so the
+    few samples around a foot impact or an input step do not count. NaN when no trajectory has 4 samples.
+    """
+    d = [np.diff(y, n=3, axis=0) for _, y in dataset.trajectories() if y.shape[0] >= 4]
+    if not d:
+        return np.full(dataset.p, np.nan)
+    a = np.vstack(d)
+    mad = np.median(np.abs(a - np.median(a, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(20.0)

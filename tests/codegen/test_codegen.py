@@ -273,6 +273,8 @@ dataset = "d.npz"
     assert man["backend"] == "daqp"
     assert man["dataset"]["thrust_field"] == "climb_rate" and man["dataset"]["autopilot"] == "ardupilot"
     assert check_solver_loop(man, "ardupilot", "climb_rate") is None
+    # the recording's noise estimate is recorded; no limit in this config, so no warning
+    assert len(man["dataset"]["output_noise"]) == 2 and man["dataset"]["noise_warning"] is None
     assert "came from ardupilot, this vehicle is px4" in check_solver_loop(man, "px4", "climb_rate")
     with pytest.raises(PreflightError, match="thrust was a climb rate .*d.npz.*reads it as a thrust"):
         check_solver_loop(man, "ardupilot", "thrust")
@@ -331,3 +333,30 @@ def test_templates_render_strictly():
         render("qp.h.in", **{k: v for k, v in ctx.items() if k != "name"})
     with pytest.raises(CodegenError, match=r"unused values \['typo'\]"):
         render("qp.h.in", typo=1, **ctx)
+
+
+def test_noise_warning_names_the_channels_and_the_limit(tmp_path):
+    """A recording noisier than the config's [data] max_output_noise is flagged (codegen prints it and the
+    manifest keeps it): a predictor fitted on it can steer worse than none with every QP solved."""
+    from ddpc_codegen.cli.codegen import noise_warning
+
+    f = tmp_path / "c.toml"
+    f.write_text("""
+[horizon]
+t_ini = 4
+t_f = 3
+[signals]
+inputs = ["a"]
+outputs = ["z", "pitch"]
+output_units = ["m", "rad"]
+[cost]
+Q = [1.0, 1.0]
+R = [0.1]
+[data]
+max_output_noise = [5e-4, 1e-3]
+""")
+    cfg = SteeringConfig.from_toml(f)
+    assert noise_warning(cfg, np.array([4e-4, 9e-4])) is None
+    w = noise_warning(cfg, np.array([2e-3, 9e-4]))
+    assert w and "z 2 mm, pitch 0.9 mrad" in w and "max_output_noise z 0.5 mm, pitch 1 mrad" in w
+    assert noise_warning(cfg.replace(max_output_noise=None), np.array([1.0, 1.0])) is None

@@ -127,3 +127,13 @@ def test_denoise_online_must_be_a_boolean(tmp_path):
     raw["artificial_io"]["denoise_online"] = 1
     with pytest.raises(ConfigError, match=r"\[artificial_io\] denoise_online.*true or false"):
         SteeringConfig.from_dict(raw, source="h.toml")
+
+
+def test_max_output_noise_is_validated_per_output(tmp_path):
+    cfg = _load(tmp_path, BASE + "[data]\nmax_output_noise = [5e-4]\n")
+    assert cfg.max_output_noise.tolist() == [5e-4]
+    assert _load(tmp_path, BASE).max_output_noise is None
+    with pytest.raises(ConfigError, match=r"\[data\] max_output_noise must have 1 entries"):
+        _load(tmp_path, BASE + "[data]\nmax_output_noise = [5e-4, 1e-3]\n")
+    with pytest.raises(ConfigError, match=r"\[data\] max_output_noise must be >= 0"):
+        _load(tmp_path, BASE + "[data]\nmax_output_noise = -1.0\n")

@@ -1,5 +1,7 @@
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from ddpc_codegen import DataError, IODataset, prbs
 
@@ -94,3 +96,28 @@ def test_prbs_errors(kw, msg):
     args = {"n_samples": 10, "channels": 1} | kw
     with pytest.raises(DataError, match=msg):
         prbs(**args)
+
+
+@settings(max_examples=25, deadline=None)
+@given(sigma=st.floats(1e-4, 1e-2), freq=st.floats(0.1, 3.0), amp=st.floats(0.01, 0.5), seed=st.integers(0, 2**31))
+def test_output_noise_recovers_white_noise_on_smooth_motion(sigma, freq, amp, seed):
+    """sigma of white noise on a smooth motion sampled at 200 Hz, from the third differences (within 15 %),
+    whenever the motion's own third difference (jerk dt^3) is small against the noise; on the clean
+    channel the estimate stays below that bound."""
+    from ddpc_codegen.design.data import output_noise
+
+    jerk_d3 = amp * (2 * np.pi * freq) ** 3 * 0.005 ** 3  # largest third difference of the sine
+    assume(jerk_d3 < 0.2 * sigma)
+    t = np.arange(3000) * 0.005
+    smooth = amp * np.sin(2 * np.pi * freq * t) + 0.3 * t - 0.5 * 4.9 * (t % 0.6) ** 2  # arcs, kinks at hops
+    y = smooth + np.random.default_rng(seed).normal(0.0, sigma, t.size)
+    ds = IODataset(np.zeros((t.size, 1)), np.column_stack([y, smooth]), 0.005)
+    est = output_noise(ds)
+    assert est[0] == pytest.approx(sigma, rel=0.15)
+    assert est[1] <= 1.4826 * jerk_d3 / np.sqrt(20.0) + 1e-12  # clean channel: the MAD scale of the motion's own jerk
+
+
+def test_output_noise_of_short_trajectories_is_nan():
+    from ddpc_codegen.design.data import output_noise
+
+    assert np.isnan(output_noise(IODataset(np.zeros((3, 1)), np.zeros((3, 2)), 0.005))).all()
