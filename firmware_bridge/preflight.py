@@ -137,7 +137,8 @@ def check_solver_loop(manifest: dict, autopilot: str, thrust_field: str) -> str 
     dynamics: the predictor would be wrong on every tick).
 
     Returns:
-        a warning when the data came from another autopilot (allowed: e.g. simulator data), else None.
+        a warning when the data came from another autopilot (allowed: e.g. simulator data) or were
+        noisier than the solver's config was tuned for (``noise_warning``, written by codegen), else None.
     Raises:
         PreflightError: the thrust semantics differ.
     """
@@ -148,7 +149,10 @@ def check_solver_loop(manifest: dict, autopilot: str, thrust_field: str) -> str 
             f"the solver was fitted on data where SET_ATTITUDE_TARGET.thrust was a {had.replace('_', ' ')} "
             f"({ds.get('path', 'its dataset')}), but this vehicle reads it as a {thrust_field.replace('_', ' ')}; "
             "collect and generate again in this mode, or set GUID_OPTIONS as it was (bit 3 = thrust)")
+    warnings = []
     src = ds.get("autopilot")
     if src and src != autopilot:
-        return f"the solver's data came from {src}, this vehicle is {autopilot}"
-    return None
+        warnings.append(f"the solver's data came from {src}, this vehicle is {autopilot}")
+    if ds.get("noise_warning"):
+        warnings.append(f"codegen said: {ds['noise_warning']}")
+    return "; ".join(warnings) or None

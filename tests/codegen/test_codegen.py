@@ -276,6 +276,9 @@ dataset = "d.npz"
     # the recording's noise estimate is recorded; no limit in this config, so no warning
     assert len(man["dataset"]["output_noise"]) == 2 and man["dataset"]["noise_warning"] is None
     assert "came from ardupilot, this vehicle is px4" in check_solver_loop(man, "px4", "climb_rate")
+    # a recording codegen flagged as noisier than the config was tuned for: the bridge repeats it
+    noisy = {**man, "dataset": {**man["dataset"], "noise_warning": "WARNING: the recording is noisier"}}
+    assert check_solver_loop(noisy, "ardupilot", "climb_rate") == "codegen said: WARNING: the recording is noisier"
     with pytest.raises(PreflightError, match="thrust was a climb rate .*d.npz.*reads it as a thrust"):
         check_solver_loop(man, "ardupilot", "thrust")
     (tmp_path / "d.npz").unlink()
