@@ -467,20 +467,3 @@ def test_step_guard_comes_from_the_flag_then_the_profile_then_the_default():
     assert _parsed("--profile", "arducopter_sitl").max_step == (0.3, 0.5)
     assert _parsed().max_step == (0.3, 0.5)
     assert _parsed("--scenario", "hopping").max_step is None  # hopping's default: no guard
-
-
-@pytest.mark.parametrize("table, message", [
-    ("max_step = [0.6]", r"\[steering\] max_step needs 2 values on the flying loop \(z_ref, pitch_ref\)"),
-    ("max_step = [0.6, 0]", r"\[steering\] max_step must be a list of numbers > 0"),
-    ("max_step = [0.6, nan]", r"\[steering\] max_step must be a list of numbers > 0"),
-    ("max_step = 0.6", r"\[steering\] max_step must be a list of numbers > 0"),
-    ("max_stp = [0.6, 0.5]", r"\[steering\].*max_stp"),
-])
-def test_profile_step_guard_is_validated(tmp_path, table, message):
-    from ddpc_codegen.errors import ConfigError
-    from ddpc_codegen.robot.profile import load_profile
-
-    p = tmp_path / "robot.toml"
-    p.write_text(f'extends = "px4_sih"\n\n[steering]\n{table}\n')
-    with pytest.raises(ConfigError, match=message):
-        load_profile(p)
