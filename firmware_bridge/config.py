@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.design.result import SteeringResult
-from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.controller import ControllerConfig, check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
@@ -225,16 +225,8 @@ class BridgeConfig:
     def _check_channel_values(self) -> None:
         """One value per reference channel, finite; a step guard or blend rate of 0 or below would
         refuse every steered tick (NaN: never), an excitation below 0 has no meaning."""
-        n, refs = (3, "z_ref, roll_ref, pitch_ref") if self.scenario == "hopping" else (2, "z_ref, pitch_ref")
         for key, zero_ok in (("max_step", False), ("blend_rates", False), ("excitation", True)):
-            v = getattr(self, key)
-            if v is None:
-                continue
-            a = np.asarray(v, dtype=float)
-            if a.shape != (n,):
-                raise ValueError(f"{key} needs {n} values on the {self.scenario} loop ({refs}); got {v!r}")
-            if not (np.all(np.isfinite(a)) and np.all(a >= 0.0 if zero_ok else a > 0.0)):
-                raise ValueError(f"{key} must be finite and {'>= 0' if zero_ok else '> 0'} per reference; got {v!r}")
+            setattr(self, key, check_per_reference(key, getattr(self, key), self.scenario, zero_ok=zero_ok))
 
 
 _FLYING_DEFAULTS = {"max_step": (0.3, 0.5), "blend_rates": (0.5, 0.5), "excitation": (0.05, 0.03)}

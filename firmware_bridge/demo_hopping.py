@@ -143,14 +143,11 @@ def detection_delays(t: np.ndarray, ground: np.ndarray, touchdowns, liftoffs, dt
     return out
 
 
-def foot_heights_at_contact_changes(ticks_path: Path, contact: ContactConfig) -> dict:
+def foot_heights_at_contact_changes(tl: dict, contact: ContactConfig) -> dict:
     """Where the robot's own contact flag switches, the foot height the estimate sees [m]: h of the
-    first sample with the flag set (touchdown) / cleared (liftoff), min / median / max. The thresholds
-    that detect on the sensor's sample: touchdown_margin <= -max(touchdown h), liftoff_margin below
-    min(liftoff h) (how the pogox_hopping profile's were chosen)."""
-    from firmware_bridge.ticklog import load_ticklog
-
-    tl = load_ticklog(ticks_path).ticks
+    first sample with the flag set (touchdown) / cleared (liftoff), min / median / max, from a tick
+    log's ``ticks``. The thresholds that detect on the sensor's sample: touchdown_margin <=
+    -max(touchdown h), liftoff_margin below min(liftoff h) (how the pogox_hopping profile's were chosen)."""
     act = np.flatnonzero(tl["active"] & (tl["contact"] >= 0))
     if act.size < 2:
         return {}
@@ -176,12 +173,13 @@ def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | No
 
     run = link_run(ticks_path, truth_path)
     met = scenario_metrics(run)
+    log = load_ticklog(ticks_path)
+    tl = log.ticks
     if contact is None:  # the thresholds the bridge flew with (its tick log's metadata)
-        flown = (load_ticklog(ticks_path).metadata.get("bridge") or {}).get("contact")
+        flown = (log.metadata.get("bridge") or {}).get("contact")
         contact = ContactConfig(**flown) if flown else ContactConfig(leg_length=run.config.leg_length)
     with np.load(truth_path) as z:
         td, lo = z["touchdowns"], z["liftoffs"]
-    tl = load_ticklog(ticks_path).ticks
     t_end = float(tl["t_vehicle"][tl["active"]][-1])
     td, lo = td[td <= t_end], lo[lo <= t_end]
     met["phase_detection"] = {}
@@ -190,7 +188,7 @@ def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | No
         t, g = replay_phases(ticks_path, replace(contact, source=src))
         met["phase_detection"][src] = detection_delays(t, g, td, lo, run.dt)
     if "signal" in sources:
-        met["foot_height_at_contact_changes"] = foot_heights_at_contact_changes(ticks_path, contact)
+        met["foot_height_at_contact_changes"] = foot_heights_at_contact_changes(tl, contact)
     return met
 
 

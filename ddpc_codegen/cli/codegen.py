@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import numpy as np
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset, output_noise

@@ -8,12 +8,11 @@ and are named by their file stem (``pogox``); any other profile is a path.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.controller import ControllerConfig, check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
@@ -22,7 +21,6 @@ __all__ = ["RobotProfile", "SteeringGuards", "load_profile", "shipped_profiles",
 
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
 _TOP = ("name", "description", "extends", "controller", "trajectory", "contact", "steering")
-_REFERENCES = {"flying": ("z_ref", "pitch_ref"), "hopping": ("z_ref", "roll_ref", "pitch_ref")}
 
 
 @dataclass(frozen=True)
@@ -37,15 +35,6 @@ class SteeringGuards:
     """
 
     max_step: tuple[float, ...] | None = None
-
-    def __post_init__(self) -> None:
-        v = self.max_step
-        if v is None:
-            return
-        ok = isinstance(v, tuple) and len(v) > 0 and all(
-            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) and x > 0 for x in v)
-        if not ok:
-            raise ValueError(f"max_step must be a list of numbers > 0, one per reference; got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -108,10 +97,10 @@ def load_profile(name_or_path: str | Path) -> RobotProfile:
                                    base.contact if base else None)
     steering = dataclass_from_table(SteeringGuards, raw.get("steering", {}), "[steering]", src,
                                     base.steering if base else None)
-    refs = _REFERENCES.get(ctrl.mode, ())
-    if steering.max_step is not None and len(steering.max_step) != len(refs):
-        raise ConfigError(f"{src}: [steering] max_step needs {len(refs)} values on the {ctrl.mode} loop "
-                          f"({', '.join(refs)}); got {list(steering.max_step)}")
+    try:  # one value per reference of this profile's loop: the bridge applies the same check
+        steering = replace(steering, max_step=check_per_reference("max_step", steering.max_step, ctrl.mode))
+    except ValueError as e:
+        raise ConfigError(f"{src}: [steering] {e}") from None
     for key in ("name", "description"):
         if key in raw and not isinstance(raw[key], str):
             raise ConfigError(f"{src}: {key} must be a string; got {raw[key]!r}")

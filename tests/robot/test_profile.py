@@ -49,11 +49,13 @@ def test_extends_overrides_only_given_keys(tmp_path):
     ("controller = 3\n", r"\[controller\] must be a table; got 3"),
     ("[controller\n", r"not valid TOML"),
     ("extends = 'nosuch'\n", r"no robot profile 'nosuch'"),
-    # [steering] max_step: the bridge's step guard, one value > 0 per reference of the loop
+    # [steering] max_step: the bridge's step guard, one finite value > 0 per reference of the loop (the
+    # bridge's own --max-step check, same messages)
     ("extends = 'px4_sih'\n[steering]\nmax_step = [0.6]\n", r"\[steering\] max_step needs 2 values on the flying loop"),
-    ("extends = 'px4_sih'\n[steering]\nmax_step = [0.6, 0]\n", r"\[steering\] max_step must be a list of numbers > 0"),
-    ("extends = 'px4_sih'\n[steering]\nmax_step = [0.6, nan]\n", r"\[steering\] max_step must be a list of numbers > 0"),
-    ("extends = 'px4_sih'\n[steering]\nmax_step = 0.6\n", r"\[steering\] max_step must be a list of numbers > 0"),
+    ("extends = 'px4_sih'\n[steering]\nmax_step = 0.6\n", r"\[steering\] max_step needs 2 values on the flying loop"),
+    ("extends = 'px4_sih'\n[steering]\nmax_step = [0.6, 0]\n", r"\[steering\] max_step must be finite and > 0 per reference"),
+    ("extends = 'px4_sih'\n[steering]\nmax_step = [0.6, nan]\n", r"\[steering\] max_step must be finite and > 0 per reference"),
+    ("extends = 'px4_sih'\n[steering]\nmax_step = [true, 0.5]\n", r"\[steering\] max_step must be finite and > 0 per reference"),
     ("extends = 'pogox_hopping'\n[steering]\nmax_step = [0.6, 0.5]\n", r"max_step needs 3 values on the hopping loop"),
 ])
 def test_bad_profiles_are_refused_precisely(tmp_path, text, match):
