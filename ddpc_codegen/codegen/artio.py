@@ -29,8 +29,8 @@ class OnlineCompletion:
     """What the generated completion is built from.
 
     art: the completion operator (aerial-data basis, bounds); noise_level: the online sigma [m / rad]
-    compiled in (lambda = art.n_columns * sigma^2); t_d_online, min_ascent: the online window's settings
-    (recorded in the manifest for the runtime's HoppingWindow).
+    compiled in (lambda = art.n_columns * sigma^2); t_d_online, min_ascent, denoise_online, refit_residual:
+    the online window's settings (recorded in the manifest for the runtime's HoppingWindow).
     """
 
     art: ArtificialIO
@@ -38,11 +38,13 @@ class OnlineCompletion:
     t_d_online: int = 0
     min_ascent: int = 10
     denoise_online: bool = False
+    refit_residual: float = 0.0
 
     @classmethod
     def from_spec(cls, art: ArtificialIO, spec) -> "OnlineCompletion":
         """From the operator and its :class:`~ddpc_codegen.design.hopping_data.ArtificialIOSpec`."""
-        return cls(art, spec.noise_level_online, spec.t_d_online, spec.min_ascent, spec.denoise_online)
+        return cls(art, spec.noise_level_online, spec.t_d_online, spec.min_ascent, spec.denoise_online,
+                   spec.refit_residual)
 
     @property
     def lam(self) -> float:
@@ -115,7 +117,8 @@ def manifest_entry(oc: OnlineCompletion) -> dict:
     return {"depth": art.depth, "rank": art.rank, "m": art.m, "p": art.p, "n_columns": art.n_columns,
             "noise_level": float(oc.noise_level), "lambda": oc.lam, "feas_tol": BOUND_TOL,
             "lo": _inf_list(art.lo), "hi": _inf_list(art.hi), "t_d_online": int(oc.t_d_online),
-            "min_ascent": int(oc.min_ascent), "denoise_online": bool(oc.denoise_online), "rcond": art.rcond}
+            "min_ascent": int(oc.min_ascent), "denoise_online": bool(oc.denoise_online),
+            "refit_residual": float(oc.refit_residual), "rcond": art.rcond}
 
 
 def cdef_text(name: str) -> str:

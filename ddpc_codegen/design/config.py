@@ -34,7 +34,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "predictor": ("method", "form", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
     "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online",
-                      "denoise_online"),
+                      "denoise_online", "refit_residual"),
     "data": ("dataset", "max_output_noise"),
 }
 # [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.

@@ -41,6 +41,8 @@ class ArtificialIOSpec:
         noise_level_online: sigma of the online completion (measurements are noisy online).
         denoise_online: also replace windows without ground samples by their fit onto the data's
             dynamics (see :class:`~ddpc_codegen.runtime.hopping.HoppingWindow`, ``denoise``).
+        refit_residual: a denoised window whose fit leaves a residual above this [m / rad] is fitted
+            again over every aerial sample since the liftoff (0: never; see ``HoppingWindow``).
     """
 
     t_d: int = 10
@@ -51,11 +53,12 @@ class ArtificialIOSpec:
     noise_level: float = 0.0
     noise_level_online: float = 2e-3
     denoise_online: bool = True
+    refit_residual: float = 0.0
 
     def window_settings(self) -> dict:
         """The online window's keyword arguments (``HoppingWindow(op, t_ini, **settings)``)."""
         return {"t_d": self.t_d_online, "min_ascent": self.min_ascent, "noise_level": self.noise_level_online,
-                "denoise": self.denoise_online}
+                "denoise": self.denoise_online, "refit_residual": self.refit_residual}
 
 
 @dataclass

@@ -55,6 +55,7 @@ class GeneratedArtificialIO:
         self._check(folder, entry)
         self.t_d_online, self.min_ascent = int(entry["t_d_online"]), int(entry["min_ascent"])
         self.denoise_online = bool(entry["denoise_online"])
+        self.refit_residual = float(entry["refit_residual"])
         self._ws = ffi.new(f"{name}_artio_workspace *")
         self._fn["init"](self._ws)
         self._info = ffi.new(f"{name}_artio_info *")
@@ -82,7 +83,7 @@ class GeneratedArtificialIO:
     def window_settings(self) -> dict:
         """The online window's keyword arguments as generated (``HoppingWindow(op, t_ini, **settings)``)."""
         return {"t_d": self.t_d_online, "min_ascent": self.min_ascent, "noise_level": self.noise_level,
-                "denoise": self.denoise_online}
+                "denoise": self.denoise_online, "refit_residual": self.refit_residual}
 
     def complete(self, u: np.ndarray, y: np.ndarray, missing: np.ndarray, *, replace_known: bool = False,
                  noise_level: float | None = None) -> Completion:

@@ -27,7 +27,7 @@ _SCHEMA = {"name": str, "backend": str, "module": str, "extension": str, "dims":
 # hopping solvers: the generated artificial-IO completion (null otherwise)
 _ART_SCHEMA = {"depth": int, "rank": int, "m": int, "p": int, "n_columns": int, "noise_level": float,
                "lambda": float, "feas_tol": float, "lo": list, "hi": list, "t_d_online": int, "min_ascent": int,
-               "denoise_online": bool}
+               "denoise_online": bool, "refit_residual": float}
 
 
 def sha256_file(path: Path) -> str:

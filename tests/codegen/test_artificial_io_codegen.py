@@ -214,6 +214,7 @@ def test_cli_builds_a_hopping_artifact_with_its_completion_from_a_raw_log(hop_lo
     spec = ArtificialIOSpec(**SteeringConfig.from_toml(default_config("hopping")).artificial_io)
     assert gen.noise_level == spec.noise_level_online and (gen.m, gen.p) == (3, 3)
     assert (gen.t_d_online, gen.min_ascent) == (spec.t_d_online, spec.min_ascent)
+    assert gen.window_settings()["refit_residual"] == spec.refit_residual == 6.5e-3  # manifest -> runtime window
     # the online window of a recorded hop: ground phase + the first ascent samples
     from ddpc_codegen.design.phases import ground_runs
 

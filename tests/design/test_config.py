@@ -54,9 +54,13 @@ def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_
 def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
     from ddpc_codegen.design.hopping_data import ArtificialIOSpec
 
-    cfg = _load(tmp_path, BASE + "\n[artificial_io]\nt_a = 24\nmin_ascent = 6\nnoise_level_online = 0.002\n")
+    cfg = _load(tmp_path, BASE + "\n[artificial_io]\nt_a = 24\nmin_ascent = 6\nnoise_level_online = 0.002\n"
+                "refit_residual = 0.004\n")
     spec = ArtificialIOSpec(**cfg.artificial_io)
-    assert (spec.t_a, spec.min_ascent, spec.noise_level_online) == (24, 6, 0.002)
+    assert (spec.t_a, spec.min_ascent, spec.noise_level_online, spec.refit_residual) == (24, 6, 0.002, 0.004)
+    assert ArtificialIOSpec().refit_residual == 0.0  # off unless configured
+    with pytest.raises(ConfigError, match=r"\[artificial_io\] refit_residual must be a number >= 0"):
+        _load(tmp_path, BASE + "\n[artificial_io]\nrefit_residual = -1e-3\n")
     assert spec.t_d == ArtificialIOSpec().t_d  # unset keys keep their defaults
     assert _load(tmp_path, BASE).digest != cfg.digest
 

@@ -183,3 +183,42 @@ def test_window_keeps_t_ini_rows_when_ground_and_ascent_are_short():
     # A short Tini keeps its t_d descent samples of context: 10 + 12 + 14 = 36 > Tini.
     ui, _ = HoppingWindow(art, 20, t_d=t_d, min_ascent=10).window(u, y, ph)
     assert ui.shape == (20, 3) and art.lengths[-1] == t_d + 12 + 14
+
+
+class _Residual(_Identity):
+    """The identity fill, reporting a chosen residual."""
+
+    def __init__(self, residual: float, depth: int = 200) -> None:
+        super().__init__()
+        self.residual, self.depth = residual, depth
+
+    def complete(self, u, y, missing, *, replace_known=False, noise_level=None):
+        c = super().complete(u, y, missing, replace_known=replace_known, noise_level=noise_level)
+        c.residual = self.residual
+        return c
+
+
+def test_refit_spans_the_samples_since_the_liftoff_only_when_the_short_fit_is_poor():
+    """refit_residual: a clean window whose fit leaves more than the threshold is fitted again over
+    every sample since the last ground one (at most the depth), and the last Tini rows are kept."""
+    from ddpc_codegen.design.phases import ASCENT, DESCENT
+
+    ti = 20
+    ph = np.array([DESCENT] * 30 + [GROUND] * 10 + [ASCENT] * 50, dtype=np.int8)
+    u = np.arange(ph.size, dtype=float)[:, None] * np.ones((1, 3))
+    y = -u
+    kw = dict(t_d=0, min_ascent=10, noise_level=2e-3, denoise=True)
+    for residual, threshold, lengths in ((1.0, 0.5, [ti, 50]), (0.4, 0.5, [ti]), (1.0, 0.0, [ti])):
+        art = _Residual(residual)
+        win = HoppingWindow(art, ti, refit_residual=threshold, **kw)
+        ui, yi = win.window(u, y, ph)
+        assert art.lengths == lengths, (residual, threshold)
+        np.testing.assert_array_equal(ui, u[-ti:])
+        assert win.counts.get("refit", 0) == (len(lengths) == 2)
+    art = _Residual(1.0, depth=30)  # the depth bounds the refit
+    HoppingWindow(art, ti, refit_residual=0.5, **kw).window(u, y, ph)
+    assert art.lengths == [ti, 30]
+    art = _Residual(1.0)  # no more aerial samples than Tini: nothing to refit over
+    HoppingWindow(art, ti, refit_residual=0.5, **kw).window(u[:60], y[:60], ph[:60])
+    assert art.lengths == [ti]
+
