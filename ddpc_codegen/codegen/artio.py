@@ -62,9 +62,15 @@ class OnlineCompletion:
 def data_arrays(oc: OnlineCompletion) -> dict[str, tuple[np.ndarray, str]]:
     """Constant arrays of the completion (suffix -> (values, comment))."""
     B = np.ascontiguousarray(oc.art.basis, dtype=float)
+    G = B @ B.T
+    # The Cholesky factor of a leading block is the leading block of the factor: one factor of G + lambda I
+    # serves every window whose first n entries are all known (the denoised windows, every tick under
+    # noise), so those need no factorization at run time (O(n^2) instead of O(n^3): 5 ms at depth 66).
+    chol = np.linalg.cholesky(G + oc.lam * np.eye(G.shape[0]))
     return {
         "ARTIO_B": (B, f"basis B, row-major {B.shape[0]} x {B.shape[1]} (H = B W^T, W orthonormal)"),
-        "ARTIO_G": (B @ B.T, f"Gram matrix G = B B^T, row-major {B.shape[0]} x {B.shape[0]}"),
+        "ARTIO_G": (G, f"Gram matrix G = B B^T, row-major {B.shape[0]} x {B.shape[0]}"),
+        "ARTIO_GCHOL": (chol, f"lower Cholesky factor of G + lambda I, row-major {B.shape[0]} x {B.shape[0]}"),
         "ARTIO_LO": (oc.art.lo, "lower bound per sample entry [u; y] (-INFINITY: none)"),
         "ARTIO_HI": (oc.art.hi, "upper bound per sample entry [u; y] (INFINITY: none)"),
     }

@@ -137,6 +137,20 @@ def test_generated_completion_equals_interpreted_on_entry_masks(plant, art, comp
     _check_equal(art, completers["daqp"], u, y, miss, replace_known)
 
 
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(L=st.integers(1, DEPTH), scale=st.sampled_from([0.2, 0.6, 1.5]), replace_known=st.booleans(),
+       noisy=st.booleans(), seed=st.integers(0, 10_000), backend=st.sampled_from(["daqp", "osqp"]))
+def test_generated_completion_equals_interpreted_on_windows_without_missing_samples(
+        plant, art, completers, L, scale, replace_known, noisy, seed, backend):
+    """The denoised windows (nothing missing): the generated operator solves them with the leading block of
+    a Cholesky factor computed at generation; the same fit and residual as the interpreted one."""
+    u, y = _window(plant, L, scale, seed)
+    if noisy:
+        y = y + np.random.default_rng(seed).normal(0.0, SIGMA, y.shape)
+    got = _check_equal(art, completers[backend], u, y, np.zeros(L, dtype=bool), replace_known)
+    assert got.status == "solved" and not got.bounded
+
 def test_active_bounds_are_solved_by_the_bounded_qp(plant, art, completers):
     bounded = 0
     for seed in range(40):
