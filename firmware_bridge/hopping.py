@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 
@@ -41,7 +42,7 @@ from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
 from ddpc_codegen.runtime.policy import SteeringPolicy
 
-__all__ = ["HoppingLoop", "hopping_window"]
+__all__ = ["HoppingLoop", "hopping_window", "completion_time_warning"]
 
 
 def hopping_window(solver, t_ini: int) -> HoppingWindow:
@@ -61,6 +62,49 @@ def hopping_window(solver, t_ini: int) -> HoppingWindow:
     if (art.m, art.p) != (solver.manifest["dims"]["m"], solver.manifest["dims"]["p"]):
         raise ValueError(f"artificial-IO operator has m={art.m}, p={art.p}, the solver {solver.manifest['dims']}")
     return HoppingWindow(art, t_ini, **art.window_settings())
+
+
+def completion_time_warning(art, rate_hz: float, *, share: float = 0.5, repeats: int = 3) -> str | None:
+    """Time the artificial-IO operator on its longest windows before the loop runs: ``depth`` samples
+    all known (every denoised or refitted window under sensor noise) and with the first third missing
+    (a ground phase filled). The operator's counters are left as they were.
+
+    Args:
+        art: the operator (``depth``, ``m``, ``p``, ``lo``, ``hi``, ``complete``, ``counts``).
+        rate_hz: the loop rate; share: the part of a tick the completion may take.
+    Returns:
+        a warning when the slower window (best of ``repeats`` calls) takes more than ``share`` of a tick
+        -- the tick would run late on every such window -- else None.
+    """
+    L, m = int(art.depth), int(art.m)
+    lo, hi = np.asarray(art.lo, dtype=float), np.asarray(art.hi, dtype=float)
+    # inside every bound, so the fill is the unbounded one (a bounded fill is rarer and slower)
+    fl, fh = np.isfinite(lo), np.isfinite(hi)
+    mid = np.zeros(lo.shape)
+    mid[fl & fh] = 0.5 * (lo[fl & fh] + hi[fl & fh])
+    mid[fl & ~fh], mid[~fl & fh] = lo[fl & ~fh], hi[~fl & fh]
+    w = np.tile(mid, (L, 1))
+    ground = np.zeros(L, dtype=bool)
+    ground[: L // 3] = True
+    counts = dict(art.counts)
+    worst = 0.0
+    try:
+        for missing in (np.zeros(L, dtype=bool), ground):
+            best = math.inf
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                art.complete(w[:, :m], w[:, m:], missing, replace_known=True)
+                best = min(best, time.perf_counter() - t0)
+            worst = max(worst, best)
+    finally:
+        art.counts.clear()
+        art.counts.update(counts)
+    tick = 1.0 / rate_hz
+    if worst <= share * tick:
+        return None
+    return (f"the artificial-IO completion takes {worst * 1e3:.2f} ms on a {L}-sample window, more than "
+            f"{share:.0%} of the {tick * 1e3:.1f} ms tick: hopping ticks will run late (a faster companion "
+            f"computer, or regenerate with a smaller depth: [artificial_io] t_a / ground_margin)")
 
 
 class HoppingLoop:

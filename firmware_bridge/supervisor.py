@@ -9,6 +9,7 @@ import time
 from firmware_bridge.config import NoVehicleError
 from firmware_bridge.link import mavlink
 from firmware_bridge.phases import Approach
+from firmware_bridge.hopping import completion_time_warning
 from firmware_bridge.preflight import (VehicleInfo, check_autopilot, check_solver_loop, decode_param_value,
                                        hover_param, params_to_read, resolve_guid_options)
 from firmware_bridge.profiles import ArduPilotProfile
@@ -129,6 +130,11 @@ class Supervisor:
             warning = check_solver_loop(solver.manifest, self.profile.name, field)
             if warning:
                 self._event(f"warning: {warning}")
+        hop = getattr(self, "hop", None)
+        if hop is not None and hop.steering is not None and hop.steering.window is not None:
+            slow = completion_time_warning(hop.steering.window.art, c.rate_hz)
+            if slow:
+                self._event(f"warning: {slow}")
         self._event(f"vehicle: {self.profile.name}, hover thrust {hover_param(self.profile)}="
                     + ("?" if hover is None else f"{hover:.3f}")
                     + f", controller model hover thrust {self.hover_thrust:.3f}")

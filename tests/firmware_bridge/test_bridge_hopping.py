@@ -242,3 +242,47 @@ def test_signal_source_holds_the_phase_until_the_first_flag():
     for _ in range(3):
         st = hop.observe(_state(0.3, -1.0), tel)
     assert st.contact and hop.counts["contact_old"] == 3
+
+
+
+@pytest.mark.e2e
+@pytest.mark.compiler
+@pytest.mark.slow
+def test_the_generated_completion_is_timed_before_the_loop(hops):
+    """The preflight times the real generated operator on its longest windows: against a tick it cannot
+    meet (10 us) and one it easily meets (1 s); its counters are left alone."""
+    from ddpc_codegen.runtime.loader import load_solver
+    from firmware_bridge.hopping import completion_time_warning
+
+    art = load_solver(hops.solver).artificial_io
+    before = dict(art.counts)
+    assert "ms tick: hopping ticks will run late" in completion_time_warning(art, 1e5)
+    assert completion_time_warning(art, 1.0) is None
+    assert art.counts == before
+
+
+def test_a_completion_slower_than_half_a_tick_is_reported():
+    """Both longest windows are timed (all known; the first third filled), inside the bounds."""
+    import time
+
+    from firmware_bridge.hopping import completion_time_warning
+
+    class _Slow:
+        depth, m, p, counts = 30, 3, 3, {"calls": 7}
+        lo, hi = [0.2, -0.3, -0.3, 0.0, -1.0, -np.inf], [1.5, 0.3, 0.3, np.inf, 1.0, np.inf]
+
+        def __init__(self) -> None:
+            self.windows = []
+
+        def complete(self, u, y, missing, *, replace_known=False):
+            self.windows.append((u.shape[0], int(np.sum(missing)), float(u[0, 0]), float(y[0, 0]), float(y[0, 2])))
+            self.counts["calls"] += 1
+            time.sleep(0.004)
+
+    slow = _Slow()
+    msg = completion_time_warning(slow, 200.0)
+    assert msg is not None and "30-sample window" in msg and "5.0 ms tick" in msg
+    assert {w[:2] for w in slow.windows} == {(30, 0), (30, 10)}  # all known, then the first third missing
+    assert {w[2:] for w in slow.windows} == {(0.85, 0.0, 0.0)}  # bound midpoints, a one-sided bound, none
+    assert slow.counts == {"calls": 7}
+    assert completion_time_warning(slow, 50.0) is None  # 4 ms of a 20 ms tick
