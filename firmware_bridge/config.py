@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.design.result import SteeringResult
-from ddpc_codegen.robot.controller import ControllerConfig, check_per_reference
+from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory

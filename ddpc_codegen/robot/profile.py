@@ -12,7 +12,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.robot.controller import ControllerConfig, check_per_reference
+from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
