@@ -94,9 +94,9 @@ class HoppingWindow:
         if k < Ti:
             return "history"
         ph = phase_log[:k]
+        sig = self.art.noise_level if self.noise_level is None else self.noise_level
         if not np.any(ph[k - Ti :] == GROUND):
             self.counts["clean"] += 1
-            sig = self.art.noise_level if self.noise_level is None else self.noise_level
             if self.denoise and sig > 0:
                 return self._denoised(u_log, y_log, ph, sig)
             return None
@@ -114,12 +114,10 @@ class HoppingWindow:
             return "no_context"
         missing = np.zeros(k - a, dtype=bool)
         missing[g0 - a : g1 - a] = True
-        sig = self.art.noise_level if self.noise_level is None else self.noise_level
         c = self.art.complete(u_log[a:k], y_log[a:k], missing, replace_known=self.smooth and sig > 0,
                               noise_level=sig)
         self.counts["filled"] += 1
-        out = self._checked(c)
-        return out if isinstance(out, str) else (out[0][-Ti:], out[1][-Ti:])
+        return self._checked(c)
 
     def _denoised(self, u_log: np.ndarray, y_log: np.ndarray, ph: np.ndarray, sig: float
                   ) -> tuple[np.ndarray, np.ndarray] | str:
@@ -135,16 +133,15 @@ class HoppingWindow:
                 self.counts["refit"] = self.counts.get("refit", 0) + 1
                 c = self.art.complete(u_log[a:k], y_log[a:k], np.zeros(k - a, dtype=bool), replace_known=True,
                                       noise_level=sig)
-        out = self._checked(c)
-        return out if isinstance(out, str) else (out[0][-Ti:], out[1][-Ti:])
+        return self._checked(c)
 
     def _checked(self, c) -> tuple[np.ndarray, np.ndarray] | str:
-        """The completed window, or "fill_<status>" when the fill is not a verified solution (a
-        clipped fill violates the data's dynamics: the predictor must not see it)."""
+        """The last ``t_ini`` samples of the completed window, or "fill_<status>" when the fill is not a
+        verified solution (a clipped fill violates the data's dynamics: the predictor must not see it)."""
         if c.status != "solved":
             self.counts["unverified"] = self.counts.get("unverified", 0) + 1
             return f"fill_{c.status}"
-        return c.u, c.y
+        return c.u[-self.t_ini :], c.y[-self.t_ini :]
 
 
 class _History:
