@@ -7,7 +7,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["percentiles"]
+__all__ = ["percentiles", "step_rms"]
 
 
 def percentiles(a: ArrayLike, qs: Sequence[float] = (50, 99)) -> dict[str, float | int | None]:
@@ -24,3 +24,23 @@ def percentiles(a: ArrayLike, qs: Sequence[float] = (50, 99)) -> dict[str, float
         return {**{k: None for k in keys}, "max": None, "n": 0}
     vals = np.percentile(x, list(qs))
     return {**{k: float(v) for k, v in zip(keys, vals)}, "max": float(x.max()), "n": int(x.size)}
+
+
+def step_rms(x: ArrayLike, mask: ArrayLike | None = None) -> list[float | None]:
+    """Per column of ``x`` (N, c): the rms of the tick-to-tick change x[k+1] - x[k] over the pairs
+    whose both ticks are in ``mask`` (N,) bool (default all), in x's units per tick.
+
+    Used on the steering offset u - r_nom: how much the steered reference jumps from one tick to
+    the next (a loop reacting to noise jitters it; a feed-forward table does not). None (JSON null)
+    for a column without any pair.
+    """
+    a = np.asarray(x, dtype=float)
+    a = a.reshape(a.shape[0], -1)
+    keep = np.ones(a.shape[0], bool) if mask is None else np.asarray(mask, dtype=bool).ravel()
+    if keep.shape[0] != a.shape[0]:
+        raise ValueError(f"mask has {keep.shape[0]} ticks, x has {a.shape[0]}")
+    pairs = keep[1:] & keep[:-1]
+    if not np.any(pairs):
+        return [None] * a.shape[1]
+    d = np.diff(a, axis=0)[pairs]
+    return [float(v) for v in np.sqrt(np.mean(d * d, axis=0))]

@@ -39,13 +39,16 @@ __all__ = ["LinkRun", "link_run", "link_metrics", "detection_delays", "replay_ph
 @dataclass
 class LinkRun:
     """A flight over the link in the shape the simulator's metrics read (:class:`ddpc_codegen.sim.metrics.RunLogs`):
-    truth rows from the first to the last engaged tick, each with that tick's desired outputs and phase."""
+    truth rows from the first to the last engaged tick, each with that tick's desired outputs, phase and
+    references (applied u, nominal r_nom; the vehicle's truth and the bridge tick in lock-step, one per row)."""
 
     t: np.ndarray
     state: np.ndarray
     y_true: np.ndarray
     y_des: np.ndarray
     phase: np.ndarray
+    u: np.ndarray
+    r_nom: np.ndarray
     touchdowns: np.ndarray
     liftoffs: np.ndarray
     config: object
@@ -91,7 +94,8 @@ def link_run(ticks_path: Path, truth_path: Path) -> LinkRun:
     cc = ControllerConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in log.metadata["controller"].items()})
     inside = lambda ev: np.asarray(ev)[(np.asarray(ev) >= t0) & (np.asarray(ev) <= t1)] - t0  # noqa: E731
     return LinkRun(t=tt[sel] - t0, state=st[sel], y_true=np.column_stack([st[sel, 2], eul[:, 0], eul[:, 1]]),
-                   y_des=tl["y_des"][rows], phase=tl["phase"][rows], touchdowns=inside(td), liftoffs=inside(lo),
+                   y_des=tl["y_des"][rows], phase=tl["phase"][rows], u=tl["u"][rows], r_nom=tl["r_nom"][rows],
+                   touchdowns=inside(td), liftoffs=inside(lo),
                    config=cc, params=PogoXParams(), scenario_obj=HoppingScenario(), dt=log.dt)
 
 

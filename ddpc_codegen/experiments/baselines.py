@@ -130,13 +130,16 @@ def _policy_run(policy: Any, sc: Any, duration: float, params: PogoXParams, push
 
 # ----------------------------------------------------------------------------- metrics
 def _metric(res: SimResult) -> dict[str, float]:
-    """Flying: rmse_z, rmse_pitch. Hopping: apex_error_mean_abs against each hop's own target, rmse_pitch."""
+    """Flying: rmse_z, rmse_pitch. Hopping: apex_error_mean_abs against each hop's own target, rmse_pitch,
+    vx_error_mean_abs. Both: offset_step_rms (the offset u - r_nom's tick-to-tick jitter, :func:`scenario_metrics`)."""
     if res.crashed:
         return {"crashed": True}
     m = scenario_metrics(res)
     if res.scenario == "flying":
-        return {"rmse_z": m["rmse_z"], "rmse_pitch": m["rmse_pitch"], "mean_z_error": m["mean_z_error"]}
-    out = {"apex_error_mean_abs": m["apex_error_mean_abs"], "rmse_pitch": m["rmse_pitch"], "vx_error_mean_abs": m["vx_error_mean_abs"]}
+        return {"rmse_z": m["rmse_z"], "rmse_pitch": m["rmse_pitch"], "mean_z_error": m["mean_z_error"],
+                "offset_step_rms": m["offset_step_rms"]}
+    out = {"apex_error_mean_abs": m["apex_error_mean_abs"], "rmse_pitch": m["rmse_pitch"],
+           "vx_error_mean_abs": m["vx_error_mean_abs"], "offset_step_rms": m["offset_step_rms"]}
     sc = res.scenario_obj
     if isinstance(sc, ScheduledHoppingScenario):
         out["apex_error_mean_abs"] = _scheduled_apex_error(res, sc.schedule, sc.settle_hops)
@@ -349,6 +352,12 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
     return out
 
 
+def _step_mm(metrics: dict[str, Any]) -> str:
+    """The z_ref offset's tick-to-tick rms [mm] of a method's run, "-" when not recorded."""
+    v = (metrics.get("offset_step_rms") or [None])[0]
+    return "-" if v is None else f"{v * 1e3:.2f}"
+
+
 def format_baselines(b: dict[str, Any]) -> str:
     """The baselines table: key metric per condition and method [mm], and the best of passthrough,
     the controller's own feed-forward, prefilter and ILC divided by DDPC's (> 1: steering is better)."""
@@ -384,5 +393,7 @@ def format_baselines(b: dict[str, Any]) -> str:
             for cname, row in blk["conditions"].items():
                 vx = [f"{mm} " + (f"{row[mm]['vx_error_mean_abs'] * 1e3:.1f}" if "vx_error_mean_abs" in row[mm] else "-")
                       for mm in METHODS if mm != "ctrl_ff"]
-                notes.append(f"mean |vx err| [mm/s] {sc}, {cname}: " + ", ".join(vx))
+                step = [f"{mm} " + _step_mm(row[mm]) for mm in METHODS if mm != "ctrl_ff"]
+                notes.append(f"mean |vx err| [mm/s] {sc}, {cname}: " + ", ".join(vx)
+                             + "; z_ref offset step rms [mm]: " + ", ".join(step))
     return "\n".join([line(head), sep] + [line(r) for r in rows] + notes)

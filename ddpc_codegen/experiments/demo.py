@@ -63,7 +63,8 @@ def summary_block(scenario: str, baseline: RunResult, steered: RunResult) -> dic
     """The stable per-scenario block of reports/summary.json (SI units, radians, µs)."""
     keys = ("rmse_z", "rmse_pitch") if scenario == "flying" else ("apex_error_mean_abs", "rmse_pitch", "vx_error_mean_abs")
     extra = ("rmse_x", "mean_z_error") if scenario == "flying" else ("rmse_z", "rmse_roll", "apex_error_mean_signed", "apex_error_max_abs", "n_hops")
-    pick = lambda m: {k: (int(m[k]) if k == "n_hops" and k in m else _num(m.get(k))) for k in keys + extra}  # noqa: E731
+    pick = lambda m: {**{k: (int(m[k]) if k == "n_hops" and k in m else _num(m.get(k))) for k in keys + extra},  # noqa: E731
+                      "offset_step_rms": [_num(v) for v in m.get("offset_step_rms") or []]}
     st = steered.steering or {}
     reasons = st.get("fallback_reasons", {})
     solver_failures = sum(v for k, v in reasons.items() if k.startswith(("solver_", "exception", "nonfinite_solution")))
@@ -128,9 +129,12 @@ def format_robustness(rob: dict[str, Any]) -> str:
             mets = (("RMSE z [mm]", "rmse_z", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3)) if sc == "flying" else (
                 ("mean |apex err| [mm]", "apex_error_mean_abs", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
                 ("mean |vx err| [mm/s]", "vx_error_mean_abs", 1e3))
+            mets += (("z_ref offset step rms [mm]", "offset_step_rms", 1e3),)
             for i, (label, key, sc_) in enumerate(mets):
                 b, s = r["baseline"].get(key), r["steered"].get(key)
-                ratio = f"{b / s:.1f}x" if b and s else "-"
+                if key == "offset_step_rms":  # the steered z_ref's tick-to-tick jitter (0 for the baseline)
+                    b, s = (b or [None])[0], (s or [None])[0]
+                ratio = f"{b / s:.1f}x" if b and s and key != "offset_step_rms" else "-"
                 rows.append((sc if i == 0 else "", cond if i == 0 else "", label, _fmt(b, sc_, 2), _fmt(s, sc_, 2), ratio,
                              str(r["fallbacks"]) if i == 0 else ""))
     return _grid(head, rows)
@@ -300,6 +304,8 @@ def _meta(interpreted: bool | str, wall: float) -> dict[str, Any]:
             "apex_error_mean_abs": "mean over scored hops of |apex height - target| (first 3 hops skipped)",
             "rmse_pitch, rmse_roll, rmse_z (hopping)": "true minus desired over the aerial phase of the scored hops",
             "vx_error_mean_abs": "mean over hops of |average vx touchdown-to-touchdown - target|",
+            "offset_step_rms": "per reference, rms of the tick-to-tick change of the steering offset u - r_nom "
+                               "(flying after the settle time, hopping over the scored aerial ticks)",
             "solve_us": "median / p99 of the wall time of the solver call in the loop (Python -> C and back); "
                         "solver_median / solver_p99 from the solver's own timer",
             "fallbacks": "ticks on which the nominal reference was sent instead (solver failure, bound or step guard)",

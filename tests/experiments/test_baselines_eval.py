@@ -50,6 +50,16 @@ def test_reuse_from_summary_and_table():
     row.update(ddpc={"rmse_z": 0.001}, ilc={"crashed": True}, ilc_learned_here=False)
     text = format_baselines({"flying": {"metric": "rmse_z", "conditions": {"push": row}}})
     assert "| flying   | push" in text and "crash*" in text and "4.0x" in text
+    # Hopping: the velocity each method leaves and how much its z_ref offset jumps per tick.
+    hop = {m: {"apex_error_mean_abs": 0.03, "vx_error_mean_abs": 0.004, "offset_step_rms": [0.0, 0.0, 0.0]}
+           for m in METHODS}
+    hop["ilc"]["offset_step_rms"] = [0.0002, 0.0, 0.0]
+    hop["ddpc"] = {"apex_error_mean_abs": 0.001, "vx_error_mean_abs": 0.0057, "offset_step_rms": [0.011, 0.0, 0.0]}
+    del hop["prefilter"]["offset_step_rms"]  # a summary written before the metric existed
+    hop["ilc_learned_here"] = False
+    text = format_baselines({"hopping": {"metric": "apex_error_mean_abs", "conditions": {"sensor noise": hop}}})
+    assert ("mean |vx err| [mm/s] hopping, sensor noise: passthrough 4.0, prefilter 4.0, ilc 4.0, ddpc 5.7; "
+            "z_ref offset step rms [mm]: passthrough 0.00, prefilter -, ilc 0.20, ddpc 11.00") in text
 
 
 @pytest.mark.slow

@@ -95,7 +95,14 @@ def test_summary_block_is_the_stable_json_schema(flying_runs):
     table = format_table({"flying": blk})
     assert "flying" in table and "steered" in table
     rob = format_robustness({"flying": {"noise": {k: blk[k] for k in ("baseline", "steered", "fallbacks")}}})
-    assert "RMSE z" in rob
+    assert "RMSE z" in rob and "z_ref offset step rms" in rob
+    # The steering offset's tick-to-tick jitter: none without steering; with it, the definition on the run's arrays.
+    assert blk["baseline"]["offset_step_rms"] == [0.0, 0.0]
+    r = steered.sim
+    keep = r.t >= 3.0  # the flying scenario's settle time
+    d = np.diff(r.u - r.r_nom, axis=0)[keep[1:] & keep[:-1]]
+    np.testing.assert_allclose(blk["steered"]["offset_step_rms"], np.sqrt(np.mean(d**2, axis=0)), rtol=1e-12)
+    assert blk["steered"]["offset_step_rms"][0] > 0.0
 
 
 def test_cli_has_demo_and_evaluate():

@@ -96,6 +96,8 @@ def test_steering_lowers_the_apex_error_over_the_link(hops):
     assert not b["crashed"] and not s["crashed"] and s["n_hops"] >= 6
     assert b["apex_error_mean_abs"] > 0.015  # the 200 g model error: hops ~2.5 cm low
     assert s["apex_error_mean_abs"] * 3 <= b["apex_error_mean_abs"], (b, s)
+    # the steering offset from the tick log: none in passthrough, a z_ref offset that moves when steered
+    assert b["offset_step_rms"] == [0.0, 0.0, 0.0] and 0.0 < s["offset_step_rms"][0] < 0.025  # du_max: 25 mm/tick
     sm = hops.steer["summary"]
     assert sm["fallbacks"] == 0 and sm["steering"]["steered"] > 0.5 * FLIGHT / 0.005
     assert sm["reasons"]["ground"] > 0 and sm["hopping"]["contact_source"] == "signal"
