@@ -22,10 +22,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from ddpc_codegen.errors import ConfigError, DDPCError
 from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, say
+from ddpc_codegen.experiments.demo_figures import demo_figures
 from ddpc_codegen.experiments.evaluate import RunResult, prediction_check, run
 from ddpc_codegen.sim import PogoXParams, Push
 
@@ -140,69 +140,6 @@ def format_robustness(rob: dict[str, Any]) -> str:
     return _grid(head, rows)
 
 
-# ----------------------------------------------------------------------------- figures
-def _figures(out: Path, runs: dict[str, tuple[RunResult, RunResult]]) -> list[str]:
-    from ddpc_codegen.sim.plots import _mpl, plot_result, save_figure
-
-    written = []
-    labels = ["without steering", "with steering"]
-    if "flying" in runs:
-        b, s = runs["flying"]
-        written.append(str(save_figure(plot_result([b.sim, s.sim], labels), out / "flying.png")))
-    if "hopping" in runs:
-        b, s = runs["hopping"]
-        t1 = float(s.sim.t[-1])
-        written.append(str(save_figure(_hopping_figure(b.sim, s.sim, labels, (max(0.0, t1 - 4.0), t1)),
-                                       out / "hopping.png")))
-        plt = _mpl()
-        fig, ax = plt.subplots(figsize=(7, 3.2))
-        target = s.sim.config.apex_height
-        from ddpc_codegen.sim.metrics import hop_apexes
-
-        for r, lab, c in ((b, labels[0], "tab:green"), (s, labels[1], "tab:blue")):
-            ta, za = hop_apexes(r.sim)
-            ax.plot(ta, (za - target) * 1e3, "o-", color=c, ms=3, lw=1, label=lab)
-        ax.axhline(0.0, color="k", ls="--", lw=1, label="target apex")
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("apex - target [mm]")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8)
-        ax.set_title("hopping: apex height error per hop")
-        fig.tight_layout()
-        written.append(str(save_figure(fig, out / "hopping_apex.png")))
-    return written
-
-
-def _hopping_figure(base, steered, labels, t_range):
-    """z, roll, pitch vs time; each run against its *own* desired outputs (the hop timing of the
-    two runs differs, so one shared desired curve would mislead). Ground phases shaded."""
-    from ddpc_codegen.design.phases import GROUND
-    from ddpc_codegen.sim.plots import _mpl
-
-    plt = _mpl()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7.2), sharex=True)
-    scale, units = (1.0, 180 / np.pi, 180 / np.pi), ("m", "deg", "deg")
-    g = steered.phase == GROUND
-    edges = np.flatnonzero(np.diff(np.r_[0, g.astype(int), 0]))
-    for j, ax in enumerate(axes):
-        for a, b_ in zip(edges[0::2], edges[1::2]):
-            ax.axvspan(steered.t[a], steered.t[min(b_, steered.n - 1)], color="0.9", lw=0)
-        for r, lab, c in ((base, labels[0], "tab:green"), (steered, labels[1], "tab:blue")):
-            air = np.where(r.phase != GROUND, r.y_des[:, j], np.nan)  # desired is defined in the air
-            ax.plot(r.t, air * scale[j], "--", color=c, lw=0.9, alpha=0.8, label=f"desired ({lab})")
-            if r is steered:
-                ax.plot(r.t, r.u[:, j] * scale[j], ":", color=c, lw=1.0, label=f"reference u ({lab})")
-            ax.plot(r.t, r.y_true[:, j] * scale[j], "-", color=c, lw=1.3, label=f"realized ({lab})")
-        ax.set_ylabel(f"{steered.output_names[j]} [{units[j]}]")
-        ax.grid(True, alpha=0.3)
-        ax.set_xlim(*t_range)
-    axes[0].legend(loc="upper right", fontsize=7, ncol=2)
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("hopping: without (green) and with (blue) reference steering; grey = ground phase (steered run)")
-    fig.tight_layout()
-    return fig
-
-
 # ----------------------------------------------------------------------------- the job
 def run_demo(
     out_dir: str | Path = "reports",
@@ -251,8 +188,9 @@ def run_demo(
             block["setup"]["artificial_io_online"] = steered.steering.get("artificial_io") if steered.steering else None
         block["duration_s"] = dur
         summary[sc] = block
+    noisy: dict[str, RunResult] = {}  # the robustness runs' steered "sensor noise" run (a figure)
     if robustness:
-        summary["robustness"] = _robustness(setups, scenarios, durations, interpreted, quiet)
+        summary["robustness"] = _robustness(setups, scenarios, durations, interpreted, quiet, noisy)
     if baselines:
         # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines.py);
         # the runs above that are the same simulations are reused, not repeated.
@@ -266,14 +204,15 @@ def run_demo(
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=False) + "\n")
     if figures:
         summary["meta"]["figures"] = [str(Path(f).relative_to(ROOT)) if Path(f).is_relative_to(ROOT) else f
-                                      for f in _figures(out, runs)]
+                                      for f in demo_figures(out, runs, noisy)]
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
 def _robustness(setups: dict[str, SteeringSetup], scenarios: tuple[str, ...], durations: dict[str, float],
-                interpreted: bool | str, quiet: bool) -> dict[str, Any]:
-    """Baseline vs steered under each robustness condition (same seed); errors reported, not raised."""
+                interpreted: bool | str, quiet: bool, noisy: dict[str, RunResult] | None = None) -> dict[str, Any]:
+    """Baseline vs steered under each robustness condition (same seed); errors reported, not raised.
+    ``noisy`` (if given) receives each scenario's steered "sensor noise" run."""
     rob: dict[str, Any] = {}
     for sc in scenarios:
         rob[sc] = {}
@@ -287,6 +226,8 @@ def _robustness(setups: dict[str, SteeringSetup], scenarios: tuple[str, ...], du
                 continue
             blk = summary_block(sc, b, s)
             rob[sc][cond] = {k: blk[k] for k in ("baseline", "steered", "fallbacks", "fallback_reasons", "crashed")}
+            if noisy is not None and cond == "sensor noise":
+                noisy[sc] = s
     return rob
 
 
