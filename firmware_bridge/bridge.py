@@ -396,8 +396,13 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         if engaged and fresh and self.approach is not None:
             ref["reason"] = "takeoff"
             if self.approach.done:
-                self.approach = None
-                self._event("at the trajectory's start height: trajectory starts")
+                ap, self.approach = self.approach, None
+                if ap.timed_out:  # say so: the steering then starts against that error
+                    self._event(f"WARNING: did not hold the start height within {ap.tolerance:g} m for {ap.hold:g} s "
+                                f"in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle or its "
+                                "height estimate did not settle): trajectory starts anyway")
+                else:
+                    self._event("at the trajectory's start height: trajectory starts")
             return ref
         if not hb_ok:
             ref["reason"] = "no_heartbeat"

@@ -75,7 +75,9 @@ class Approach:
         target: start height of the trajectory [m, from the take-off point].
         climb_rate: ramp rate [m/s]; tolerance: |z - target| counted as there [m];
         hold: seconds within tolerance before the trajectory starts; max_extra: give up waiting
-            this long after the ramp ended [s] (the trajectory starts anyway).
+            this long after the ramp ended [s] (the trajectory starts anyway, and ``timed_out`` says
+            so with ``last_error``, the height error [m] of the last tick: the vehicle, or its height
+            estimate, did not settle).
     """
 
     target: float
@@ -87,6 +89,8 @@ class Approach:
     t_ramp_end: float = math.nan
     t_in: float = math.nan
     done: bool = False
+    timed_out: bool = False
+    last_error: float = math.nan
 
     def start(self, z: float) -> None:
         """Begin at the measured height z [m]."""
@@ -103,8 +107,10 @@ class Approach:
                 self.t_in = t if not math.isfinite(self.t_in) else self.t_in
             else:
                 self.t_in = math.nan
-            self.done = (math.isfinite(self.t_in) and t - self.t_in >= self.hold) or \
-                t - self.t_ramp_end >= self.max_extra
+            held = math.isfinite(self.t_in) and t - self.t_in >= self.hold
+            self.timed_out = not held and t - self.t_ramp_end >= self.max_extra
+            self.done = held or self.timed_out
+        self.last_error = float(z) - self.target
         return self.z_ref
 
 

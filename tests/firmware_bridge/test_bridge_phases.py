@@ -63,12 +63,14 @@ def test_takeoff_ramp_is_rate_limited_and_waits_for_the_vehicle():
         ap.step(k * dt, dt, 0.88)
     assert not ap.done
     ap.step((k0 + 201) * dt, dt, 0.88)
-    assert ap.done                                      # held within 5 cm for 1 s
+    assert ap.done and not ap.timed_out                 # held within 5 cm for 1 s
     late = Approach(target=0.9, max_extra=1.0)
     late.start(0.9)
     late.step(0.0, dt, 0.5)
-    late.step(1.0, dt, 0.5)
-    assert late.done                                    # gives up waiting: the trajectory starts anyway
+    assert not late.done and not late.timed_out
+    late.step(1.0, dt, 1.15)
+    assert late.done and late.timed_out                 # gives up waiting: the trajectory starts anyway,
+    assert late.last_error == pytest.approx(0.25)       # and says how far off the vehicle was
 
 
 def test_blend_starts_at_the_measurement_and_hands_over_exactly():
