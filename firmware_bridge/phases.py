@@ -88,9 +88,14 @@ class Approach:
     z_ref: float = math.nan
     t_ramp_end: float = math.nan
     t_in: float = math.nan
-    done: bool = False
+    held: bool = False
     timed_out: bool = False
     last_error: float = math.nan
+
+    @property
+    def done(self) -> bool:
+        """The trajectory may start: the start height was held, or the wait timed out."""
+        return self.held or self.timed_out
 
     def start(self, z: float) -> None:
         """Begin at the measured height z [m]."""
@@ -107,9 +112,8 @@ class Approach:
                 self.t_in = t if not math.isfinite(self.t_in) else self.t_in
             else:
                 self.t_in = math.nan
-            held = math.isfinite(self.t_in) and t - self.t_in >= self.hold
-            self.timed_out = not held and t - self.t_ramp_end >= self.max_extra
-            self.done = held or self.timed_out
+            self.held = math.isfinite(self.t_in) and t - self.t_in >= self.hold
+            self.timed_out = not self.held and t - self.t_ramp_end >= self.max_extra
         self.last_error = float(z) - self.target
         return self.z_ref
 

@@ -35,7 +35,7 @@ from ddpc_codegen.design.baselines import (ILC_CUTOFF_HZ, PrefilterModel, error_
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.design.hopping_data import split_hopping
 from ddpc_codegen.experiments.pipeline import ROOT, SteeringSetup
-from ddpc_codegen.experiments.evaluate import RunResult, run, scenario_metrics
+from ddpc_codegen.experiments.evaluate import RunResult, offset_step, run, scenario_metrics
 from ddpc_codegen.robot.hop_targets import ApexSchedule, ScheduledHoppingController
 from ddpc_codegen.robot.trajectory import RandomSmoothTrajectory
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
@@ -352,12 +352,6 @@ def evaluate_baselines(setups: dict[str, SteeringSetup], *, durations: dict[str,
     return out
 
 
-def _step_mm(metrics: dict[str, Any]) -> str:
-    """The z_ref offset's tick-to-tick rms [mm] of a method's run, "-" when not recorded."""
-    v = (metrics.get("offset_step_rms") or [None])[0]
-    return "-" if v is None else f"{v * 1e3:.2f}"
-
-
 def format_baselines(b: dict[str, Any]) -> str:
     """The baselines table: key metric per condition and method [mm], and the best of passthrough,
     the controller's own feed-forward, prefilter and ILC divided by DDPC's (> 1: steering is better)."""
@@ -393,7 +387,8 @@ def format_baselines(b: dict[str, Any]) -> str:
             for cname, row in blk["conditions"].items():
                 vx = [f"{mm} " + (f"{row[mm]['vx_error_mean_abs'] * 1e3:.1f}" if "vx_error_mean_abs" in row[mm] else "-")
                       for mm in METHODS if mm != "ctrl_ff"]
-                step = [f"{mm} " + _step_mm(row[mm]) for mm in METHODS if mm != "ctrl_ff"]
+                step = [f"{mm} " + ("-" if (v := offset_step(row[mm])) is None else f"{v * 1e3:.2f}")
+                        for mm in METHODS if mm != "ctrl_ff"]
                 notes.append(f"mean |vx err| [mm/s] {sc}, {cname}: " + ", ".join(vx)
                              + "; z_ref offset step rms [mm]: " + ", ".join(step))
     return "\n".join([line(head), sep] + [line(r) for r in rows] + notes)

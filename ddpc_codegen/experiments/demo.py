@@ -22,11 +22,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-
 from ddpc_codegen.errors import ConfigError, DDPCError
-from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, say
 from ddpc_codegen.experiments.demo_figures import demo_figures
-from ddpc_codegen.experiments.evaluate import RunResult, prediction_check, run
+from ddpc_codegen.experiments.evaluate import RunResult, offset_step, prediction_check, run
+from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, say
 from ddpc_codegen.sim import PogoXParams, Push
 
 __all__ = ["run_demo", "format_table", "summary_block", "main", "register", "DURATIONS", "ROBUSTNESS"]
@@ -129,12 +128,11 @@ def format_robustness(rob: dict[str, Any]) -> str:
             mets = (("RMSE z [mm]", "rmse_z", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3)) if sc == "flying" else (
                 ("mean |apex err| [mm]", "apex_error_mean_abs", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
                 ("mean |vx err| [mm/s]", "vx_error_mean_abs", 1e3))
-            mets += (("z_ref offset step rms [mm]", "offset_step_rms", 1e3),)
+            mets += (("z_ref offset step rms [mm]", offset_step, 1e3),)  # 0 without steering: no ratio
             for i, (label, key, sc_) in enumerate(mets):
-                b, s = r["baseline"].get(key), r["steered"].get(key)
-                if key == "offset_step_rms":  # the steered z_ref's tick-to-tick jitter (0 for the baseline)
-                    b, s = (b or [None])[0], (s or [None])[0]
-                ratio = f"{b / s:.1f}x" if b and s and key != "offset_step_rms" else "-"
+                get = key if callable(key) else (lambda m, k=key: m.get(k))
+                b, s = get(r["baseline"]), get(r["steered"])
+                ratio = f"{b / s:.1f}x" if b and s else "-"
                 rows.append((sc if i == 0 else "", cond if i == 0 else "", label, _fmt(b, sc_, 2), _fmt(s, sc_, 2), ratio,
                              str(r["fallbacks"]) if i == 0 else ""))
     return _grid(head, rows)

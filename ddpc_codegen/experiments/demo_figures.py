@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.experiments.evaluate import RunResult
+from ddpc_codegen.experiments.evaluate import RunResult, offset_step
 
 __all__ = ["demo_figures"]
 
@@ -79,8 +79,6 @@ def _hopping_figure(base, steered, labels, t_range):
     return fig
 
 
-
-
 def _jitter_figure(clean: RunResult, noisy: RunResult, seconds: float = 2.5):
     """The steering offset u - r_nom on z_ref and the thrust it commands, the last ``seconds`` of the
     noise-free and the noisy steered hopping run (each with its own hop timing; ground phases of the
@@ -96,7 +94,7 @@ def _jitter_figure(clean: RunResult, noisy: RunResult, seconds: float = 2.5):
         keep = r.t >= r.t[-1] - seconds
         t = r.t[keep] - r.t[-1] + seconds
         off = np.where(r.phase != GROUND, r.u[:, 0] - r.r_nom[:, 0], np.nan)[keep]
-        jit = (run.metrics.get("offset_step_rms") or [None])[0]
+        jit = offset_step(run.metrics)
         txt = "" if jit is None else f" (step rms {jit * 1e3:.1f} mm)"
         axes[0].plot(t, off * 1e3, "-", color=c, lw=1.0, label=lab + txt)
         axes[1].plot(t, r.setpoint_thrust[keep], "-", color=c, lw=1.0, label=lab)

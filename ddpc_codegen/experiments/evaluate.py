@@ -23,7 +23,8 @@ from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, TickCont
 from ddpc_codegen.sim.scenarios import HoppingScenario, Scenario
 from ddpc_codegen.stats import percentiles, step_rms
 
-__all__ = ["InterpretedSolver", "SteeringHook", "RunResult", "run", "scenario_metrics", "prediction_check"]
+__all__ = ["InterpretedSolver", "SteeringHook", "RunResult", "run", "scenario_metrics", "offset_step",
+           "prediction_check"]
 
 
 # ----------------------------------------------------------------------------- solvers and hook
@@ -137,6 +138,13 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
         n_hops=int(m["n_hops_scored"]),
     )
     return out
+
+
+def offset_step(metrics: dict[str, Any], channel: int = 0) -> float | None:
+    """``offset_step_rms`` of one reference (default 0, z_ref) from a metrics dict (scenario_metrics,
+    a summary block); None when not recorded (e.g. a summary written before the metric existed)."""
+    v = metrics.get("offset_step_rms") or []
+    return v[channel] if channel < len(v) else None
 
 
 def _g_eff(res_params: PogoXParams) -> float:
