@@ -168,6 +168,11 @@ def _bridge_autopilot_args(g) -> None:
                    help="at the first engagement ramp the height reference from where the vehicle is to the "
                         "trajectory's start height (heights count from the take-off point), then fly the trajectory")
     g.add_argument("--climb-rate", type=float, default=_D["climb_rate"], help="--takeoff ramp rate [m/s] (default 0.5)")
+    g.add_argument("--approach-tolerance", type=float, default=_D["approach_tolerance"],
+                   help="--takeoff: the trajectory starts once the height held within this of its start for 1 s "
+                        "[m] (default 0.1)")
+    g.add_argument("--approach-timeout", type=float, default=_D["approach_timeout"],
+                   help="--takeoff: ... or, with a warning, this many seconds after the ramp (default 5)")
     g.add_argument("--land", action="store_true",
                    help="at exit hand back with LAND and wait for the vehicle to disarm (default: HOLD)")
     g.add_argument("--blend-rates", type=_floats_or_none, default=",".join(map(str, _D["blend_rates"])), metavar="Z,PITCH|none",
@@ -285,6 +290,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
         thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), max_gap_fill=a.max_gap_fill,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
+        approach_timeout=a.approach_timeout, approach_tolerance=a.approach_tolerance,
         land=a.land, blend_rates=a.blend_rates,
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,

@@ -135,7 +135,7 @@ class Reporting:
             **self.counts,
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
             "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
-            "events": self.events,
+            "events": self.events, "approach": self.approach_result,
         }
         if self.hop is not None:
             out["hopping"] = self.hop.summary()

@@ -212,7 +212,8 @@ class Supervisor:
                 if self.hop is not None:
                     self.hop.release(state)
                 if c.takeoff:
-                    self.approach = Approach(self.ctrl.trajectory.start_point()[1], climb_rate=c.climb_rate)
+                    self.approach = Approach(self.ctrl.trajectory.start_point()[1], climb_rate=c.climb_rate,
+                                             tolerance=c.approach_tolerance, max_extra=c.approach_timeout)
                     self.approach.start(float(state.position[2]))
                 self._event(f"engaged ({self.mode_name}, armed): "
                             + (f"take-off to z = {self.approach.target:.2f} m at {c.climb_rate:g} m/s, then "

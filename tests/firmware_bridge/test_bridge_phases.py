@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
+from firmware_bridge.config import BridgeConfig
 from firmware_bridge.link import mavlink
 from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
 from firmware_bridge.preflight import PreflightError, check_autopilot, decode_param_value, resolve_guid_options
@@ -127,6 +128,40 @@ def test_a_disarmed_vehicle_left_in_offboard_gets_idle_thrust_until_it_reports_a
 
     t = load_ticklog(tmp_path / "t.npz").ticks
     assert np.all(t["sp_thrust"][~t["armed"].astype(bool)] == 0.0)
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("z", [0.5, 0.9])
+def test_the_approach_holds_or_times_out_as_configured_and_says_so(tmp_path, z):
+    # The fake vehicle does not move. At 0.5 m the take-off ramp ends at 0.9 m, the height never
+    # holds, and after --approach-timeout the trajectory starts with a warning; at 0.9 m it holds for
+    # 1 s. The summary says how the approach ended.
+    pr = Procs(tmp_path)
+    port = free_port()
+    veh = FakeVehicle(port, z=z)
+    try:
+        veh.start()
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--takeoff", "--approach-timeout",
+                      "1.5", "--duration", "5", "--summary", str(tmp_path / "s.json"), "--timeout", "30", "--verbose",
+                      name="bridge")
+        rc = pr.wait(br, 60)
+        out = pr.log(br)
+    finally:
+        veh.close()
+        pr.cleanup()
+    assert rc == 0, out
+    ap = read_json(tmp_path / "s.json")["approach"]
+    assert ap["timeout_s"] == 1.5 and ap["target_m"] == pytest.approx(0.9)
+    assert ap["error_at_start_m"] == pytest.approx(z - 0.9, abs=1e-6)
+    if z == 0.5:
+        assert ap["held"] is False and ap["waited_s"] == pytest.approx(1.5, abs=0.011)   # to a tick or two
+        assert "WARNING: did not hold the start height within 0.1 m for 1 s in 1.5 s (height error now -0.400 m" in out
+    else:
+        assert ap["held"] is True and ap["waited_s"] == pytest.approx(1.0, abs=0.011)
+        assert "at the trajectory's start height: trajectory starts" in out and "WARNING" not in out
+    for key in ("approach_timeout", "approach_tolerance"):
+        with pytest.raises(ValueError, match=f"{key} must be positive; got nan"):
+            BridgeConfig(mode="passthrough", takeoff=True, **{key: float("nan")})
 
 
 @pytest.mark.e2e
