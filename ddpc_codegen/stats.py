@@ -7,7 +7,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["percentiles", "step_rms"]
+__all__ = ["percentiles", "step_rms", "limit_share"]
 
 
 def percentiles(a: ArrayLike, qs: Sequence[float] = (50, 99)) -> dict[str, float | int | None]:
@@ -44,3 +44,20 @@ def step_rms(x: ArrayLike, mask: ArrayLike | None = None) -> list[float | None]:
         return [None] * a.shape[1]
     d = np.diff(a, axis=0)[pairs]
     return [float(v) for v in np.sqrt(np.mean(d * d, axis=0))]
+
+
+def limit_share(x: ArrayLike, lo: float, hi: float, mask: ArrayLike | None = None, tol: float = 1e-6) -> float | None:
+    """The fraction of the samples of ``x`` (N,) in ``mask`` (N,) bool (default all) that sit at a
+    limit: x <= lo + tol or x >= hi - tol. None (JSON null) without any sample.
+
+    Used on the controller's normalized thrust setpoint (limits 0 and 1): a clamped thrust is where the
+    closed loop stops being the linear one the data describe, and at 0 the rotors lose attitude authority.
+    """
+    a = np.asarray(x, dtype=float).ravel()
+    keep = np.ones(a.shape[0], bool) if mask is None else np.asarray(mask, dtype=bool).ravel()
+    if keep.shape[0] != a.shape[0]:
+        raise ValueError(f"mask has {keep.shape[0]} samples, x has {a.shape[0]}")
+    v = a[keep]
+    if v.size == 0:
+        return None
+    return float(np.mean((v <= lo + tol) | (v >= hi - tol)))

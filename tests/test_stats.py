@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ddpc_codegen.stats import percentiles, step_rms
+from ddpc_codegen.stats import limit_share, percentiles, step_rms
 
 
 def test_percentiles_keys_values_and_empty_input():
@@ -46,3 +46,26 @@ def test_step_rms_equals_the_pairwise_definition(x, data):
             assert got[j] is None
         else:
             assert got[j] == pytest.approx(math.sqrt(sum(v * v for v in d) / len(d)), rel=1e-12, abs=1e-12)
+
+
+def test_limit_share_counts_clamped_samples_in_the_mask():
+    thrust = np.array([0.0, 0.5, 1.0, 0.9999999, 1e-7, 0.3])
+    assert limit_share(thrust, 0.0, 1.0) == pytest.approx(4 / 6)        # within 1e-6 of a limit counts
+    assert limit_share(thrust, 0.0, 1.0, tol=0.0) == pytest.approx(2 / 6)
+    keep = np.array([False, True, True, False, False, True])
+    assert limit_share(thrust, 0.0, 1.0, keep) == pytest.approx(1 / 3)
+    assert limit_share(thrust, 0.0, 1.0, np.zeros(6, bool)) is None        # nothing scored: null, not 0
+    with pytest.raises(ValueError, match="mask has 5 samples, x has 6"):
+        limit_share(thrust, 0.0, 1.0, np.ones(5, bool))
+
+
+@given(arrays(np.float64, st.integers(1, 40), elements=st.floats(-0.5, 1.5)), st.data())
+@settings(max_examples=60, deadline=None)
+def test_limit_share_equals_counting_by_hand(x, data):
+    keep = data.draw(arrays(np.bool_, x.shape[0]))
+    got = limit_share(x, 0.0, 1.0, keep)
+    picked = [v for v, k in zip(x, keep) if k]
+    if not picked:
+        assert got is None
+    else:
+        assert got == pytest.approx(sum(v <= 1e-6 or v >= 1 - 1e-6 for v in picked) / len(picked))

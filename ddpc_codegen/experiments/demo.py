@@ -63,7 +63,8 @@ def summary_block(scenario: str, baseline: RunResult, steered: RunResult) -> dic
     keys = ("rmse_z", "rmse_pitch") if scenario == "flying" else ("apex_error_mean_abs", "rmse_pitch", "vx_error_mean_abs")
     extra = ("rmse_x", "mean_z_error") if scenario == "flying" else ("rmse_z", "rmse_roll", "apex_error_mean_signed", "apex_error_max_abs", "n_hops")
     pick = lambda m: {**{k: (int(m[k]) if k == "n_hops" and k in m else _num(m.get(k))) for k in keys + extra},  # noqa: E731
-                      "offset_step_rms": [_num(v) for v in m.get("offset_step_rms") or []]}
+                      "offset_step_rms": [_num(v) for v in m.get("offset_step_rms") or []],
+                      "thrust_limit_share": _num(m.get("thrust_limit_share"))}
     st = steered.steering or {}
     reasons = st.get("fallback_reasons", {})
     solver_failures = sum(v for k, v in reasons.items() if k.startswith(("solver_", "exception", "nonfinite_solution")))
@@ -128,7 +129,8 @@ def format_robustness(rob: dict[str, Any]) -> str:
             mets = (("RMSE z [mm]", "rmse_z", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3)) if sc == "flying" else (
                 ("mean |apex err| [mm]", "apex_error_mean_abs", 1e3), ("RMSE pitch [mrad]", "rmse_pitch", 1e3),
                 ("mean |vx err| [mm/s]", "vx_error_mean_abs", 1e3))
-            mets += (("z_ref offset step rms [mm]", offset_step, 1e3),)  # 0 without steering: no ratio
+            mets += (("z_ref offset step rms [mm]", offset_step, 1e3),  # 0 without steering: no ratio
+                     ("thrust at 0 or 1 [% of ticks]", "thrust_limit_share", 1e2))
             for i, (label, key, sc_) in enumerate(mets):
                 get = key if callable(key) else (lambda m, k=key: m.get(k))
                 b, s = get(r["baseline"]), get(r["steered"])
@@ -245,6 +247,8 @@ def _meta(interpreted: bool | str, wall: float) -> dict[str, Any]:
             "vx_error_mean_abs": "mean over hops of |average vx touchdown-to-touchdown - target|",
             "offset_step_rms": "per reference, rms of the tick-to-tick change of the steering offset u - r_nom "
                                "(flying after the settle time, hopping over the scored aerial ticks)",
+            "thrust_limit_share": "fraction of the same ticks on which the controller's normalized thrust setpoint is "
+                                  "clamped at 0 or 1",
             "solve_us": "median / p99 of the wall time of the solver call in the loop (Python -> C and back); "
                         "solver_median / solver_p99 from the solver's own timer",
             "fallbacks": "ticks on which the nominal reference was sent instead (solver failure, bound or step guard)",

@@ -21,7 +21,7 @@ from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
 from ddpc_codegen.sim.scenarios import HoppingScenario, Scenario
-from ddpc_codegen.stats import percentiles, step_rms
+from ddpc_codegen.stats import limit_share, percentiles, step_rms
 
 __all__ = ["InterpretedSolver", "SteeringHook", "RunResult", "run", "scenario_metrics", "offset_step",
            "prediction_check"]
@@ -107,18 +107,23 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
     vx_error_mean_abs = mean |per-hop average vx - target| [m/s] (touchdown to touchdown).
     Both: offset_step_rms = per reference, the rms tick-to-tick change of the steering offset u - r_nom
     (reference units per tick; flying after the settle time, hopping over the aerial ticks after the
-    settle hops; 0 when nothing steers).
+    settle hops; 0 when nothing steers); thrust_limit_share = the fraction of those ticks on which the
+    controller's normalized thrust setpoint is clamped at 0 or 1.
     """
     m = res.metrics()
     out: dict[str, Any] = {"crashed": bool(res.crashed), "duration": m["duration"]}
     if res.scenario == "flying":
         out.update(rmse_z=m["rmse_z"], rmse_pitch=m["rmse_pitch"], rmse_x=m.get("rmse_x", float("nan")),
                    mean_z_error=m["mean_z_error"])
-        out["offset_step_rms"] = step_rms(res.u - res.r_nom, res.t >= getattr(res.scenario_obj, "settle_time", 0.0))
+        scored = res.t >= getattr(res.scenario_obj, "settle_time", 0.0)
+    else:
+        settle = int(getattr(res.scenario_obj, "settle_hops", 0))
+        t_scored = res.touchdowns[settle] if len(res.touchdowns) > settle else np.inf
+        scored = (res.phase != GROUND) & (res.t >= t_scored)
+    out["offset_step_rms"] = step_rms(res.u - res.r_nom, scored)
+    out["thrust_limit_share"] = limit_share(res.setpoint_thrust, 0.0, 1.0, scored)
+    if res.scenario == "flying":
         return out
-    settle = int(getattr(res.scenario_obj, "settle_hops", 0))
-    t_scored = res.touchdowns[settle] if len(res.touchdowns) > settle else np.inf
-    out["offset_step_rms"] = step_rms(res.u - res.r_nom, (res.phase != GROUND) & (res.t >= t_scored))
     ap = np.asarray(m["apex_errors"][settle:], dtype=float)
     td = res.touchdowns
     vx = []

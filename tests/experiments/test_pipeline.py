@@ -95,7 +95,7 @@ def test_summary_block_is_the_stable_json_schema(flying_runs):
     table = format_table({"flying": blk})
     assert "flying" in table and "steered" in table
     rob = format_robustness({"flying": {"noise": {k: blk[k] for k in ("baseline", "steered", "fallbacks")}}})
-    assert "RMSE z" in rob and "z_ref offset step rms" in rob
+    assert "RMSE z" in rob and "z_ref offset step rms" in rob and "thrust at 0 or 1 [% of ticks]" in rob
     # The steering offset's tick-to-tick jitter: none without steering; with it, the definition on the run's arrays.
     assert blk["baseline"]["offset_step_rms"] == [0.0, 0.0]
     r = steered.sim
@@ -103,6 +103,10 @@ def test_summary_block_is_the_stable_json_schema(flying_runs):
     d = np.diff(r.u - r.r_nom, axis=0)[keep[1:] & keep[:-1]]
     np.testing.assert_allclose(blk["steered"]["offset_step_rms"], np.sqrt(np.mean(d**2, axis=0)), rtol=1e-12)
     assert blk["steered"]["offset_step_rms"][0] > 0.0
+    # The clamped-thrust share over the same ticks, from the run's thrust setpoints.
+    for rr, key in ((base, "baseline"), (steered, "steered")):
+        th = rr.sim.setpoint_thrust[rr.sim.t >= 3.0]
+        assert blk[key]["thrust_limit_share"] == pytest.approx(np.mean((th <= 1e-6) | (th >= 1 - 1e-6)), abs=1e-15)
 
 
 def test_cli_has_demo_and_evaluate():
