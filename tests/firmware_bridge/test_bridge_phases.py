@@ -84,20 +84,24 @@ def test_blend_starts_at_the_measurement_and_hands_over_exactly():
     assert np.array_equal(out[-1], [1.0, 0.1]) and not b.active
 
 
-@pytest.mark.e2e
-def test_wrong_autopilot_is_refused_before_any_command(tmp_path):
+def _fly_against(tmp_path, veh: FakeVehicle, port: int, *args: str) -> tuple[int, str]:
+    """Start the fake vehicle, run one bridge on ``port`` with ``args`` until it exits; (exit code, output)."""
     pr = Procs(tmp_path)
-    port = free_port()
-    veh = FakeVehicle(port)  # PX4 heartbeat
     try:
         veh.start()
-        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--autopilot", "ardupilot", "--mode", "passthrough",
-                      "--offboard", "--arm", "--timeout", "30", name="bridge")
-        rc = pr.wait(br, 60)
-        out = pr.log(br)
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", *args, name="bridge")
+        return pr.wait(br, 60), pr.log(br)
     finally:
         veh.close()
         pr.cleanup()
+
+
+@pytest.mark.e2e
+def test_wrong_autopilot_is_refused_before_any_command(tmp_path):
+    port = free_port()
+    veh = FakeVehicle(port)  # PX4 heartbeat
+    rc, out = _fly_against(tmp_path, veh, port, "--autopilot", "ardupilot", "--mode", "passthrough", "--offboard", "--arm",
+                           "--timeout", "30")
     assert rc == 4, out
     assert "heartbeat says PX4 (autopilot 12) but the bridge is set for ardupilot" in out
     assert veh.commands == [] and veh.setpoints == []
@@ -136,19 +140,10 @@ def test_the_approach_holds_or_times_out_as_configured_and_says_so(tmp_path, z):
     # The fake vehicle does not move. At 0.5 m the take-off ramp ends at 0.9 m, the height never
     # holds, and after --approach-timeout the trajectory starts with a warning; at 0.9 m it holds for
     # 1 s. The summary says how the approach ended.
-    pr = Procs(tmp_path)
     port = free_port()
     veh = FakeVehicle(port, z=z)
-    try:
-        veh.start()
-        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--takeoff", "--approach-timeout",
-                      "1.5", "--duration", "5", "--summary", str(tmp_path / "s.json"), "--timeout", "30", "--verbose",
-                      name="bridge")
-        rc = pr.wait(br, 60)
-        out = pr.log(br)
-    finally:
-        veh.close()
-        pr.cleanup()
+    rc, out = _fly_against(tmp_path, veh, port, "--mode", "passthrough", "--takeoff", "--approach-timeout", "1.5",
+                           "--duration", "5", "--summary", str(tmp_path / "s.json"), "--timeout", "30", "--verbose")
     assert rc == 0, out
     ap = read_json(tmp_path / "s.json")["approach"]
     assert ap["timeout_s"] == 1.5 and ap["target_m"] == pytest.approx(0.9)
@@ -167,19 +162,11 @@ def test_the_approach_holds_or_times_out_as_configured_and_says_so(tmp_path, z):
 @pytest.mark.e2e
 @pytest.mark.parametrize("refusals", [2, -1])
 def test_arming_refused_then_accepted_or_refused_forever(tmp_path, refusals):
-    pr = Procs(tmp_path)
     port = free_port()
     veh = FakeVehicle(port)
     veh.armed, veh.arm_refusals = False, refusals
-    try:
-        veh.start()
-        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--arm", "--arm-timeout", "5",
-                      "--duration", "1", "--summary", str(tmp_path / "s.json"), "--timeout", "30", name="bridge")
-        rc = pr.wait(br, 60)
-        out = pr.log(br)
-    finally:
-        veh.close()
-        pr.cleanup()
+    rc, out = _fly_against(tmp_path, veh, port, "--mode", "passthrough", "--arm", "--arm-timeout", "5", "--duration", "1",
+                           "--summary", str(tmp_path / "s.json"), "--timeout", "30")
     s = read_json(tmp_path / "s.json")
     arms = veh.commands.count(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
     if refusals > 0:
