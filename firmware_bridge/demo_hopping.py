@@ -40,7 +40,8 @@ __all__ = ["LinkRun", "link_run", "link_metrics", "detection_delays", "replay_ph
 class LinkRun:
     """A flight over the link in the shape the simulator's metrics read (:class:`ddpc_codegen.sim.metrics.RunLogs`):
     truth rows from the first to the last engaged tick, each with that tick's desired outputs, phase and
-    references (applied u, nominal r_nom; the vehicle's truth and the bridge tick in lock-step, one per row)."""
+    references (applied u, nominal r_nom) and the thrust setpoint sent (normalized, after the bridge's clamps;
+    the vehicle's truth and the bridge tick in lock-step, one per row)."""
 
     t: np.ndarray
     state: np.ndarray
@@ -49,6 +50,7 @@ class LinkRun:
     phase: np.ndarray
     u: np.ndarray
     r_nom: np.ndarray
+    setpoint_thrust: np.ndarray
     touchdowns: np.ndarray
     liftoffs: np.ndarray
     config: object
@@ -95,7 +97,7 @@ def link_run(ticks_path: Path, truth_path: Path) -> LinkRun:
     inside = lambda ev: np.asarray(ev)[(np.asarray(ev) >= t0) & (np.asarray(ev) <= t1)] - t0  # noqa: E731
     return LinkRun(t=tt[sel] - t0, state=st[sel], y_true=np.column_stack([st[sel, 2], eul[:, 0], eul[:, 1]]),
                    y_des=tl["y_des"][rows], phase=tl["phase"][rows], u=tl["u"][rows], r_nom=tl["r_nom"][rows],
-                   touchdowns=inside(td), liftoffs=inside(lo),
+                   setpoint_thrust=tl["sp_thrust"][rows], touchdowns=inside(td), liftoffs=inside(lo),
                    config=cc, params=PogoXParams(), scenario_obj=HoppingScenario(), dt=log.dt)
 
 

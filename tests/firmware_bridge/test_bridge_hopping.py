@@ -98,6 +98,8 @@ def test_steering_lowers_the_apex_error_over_the_link(hops):
     assert s["apex_error_mean_abs"] * 3 <= b["apex_error_mean_abs"], (b, s)
     # the steering offset from the tick log: none in passthrough, a z_ref offset that moves when steered
     assert b["offset_step_rms"] == [0.0, 0.0, 0.0] and 0.0 < s["offset_step_rms"][0] < 0.025  # du_max: 25 mm/tick
+    # the thrust setpoints the bridge sent: never clamped in passthrough (as in-process), rarely when steered
+    assert b["thrust_limit_share"] == 0.0 and 0.0 <= s["thrust_limit_share"] < 0.2
     sm = hops.steer["summary"]
     assert sm["fallbacks"] == 0 and sm["steering"]["steered"] > 0.5 * FLIGHT / 0.005
     assert sm["reasons"]["ground"] > 0 and sm["hopping"]["contact_source"] == "signal"
