@@ -22,77 +22,19 @@ import math
 import sys
 from pathlib import Path
 
+from firmware_bridge.cli_args import (
+    ATTITUDE_STREAMS,
+    POSITION_STREAMS,
+    add_realtime_args,
+    fault_spec,
+    floats,
+    floats_or_none,
+    push_spec,
+    qos_request,
+    time_window,
+)
+
 __all__ = ["bridge_main", "vehicle_main", "build_bridge_parser", "build_vehicle_parser", "main"]
-
-_ATT = {"attitude": "ATTITUDE", "quaternion": "ATTITUDE_QUATERNION", "odometry": "ODOMETRY"}
-_POS = {"local": "LOCAL_POSITION_NED", "odometry": "ODOMETRY"}
-
-
-def _floats(s: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(v) for v in s.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {s!r}") from None
-
-
-def _floats_or_none(s: str) -> tuple[float, ...] | None:
-    """``none`` (any case) or comma-separated numbers."""
-    return None if str(s).strip().lower() == "none" else _floats(s)
-
-
-def _window(s: str) -> tuple[float, float]:
-    a, sep, b = s.partition(":")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"expected T0:T1 (seconds), got {s!r}")
-    return float(a), float(b)
-
-
-def _fault(s: str) -> tuple:
-    parts = s.split(":")
-    if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] not in ("fail", "nan")):
-        raise argparse.ArgumentTypeError(f"expected START:COUNT[:fail|nan], got {s!r}")
-    return (int(parts[0]), int(parts[1])) + ((parts[2],) if len(parts) == 3 else ())
-
-
-def _cpus(s: str) -> tuple[int, ...]:
-    try:
-        cpus = tuple(int(v) for v in s.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated CPU numbers, got {s!r}") from None
-    if any(c < 0 for c in cpus):
-        raise argparse.ArgumentTypeError(f"CPU numbers are >= 0, got {s!r}")
-    return cpus
-
-
-def _push(s: str) -> tuple:
-    """T:FX,FY,FZ[:DUR] -> (t, (fx, fy, fz), duration)."""
-    bad = argparse.ArgumentTypeError(f"expected T:FX,FY,FZ[:DUR] (s, N, s; DUR > 0), got {s!r}")
-    parts = s.split(":")
-    try:
-        if len(parts) not in (2, 3):
-            raise ValueError
-        t, dur = float(parts[0]), float(parts[2]) if len(parts) == 3 else 0.1
-        force = tuple(float(v) for v in parts[1].split(","))
-    except ValueError:
-        raise bad from None
-    if len(force) != 3 or not all(math.isfinite(v) for v in (*force, t, dur)) or dur <= 0:
-        raise bad
-    return (t, force, dur)
-
-
-def _qos(v: int) -> int | None:
-    return None if v < 0 else v
-
-
-def _add_realtime_args(g, what: str) -> None:
-    g.add_argument("--rt-priority", type=int, default=0,
-                   help=f"run {what} SCHED_FIFO at this priority, memory locked and a PM QoS wake-up latency request "
-                        "held, each if permitted (recommended on the robot; 0: best effort, none of these)")
-    g.add_argument("--cpu-latency-us", type=int, default=0,
-                   help="PM QoS CPU wake-up latency bound held with --rt-priority [us] (0: CPUs poll instead of "
-                        "sleeping deeply: steadier ticks, more power; -1: no request)")
-    g.add_argument("--cpus", type=_cpus, default=None, metavar="LIST", help=f"pin {what} to these CPUs, e.g. 1 or 2,3")
-
 
 # ----------------------------------------------------------------------------- bridge
 def _bridge_defaults() -> dict:
@@ -175,15 +117,15 @@ def _bridge_autopilot_args(g) -> None:
                    help="--takeoff: ... or, with a warning, this many seconds after the ramp (default 5)")
     g.add_argument("--land", action="store_true",
                    help="at exit hand back with LAND and wait for the vehicle to disarm (default: HOLD)")
-    g.add_argument("--blend-rates", type=_floats_or_none, default=",".join(map(str, _D["blend_rates"])), metavar="Z,PITCH|none",
+    g.add_argument("--blend-rates", type=floats_or_none, default=",".join(map(str, _D["blend_rates"])), metavar="Z,PITCH|none",
                    help="bumpless (re-)engagement: the references start at the measured outputs and move toward the "
                         "nominal ones at most this fast [m/s, rad/s] (default 0.5,0.5; none: off)")
 
 
 def _bridge_loop_args(g) -> None:
     g.add_argument("--rate", type=float, default=_D["rate_hz"], help="control rate [Hz] (default 200)")
-    g.add_argument("--attitude-stream", choices=tuple(_ATT), default="quaternion")
-    g.add_argument("--position-stream", choices=tuple(_POS), default="local")
+    g.add_argument("--attitude-stream", choices=tuple(ATTITUDE_STREAMS), default="quaternion")
+    g.add_argument("--position-stream", choices=tuple(POSITION_STREAMS), default="local")
     g.add_argument("--lockstep", action="store_true", help="tick only on telemetry, vehicle time (ddpc-vehicle --lockstep)")
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
     g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
@@ -217,13 +159,13 @@ def _bridge_safety_args(g) -> None:
     g.add_argument("--max-tilt-deg", type=float, default=_D["max_tilt_deg"], help="clamp on commanded roll and pitch")
     g.add_argument("--thrust-min", type=float, default=_D["thrust_min"])
     g.add_argument("--thrust-max", type=float, default=_D["thrust_max"])
-    g.add_argument("--max-step", type=_floats_or_none, default=argparse.SUPPRESS, metavar="Z,PITCH|none",
+    g.add_argument("--max-step", type=floats_or_none, default=argparse.SUPPRESS, metavar="Z,PITCH|none",
                    help="largest |steered - nominal| per reference, comma-separated, or 'none' (default: the "
                         "profile's [steering] max_step, else 0.3,0.5 flying / none hopping)")
     g.add_argument("--max-gap-fill", type=int, default=_D["max_gap_fill"],
                    help="bridge up to this many lost telemetry samples in the steering history instead of "
                         "resetting it (0: always reset)")
-    g.add_argument("--inject-solver-failure", type=_fault, default=None, metavar="START:COUNT[:fail|nan]",
+    g.add_argument("--inject-solver-failure", type=fault_spec, default=None, metavar="START:COUNT[:fail|nan]",
                    help="testing: make solver calls START..START+COUNT-1 fail")
 
 
@@ -232,10 +174,10 @@ def _bridge_logging_args(g) -> None:
     g.add_argument("--summary", default=None, help="write the summary JSON here")
     g.add_argument("--dataset-skip", type=float, default=_D["dataset_skip"], help="seconds after activation left out of the dataset")
     g.add_argument("--settle", type=float, default=_D["settle"], help="seconds after activation left out of the RMSE")
-    g.add_argument("--excitation", type=_floats, default=_D["excitation"], help="collect: PRBS amplitude per reference")
+    g.add_argument("--excitation", type=floats, default=_D["excitation"], help="collect: PRBS amplitude per reference")
     g.add_argument("--excitation-hold", type=int, default=_D["excitation_hold"], help="collect: ticks per PRBS bit")
     g.add_argument("--seed", type=int, default=_D["seed"])
-    _add_realtime_args(g, "the loop")
+    add_realtime_args(g, "the loop")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
 
@@ -285,8 +227,8 @@ def bridge_config_from_args(a: argparse.Namespace):
         url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, prefilter=a.prefilter, feedforward=a.feedforward,
         autopilot=a.autopilot,
         guid_options=a.guid_options, force_guid_options=a.force_guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
-        target_component=a.target_component, rate_hz=a.rate, attitude_stream=_ATT[a.attitude_stream],
-        position_stream=_POS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
+        target_component=a.target_component, rate_hz=a.rate, attitude_stream=ATTITUDE_STREAMS[a.attitude_stream],
+        position_stream=POSITION_STREAMS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
         thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), max_gap_fill=a.max_gap_fill,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
@@ -296,7 +238,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
         inject_solver_failure=a.inject_solver_failure, controller=ctrl, contact=contact, trajectory=traj, frame=a.frame, rt_priority=a.rt_priority,
-        cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
+        cpu_latency_us=qos_request(a.cpu_latency_us), cpus=a.cpus,
         verbose=a.verbose)
 
 
@@ -383,14 +325,14 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-noise", action="store_true", help="no sensor noise (the delay stays)")
     p.add_argument("--start", choices=("hover", "disarmed"), default="hover",
                    help="hover: armed in HOLD at the start point; disarmed: parked there")
-    p.add_argument("--start-offset", type=_floats, default=(0.0, 0.0), metavar="X,Y",
+    p.add_argument("--start-offset", type=floats, default=(0.0, 0.0), metavar="X,Y",
                    help="start this far from the trajectory's start point [m, local ENU]")
     p.add_argument("--start-yaw-deg", type=float, default=0.0, help="initial heading [deg, ENU: 0 = east, 90 = north]")
     p.add_argument("--com-of-loss-t", type=float, default=1.0, help="off-board loss timeout [s] (PX4 COM_OF_LOSS_T)")
     p.add_argument("--loss-action", choices=("hold", "land"), default="hold", help="failsafe after off-board loss")
     p.add_argument("--guid-options", type=int, default=0, help="ArduPilot GUID_OPTIONS (8: thrust is a thrust)")
     p.add_argument("--duration", type=float, default=None, help="stop after this much simulated time [s]")
-    p.add_argument("--silence", type=_window, action="append", default=[], metavar="T0:T1",
+    p.add_argument("--silence", type=time_window, action="append", default=[], metavar="T0:T1",
                    help="send nothing during this simulated-time window (repeatable)")
     p.add_argument("--truth-log", default=None, help="write the true state per tick to this .npz")
     p.add_argument("--summary", default=None, help="write the summary JSON here")
@@ -400,10 +342,10 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
                         "whole ms); ardupilot (ArduCopter SITL: ~171 samples/s, every ~6th missing, and "
                         "TCP-like bursts of two samples arriving < 0.5 ms apart)")
     p.add_argument("--telemetry-seed", type=int, default=0, help="seed of the telemetry pattern")
-    p.add_argument("--push", type=_push, action="append", default=[], metavar="T:FX,FY,FZ[:DUR]",
+    p.add_argument("--push", type=push_spec, action="append", default=[], metavar="T:FX,FY,FZ[:DUR]",
                    help="push the robot with force (FX, FY, FZ) [N, world ENU] from plant time T [s] for DUR "
                         "[s] (default 0.1; repeatable)")
-    _add_realtime_args(p, "the vehicle")
+    add_realtime_args(p, "the vehicle")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -422,7 +364,7 @@ def vehicle_main(argv: list[str] | None = None) -> int:
                             start_offset=a.start_offset, start_yaw=math.radians(a.start_yaw_deg),
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
-                            rt_priority=a.rt_priority, cpu_latency_us=_qos(a.cpu_latency_us), cpus=a.cpus,
+                            rt_priority=a.rt_priority, cpu_latency_us=qos_request(a.cpu_latency_us), cpus=a.cpus,
                             verbose=a.verbose, telemetry_pattern=a.telemetry_pattern,
                             telemetry_seed=a.telemetry_seed, pushes=list(a.push))
         veh = SimVehicle(cfg)

@@ -67,6 +67,8 @@ def test_bridge_flag_defaults_are_the_config_dataclass_defaults():
     (["udpin:127.0.0.1:14999", "--log", "/nonexistent-dir/x.npz"], "--log /nonexistent-dir/x.npz: folder /nonexistent-dir does not exist"),
     (["udpin:127.0.0.1:14999", "--summary", "/proc/x.json"], "--summary /proc/x.json: not writable"),
     (["/dev/ttyDOES-NOT-EXIST"], "serial device /dev/ttyDOES-NOT-EXIST does not exist"),
+    (["udpin:127.0.0.1:14999", "--takeoff", "--approach-tolerance", "0"], "approach_tolerance must be positive; got 0.0"),
+    (["udpin:127.0.0.1:14999", "--takeoff", "--approach-timeout", "-1"], "approach_timeout must be positive; got -1.0"),
 ])
 def test_bad_ports_paths_and_devices_are_refused_before_anything_flies(capsys, args, message):
     """Issue 12: errors named at start (exit 2), not a traceback or a log lost after the flight."""
