@@ -398,9 +398,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             ref["reason"] = "takeoff"
             if self.approach.done:
                 ap, self.approach = self.approach, None
-                self.approach_result = {"held": ap.held, "target_m": ap.target, "error_at_start_m": ap.last_error,
-                                        "waited_s": self._tick_t - ap.t_ramp_end, "tolerance_m": ap.tolerance,
-                                        "timeout_s": ap.max_extra}
+                self.approach_result = ap.outcome()
                 if ap.timed_out:  # say so: the steering then starts against that error
                     self._event(f"WARNING: did not hold the start height within {ap.tolerance:g} m for {ap.hold:g} s "
                                 f"in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle or its "

@@ -77,7 +77,7 @@ class Approach:
         hold: seconds within tolerance before the trajectory starts; max_extra: give up waiting
             this long after the ramp ended [s] (the trajectory starts anyway, and ``timed_out`` says
             so with ``last_error``, the height error [m] of the last tick: the vehicle, or its height
-            estimate, did not settle).
+            estimate, did not settle); ``t_done``: when it ended.
     """
 
     target: float
@@ -91,6 +91,7 @@ class Approach:
     held: bool = False
     timed_out: bool = False
     last_error: float = math.nan
+    t_done: float = math.nan
 
     @property
     def done(self) -> bool:
@@ -115,7 +116,15 @@ class Approach:
             self.held = math.isfinite(self.t_in) and t - self.t_in >= self.hold
             self.timed_out = not self.held and t - self.t_ramp_end >= self.max_extra
         self.last_error = float(z) - self.target
+        if self.done and not math.isfinite(self.t_done):
+            self.t_done = t
         return self.z_ref
+
+    def outcome(self) -> dict:
+        """How the approach ended (the bridge summary's ``approach``): held or not, the start height and
+        the height error then [m], the wait after the ramp [s], the tolerance [m] and timeout [s]."""
+        return {"held": self.held, "target_m": self.target, "error_at_start_m": self.last_error,
+                "waited_s": self.t_done - self.t_ramp_end, "tolerance_m": self.tolerance, "timeout_s": self.max_extra}
 
 
 @dataclass

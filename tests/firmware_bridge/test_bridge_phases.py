@@ -65,6 +65,9 @@ def test_takeoff_ramp_is_rate_limited_and_waits_for_the_vehicle():
     assert not ap.done
     ap.step((k0 + 201) * dt, dt, 0.88)
     assert ap.done and not ap.timed_out                 # held within 5 cm for 1 s
+    assert ap.outcome() == pytest.approx({"held": True, "target_m": 0.9, "error_at_start_m": -0.02,
+                                          "waited_s": (k0 + 201) * dt - ap.t_ramp_end, "tolerance_m": 0.05,
+                                          "timeout_s": 5.0})
     late = Approach(target=0.9, max_extra=1.0)
     late.start(0.9)
     late.step(0.0, dt, 0.5)
@@ -72,6 +75,7 @@ def test_takeoff_ramp_is_rate_limited_and_waits_for_the_vehicle():
     late.step(1.0, dt, 1.15)
     assert late.done and late.timed_out                 # gives up waiting: the trajectory starts anyway,
     assert late.last_error == pytest.approx(0.25)       # and says how far off the vehicle was
+    assert late.outcome()["held"] is False and late.outcome()["waited_s"] == 1.0
 
 
 def test_blend_starts_at_the_measurement_and_hands_over_exactly():
