@@ -47,13 +47,13 @@ codegen: install data/flying.npz data/hopping_raw.npz
 
 # Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights.
 bridge-demo: install
-	$(PY) -m firmware_bridge.demo $(if $(SCENARIO),--scenario $(SCENARIO))
+	$(PY) -m ddpc_codegen.testbed.bridge_demo $(if $(SCENARIO),--scenario $(SCENARIO))
 
 # Real autopilots (see the README for building them; found through DDPC_ARDUPILOT_SITL and
 # DDPC_PX4_SITL): from the ground, baseline -> collect -> codegen -> steer, each SITL in a private
 # network namespace; reports/sitl.json and the flight logs in reports/sitl_<autopilot>/.
 sitl-demo: install
-	$(PY) -m firmware_bridge.sitl_demo
+	$(PY) -m ddpc_codegen.testbed.sitl_demo
 
 bench: install
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,bench]' || echo "(bench extra not installed: the CVXPYgen comparison is skipped)"

@@ -1,25 +1,27 @@
 """Companion-computer side: runs a generated steering solver in the loop over MAVLink.
 
+Everything here runs on the companion computer (no CasADi, no simulator); the simulated vehicle,
+the SITL harness and the demos live in :mod:`ddpc_codegen.testbed`.
+
 * :mod:`.transports` -- connection strings; UDP / TCP / serial byte transports with receive times.
 * :mod:`.link` -- MAVLink I/O: drain-everything receive path, system-id
   filtering, reply pinning, reconnects, COMMAND_LONG retries.
 * :mod:`.profiles` -- PX4 / ArduPilot Copter mode encoding and SET_ATTITUDE_TARGET thrust semantics.
 * :mod:`.telemetry` -- NED/FRD telemetry -> the controller's ENU/FLU state (newest sample, age).
+* :mod:`.truth` -- the simulators' ground truth (ArduCopter SIM_STATE) beside the estimate.
 * :mod:`.clock` -- the bridge's own control clock: a uniform tick grid whatever the telemetry does.
 * :mod:`.preflight` -- before the first tick: the heartbeat's autopilot, parameters, thrust semantics.
-* :mod:`.phases` -- arming retries, take-off ramp, bumpless (re-)engagement.
+* :mod:`.engagement` -- arming retries, take-off ramp, bumpless (re-)engagement.
+* :mod:`.supervisor` -- modes, arming, failsafe, fallbacks and hand-backs.
 * :mod:`.setpoints` -- setpoint shaping: PRBS in collect mode, clamps, the SET_ATTITUDE_TARGET send.
+* :mod:`.bridge_config` -- the bridge's settings (``BridgeConfig``), checked on construction.
 * :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
-* :mod:`.baseline_modes` -- the prefilter and feedforward (ILC table) modes, checked before flying;
-  :mod:`.ilc` -- ILC between flights: a tick log -> the next feed-forward table.
-* :mod:`.hopping` -- hopping: phases from telemetry or a contact signal, the hopping steering tick.
-* :mod:`.sitl`, :mod:`.sitl_demo` -- real autopilot SITLs (PX4 SIH, ArduCopter) for tests and
-  ``make sitl-demo``.
-* :mod:`.vehicle` -- the simulator behind a PX4-like MAVLink endpoint (``ddpc-vehicle``).
+* :mod:`.baseline_modes` -- the prefilter and feedforward (ILC table) modes, checked before flying.
+* :mod:`.hopping_loop` -- hopping: phases from telemetry or a contact signal, the hopping steering tick.
 * :mod:`.realtime` -- SCHED_FIFO, mlockall, PM QoS for the loop; wake-up latency probe (``ddpc-rtcheck``).
 * :mod:`.ticklog` -- the per-tick log, an IODataset ``.npz`` (collect -> dataset -> codegen -> steer).
-* :mod:`.cli`, :mod:`.demo`, :mod:`.demo_hopping` -- console entry points and ``make bridge-demo
-  [SCENARIO=hopping]``.
+* :mod:`.report` -- the flight summary.
+* :mod:`.cli`, :mod:`.cli_args` -- the ``ddpc-bridge`` console entry point and its value types.
 """
 
 from __future__ import annotations
@@ -41,12 +43,10 @@ _EXPORTS: dict[str, str] = {
     "ArduPilotProfile": "firmware_bridge.profiles",
     "PX4Profile": "firmware_bridge.profiles",
     "make_profile": "firmware_bridge.profiles",
-    "HoppingLoop": "firmware_bridge.hopping",
+    "HoppingLoop": "firmware_bridge.hopping_loop",
     "TelemetryState": "firmware_bridge.telemetry",
     "TickLog": "firmware_bridge.ticklog",
     "load_ticklog": "firmware_bridge.ticklog",
-    "SimVehicle": "firmware_bridge.vehicle",
-    "VehicleConfig": "firmware_bridge.vehicle",
 }
 
 __all__ = list(_EXPORTS)

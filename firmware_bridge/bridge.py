@@ -66,11 +66,11 @@ from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
 from firmware_bridge.baseline_modes import BASELINE_MODES, baseline_policy, feedforward_row
 from firmware_bridge.clock import TickClock
-from firmware_bridge.config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
+from firmware_bridge.bridge_config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
                                     default_controller_config)
-from firmware_bridge.hopping import HoppingLoop, hopping_window
+from firmware_bridge.hopping_loop import HoppingLoop, hopping_window
 from firmware_bridge.link import CommandTracker, MavLink
-from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
+from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
 from firmware_bridge.preflight import PreflightError, VehicleInfo, check_trajectory_bounds
 from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime

@@ -13,7 +13,7 @@ import numpy as np
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.stats import percentiles
 
-from firmware_bridge.config import FaultInjectingSolver
+from firmware_bridge.bridge_config import FaultInjectingSolver
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, _json_default, reason_code
 
 __all__ = ["Reporting", "gap_statistics"]

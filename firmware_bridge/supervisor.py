@@ -6,10 +6,10 @@ from __future__ import annotations
 import math
 import time
 
-from firmware_bridge.config import NoVehicleError
+from firmware_bridge.bridge_config import NoVehicleError
 from firmware_bridge.link import mavlink
-from firmware_bridge.phases import Approach
-from firmware_bridge.hopping import completion_time_warning
+from firmware_bridge.engagement import Approach
+from firmware_bridge.hopping_loop import completion_time_warning
 from firmware_bridge.preflight import (VehicleInfo, check_autopilot, check_solver_loop, decode_param_value,
                                        hover_param, params_to_read, resolve_guid_options)
 from firmware_bridge.profiles import ArduPilotProfile

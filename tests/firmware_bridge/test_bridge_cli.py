@@ -28,8 +28,8 @@ def test_controller_toml_overrides_the_model(tmp_path):
 
 def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
     from firmware_bridge.bridge import BridgeConfig
-    from firmware_bridge.cli import vehicle_main
-    from firmware_bridge.vehicle import VehicleConfig
+    from ddpc_codegen.testbed.cli import vehicle_main
+    from ddpc_codegen.testbed.vehicle import VehicleConfig
 
     with pytest.raises(ValueError, match="frame must be 'start' or 'world'; got 'body'"):
         BridgeConfig(mode="passthrough", frame="body")
@@ -53,7 +53,7 @@ def test_bridge_flag_defaults_are_the_config_dataclass_defaults():
     import dataclasses
 
     from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
-    from firmware_bridge.config import BridgeConfig
+    from firmware_bridge.bridge_config import BridgeConfig
 
     got = bridge_config_from_args(build_bridge_parser().parse_args(["--mode", "passthrough"]))
     want = BridgeConfig(mode="passthrough")
@@ -81,7 +81,7 @@ def test_bad_ports_paths_and_devices_are_refused_before_anything_flies(capsys, a
 def test_feedforward_mode_checks_its_table_before_flying(tmp_path):
     from ddpc_codegen.robot.profile import load_profile
     from ddpc_codegen.runtime.baselines import FeedforwardPolicy
-    from firmware_bridge.config import BridgeConfig
+    from firmware_bridge.bridge_config import BridgeConfig
 
     with pytest.raises(ValueError, match=r"feedforward mode needs a feed-forward table \(--feedforward table.npz\)"):
         BridgeConfig(mode="feedforward")

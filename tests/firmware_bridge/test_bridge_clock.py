@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from bridge_helpers import FakeVehicle, Procs, free_port, read_json
+from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
 from firmware_bridge.clock import TickClock
 from firmware_bridge.ticklog import REASONS, load_ticklog

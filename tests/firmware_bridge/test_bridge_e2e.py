@@ -9,10 +9,10 @@ import re
 import numpy as np
 import pytest
 
-from firmware_bridge.demo import in_process, truth_rmse
+from ddpc_codegen.testbed.bridge_demo import in_process, truth_rmse
 from firmware_bridge.ticklog import load_ticklog
 
-from bridge_helpers import Procs, free_port, read_json
+from support.bridge_helpers import Procs, free_port, read_json
 
 pytestmark = [pytest.mark.e2e, pytest.mark.compiler, pytest.mark.realtime]
 

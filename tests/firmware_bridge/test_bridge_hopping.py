@@ -15,10 +15,10 @@ import pytest
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, ground_runs
-from firmware_bridge.config import BridgeConfig
-from firmware_bridge.demo_hopping import link_metrics
+from firmware_bridge.bridge_config import BridgeConfig
+from ddpc_codegen.testbed.bridge_demo_hopping import link_metrics
 
-from bridge_helpers import ROOT, Procs, _env, free_port, read_json
+from support.bridge_helpers import ROOT, Procs, _env, free_port, read_json
 
 COLLECT = 20.0  # s of aerial PRBS: ~23 hops (enough for a solver: 2.4 mm apex error in-process)
 FLIGHT = 8.0    # s per flight: ~9 hops, the first 3 not scored
@@ -173,7 +173,7 @@ def test_cli_scenario_and_contact_flags():
 
 
 def test_steering_needs_the_artificial_io_operator():
-    from firmware_bridge.hopping import hopping_window
+    from firmware_bridge.hopping_loop import hopping_window
 
     solver = SimpleNamespace(manifest={"dims": {"m": 3, "p": 3}, "artificial_io": None}, artificial_io=None)
     with pytest.raises(ValueError, match="no artificial-IO operator"):
@@ -210,7 +210,7 @@ def _loop(source: str = "estimate"):
     from ddpc_codegen.robot.phases import ContactConfig
     from ddpc_codegen.robot.profile import load_profile
     from ddpc_codegen.runtime.policy import SteeringPolicy
-    from firmware_bridge.hopping import HoppingLoop
+    from firmware_bridge.hopping_loop import HoppingLoop
 
     ctrl = HeightLegAngleController(load_profile("pogox_hopping").controller)
     return HoppingLoop(ctrl, ContactConfig(source=source), SteeringPolicy(_Steerer()), None)
@@ -256,7 +256,7 @@ def test_the_generated_completion_is_timed_before_the_loop(hops):
     """The preflight times the real generated operator on its longest windows: against a tick it cannot
     meet (10 us) and one it easily meets (1 s); its counters are left alone."""
     from ddpc_codegen.runtime.loader import load_solver
-    from firmware_bridge.hopping import completion_time_warning
+    from firmware_bridge.hopping_loop import completion_time_warning
 
     art = load_solver(hops.solver).artificial_io
     before = dict(art.counts)
@@ -269,7 +269,7 @@ def test_a_completion_slower_than_half_a_tick_is_reported():
     """Both longest windows are timed (all known; the first third filled), inside the bounds."""
     import time
 
-    from firmware_bridge.hopping import completion_time_warning
+    from firmware_bridge.hopping_loop import completion_time_warning
 
     class _Slow:
         depth, m, p, counts = 30, 3, 3, {"calls": 7}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from bridge_helpers import ROOT, free_port, read_json
+from support.bridge_helpers import ROOT, free_port, read_json
 
 from ddpc_codegen import IODataset, SteeringConfig
 from firmware_bridge.ticklog import REASONS, TickRecorder, load_ticklog

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from bridge_helpers import free_port
+from support.bridge_helpers import free_port
 
 from firmware_bridge.link import MavLink, mavlink
 from firmware_bridge.profiles import PX4Profile, px4_decode

@@ -1,4 +1,4 @@
-"""Functions that :func:`firmware_bridge.sitl.run_isolated` runs in a child process (importable by
+"""Functions that :func:`ddpc_codegen.testbed.sitl.run_isolated` runs in a child process (importable by
 module name: tests/ is on the import path)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import time
 
 def netns_facts(tag: str) -> dict:
     """Which interfaces this process sees and whether it knows it is isolated."""
-    from firmware_bridge.sitl import in_private_netns
+    from ddpc_codegen.testbed.sitl import in_private_netns
 
     with open("/proc/net/dev") as f:
         ifaces = [line.split(":")[0].strip() for line in f.readlines()[2:]]
@@ -17,7 +17,7 @@ def netns_facts(tag: str) -> dict:
 
 def sitl_heartbeat(autopilot: str) -> dict:
     """Start the SITL, wait for its heartbeat, read one parameter, stop it; what was seen."""
-    from firmware_bridge.sitl import make_sitl
+    from ddpc_codegen.testbed.sitl import make_sitl
 
     name = {"px4": "MPC_THR_HOVER", "ardupilot": "MOT_THST_HOVER"}[autopilot]
     sitl = make_sitl(autopilot)
@@ -44,8 +44,8 @@ def flight_with_autopilot_log(autopilot: str, out_dir: str, duration: float = 6.
     import threading
     from pathlib import Path
 
-    from firmware_bridge.sitl import make_sitl
-    from firmware_bridge.sitl_demo import PROFILES
+    from ddpc_codegen.testbed.sitl import make_sitl
+    from ddpc_codegen.testbed.sitl_demo import PROFILES
 
     out = Path(out_dir)
     sitl = make_sitl(autopilot, **({"params": {"GUID_OPTIONS": 8}} if autopilot == "ardupilot" else {}))
@@ -106,8 +106,8 @@ def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.
     import subprocess
     from pathlib import Path
 
-    from firmware_bridge.sitl import make_sitl
-    from firmware_bridge.sitl_demo import bridge_command
+    from ddpc_codegen.testbed.sitl import make_sitl
+    from ddpc_codegen.testbed.sitl_demo import bridge_command
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_bridge.sitl import missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
 from firmware_bridge.ticklog import load_ticklog
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.compiler, pytest.mark.realtime]
@@ -19,7 +19,7 @@ def test_ardupilot_climb_rate_mode_collect_and_steer(tmp_path):
     why = missing_reason("ardupilot")
     if why:
         pytest.skip(why)
-    res = run_isolated("firmware_bridge.sitl_demo:run_pipeline",
+    res = run_isolated("ddpc_codegen.testbed.sitl_demo:run_pipeline",
                        {"autopilot": "ardupilot", "out_dir": str(tmp_path), "baseline_s": 10.0, "collect_s": 20.0,
                         "steer_s": 10.0, "sitl_params": {"GUID_OPTIONS": 0}, "baselines": False}, timeout=420)
     r, rt = res["rmse_z"], res["rmse_z_truth"]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_bridge.sitl import missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.compiler, pytest.mark.realtime]
 
@@ -23,7 +23,7 @@ def test_from_the_ground_to_steered_flight(tmp_path, autopilot):
     # demo's 25 s collects 4.2-9.4x in four). The error changes along the ellipse, so PX4's RMSE is
     # taken over one whole period (10 s after the 3 s settle) on both flights.
     collect_s, fly_s = {"px4": (30.0, 13.0), "ardupilot": (20.0, 10.0)}[autopilot]
-    res = run_isolated("firmware_bridge.sitl_demo:run_pipeline",
+    res = run_isolated("ddpc_codegen.testbed.sitl_demo:run_pipeline",
                        {"autopilot": autopilot, "out_dir": str(tmp_path), "baseline_s": fly_s, "collect_s": collect_s,
                         "steer_s": fly_s, "baselines": False}, timeout=420)
     r = res["rmse_z"]
@@ -36,7 +36,7 @@ def test_from_the_ground_to_steered_flight(tmp_path, autopilot):
     # the steered tick log loads as a dataset and refits
     from ddpc_codegen.cli.codegen import build_from_config
     from ddpc_codegen.design.config import SteeringConfig
-    from firmware_bridge.sitl_demo import CONFIGS, ROOT
+    from ddpc_codegen.testbed.sitl_demo import CONFIGS, ROOT
 
     prob = build_from_config(SteeringConfig.from_toml(ROOT / "configs" / CONFIGS[autopilot]),
                              Path(tmp_path) / f"{autopilot}_steer.npz")

@@ -143,7 +143,7 @@ def test_ctrl_ff_profile_is_the_autopilot_profile_with_velocity_feed_forward(tmp
     import dataclasses
 
     from ddpc_codegen.robot.profile import load_profile
-    from firmware_bridge.sitl_demo import PROFILES, ctrl_ff_profile, format_baselines
+    from ddpc_codegen.testbed.sitl_demo import PROFILES, ctrl_ff_profile, format_baselines
 
     base, ff = load_profile(PROFILES[autopilot]), load_profile(ctrl_ff_profile(autopilot, tmp_path))
     assert ff.controller.ref_velocity_gain == 1.0 and base.controller.ref_velocity_gain in (None, 0.0)

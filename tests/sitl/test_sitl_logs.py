@@ -12,7 +12,7 @@ import pytest
 
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs import import_tlog, import_ulog
-from firmware_bridge.sitl import missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
 from firmware_bridge.ticklog import load_ticklog
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.realtime,

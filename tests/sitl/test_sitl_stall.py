@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from firmware_bridge.sitl import missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.realtime]
 

@@ -8,7 +8,7 @@ import pytest
 
 from ddpc_codegen.design.baselines import PrefilterModel, error_on_grid
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy
-from firmware_bridge.ilc import next_table, table_rows, ticklog_error
+from ddpc_codegen.testbed.ilc import next_table, table_rows, ticklog_error
 from firmware_bridge.ticklog import TickRecorder
 
 DT = 0.005

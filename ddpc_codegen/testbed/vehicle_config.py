@@ -1,4 +1,4 @@
-"""Options of the simulated vehicle ``ddpc-vehicle`` (see :mod:`firmware_bridge.vehicle`)."""
+"""Options of the simulated vehicle ``ddpc-vehicle`` (see :mod:`ddpc_codegen.testbed.vehicle`)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from firmware_bridge.vehicle_telemetry import TELEMETRY_PATTERNS
+from ddpc_codegen.testbed.vehicle_telemetry import TELEMETRY_PATTERNS
 
 __all__ = ["VehicleConfig", "MODE_OFFBOARD", "MODE_HOLD", "MODE_LAND"]
 
@@ -49,7 +49,7 @@ class VehicleConfig:
             (t, force(3), duration[, point(3)]); plant time [s], which stands still while parked).
         telemetry_pattern: which telemetry samples exist: "regular" (one per 5 ms tick),
             "px4-sih" or "ardupilot" (real autopilots' irregular stamps, see
-            :mod:`firmware_bridge.vehicle_telemetry`); telemetry_seed seeds the pattern.
+            :mod:`ddpc_codegen.testbed.vehicle_telemetry`); telemetry_seed seeds the pattern.
         rt_priority: >0: SCHED_FIFO at this priority, memory locked, PM QoS ``cpu_latency_us``
             held (each if permitted; steadier real-time pacing, see :mod:`.realtime`).
         cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).

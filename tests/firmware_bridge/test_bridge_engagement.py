@@ -7,11 +7,11 @@ import struct
 
 import numpy as np
 import pytest
-from bridge_helpers import FakeVehicle, Procs, free_port, read_json
+from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
-from firmware_bridge.config import BridgeConfig
+from firmware_bridge.bridge_config import BridgeConfig
 from firmware_bridge.link import mavlink
-from firmware_bridge.phases import Approach, ArmingRetry, RefBlend
+from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
 from firmware_bridge.preflight import PreflightError, check_autopilot, decode_param_value, resolve_guid_options
 from firmware_bridge.profiles import make_profile
 

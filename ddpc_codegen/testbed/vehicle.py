@@ -4,8 +4,8 @@ Three parts: the physics is the simulator's robot below the companion computer,
 :class:`ddpc_codegen.sim.Stepper` (PogoX plant at 1 kHz, PX4-like attitude loop 250 Hz and
 rate loop 1 kHz, measurement delay and sensor noise, pushes) -- the same object
 :func:`ddpc_codegen.sim.simulate` steps; the autopilot's behaviour in off-board (modes, arming,
-parameters, setpoints, failsafe) is :mod:`firmware_bridge.vehicle_autopilot`; the telemetry
-streams and real autopilots' sample patterns are :mod:`firmware_bridge.vehicle_telemetry`. The
+parameters, setpoints, failsafe) is :mod:`ddpc_codegen.testbed.vehicle_autopilot`; the telemetry
+streams and real autopilots' sample patterns are :mod:`ddpc_codegen.testbed.vehicle_telemetry`. The
 companion computer's part is *not* here, it comes over the link. A disarmed vehicle is parked:
 its state is frozen (no physics). A stuck hybrid integration (foot chattering) freezes it too,
 with an event saying why.
@@ -42,20 +42,20 @@ from ddpc_codegen.sim.stepper import Stepper
 
 from firmware_bridge.link import MavLink
 from firmware_bridge.realtime import setup_realtime
-from firmware_bridge.vehicle_autopilot import AutopilotEmulator
-from firmware_bridge.vehicle_config import MODE_HOLD, MODE_LAND, MODE_OFFBOARD, VehicleConfig
-from firmware_bridge.vehicle_telemetry import SamplePattern, TelemetryPublisher
+from ddpc_codegen.testbed.vehicle_autopilot import AutopilotEmulator
+from ddpc_codegen.testbed.vehicle_config import MODE_HOLD, MODE_LAND, MODE_OFFBOARD, VehicleConfig
+from ddpc_codegen.testbed.vehicle_telemetry import SamplePattern, TelemetryPublisher
 
 __all__ = ["VehicleConfig", "SimVehicle", "StepperBody", "MODE_OFFBOARD", "MODE_HOLD", "MODE_LAND"]
 
-log = logging.getLogger("firmware_bridge.vehicle")
+log = logging.getLogger("ddpc_codegen.testbed.vehicle")
 
 # Measurement history kept for samples older than the tick (px4-sih: < 16 ms; ardupilot bursts).
 _HISTORY = 0.05
 
 
 class StepperBody:
-    """The autopilot's view of the simulated robot (:class:`~firmware_bridge.vehicle_autopilot.Body`)."""
+    """The autopilot's view of the simulated robot (:class:`~ddpc_codegen.testbed.vehicle_autopilot.Body`)."""
 
     def __init__(self, stepper: Stepper) -> None:
         self.stepper = stepper

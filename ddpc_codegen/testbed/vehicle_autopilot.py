@@ -41,12 +41,12 @@ from firmware_bridge.profiles import (
     px4_custom_mode,
     px4_mode_name,
 )
-from firmware_bridge.vehicle_config import MODE_HOLD, MODE_LAND, MODE_OFFBOARD, VehicleConfig
-from firmware_bridge.vehicle_telemetry import TelemetryPublisher
+from ddpc_codegen.testbed.vehicle_config import MODE_HOLD, MODE_LAND, MODE_OFFBOARD, VehicleConfig
+from ddpc_codegen.testbed.vehicle_telemetry import TelemetryPublisher
 
 __all__ = ["Body", "AutopilotEmulator"]
 
-log = logging.getLogger("firmware_bridge.vehicle")
+log = logging.getLogger("ddpc_codegen.testbed.vehicle")
 
 _FORCE_DISARM = 21196.0  # PX4 / ArduPilot magic number: disarm even in flight
 _PX4_MODES = {MODE_OFFBOARD: (PX4_MAIN["OFFBOARD"], 0), MODE_HOLD: (PX4_MAIN["AUTO"], PX4_AUTO_SUB["LOITER"]),

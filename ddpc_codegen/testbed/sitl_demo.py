@@ -8,7 +8,7 @@ flies, lands and waits for the disarm. The solver comes from ``ddpc-codegen code
 collect flight's tick log (subprocesses: the bridge side never imports the design stack).
 
 :func:`run_pipeline` works in the current network namespace; :func:`main` runs each available
-autopilot in a private one (:func:`firmware_bridge.sitl.run_isolated`) and writes
+autopilot in a private one (:func:`ddpc_codegen.testbed.sitl.run_isolated`) and writes
 ``reports/sitl.json``.
 """
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_bridge.sitl import make_sitl, missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
 __all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "APPROACH_TIMEOUT", "bridge_command", "fly",
@@ -131,11 +131,11 @@ def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
     """ILC against the SITL: iteration 0 is the passthrough flight already flown
     (``<autopilot>_passthrough.npz``); each next one flies the same ellipse for ``duration`` s with
     the table learned so far (``--mode feedforward``, ``ilc_<i>.npz``), then its tick log updates
-    the table (:func:`firmware_bridge.ilc.next_table`, the in-process demo's law with this loop's
+    the table (:func:`ddpc_codegen.testbed.ilc.next_table`, the in-process demo's law with this loop's
     prefilter; ``law``: other ``gain_scale`` / ``cutoff_hz``). The figures per iteration, the
     iteration it settled at, the last one's."""
     from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, PrefilterModel, iterations_to_settle
-    from firmware_bridge.ilc import next_table
+    from ddpc_codegen.testbed.ilc import next_table
 
     if iterations < 1:
         raise ValueError(f"ILC needs at least one iteration after the passthrough flight; got {iterations}")
@@ -216,7 +216,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
 
 def main(argv: list[str] | None = None) -> int:
     """``make sitl-demo``: every available SITL, each in a private network namespace."""
-    p = argparse.ArgumentParser(prog="python -m firmware_bridge.sitl_demo", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m ddpc_codegen.testbed.sitl_demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=str(ROOT / "reports"), help="folder for sitl.json and the flight logs")
     p.add_argument("--autopilot", action="append", choices=("px4", "ardupilot"), help="default: every available")
     a = p.parse_args(argv)
@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[sitl-demo] {ap}: skipped: {why}", flush=True)
             continue
         print(f"[sitl-demo] {ap}: ground -> baseline -> collect -> codegen -> steer ...", flush=True)
-        res = run_isolated("firmware_bridge.sitl_demo:run_pipeline",
+        res = run_isolated("ddpc_codegen.testbed.sitl_demo:run_pipeline",
                            {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}")}, timeout=900)
         report[ap] = res
         r, rt = res["rmse_z"], res["rmse_z_truth"]

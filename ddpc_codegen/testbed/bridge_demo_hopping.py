@@ -207,7 +207,7 @@ def in_process(solver_dir: Path, duration: float, seed: int, noise: bool) -> dic
     from ddpc_codegen.robot.profile import load_profile
     from ddpc_codegen.sim import simulate
 
-    from firmware_bridge.hopping import hopping_window
+    from firmware_bridge.hopping_loop import hopping_window
 
     solver = load_solver(solver_dir)
     st = ReferenceSteerer.for_solver(solver)
@@ -230,7 +230,7 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
     import subprocess
     import time
 
-    from firmware_bridge.demo import ROOT, _env, _py, fly, write_report
+    from ddpc_codegen.testbed.bridge_demo import ROOT, _env, _py, fly, write_report
 
     config = config or ROOT / "configs" / "hopping.toml"
     work.mkdir(parents=True, exist_ok=True)

@@ -112,7 +112,7 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
     veh_err = open(work / f"{name}_vehicle.log", "w")
     try:
         veh = subprocess.Popen(
-            _py() + ["firmware_bridge.cli", "vehicle", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
+            _py() + ["ddpc_codegen.testbed.cli", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
                      "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
                      "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle") + list(vehicle_args),
             env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
@@ -326,7 +326,7 @@ _FLY_CONFIG = str(ROOT / "configs" / "flying.toml")
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m firmware_bridge.demo", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m ddpc_codegen.testbed.bridge_demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=_OUT)
     p.add_argument("--work", default=str(ROOT / "build" / "bridge-demo"), help="logs, dataset, generated solver")
     p.add_argument("--collect", type=float, default=None,
@@ -346,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pin", action="store_true", help="pin the bridge and the vehicle to different CPUs")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--scenario", choices=("flying", "hopping"), default="flying",
-                   help="hopping: firmware_bridge.demo_hopping (collect -> codegen configs/hopping.toml -> baseline -> "
+                   help="hopping: ddpc_codegen.testbed.bridge_demo_hopping (collect -> codegen configs/hopping.toml -> baseline -> "
                         "steered; default out reports/bridge_hopping.json, 120 s collect, lock-step)")
     p.add_argument("--realtime", action="store_true", help="hopping: real time instead of lock-step")
     p.add_argument("--noise", action="store_true", help="hopping: sensor noise on the vehicle (default: none, as make demo)")
@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="hopping: the bridge's phases from telemetry alone (default) or the vehicle's contact signal")
     a = p.parse_args(argv)
     if a.scenario == "hopping":
-        from firmware_bridge.demo_hopping import run_hopping_demo
+        from ddpc_codegen.testbed.bridge_demo_hopping import run_hopping_demo
 
         out = Path(a.out) if a.out != _OUT else ROOT / "reports" / "bridge_hopping.json"
         run_hopping_demo(out, Path(a.work), collect_s=a.collect or 120.0, flight_s=a.flight,

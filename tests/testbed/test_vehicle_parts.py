@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from bridge_helpers import free_port
+from support.bridge_helpers import free_port
 
 from ddpc_codegen.robot.controller import MeasuredState
 from ddpc_codegen.sim import plant as plant_mod
 from firmware_bridge.link import mavlink
-from firmware_bridge.vehicle import SimVehicle, VehicleConfig
-from firmware_bridge.vehicle_telemetry import SamplePattern, TelemetryPublisher
+from ddpc_codegen.testbed.vehicle import SimVehicle, VehicleConfig
+from ddpc_codegen.testbed.vehicle_telemetry import SamplePattern, TelemetryPublisher
 
 
 def _stamps(kind: str, seconds: float = 20.0, seed: int = 0) -> list[list[int]]:
@@ -131,7 +131,7 @@ def test_contact_flag_goes_with_each_sample_and_is_read_back():
 
 
 def test_hopping_vehicle_logs_true_contact_events_in_vehicle_time(tmp_path):
-    from firmware_bridge.vehicle import MODE_LAND
+    from ddpc_codegen.testbed.vehicle import MODE_LAND
 
     veh = _vehicle(noise=False, scenario="hopping", truth_log=str(tmp_path / "truth.npz"))
     assert veh.plant.state[2] == pytest.approx(0.7)  # the release height
