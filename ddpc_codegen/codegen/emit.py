@@ -39,14 +39,16 @@ MAX_REFINE = 25  # osqp: active-set changes of the refinement (each one dense O(
 DAQP_STRUCT_WORDS = 160  # >= sizeof(DAQPWorkspace+DAQPProblem+DAQPSettings+DAQPResult)/8 on LP64 (~1 KiB)
 VECTORS_FILE = "{name}_vectors.txt"
 
-_NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,40}$")
+# single "_" between letters/digits only: CasADi reserves names with "__" (and "<name>_" + "_x" makes one)
+_NAME_RE = re.compile(r"[A-Za-z](?:_?[A-Za-z0-9])*")
 
 
 def check_name(name: str) -> str:
     """The solver name becomes a C identifier prefix and a Python module name."""
-    if not _NAME_RE.match(name):
+    if not isinstance(name, str) or len(name) > 41 or not _NAME_RE.fullmatch(name):
         raise CodegenError(
-            f"solver name {name!r} must start with a letter and contain only letters, digits and '_' "
+            f"solver name {name!r} must start with a letter, contain only letters, digits and single '_' "
+            "between them, not end in '_', and have at most 41 characters "
             "(it becomes a C identifier prefix and a Python module name)"
         )
     return name
