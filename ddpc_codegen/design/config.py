@@ -27,7 +27,7 @@ _PREDICTOR_FORMS = ("absolute", "incremental")
 # section -> allowed keys (unknown keys are errors: a typo must not silently fall back to a default)
 _SCHEMA: dict[str, tuple[str, ...]] = {
     "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data"),
-    "horizon": ("t_ini", "t_f", "dt"),
+    "horizon": ("t_ini", "t_f", "dt", "knots"),
     "signals": ("inputs", "outputs", "input_units", "output_units"),
     "cost": ("Q", "R", "R_mode", "R_du", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
@@ -102,6 +102,9 @@ class SteeringConfig:
     ``R_mode``: ``absolute`` penalises ||u||_R (the paper), ``offset`` ||u - u_nom||_R,
     ``increment`` ||Δu||_R with Δu_0 = u_0 - u_ini[-1]. ``R_du`` (m, m; default 0) adds a rate
     penalty ||Δu||_R_du on top of any mode, e.g. a smooth *and* small steering offset.
+    ``knots`` (None: every sample is free) parameterizes the references over the horizon by their
+    values at these sample indices, linear in between (``design.blocking``); a count is resolved to
+    indices on load.
     """
 
     t_ini: int
@@ -119,6 +122,7 @@ class SteeringConfig:
     y_max: np.ndarray | None = None
     du_max: np.ndarray | None = None
     dt: float = 0.005
+    knots: tuple[int, ...] | None = None
     name: str = "steering"
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
@@ -171,6 +175,13 @@ class SteeringConfig:
         if not (_is_num(self.dt) and np.isfinite(self.dt) and self.dt > 0):
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
+        if self.knots is not None:
+            from ddpc_codegen.design.blocking import knot_positions
+
+            try:
+                set_("knots", knot_positions(self.knots, self.t_f))
+            except ValueError as e:
+                raise _err(src, "[horizon] knots", str(e)) from None
         self._check_signals()
         pred = dict(self.predictor)
         pred.setdefault("method", "pem")
@@ -285,6 +296,7 @@ class SteeringConfig:
             t_ini=hz["t_ini"],
             t_f=hz["t_f"],
             dt=hz.get("dt", 0.005),
+            knots=hz.get("knots"),
             m=len(sg["inputs"]),
             p=len(sg["outputs"]),
             input_names=tuple(sg["inputs"]),
@@ -324,6 +336,7 @@ class SteeringConfig:
             "codegen": {k: v for k, v in self.codegen.items()},
             # only when used: configs without a rate penalty keep their digest (and their solvers)
             **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
+            **({"knots": list(self.knots)} if self.knots is not None else {}),
             **({"artificial_io": dict(self.artificial_io)} if self.artificial_io else {}),
         }
 

@@ -5,6 +5,9 @@ paper's problem becomes a dense QP in u (m*Tf variables):
 
     min_u  1/2 u' P u + q(theta)' u     s.t.  l(theta) <= A u <= u(theta)
 
+With ``[horizon] knots`` the QP variable is z = v, the references at the knots (m*K variables), and
+u = B v (``design.blocking``); without it z = u (B = I, the QP as written above).
+
 with P and A constant and (q, l, u) affine in the parameters theta = [u_ini; y_ini; y_des
 (; u_nom)]. Everything is formed symbolically in CasADi; P and A are evaluated once, the
 parameter map is a CasADi Function (later exported as C).
@@ -20,6 +23,7 @@ import osqp
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from ddpc_codegen.design.blocking import distinct_rows, knot_basis
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import Predictor
@@ -46,11 +50,13 @@ class SteeringProblem:
     """Condensed steering QP for a fitted predictor and a steering configuration.
 
     Attributes:
-        P (n_u, n_u): constant Hessian. lb_u, ub_u (n_u,): constant simple bounds on u.
-        A_g (n_g, n_u): constant general constraint rows (predicted-y bounds, increments);
-        A = [I; A_g] (n_c, n_u) is the OSQP form.
-        param_map: CasADi Function theta (n_theta,) -> (q (n_u,), l_g (n_g,), u_g (n_g,)).
-        n_u = m*Tf, n_theta = (m+p)*Tini + p*Tf (+ m*Tf in R_mode "offset").
+        P (n_z, n_z): constant Hessian of the QP variable z (z = u, or the knot values v with knots).
+        lb_u, ub_u (n_z,): constant simple bounds on z (the references at the knots).
+        A_g (n_g, n_z): constant general constraint rows (predicted-y bounds, increments);
+        A = [I; A_g] (n_c, n_z) is the OSQP form.
+        B (n_u, n_z) or None: the knot basis, u = B z (None: no knots, z = u).
+        param_map: CasADi Function theta (n_theta,) -> (q (n_z,), l_g (n_g,), u_g (n_g,)).
+        n_u = m*Tf, n_z = m*K (n_u without knots), n_theta = (m+p)*Tini + p*Tf (+ m*Tf in R_mode "offset").
     """
 
     def __init__(self, predictor: Predictor, config: SteeringConfig) -> None:
@@ -60,14 +66,16 @@ class SteeringProblem:
         c = config
         m, p, Ti, Tf = c.m, c.p, c.t_ini, c.t_f
         self.n_u = m * Tf
+        self.B = None if c.knots is None else knot_basis(c.knots, Tf, m)
+        self.n_z = self.n_u if self.B is None else self.B.shape[1]
         self.n_w = (m + p) * Ti
         self.has_nominal = c.R_mode == "offset"
         self.n_theta = self.n_w + p * Tf + (m * Tf if self.has_nominal else 0)
 
-        u = ca.SX.sym("u", self.n_u)
+        u = ca.SX.sym("u", self.n_z)
         theta = ca.SX.sym("theta", self.n_theta)
         J, y, du_expr, D = self._cost(u, theta)
-        g, lo, hi = self._general_constraints(y, du_expr)
+        g, lo, hi = self._general_constraints(y, du_expr, D)
         self._evaluate(J, g, lo, hi, u, theta)
         self._check_hessian()
         self._precompute(D)
@@ -84,26 +92,34 @@ class SteeringProblem:
                     f"{key}={getattr(predictor, key)}; refit the predictor or fix the config"
                 )
 
+    def _through_basis(self, M: np.ndarray) -> np.ndarray:
+        """M B: a matrix acting on u as one acting on the QP variable z (M itself without knots)."""
+        return M if self.B is None else M @ self.B
+
     def _cost(self, u: ca.SX, theta: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX, np.ndarray]:
-        """The cost J(u, theta), the predicted outputs y, the increments du and the difference matrix D."""
+        """The cost J(z, theta) of the QP variable (named u: it is u without knots), the predicted outputs
+        y, the increments du of u = B z and the difference matrix D (n_u, n_u) acting on u."""
         c, pr = self.config, self.predictor
         m, p, Ti, Tf = c.m, c.p, c.t_ini, c.t_f
         w = theta[: self.n_w]
         y_des = theta[self.n_w : self.n_w + p * Tf]
         u_ini = theta[: m * Ti]
-        y = ca.mtimes(ca.DM(pr.Gy_w), w) + ca.mtimes(ca.DM(pr.Gy_u), u)
-        sig = ca.mtimes(ca.DM(pr.Gs_w), w) + ca.mtimes(ca.DM(pr.Gs_u), u)
+        # Products with B are formed numerically (small dense matrices instead of a long SX graph).
+        y = ca.mtimes(ca.DM(pr.Gy_w), w) + ca.mtimes(ca.DM(self._through_basis(pr.Gy_u)), u)
+        sig = ca.mtimes(ca.DM(pr.Gs_w), w) + ca.mtimes(ca.DM(self._through_basis(pr.Gs_u)), u)
         Qb = ca.DM(np.kron(np.eye(Tf), c.Q))
         Rb = ca.DM(np.kron(np.eye(Tf), c.R))
         e = y - y_des
         J = ca.mtimes([e.T, Qb, e]) + c.lambda_sigma * ca.dot(sig, sig)
         D = np.eye(self.n_u) - np.eye(self.n_u, k=-m)  # stacked differences
         # Increments du_k = u_k - u_(k-1), the first against the last applied input u_ini[-1].
-        du_expr = ca.mtimes(ca.DM(D), u) - ca.vertcat(u_ini[m * (Ti - 1) :], ca.DM.zeros(self.n_u - m))
+        du_expr = ca.mtimes(ca.DM(self._through_basis(D)), u) - ca.vertcat(u_ini[m * (Ti - 1) :],
+                                                                            ca.DM.zeros(self.n_u - m))
+        u_full = u if self.B is None else ca.mtimes(ca.DM(self.B), u)
         if c.R_mode == "absolute":
-            ru = u
+            ru = u_full
         elif c.R_mode == "offset":
-            ru = u - theta[self.n_w + p * Tf :]
+            ru = u_full - theta[self.n_w + p * Tf :]
         else:
             ru = du_expr
         J = J + ca.mtimes([ru.T, Rb, ru])
@@ -111,24 +127,31 @@ class SteeringProblem:
             J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
         return J, y, du_expr, D
 
-    def _general_constraints(self, y: ca.SX, du_expr: ca.SX) -> tuple[ca.SX, list, list]:
-        """Simple bounds on u (constant) and the general rows g with their bounds: predicted y and
-        increments, only rows that bound something."""
+    def _general_constraints(self, y: ca.SX, du_expr: ca.SX, D: np.ndarray) -> tuple[ca.SX, list, list]:
+        """Simple bounds on z (constant) and the general rows g with their bounds: predicted y and
+        increments, only rows that bound something (with knots: one increment row per segment, as the
+        increments inside a segment are equal)."""
         c, Tf = self.config, self.config.t_f
-        self.lb_u = np.tile(c.u_min, Tf).astype(float)
-        self.ub_u = np.tile(c.u_max, Tf).astype(float)
+        n_steps = Tf if self.B is None else len(c.knots)
+        self.lb_u = np.tile(c.u_min, n_steps).astype(float)
+        self.ub_u = np.tile(c.u_max, n_steps).astype(float)
         rows, lo, hi, kinds = [], [], [], []
         ym = np.tile(c.y_min, Tf), np.tile(c.y_max, Tf)
         for i in np.nonzero(np.isfinite(ym[0]) | np.isfinite(ym[1]))[0]:
             rows.append(y[int(i)]); lo.append(ym[0][i]); hi.append(ym[1][i]); kinds.append("y")
         du = np.tile(c.du_max, Tf)
-        if np.any(np.isfinite(du)):
-            for i in np.nonzero(np.isfinite(du))[0]:
+        du_rows = np.nonzero(np.isfinite(du))[0]
+        if self.B is not None and du_rows.size:
+            first = (np.arange(self.n_u) < c.m) * (np.arange(self.n_u) % c.m + 1.0)  # rows that read u_ini[-1]
+            rhs = np.c_[first, np.where(np.isfinite(du), du, 0.0)]
+            du_rows = du_rows[distinct_rows((D @ self.B)[du_rows], rhs[du_rows])]
+        if du_rows.size:
+            for i in du_rows:
                 rows.append(du_expr[int(i)]); lo.append(-du[i]); hi.append(du[i]); kinds.append("du")
         self.general_kinds = tuple(kinds)
         g = ca.vertcat(*rows) if rows else ca.SX(0, 1)
         self.n_g = int(g.shape[0])
-        self.n_c = self.n_u + self.n_g  # OSQP form: A = [I; A_g]
+        self.n_c = self.n_z + self.n_g  # OSQP form: A = [I; A_g]
         return g, lo, hi
 
     def _evaluate(self, J: ca.SX, g: ca.SX, lo: list, hi: list, u: ca.SX, theta: ca.SX) -> None:
@@ -138,7 +161,7 @@ class SteeringProblem:
         Ag = ca.jacobian(g, u)
         if ca.depends_on(H, theta) or (self.n_g and ca.depends_on(Ag, theta)):
             raise AssertionError("steering QP is not a parametric QP with constant P and A")  # pragma: no cover
-        zero = ca.DM.zeros(self.n_u)
+        zero = ca.DM.zeros(self.n_z)
         q_expr = ca.substitute(grad, u, zero)
         g0 = ca.substitute(g, u, zero) if self.n_g else g
         lo_v, hi_v = ca.DM(np.asarray(lo, float)), ca.DM(np.asarray(hi, float))
@@ -148,8 +171,8 @@ class SteeringProblem:
         Hn, An = consts(np.zeros(self.n_theta))
         self.P = np.array(Hn, dtype=float)
         self.P = 0.5 * (self.P + self.P.T)
-        self.A_g = np.array(An, dtype=float).reshape(self.n_g, self.n_u)
-        self.A = np.vstack([np.eye(self.n_u), self.A_g])
+        self.A_g = np.array(An, dtype=float).reshape(self.n_g, self.n_z)
+        self.A = np.vstack([np.eye(self.n_z), self.A_g])
         # CasADi Functions of the parameters; their generated C is the per-tick parameter map.
         self.param_map = ca.Function("ddpc_param_map", [theta], [q_expr, l_expr, u_expr],
                                      ["theta"], ["q", "l_g", "u_g"])
@@ -160,7 +183,7 @@ class SteeringProblem:
         jac = ca.Function("param_jacobian", [theta], [ca.jacobian(q_expr, theta),
                                                       ca.jacobian(l_expr, theta) if self.n_g else ca.DM(0, self.n_theta)])
         Fq, Fl = jac(np.zeros(self.n_theta))
-        self.F_q = np.array(Fq, dtype=float).reshape(self.n_u, self.n_theta)
+        self.F_q = np.array(Fq, dtype=float).reshape(self.n_z, self.n_theta)
         self.F_g = np.array(Fl, dtype=float).reshape(self.n_g, self.n_theta)  # l_g = lg0 + F_g theta, same for u_g
         q0, l0, u0 = self.param_map(np.zeros(self.n_theta))
         self.q0 = np.array(q0, dtype=float).reshape(-1)
@@ -176,6 +199,7 @@ class SteeringProblem:
         self.k0 = -sla.cho_solve(chol, self.q0)
         self._y_lo, self._y_hi = np.tile(c.y_min, Tf).astype(float), np.tile(c.y_max, Tf).astype(float)
         self._du_max = np.tile(c.du_max, Tf).astype(float)
+        self._u_lo, self._u_hi = np.tile(c.u_min, Tf).astype(float), np.tile(c.u_max, Tf).astype(float)
         self._D = D  # stacked differences (n_u, n_u)
 
     def _check_hessian(self) -> None:
@@ -222,23 +246,35 @@ class SteeringProblem:
             return bool(np.all(Az >= l - tol * np.maximum(1.0, np.abs(l)))
                         and np.all(Az <= u + tol * np.maximum(1.0, np.abs(u))))
 
-    def check(self, z: np.ndarray | None, th: np.ndarray) -> str:
-        """Verify an answer z (n_u,) at theta in the bounds' own units.
+    def to_u(self, z: np.ndarray) -> np.ndarray:
+        """The references over the horizon u = B z (n_u,) of a QP answer z (n_z,) (z itself without knots)."""
+        return z if self.B is None else self.B @ z
 
-        Returns "solved" when z and its predicted y are finite and u, du (against u_ini[-1] first)
-        and y are inside their bounds within BOUND_TOL * max(1, |bound|); else "nonfinite" or
-        "out_of_bounds". This is the one acceptance test of every interpreted answer.
+    def to_z(self, u: np.ndarray) -> np.ndarray:
+        """The QP variable of a trajectory u (n_u,): its values at the knots (u itself without knots)."""
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if self.B is None:
+            return u
+        return u.reshape(self.config.t_f, self.config.m)[list(self.config.knots)].reshape(-1)
+
+    def check(self, z: np.ndarray | None, th: np.ndarray) -> str:
+        """Verify an answer z (n_z,) at theta in the bounds' own units, on the whole horizon u = B z.
+
+        Returns "solved" when u and its predicted y are finite and u, du (against u_ini[-1] first)
+        and y are inside their bounds within BOUND_TOL * max(1, |bound|) at every tick; else
+        "nonfinite" or "out_of_bounds". This is the one acceptance test of every interpreted answer.
         """
         if z is None or not np.all(np.isfinite(z)):
             return "nonfinite"
         m, ti, pr = self.config.m, self.config.t_ini, self.predictor
         with np.errstate(over="ignore", invalid="ignore"):
-            y = pr.Gy_w @ th[: self.n_w] + pr.Gy_u @ z
-            du = self._D @ z
+            u = self.to_u(z)
+            y = pr.Gy_w @ th[: self.n_w] + pr.Gy_u @ u
+            du = self._D @ u
             du[:m] -= th[m * (ti - 1) : m * ti]  # the first increment is against the last applied input
             if not np.all(np.isfinite(y)) or not np.all(np.isfinite(du)):
                 return "nonfinite"
-            inside = (within_bounds(z, self.lb_u, self.ub_u) and within_bounds(y, self._y_lo, self._y_hi)
+            inside = (within_bounds(u, self._u_lo, self._u_hi) and within_bounds(y, self._y_lo, self._y_hi)
                       and within_bounds(du, -self._du_max, self._du_max))
         return "solved" if inside else "out_of_bounds"
 
@@ -255,11 +291,11 @@ class SteeringProblem:
                         and np.all(big < 1e30) and not np.any(l == np.inf) and not np.any(u == -np.inf))
 
     def unconstrained(self, theta: np.ndarray) -> np.ndarray:
-        """Unconstrained optimum K theta + k0, (n_u,)."""
+        """Unconstrained optimum K theta + k0 of the QP variable, (n_z,)."""
         return self.K @ theta + self.k0
 
     def cost(self, u: np.ndarray, theta: np.ndarray) -> float:
-        """Objective J(u; theta) as written (without the 1/2 of the QP form)."""
+        """Objective J(z; theta) of the QP variable z (n_z,; u without knots) as written (without the 1/2)."""
         return float(self._cost_fn(u, theta))
 
     # ------------------------------------------------------------------ solving
@@ -325,17 +361,17 @@ class SteeringProblem:
 
     def result(self, z: np.ndarray | None, th: np.ndarray, status: str, iterations: int = 0,
                solve_time: float = 0.0, fast_path: bool = False) -> SteeringResult:
-        """Package a solution vector z (n_u,) at theta into a SteeringResult (NaN unless "solved")."""
+        """Package a solution vector z (n_z,) at theta into a SteeringResult of u = B z (NaN unless "solved")."""
         c, pr = self.config, self.predictor
         if status != "solved" or z is None or not np.all(np.isfinite(z)):
             nan = np.full(self.n_u, np.nan)
             return SteeringResult(nan.reshape(c.t_f, c.m), np.full((c.t_f, c.p), np.nan),
                                   np.full((c.t_ini, c.p), np.nan), status if status != "solved" else "nonfinite",
                                   iterations, solve_time)
-        w = th[: self.n_w]
-        y = pr.Gy_w @ w + pr.Gy_u @ z
-        s = pr.Gs_w @ w + pr.Gs_u @ z
-        return SteeringResult(z.reshape(c.t_f, c.m), y.reshape(c.t_f, c.p), s.reshape(c.t_ini, c.p),
+        w, u = th[: self.n_w], self.to_u(z)
+        y = pr.Gy_w @ w + pr.Gy_u @ u
+        s = pr.Gs_w @ w + pr.Gs_u @ u
+        return SteeringResult(u.reshape(c.t_f, c.m), y.reshape(c.t_f, c.p), s.reshape(c.t_ini, c.p),
                               status, int(iterations), solve_time, self.cost(z, th), fast_path)
 
     def _solve_osqp(self, q, l, ub, eps, max_iter):
@@ -366,12 +402,12 @@ class SteeringProblem:
     def _solve_exact(self, q, l, ub):
         if self._exact is None:
             Hs = ca.DM(self.P).sparsity()
-            As = ca.DM(self.A_g).sparsity() if self.n_g else ca.Sparsity(0, self.n_u)
+            As = ca.DM(self.A_g).sparsity() if self.n_g else ca.Sparsity(0, self.n_z)
             self._exact = ca.conic("exact", "daqp", {"h": Hs, "a": As},
                                    {"error_on_fail": False, "print_problem": False, "daqp": dict(DAQP_OPTIONS)})
-        kw = dict(h=self.P, g=q, lbx=l[: self.n_u], ubx=ub[: self.n_u])
+        kw = dict(h=self.P, g=q, lbx=l[: self.n_z], ubx=ub[: self.n_z])
         if self.n_g:
-            kw.update(a=self.A_g, lba=l[self.n_u :], uba=ub[self.n_u :])
+            kw.update(a=self.A_g, lba=l[self.n_z :], uba=ub[self.n_z :])
         r = self._exact(**kw)
         st = self._exact.stats()
         ok = bool(st.get("success", False))
