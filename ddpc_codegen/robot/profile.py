@@ -2,26 +2,70 @@
 validated TOML file (``[controller]``: :class:`ControllerConfig` fields, ``[trajectory]``:
 :class:`EllipseTrajectory` fields, ``[contact]``: :class:`ContactConfig` fields, hopping phase
 detection, ``[steering]``: :class:`SteeringGuards`, the bridge's guards this robot needs when
-steered). Shipped profiles live in ``ddpc_codegen/robot/profiles/``
-and are named by their file stem (``pogox``); any other profile is a path.
+steered, ``[envelope]``: :class:`Envelope`, what the bridge's last gate lets reach the vehicle).
+Shipped profiles live in ``ddpc_codegen/robot/profiles/`` and are named by their file stem
+(``pogox``); any other profile is a path. Every number is checked for type, finiteness and range
+(:mod:`.validate`) before anything is built from it; the file's size and nesting before it is parsed.
 """
 
 from __future__ import annotations
 
+import math
+import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.controller import ControllerConfig
-from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
+from ddpc_codegen.robot.signals import REFERENCES, check_per_reference
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
-from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
+from ddpc_codegen.robot.validate import Range, check_table, read_text_bounded
+from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table
 
-__all__ = ["RobotProfile", "SteeringGuards", "load_profile", "shipped_profiles", "PROFILE_DIR"]
+__all__ = ["RobotProfile", "SteeringGuards", "Envelope", "load_profile", "shipped_profiles", "PROFILE_DIR",
+           "PROFILE_RANGES"]
 
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
-_TOP = ("name", "description", "extends", "controller", "trajectory", "contact", "steering")
+_TOP = ("name", "description", "extends", "controller", "trajectory", "contact", "steering", "envelope")
+_MAX_EXTENDS = 8  # a chain of profiles longer than this is a mistake, not a design
+_POS = Range(lo=0.0, lo_open=True, hi=1e6)
+_NONNEG = Range(lo=0.0, hi=1e6)
+# Physical ranges of every number a profile holds (SI units): wide enough for any multirotor or hopper,
+# narrow enough that a typo (a gain of 1e9, a negative mass, a tilt past 90 deg) is refused.
+PROFILE_RANGES: dict[str, dict[str, Range]] = {
+    "controller": {
+        "dt": Range(lo=0.0, lo_open=True, hi=1.0), "model_mass": Range(lo=0.0, lo_open=True, hi=1e4),
+        "max_thrust": _POS, "g": Range(lo=0.1, hi=100.0), "kp_z": Range(lo=0.0, lo_open=True, hi=1e4),
+        "kd_z": Range(lo=0.0, hi=1e4), "ref_velocity_gain": Range(lo=0.0, hi=10.0, optional=True),
+        "ref_velocity_tau": Range(lo=0.0, hi=10.0), "kp_xy": Range(lo=0.0, hi=1e4), "kd_xy": Range(lo=0.0, hi=1e4),
+        "max_tilt": Range(lo=0.0, lo_open=True, hi=math.pi / 2, hi_open=True),
+        "thrust_fraction": Range(lo=0.0, hi=1.0, hi_open=True), "apex_height": Range(lo=0.0, hi=100.0),
+        "target_velocity": Range(lo=-50.0, hi=50.0, n=2), "stance_boost": Range(lo=0.0, hi=1e3),
+        "raibert_gain": Range(lo=0.0, hi=10.0), "velocity_integral_gain": Range(lo=0.0, hi=100.0),
+        "leg_length": Range(lo=0.0, lo_open=True, hi=10.0), "leg_stiffness": Range(lo=0.0, lo_open=True, hi=1e7),
+        "initial_apex": Range(lo=0.0, hi=100.0, optional=True), "mode": Range(text=True, max_len=16),
+    },
+    "trajectory": {
+        "center": Range(lo=-1e4, hi=1e4, n=2), "radii": Range(lo=0.0, hi=1e4, n=2),
+        "period": Range(lo=0.0, lo_open=True, hi=1e6), "spin_up": Range(lo=0.0, lo_open=True, hi=1e4),
+        "t_start": Range(lo=0.0, hi=1e6),
+    },
+    "contact": {
+        "source": Range(text=True, max_len=16),
+        "signal_name": Range(text=True, max_len=10),  # NAMED_VALUE_INT.name holds 10 characters
+        "leg_length": Range(lo=0.0, lo_open=True, hi=10.0), "ground_z": Range(lo=-100.0, hi=100.0),
+        "touchdown_margin": Range(lo=0.0, hi=1.0), "liftoff_margin": Range(lo=-1.0, hi=1.0),
+        "vz_band": Range(lo=0.0, hi=10.0), "min_ground_ticks": Range(lo=0, hi=10_000, integer=True),
+        "min_air_ticks": Range(lo=0, hi=10_000, integer=True), "backdate_ticks": Range(lo=0, hi=100, integer=True),
+    },
+    "envelope": {
+        "z_min": Range(lo=-1e3, hi=1e4), "z_max": Range(lo=-1e3, hi=1e4),
+    },  # offset_rate: check_per_reference (one per reference of the loop)
+    "steering": {},  # max_step: check_per_reference (one per reference of the loop)
+}
 
 
 @dataclass(frozen=True)
@@ -39,6 +83,36 @@ class SteeringGuards:
 
 
 @dataclass(frozen=True)
+class Envelope:
+    """What the bridge's last gate lets reach the vehicle (``[envelope]``), whatever mode produced it.
+
+    Attributes:
+        z_min, z_max: the applied height reference's range [m, from the take-off point]. The angle
+            references are bounded by the controller's own ``max_tilt``.
+        offset_rate: largest change per second of the correction on top of the nominal reference
+            (applied - nominal), per reference (flying: z [m/s], pitch [rad/s]); None: 5 m/s and
+            5 rad/s. A steered solver's own ``du_max`` is the bound when it is tighter.
+    """
+
+    z_min: float = -1.0
+    z_max: float = 20.0
+    offset_rate: tuple[float, ...] | None = None
+
+    def reference_bounds(self, mode: str, max_tilt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) per reference of the ``mode`` loop: z in [z_min, z_max], angles within +-max_tilt."""
+        refs = REFERENCES[mode]
+        lo = np.array([self.z_min if r == "z_ref" else -max_tilt for r in refs])
+        hi = np.array([self.z_max if r == "z_ref" else max_tilt for r in refs])
+        return lo, hi
+
+    def offset_rates(self, mode: str) -> np.ndarray:
+        """Per-second bound of the correction's change per reference of the ``mode`` loop."""
+        if self.offset_rate is not None:
+            return np.array(self.offset_rate, dtype=float)
+        return np.full(len(REFERENCES[mode]), 5.0)
+
+
+@dataclass(frozen=True)
 class RobotProfile:
     """What the companion computer needs to know about one robot.
 
@@ -49,6 +123,7 @@ class RobotProfile:
         trajectory: the default desired trajectory (world ENU / trajectory frame, m, s).
         contact: how hopping phases are detected (``[contact]``; :class:`ContactConfig`).
         steering: the bridge's guards when steered (``[steering]``; :class:`SteeringGuards`).
+        envelope: what the bridge's last gate lets through (``[envelope]``; :class:`Envelope`).
         source: where it was loaded from.
     """
 
@@ -58,6 +133,7 @@ class RobotProfile:
     trajectory: EllipseTrajectory
     contact: ContactConfig = ContactConfig()
     steering: SteeringGuards = SteeringGuards()
+    envelope: Envelope = Envelope()
     source: str = "<profile>"
 
 
@@ -77,33 +153,82 @@ def _resolve(name_or_path: str | Path) -> Path:
     return shipped
 
 
-def load_profile(name_or_path: str | Path) -> RobotProfile:
+def _read(path: Path) -> dict:
+    """Parse a profile after its size and nesting were checked (both would exhaust the parser)."""
+    text = read_text_bounded(path, "robot profile", limit=256_000)
+    try:
+        return tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError) as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+
+
+def _table(raw: dict, key: str, src: str) -> dict:
+    """One table, its numbers checked against :data:`PROFILE_RANGES` (unknown keys: the caller's check)."""
+    table = raw.get(key, {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{src}: [{key}] must be a table; got {table!r}")
+    return check_table(table, PROFILE_RANGES[key], f"{src}: [{key}]")
+
+
+def load_profile(name_or_path: str | Path, _chain: tuple[str, ...] = ()) -> RobotProfile:
     """Load and validate a robot profile (a shipped name such as ``"pogox"`` or a TOML path).
 
     ``extends = "<profile>"`` starts from another profile and overrides the keys given.
+
+    Raises:
+        ConfigError: naming the file and the key: unknown keys, values of the wrong type, non-finite or
+            out of their physical range, an ``extends`` cycle or chain deeper than 8, a file too large.
     """
     path = _resolve(name_or_path)
     src = str(path)
-    raw = check_keys(load_toml(path), _TOP, "top level:", src)
+    key = str(path.resolve())
+    if key in _chain:
+        names = " -> ".join(Path(p).name for p in (*_chain, key))
+        raise ConfigError(f"{src}: extends cycle: {names}")
+    if len(_chain) >= _MAX_EXTENDS:
+        raise ConfigError(f"{src}: extends chain deeper than {_MAX_EXTENDS} profiles")
+    raw = check_keys(_read(path), _TOP, "top level:", src)
     base = None
     if "extends" in raw:
-        if not isinstance(raw["extends"], str) or Path(raw["extends"]).stem == path.stem:
+        if not isinstance(raw["extends"], str) or not raw["extends"] or Path(raw["extends"]).stem == path.stem:
             raise ConfigError(f"{src}: extends must name another profile; got {raw['extends']!r}")
-        base = load_profile(raw["extends"])
-    ctrl = dataclass_from_table(ControllerConfig, raw.get("controller", {}), "[controller]", src,
+        base = load_profile(raw["extends"], (*_chain, key))
+    ctrl = dataclass_from_table(ControllerConfig, _table(raw, "controller", src), "[controller]", src,
                                 base.controller if base else None)
-    traj = dataclass_from_table(EllipseTrajectory, raw.get("trajectory", {}), "[trajectory]", src,
+    traj = dataclass_from_table(EllipseTrajectory, _table(raw, "trajectory", src), "[trajectory]", src,
                                 base.trajectory if base else None)
-    contact = dataclass_from_table(ContactConfig, raw.get("contact", {}), "[contact]", src,
+    contact = dataclass_from_table(ContactConfig, _table(raw, "contact", src), "[contact]", src,
                                    base.contact if base else None)
     steering = dataclass_from_table(SteeringGuards, raw.get("steering", {}), "[steering]", src,
                                     base.steering if base else None)
+    envelope = _envelope(raw, src, ctrl.mode, base.envelope if base else None)
     try:  # one value per reference of this profile's loop: the bridge applies the same check
         steering = replace(steering, max_step=check_per_reference("max_step", steering.max_step, ctrl.mode))
     except ValueError as e:
         raise ConfigError(f"{src}: [steering] {e}") from None
-    for key in ("name", "description"):
-        if key in raw and not isinstance(raw[key], str):
-            raise ConfigError(f"{src}: {key} must be a string; got {raw[key]!r}")
+    for k in ("name", "description"):
+        if k in raw and (not isinstance(raw[k], str) or len(raw[k]) > 200):
+            raise ConfigError(f"{src}: {k} must be a string of at most 200 characters; got {raw[k]!r}")
     return RobotProfile(name=raw.get("name", path.stem), description=raw.get("description", ""),
-                        controller=ctrl, trajectory=traj, contact=contact, steering=steering, source=src)
+                        controller=ctrl, trajectory=traj, contact=contact, steering=steering, envelope=envelope,
+                        source=src)
+
+
+def _envelope(raw: dict, src: str, mode: str, base: Envelope | None) -> Envelope:
+    """``[envelope]`` on top of the base profile's: z_min < z_max, one offset rate per reference."""
+    table = dict(_table(raw, "envelope", src))
+    rate = table.get("offset_rate")
+    if rate is not None:
+        try:
+            table["offset_rate"] = check_per_reference("offset_rate", rate, mode)
+        except ValueError as e:
+            raise ConfigError(f"{src}: [envelope] {e}") from None
+        if max(table["offset_rate"]) > 1e3:
+            raise ConfigError(f"{src}: [envelope] offset_rate must be at most 1000 per second; got {rate!r}")
+    env = dataclass_from_table(Envelope, table, "[envelope]", src, base)
+    if env.offset_rate is not None and len(env.offset_rate) != len(REFERENCES[mode]):
+        raise ConfigError(f"{src}: [envelope] offset_rate of the base profile has {len(env.offset_rate)} values; "
+                          f"the {mode} loop needs {len(REFERENCES[mode])}: set it here")
+    if not env.z_min < env.z_max:
+        raise ConfigError(f"{src}: [envelope] needs z_min < z_max; got z_min {env.z_min!r}, z_max {env.z_max!r}")
+    return env

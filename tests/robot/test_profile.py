@@ -3,11 +3,20 @@ refused with messages naming the file, the table, the key and the value."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import math
+
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.robot.profile import load_profile, shipped_profiles
+from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.phases import ContactConfig
+from ddpc_codegen.robot.profile import PROFILE_RANGES, Envelope, SteeringGuards, load_profile, shipped_profiles
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
+from ddpc_codegen.robot.validate import check_table
 
 
 def test_pogox_profile_is_the_simulated_flying_robot():
@@ -43,7 +52,18 @@ def test_extends_overrides_only_given_keys(tmp_path):
 
 @pytest.mark.parametrize("text, match", [
     ("[controller]\nmodel_mas = 3.0\n", r"\[controller\] model_mas is not a known key"),
-    ("[controller]\nmodel_mass = -1.0\n", r"\[controller\] .*model_mass, max_thrust and dt must be positive"),
+    ("[controller]\nmodel_mass = -1.0\n", r"\[controller\] model_mass must be a finite number in \(0, 10000\]; got -1.0"),
+    ("[controller]\nkp_z = nan\n", r"bad.toml: \[controller\] kp_z must be a finite number in \(0, 10000\]; got nan"),
+    ("[controller]\nkp_z = \"10\"\n", r"bad.toml: \[controller\] kp_z must be a finite number in \(0, 10000\]; got '10'"),
+    ("[controller]\nmax_tilt = 2.0\n", r"\[controller\] max_tilt must be a finite number in \(0, 1.5708\); got 2.0"),
+    ("[controller]\ntarget_velocity = [0.3]\n", r"\[controller\] target_velocity must be 2 numbers"),
+    ("[trajectory]\nperiod = inf\n", r"\[trajectory\] period must be a finite number in \(0, 1e\+06\]; got inf"),
+    ("[contact]\nsignal_name = 'CONTACT_SENSOR'\n", r"\[contact\] signal_name must be a string of 1 to 10"),
+    ("[contact]\nmin_air_ticks = 2.5\n", r"\[contact\] min_air_ticks must be an integer in \[0, 10000\]; got 2.5"),
+    ("[envelope]\nz_min = 2.0\nz_max = 1.0\n", r"\[envelope\] needs z_min < z_max; got z_min 2.0, z_max 1.0"),
+    ("[envelope]\noffset_rate = [1.0]\n", r"\[envelope\] offset_rate needs 2 values on the flying loop"),
+    ("[envelope]\nz_max = 'high'\n", r"\[envelope\] z_max must be a finite number"),
+    ("[envelope]\ncolour = 1\n", r"\[envelope\] colour is not a known key"),
     ("[trajectory]\nradii = 'x'\n", r"\[trajectory\]"),
     ("colour = 'red'\n", r"top level: colour is not a known key"),
     ("controller = 3\n", r"\[controller\] must be a table; got 3"),
@@ -68,3 +88,95 @@ def test_bad_profiles_are_refused_precisely(tmp_path, text, match):
 def test_unknown_profile_name_lists_the_shipped_ones():
     with pytest.raises(ConfigError, match=r"no robot profile 'pogo'.*pogox"):
         load_profile("pogo")
+
+
+def test_envelope_defaults_and_bounds(tmp_path):
+    f = tmp_path / "env.toml"
+    f.write_text('extends = "pogox"\n[envelope]\nz_min = 0.2\nz_max = 3.0\noffset_rate = [1.0, 2.0]\n')
+    prof = load_profile(f)
+    lo, hi = prof.envelope.reference_bounds("flying", prof.controller.max_tilt)
+    assert lo.tolist() == [0.2, -prof.controller.max_tilt] and hi.tolist() == [3.0, prof.controller.max_tilt]
+    assert prof.envelope.offset_rates("flying").tolist() == [1.0, 2.0]
+    assert load_profile("pogox_hopping").envelope.offset_rates("hopping").tolist() == [5.0, 5.0, 5.0]
+
+
+def test_extends_cycle_is_a_precise_error_not_recursion(tmp_path):
+    (tmp_path / "a.toml").write_text('extends = "%s"\n' % (tmp_path / "b.toml"))
+    (tmp_path / "b.toml").write_text('extends = "%s"\n' % (tmp_path / "a.toml"))
+    with pytest.raises(ConfigError, match=r"a.toml: extends cycle: a.toml -> b.toml -> a.toml"):
+        load_profile(tmp_path / "a.toml")
+
+
+def test_extends_chain_depth_is_bounded(tmp_path):
+    for i in range(12):
+        (tmp_path / f"p{i}.toml").write_text('extends = "%s"\n' % (tmp_path / f"p{i + 1}.toml") if i < 11 else "")
+    with pytest.raises(ConfigError, match=r"extends chain deeper than 8 profiles"):
+        load_profile(tmp_path / "p0.toml")
+
+
+def test_deep_and_huge_profiles_are_refused_before_parsing(tmp_path):
+    deep = tmp_path / "deep.toml"
+    deep.write_text("x = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    with pytest.raises(ConfigError, match=r"deep.toml: nested 100000 levels deep, more than a robot profile file may be"):
+        load_profile(deep)
+    huge = tmp_path / "huge.toml"
+    huge.write_text("# padding\n" * 30_000)
+    with pytest.raises(ConfigError, match=r"huge.toml: 300000 bytes, more than a robot profile file may have \(256000"):
+        load_profile(huge)
+    nested = tmp_path / "nested.toml"
+    nested.write_text("x = " + "[" * 50 + "]" * 50 + "\n")
+    with pytest.raises(ConfigError, match=r"nested.toml: nested 50 levels deep, more than a robot profile file may be \(32\)"):
+        load_profile(nested)
+
+
+# ----------------------------------------------------------------------------- property: mutate every field
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return "nan" if v != v else ("inf" if v == float("inf") else "-inf" if v == -float("inf") else repr(v))
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return "{}"
+
+
+_FIELDS = [(t, f.name) for t, cls in (("controller", ControllerConfig), ("trajectory", EllipseTrajectory),
+                                      ("contact", ContactConfig), ("steering", SteeringGuards), ("envelope", Envelope))
+           for f in dataclasses.fields(cls)]
+_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**20, 10**20), st.booleans(),
+                    st.text(max_size=12), st.lists(st.floats(allow_nan=True), max_size=4),
+                    st.lists(st.integers(-5, 5), max_size=4), st.just({}))
+
+
+def _all_numbers(obj) -> list[float]:
+    out = []
+    for v in dataclasses.asdict(obj).values():
+        for x in (v if isinstance(v, (tuple, list)) else (v,)):
+            if isinstance(x, (int, float)) and not isinstance(x, bool):
+                out.append(float(x))
+    return out
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(field=st.sampled_from(_FIELDS), value=_VALUES, base=st.sampled_from(["pogox", "pogox_hopping"]))
+def test_mutated_profiles_are_refused_or_finite(tmp_path, field, value, base):
+    """Any value in any field: a ConfigError naming the table, or a profile whose numbers are all finite
+    and inside their physical ranges -- never a traceback of another kind."""
+    table, key = field
+    f = tmp_path / "mut.toml"
+    f.write_text(f'extends = "{base}"\n[{table}]\n{key} = {_toml_value(value)}\n')
+    try:
+        prof = load_profile(f)
+    except ConfigError as e:
+        # (a string our serializer could not write as TOML is the parser's precise error)
+        assert "mut.toml" in str(e) and (f"[{table}]" in str(e) or "not valid TOML" in str(e)), str(e)
+        return
+    for part in (prof.controller, prof.trajectory, prof.contact, prof.steering, prof.envelope):
+        assert all(math.isfinite(x) for x in _all_numbers(part)), part
+    for name, ranges in PROFILE_RANGES.items():
+        obj = getattr(prof, name)
+        check_table({k: getattr(obj, k) for k in ranges}, ranges, name)  # raises if out of range
