@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test lint demo codegen bench bridge-demo sitl-demo clean
+.PHONY: install test lint docs demo codegen bench bridge-demo sitl-demo clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -30,9 +30,18 @@ test: install lint
 lint: install
 	$(VENV)/bin/ruff check .
 
+# The docs site (mkdocs, warnings are errors) into build/docs; the reference pages are generated from
+# the code while it builds. tests/test_docs.py builds it too, so `make test` checks it.
+docs: install
+	$(VENV)/bin/mkdocs build --strict --site-dir build/docs
+
+# Each measuring target ends by rendering its reports/*.json into docs/results.md and the README table.
+RENDER := $(PY) -m ddpc_codegen.docsgen.results
+
 # The main job: both scenarios with and without steering; table, reports/summary.json, figures.
 demo: install
 	$(PY) -m ddpc_codegen.experiments.demo
+	$(RENDER)
 
 # Steering solvers from configs/. A missing dataset is recorded on the simulator first
 # (hopping: aerial data, ground phases replaced by artificial IO, hops stitched into H_G).
@@ -54,10 +63,12 @@ bridge-demo: install
 # network namespace; reports/sitl.json and the flight logs in reports/sitl_<autopilot>/.
 sitl-demo: install
 	$(PY) -m ddpc_codegen.testbed.sitl_demo
+	$(RENDER)
 
 bench: install
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev,bench]' || echo "(bench extra not installed: the CVXPYgen comparison is skipped)"
 	$(PY) -m ddpc_codegen.experiments.bench
+	$(RENDER)
 
 clean:
 	rm -rf build generated/*/ reports/*.json reports/*.png .pytest_cache

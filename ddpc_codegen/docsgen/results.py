@@ -1,0 +1,206 @@
+"""Render the measured results into the docs: ``docs/results.md`` and the README's results table.
+
+Each measuring make target (``make demo``, ``make bench``, ``make sitl-demo``) ends with
+``python -m ddpc_codegen.docsgen.results``, which rewrites the results page from whichever of
+``reports/summary.json``, ``reports/bench.json`` and ``reports/sitl.json`` exist, copies the demo's
+figures to ``docs/figures/`` and replaces the README's table between its marker comments. A report
+that does not exist yet is named on the page with the target that writes it; nothing is copied by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+BEGIN = "<!-- results:begin (written by make demo: python -m ddpc_codegen.docsgen.results) -->"
+END = "<!-- results:end -->"
+# report file -> (the make target that writes it, the page section that renders it)
+REPORTS = {"summary.json": "make demo", "bench.json": "make bench", "sitl.json": "make sitl-demo"}
+
+__all__ = ["ROOT", "BEGIN", "END", "REPORTS", "load_reports", "results_page", "readme_block", "replace_block",
+           "copy_figures", "markdown_table", "main"]
+
+
+def load_reports(reports: Path) -> dict[str, dict]:
+    """The reports that exist in ``reports`` (file name -> parsed JSON); unreadable JSON is an error."""
+    out = {}
+    for name in REPORTS:
+        path = reports / name
+        if path.is_file():
+            try:
+                out[name] = json.loads(path.read_text())
+            except json.JSONDecodeError as e:
+                raise ValueError(f"{path}: not valid JSON ({e}); rerun {REPORTS[name]}") from None
+    return out
+
+
+def markdown_table(grid: str) -> str:
+    """A printed table as valid Markdown: pipes inside cells (``|apex err|``) escaped.
+
+    A separator pipe starts or ends the line or has a space on both sides; any other is cell text.
+    Lines printed after the table (notes) go into a code block below it.
+    """
+    out, notes = [], []
+    for line in grid.splitlines():
+        if not line.startswith("|"):
+            notes.append(line)
+            continue
+        if set(line) <= set("|-: "):
+            out.append(line)
+            continue
+        chars = list(line)
+        for i, c in enumerate(line):
+            if c == "|" and 0 < i < len(line) - 1 and not (line[i - 1] == " " and line[i + 1] == " "):
+                chars[i] = "\\|"
+        out.append("".join(chars))
+    return "\n".join(out) + ("\n\n```\n" + "\n".join(notes) + "\n```" if notes else "")
+
+
+def _missing(name: str) -> str:
+    return f"Not measured yet -- run `{REPORTS[name]}` (it writes `reports/{name}` and rewrites this page).\n"
+
+
+def _demo_section(summary: dict) -> str:
+    from ddpc_codegen.experiments.baselines import format_baselines
+    from ddpc_codegen.experiments.demo import format_robustness, format_table
+
+    meta = summary.get("meta", {})
+    parts = [f"Wall time {meta.get('wall_time_s', '?')} s on {meta.get('machine', '?')} "
+             f"(Python {meta.get('python', '?')}); solver: "
+             f"{'interpreted QP' if meta.get('interpreted') else 'the generated C solver in the loop'}; "
+             f"controller mass error {meta.get('mass_error_kg', '?')} kg.\n", markdown_table(format_table(summary)) + "\n"]
+    if "robustness" in summary:
+        parts += ["### Robustness\n", "Same predictors and solvers; the mass errors were never in the data.\n",
+                  markdown_table(format_robustness(summary["robustness"])) + "\n"]
+    if "baselines" in summary:
+        parts += ["### Against the simple fixes\n", "Best of passthrough / controller feed-forward / prefilter / "
+                  "ILC divided by the steering's figure (> 1: steering is better; `*`: ILC's table learned on the "
+                  "periodic case, flown unchanged).\n", markdown_table(format_baselines(summary["baselines"])) + "\n"]
+    figures = [Path(f).name for f in meta.get("figures", [])]
+    parts += [f"![{Path(f).stem}](figures/{f})\n" for f in figures]
+    defs = meta.get("definitions", {})
+    if defs:
+        parts += ["### Definitions\n", "\n".join(f"- **{k}**: {v}" for k, v in defs.items()) + "\n"]
+    return "\n".join(parts)
+
+
+def _bench_section(bench: dict) -> str:
+    from ddpc_codegen.experiments.bench import _table  # the table make bench prints
+
+    meta = bench.get("meta", {})
+    text = f"{meta.get('ticks', '?')} ticks per size on {meta.get('machine', '?')}, {meta.get('date', '?')}.\n"
+    text += "\n```\n" + _table(bench) + "\n```\n"
+    p = bench.get("predictor_1e6")
+    if p:
+        text += (f"\nPredictor fit on 10^6 samples (m = p = 2, Tini 20, Tf 15): lsq {p['lsq_seconds']:.1f} s, "
+                 f"pem {p['pem_seconds']:.1f} s, peak RSS {p['peak_rss_mib']:.0f} MiB "
+                 f"({p['rss_before_fit_mib']:.0f} MiB before fitting).\n")
+    return text
+
+
+def _mm(v: Any) -> str:
+    return "--" if v is None else f"{1e3 * v:.1f}"
+
+
+def _sitl_section(sitl: dict) -> str:
+    from ddpc_codegen.testbed.sitl_demo import format_baselines
+
+    if not sitl:
+        return "`make sitl-demo` found no SITL (set `DDPC_PX4_SITL` / `DDPC_ARDUPILOT_SITL`).\n"
+    aps = list(sitl)
+    row = lambda label, f: f"| {label} | " + " | ".join(f(sitl[a]) for a in aps) + " |"  # noqa: E731
+    ratio = lambda r: f" ({r['baseline'] / r['steered']:.0f}x)" if r["baseline"] and r["steered"] else ""  # noqa: E731
+    lat = lambda r: " / ".join(f"{(r.get('latency_us') or {}).get(k, float('nan')) / 1e3:.1f}"  # noqa: E731
+                               for k in ("p50", "p99")) + " ms"
+    lines = ["| | " + " | ".join(aps) + " |", "|---|" + "---|" * len(aps),
+             row("setpoint rate / missed ticks", lambda r: f"{r['rate_hz']:.1f} Hz / {r['missed_ticks']}"),
+             row("steered share of engaged ticks", lambda r: f"{100 * r['engaged_fraction']:.1f} %"),
+             row("height RMSE passthrough -> steered [mm]",
+                 lambda r: f"{_mm(r['rmse_z']['baseline'])} -> {_mm(r['rmse_z']['steered'])}{ratio(r['rmse_z'])}"),
+             row("true height RMSE passthrough -> steered [mm]",
+                 lambda r: f"{_mm(r['rmse_z_truth']['baseline'])} -> {_mm(r['rmse_z_truth']['steered'])}"),
+             row("latency p50 / p99", lat),
+             row("fallbacks", lambda r: str(r["fallbacks"])),
+             row("wall time", lambda r: f"{r['wall_s']:.0f} s")]
+    text = "\n".join(lines) + "\n"
+    printed = [format_baselines(a, sitl[a]["baselines"]) for a in aps if "baselines" in sitl[a]]
+    if printed:
+        text += "\nThe baselines flown in the same run (height RMSE):\n\n```\n" + "\n".join(printed) + "\n```\n"
+    return text
+
+
+def results_page(reports: dict[str, dict]) -> str:
+    """The whole results page (Markdown) from the loaded reports (any subset of :data:`REPORTS`)."""
+    sections = [("summary.json", "Simulator: flying and hopping PogoX (`make demo`)", _demo_section),
+                ("bench.json", "Solver timing (`make bench`)", _bench_section),
+                ("sitl.json", "Real autopilots in the loop (`make sitl-demo`)", _sitl_section)]
+    out = ["# Results\n", "<!-- written by python -m ddpc_codegen.docsgen.results: edit the code, not this page -->\n",
+           "Every figure on this page is rendered from `reports/*.json` by the make target that measured it. "
+           "What the figures mean and how the steering behaves is explained in the concepts pages.\n"]
+    for name, title, render in sections:
+        out.append(f"## {title}\n")
+        out.append(render(reports[name]) if name in reports else _missing(name))
+    return "\n".join(out)
+
+
+def readme_block(reports: dict[str, dict]) -> str:
+    """The README's results table (the demo's main table), marker comments included."""
+    from ddpc_codegen.experiments.demo import format_table
+
+    if "summary.json" not in reports:
+        body = _missing("summary.json")
+    else:
+        s = reports["summary.json"]
+        body = (markdown_table(format_table(s)) + f"\n\nRMSE and apex errors against the desired trajectory under a "
+                f"{s.get('meta', {}).get('mass_error_kg', '?')} kg controller mass error; solve times in µs "
+                f"(demo wall time {s.get('meta', {}).get('wall_time_s', '?')} s).\n")
+    return f"{BEGIN}\n{body.rstrip()}\n{END}"
+
+
+def replace_block(text: str, block: str) -> str:
+    """``text`` with the part between the results markers (inclusive) replaced by ``block``."""
+    i, j = text.find(BEGIN), text.find(END)
+    if i < 0 or j < i:
+        raise ValueError(f"no results markers in the text: expected {BEGIN!r} ... {END!r}")
+    return text[:i] + block + text[j + len(END):]
+
+
+def copy_figures(summary: dict, root: Path, dest: Path) -> list[Path]:
+    """Copy the figures ``make demo`` listed in its summary into ``dest`` (the docs' figures)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    copied = []
+    for f in summary.get("meta", {}).get("figures", []):
+        src = Path(f) if Path(f).is_absolute() else root / f
+        if src.is_file():
+            copied.append(Path(shutil.copy2(src, dest / src.name)))
+    return copied
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Rewrite ``docs/results.md`` and the README's results table from ``reports/``."""
+    ap = argparse.ArgumentParser(prog="python -m ddpc_codegen.docsgen.results", description=main.__doc__)
+    ap.add_argument("--reports", default=str(ROOT / "reports"), help="folder of the JSON reports")
+    ap.add_argument("--docs", default=str(ROOT / "docs"), help="docs folder (results.md, figures/)")
+    ap.add_argument("--readme", default=str(ROOT / "README.md"), help="README with the results markers")
+    a = ap.parse_args(argv)
+    try:
+        reports = load_reports(Path(a.reports))
+        readme = Path(a.readme)
+        readme.write_text(replace_block(readme.read_text(), readme_block(reports)))
+    except ValueError as e:
+        print(f"docsgen: error: {e}", file=sys.stderr)
+        return 2
+    if "summary.json" in reports:
+        copy_figures(reports["summary.json"], ROOT, Path(a.docs) / "figures")
+    (Path(a.docs) / "results.md").write_text(results_page(reports))
+    print(f"rendered {', '.join(reports) or 'no reports'} into {Path(a.docs) / 'results.md'} and {readme}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
