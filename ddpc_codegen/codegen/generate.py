@@ -23,6 +23,7 @@ from ddpc_codegen.codegen.build import compile_extension
 from ddpc_codegen.codegen.emit import BACKENDS, DEFAULTS, VECTOR_TOL, VECTORS_FILE, check_name, emit_sources
 from ddpc_codegen.codegen.manifest import build_manifest, write_manifest
 from ddpc_codegen.codegen.tuning import choose_rho
+from ddpc_codegen.design.adaptation import ship_fit_statistic
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import CodegenError
 
@@ -130,7 +131,8 @@ def _build(problem: SteeringProblem, out: Path, name: str, backend: str, compile
                      and not any(part.startswith("build") for part in p.relative_to(out).parts))
     extra = {"vectors": {"file": vec_file.name, "sha256": vec_sha, **vec.summary()},
              "artificial_io": None if artificial_io is None else manifest_entry(artificial_io),
-             "dataset": dict(provenance or {})}
+             "dataset": dict(provenance or {}),
+             "fit_statistic": ship_fit_statistic(problem.predictor, out, name)}  # for online updates
     write_manifest(out, build_manifest(problem, name, backend, module, ext, sources, out, settings, flags, extra))
     verify_vectors(out, vec, VECTOR_TOL[backend])
 

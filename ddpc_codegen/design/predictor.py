@@ -317,6 +317,7 @@ def predictor_from_r(R: np.ndarray, layout: FitLayout, cols: int, rms: np.ndarra
     _check_options(layout.method, layout.t_ini, layout.t_f, slack_weight, ridge)
     _check_columns(layout, cols, [cols + layout.depth - 1])
     fitted = _solve_r(R, layout, slack_weight, ridge, rcond)
+    fitted["R"] = R  # the fit's sufficient statistic (data rows only), shipped with generated solvers
     return _predictor(layout, fitted, cols, rms, std, dt, input_names, output_names, check_excitation)
 
 
@@ -367,7 +368,7 @@ def _fit_unstreamed(dataset: IODataset, layout: FitLayout, slack_weight: float, 
     G = Tg @ np.linalg.pinv(Z, rcond=rcond)
     s = np.linalg.svd(Z, compute_uv=False)
     return {"G": G, "s": s, "keep": s > rcond * s[0], "su": su, "lam": lam, "slack_weight": slack_weight,
-            "ridge": ridge, "rcond": rcond}
+            "ridge": ridge, "rcond": rcond, "R": np.linalg.qr(Xd, mode="r")}
 
 
 def _predictor(layout: FitLayout, fitted: dict, cols: int, rms: np.ndarray, std: np.ndarray, dt: float,
@@ -385,7 +386,7 @@ def _predictor(layout: FitLayout, fitted: dict, cols: int, rms: np.ndarray, std:
     nw = (m + p) * t_ini
     opts = {"slack_weight": float(fitted["slack_weight"]), "ridge": float(fitted["ridge"]),
             "rcond": float(fitted["rcond"]), "ridge_effective": float(fitted["lam"]), "channel_scale": scale.tolist(),
-            "_pe_report": pe}
+            "_pe_report": pe, "_r_factor": fitted["R"]}
     return Predictor(
         t_ini=t_ini, t_f=t_f, m=m, p=p, method=layout.method,
         Gy_w=np.ascontiguousarray(Gy[:, :nw]),

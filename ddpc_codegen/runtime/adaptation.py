@@ -1,0 +1,322 @@
+"""Online predictor updates (numpy reference of the generated ``<name>_adapt.c``; no casadi).
+
+The fit's sufficient statistic is the upper-triangular R factor of the scaled data matrix
+X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see ``design.predictor.FitLayout``).
+Online, each new Hankel column x (width,) updates it with exponential forgetting f:
+
+    R <- triu(qr([sqrt(f) R; x^T]))      (Givens rotations, O(width^2), :func:`givens_update`)
+
+At a low rate G is re-solved from R exactly as the batch fit does (the pem slack rows and the relative
+ridge appended, then G^T = R11^-1 R12; :func:`solve_g`), so with f = 1 and every column fed one by one
+the result is the batch refit. A candidate G is verified before it may replace the current one
+(:meth:`Adapter.resolve`): finite, R11 well conditioned, a bounded change, a positive definite QP
+Hessian (when a Hessian model is given), the recent window exciting enough, and a smaller prediction
+error than the current G's on that window. Rejections are counted by reason. The candidate only
+becomes current on :meth:`Adapter.swap` (between control ticks).
+
+Everything is on the scaled fit domain (channels divided by ``scale``); G is (q_y + q_s, r).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ddpc_codegen.errors import DataError
+
+__all__ = ["AdaptLayout", "AdaptSettings", "HessianModel", "Adapter", "givens_update", "extra_rows", "solve_g",
+           "excitation_ratio", "REJECTIONS"]
+
+# Reasons a candidate G is rejected, in the order they are checked (the C code uses the same order).
+REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction")
+
+
+@dataclass(frozen=True)
+class AdaptLayout:
+    """Rows of the fit's data matrix: Z = [Up; Yp; Uf] (r rows), targets Yf (q_y) and the pem slack (q_s).
+
+    Same layout as ``ddpc_codegen.design.predictor.FitLayout`` (tested equal), here without design imports.
+    """
+
+    m: int
+    p: int
+    t_ini: int
+    t_f: int
+    method: str
+
+    @property
+    def depth(self) -> int:
+        return self.t_ini + self.t_f
+
+    @property
+    def r(self) -> int:
+        return (self.m + self.p) * self.t_ini + self.m * self.t_f
+
+    @property
+    def q_y(self) -> int:
+        return self.p * self.t_f
+
+    @property
+    def q_s(self) -> int:
+        return self.p * self.t_ini if self.method == "pem" else 0
+
+    @property
+    def width(self) -> int:
+        return self.r + self.q_y + self.q_s
+
+    @property
+    def u_rows(self) -> np.ndarray:
+        """Indices of the input rows ([Up; Uf]) of Z."""
+        n_up, n_yp = self.m * self.t_ini, self.p * self.t_ini
+        return np.r_[0:n_up, n_up + n_yp : self.r]
+
+    def row_order(self) -> np.ndarray:
+        """Indices taking a time-major window (depth, m+p) flattened to the order [Up; Yp; Uf; Yf]."""
+        d, m = self.m + self.p, self.m
+        ui = [t * d + c for t in range(self.depth) for c in range(m)]
+        yi = [t * d + m + c for t in range(self.depth) for c in range(self.p)]
+        nu, ny = m * self.t_ini, self.p * self.t_ini
+        return np.array(ui[:nu] + yi[:ny] + ui[nu:] + yi[ny:])
+
+    def column(self, window: np.ndarray, scale: np.ndarray) -> np.ndarray:
+        """Time-major window (depth, m+p) in data units -> the data row x (width,) of X (scaled; slack 0)."""
+        w = np.asarray(window, dtype=float)
+        if w.shape != (self.depth, self.m + self.p):
+            raise DataError(f"an adaptation window must have shape ({self.depth}, {self.m + self.p}) "
+                            f"(depth Tini+Tf, channels u then y); got {w.shape}")
+        x = np.zeros(self.width)
+        x[: self.r + self.q_y] = (w / scale).reshape(-1)[self.row_order()]
+        return x
+
+
+@dataclass(frozen=True)
+class AdaptSettings:
+    """What an update may do (``[adapt]`` of a steering config; defaults in one place).
+
+    forgetting: f in (0, 1], weight of the past per new column (0.999: ~1000 columns, 5 s at 200 Hz).
+    period_ticks: new columns between two re-solves of G.
+    dither: amplitude of the optional dither on the steered references while adapting (their units; 0 = none).
+    window: recent columns kept for the verification (prediction error, excitation); >= m (Tini+Tf).
+    max_change: largest ||G_new - G||_F / ||G||_F of one swap (a bigger step is scaled down to it).
+    min_excitation: smallest min/max |diag| of the R factor of the recent window's scaled input rows.
+    """
+
+    enabled: bool = False
+    forgetting: float = 0.999
+    period_ticks: int = 200
+    dither: float = 0.0
+    window: int = 200
+    max_change: float = 0.2
+    min_excitation: float = 1e-3
+
+
+@dataclass(frozen=True)
+class HessianModel:
+    """The QP Hessian as a function of G (scaled fit domain), up to a fixed congruence:
+    H = Gf^T W Gf + P_fixed with Gf = G[:, n_past:] the future-input columns (n_f = m Tf of them),
+    W (q_y + q_s, q_y + q_s), P_fixed (n_f, n_f). Positive definite <=> the steering QP stays strictly convex."""
+
+    W: np.ndarray
+    P_fixed: np.ndarray
+
+    def hessian(self, G: np.ndarray, layout: AdaptLayout) -> np.ndarray:
+        Gf = G[:, layout.r - layout.m * layout.t_f :]
+        H = Gf.T @ self.W @ Gf + self.P_fixed
+        return 0.5 * (H + H.T)
+
+    def positive_definite(self, G: np.ndarray, layout: AdaptLayout) -> bool:
+        return _cholesky_ok(self.hessian(G, layout))
+
+
+def _cholesky_ok(H: np.ndarray) -> bool:
+    """Plain Cholesky (the C code's): every pivot > 0."""
+    n = H.shape[0]
+    L = np.zeros_like(H)
+    for j in range(n):
+        d = H[j, j] - L[j, :j] @ L[j, :j]
+        if not d > 0.0:
+            return False
+        L[j, j] = np.sqrt(d)
+        L[j + 1 :, j] = (H[j + 1 :, j] - L[j + 1 :, :j] @ L[j, :j]) / L[j, j]
+    return True
+
+
+def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None:
+    """In place: R (n, n) upper triangular <- the R factor of [sqrt(forgetting) R; x^T] (x (n,) is consumed).
+
+    Row i of R and x are rotated so that x[i] becomes 0; diagonal entries end up >= 0.
+    """
+    n = R.shape[0]
+    if forgetting != 1.0:
+        R *= np.sqrt(forgetting)
+    for i in range(n):
+        xi = x[i]
+        if xi == 0.0:
+            continue
+        a = R[i, i]
+        rad = np.hypot(a, xi)
+        c, s = a / rad, xi / rad
+        ri = R[i, i:].copy()
+        R[i, i:] = c * ri + s * x[i:]
+        x[i:] = c * x[i:] - s * ri
+        R[i, i] = rad
+
+
+def extra_rows(layout: AdaptLayout, slack_weight: float, lam: float) -> list[np.ndarray]:
+    """The rows the batch fit appends to the data rows: pem's slack columns of M, then the ridge."""
+    r, q_y, width = layout.r, layout.q_y, layout.width
+    n_up, n_yp = layout.m * layout.t_ini, layout.p * layout.t_ini
+    rows = []
+    if layout.method == "pem":
+        for k in range(n_yp):
+            e = np.zeros(width)
+            e[n_up + k] = e[r + q_y + k] = 1.0 / np.sqrt(slack_weight)
+            rows.append(e)
+    if lam > 0:
+        for k in range(r):
+            e = np.zeros(width)
+            e[k] = np.sqrt(lam)
+            rows.append(e)
+    return rows
+
+
+def solve_g(R: np.ndarray, layout: AdaptLayout, slack_weight: float, ridge: float,
+            rcond: float) -> tuple[np.ndarray | None, float]:
+    """(G (q_y + q_s, r), diag ratio) from the data-only R (width, width): the extra rows of the batch fit
+    appended by Givens rotations, then G^T = R11^-1 R12 by back substitution. G is None when
+    min |diag R11| <= rcond * max |diag R11| (rank deficient: the batch fit would truncate)."""
+    r = layout.r
+    lam = ridge * float(np.sum(R[:, :r] ** 2)) / r  # relative ridge, as the batch fit
+    Ra = np.array(R, dtype=float)
+    for e in extra_rows(layout, slack_weight, lam):
+        givens_update(Ra, e)
+    d = np.abs(np.diag(Ra)[:r])
+    ratio = float(d.min() / d.max()) if d.max() > 0 else 0.0
+    if not ratio > rcond:
+        return None, ratio
+    R11, X = Ra[:r, :r], Ra[:r, r:].copy()
+    for i in range(r - 1, -1, -1):
+        X[i] = (X[i] - R11[i, i + 1 :] @ X[i + 1 :]) / R11[i, i]
+    return X.T, ratio
+
+
+def excitation_ratio(columns: np.ndarray, layout: AdaptLayout) -> float:
+    """min/max |diag| of the R factor (Givens) of the input rows of ``columns`` (k, width); 0 if k < rows."""
+    rows = columns[:, layout.u_rows]
+    n = rows.shape[1]
+    if rows.shape[0] < n:
+        return 0.0
+    Rx = np.zeros((n, n))
+    for x in rows:
+        givens_update(Rx, x.copy())
+    d = np.abs(np.diag(Rx))
+    return float(d.min() / d.max()) if d.max() > 0 else 0.0
+
+
+def _prediction_error(G: np.ndarray, cols: np.ndarray, layout: AdaptLayout) -> float:
+    """Sum of squared output-prediction errors ||Gy z - y_f||^2 over the columns (k, width) (scaled)."""
+    r, q_y = layout.r, layout.q_y
+    e = cols[:, :r] @ G[:q_y].T - cols[:, r : r + q_y]
+    return float(np.sum(e * e))
+
+
+@dataclass
+class Adapter:
+    """The online update of one predictor (the interpreted twin of ``<name>_adapt_*`` in C).
+
+    R0: the shipped data-only R factor (k <= width rows); scale (m+p,): the fit's channel scale;
+    slack_weight, ridge, rcond: the fit's options; hessian: the QP's :class:`HessianModel` or None.
+    """
+
+    layout: AdaptLayout
+    R0: np.ndarray
+    scale: np.ndarray
+    settings: AdaptSettings
+    slack_weight: float = 1.0
+    ridge: float = 0.0
+    rcond: float = 1e-10
+    hessian: HessianModel | None = None
+    counts: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        w = self.layout.width
+        if self.R0.ndim != 2 or self.R0.shape[1] != w or self.R0.shape[0] > w:
+            raise DataError(f"the R factor must have {w} columns and at most {w} rows; got shape {self.R0.shape}")
+        s = self.settings
+        if not (0.0 < s.forgetting <= 1.0):
+            raise DataError(f"[adapt] forgetting must be in (0, 1]; got {s.forgetting}")
+        if s.window < self.layout.m * self.layout.depth:
+            raise DataError(f"[adapt] window must be >= m (Tini+Tf) = {self.layout.m * self.layout.depth} columns "
+                            f"(fewer cannot show excitation); got {s.window}")
+        self.R = np.zeros((w, w))
+        self.R[: self.R0.shape[0]] = self.R0
+        self.ring = np.zeros((s.window, w))
+        self.n_ring = 0
+        self.head = 0
+        G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
+        if G is None:
+            raise DataError("the shipped R factor is rank deficient: the predictor cannot be re-solved from it "
+                            "(fit it with [predictor] ridge > 0)")
+        self.G = G
+        self.pending: np.ndarray | None = None
+        self.counts = {"updates": 0, "skipped": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
+                       **{f"rejected_{k}": 0 for k in REJECTIONS}}
+
+    def push(self, window: np.ndarray) -> bool:
+        """One new Hankel column from a time-major window (depth, m+p) in data units: R and the ring updated.
+        A window with a NaN/inf is skipped (False, counted): it must not poison R."""
+        x = self.layout.column(window, self.scale)
+        if not np.all(np.isfinite(x)):
+            self.counts["skipped"] += 1
+            return False
+        self.ring[self.head] = x
+        self.head = (self.head + 1) % self.settings.window
+        self.n_ring = min(self.n_ring + 1, self.settings.window)
+        givens_update(self.R, x, self.settings.forgetting)
+        self.counts["updates"] += 1
+        return True
+
+    def recent(self) -> np.ndarray:
+        """The recent columns (n_ring, width), oldest first."""
+        k, n = self.n_ring, self.settings.window
+        return np.roll(self.ring, -self.head, axis=0)[n - k :] if k else self.ring[:0]
+
+    def resolve(self) -> str:
+        """Re-solve G from R and verify it: "accepted" (pending until :meth:`swap`) or the rejection reason."""
+        self.counts["resolves"] += 1
+        G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
+        reason = self._verify(G)
+        if reason is None:
+            self.counts["accepted"] += 1
+            return "accepted"
+        self.counts[f"rejected_{reason}"] += 1
+        return reason
+
+    def _verify(self, G: np.ndarray | None) -> str | None:
+        if G is None:
+            return "rank"
+        if not np.all(np.isfinite(G)):
+            return "nonfinite"
+        step = G - self.G
+        big = self.settings.max_change * np.linalg.norm(self.G)
+        if np.linalg.norm(step) > big:  # a bounded change: scale the step down onto the bound
+            G = self.G + step * (big / np.linalg.norm(step))
+            self.counts["clipped"] += 1
+        if self.hessian is not None and not self.hessian.positive_definite(G, self.layout):
+            return "hessian"
+        cols = self.recent()
+        if excitation_ratio(cols, self.layout) < self.settings.min_excitation:
+            return "excitation"
+        if not _prediction_error(G, cols, self.layout) < _prediction_error(self.G, cols, self.layout):
+            return "prediction"
+        self.pending = G
+        return None
+
+    def swap(self) -> bool:
+        """Make the verified candidate current (call between ticks); False when there is none."""
+        if self.pending is None:
+            return False
+        self.G, self.pending = self.pending, None
+        self.counts["swaps"] += 1
+        return True

@@ -1,0 +1,118 @@
+"""Design side of online updates: the shipped fit statistic, the [adapt] settings, the Hessian model."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.design.adaptation import adapt_settings, adapter, fit_statistic, write_fit_statistic
+from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.fit import difference_dataset, fit_incremental
+from ddpc_codegen.design.hankel import channel_stats
+from ddpc_codegen.design.predictor import FitLayout, _solve_r, channel_scale, fit_predictor, hankel_r_factor
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.errors import ConfigError, DataError
+from ddpc_codegen.runtime.adaptation import AdaptSettings, solve_g
+from support.lti import random_lti
+
+
+def _dataset(seed: int = 0, T: int = 500) -> IODataset:
+    sys_ = random_lti(4, 2, 2, seed)
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((T, 2)) * [0.3, 2.0]  # channels of different sizes: the scale matters
+    y, _ = sys_.simulate(u, np.zeros(4))
+    return IODataset(u, y + 1e-3 * rng.standard_normal(y.shape), 0.01)
+
+
+def _problem(pred, R_mode="offset"):
+    cfg = SteeringConfig(t_ini=pred.t_ini, t_f=pred.t_f, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode=R_mode,
+                         R_du=[0.2, 0.1], lambda_sigma=50.0, u_min=[-1.0] * 2, u_max=[1.0] * 2,
+                         predictor={"method": pred.method})
+    return SteeringProblem(pred, cfg)
+
+
+@pytest.mark.parametrize("method", ["lsq", "pem"])
+def test_fit_statistic_is_the_r_factor_of_the_scaled_hankel_data(method):
+    ds = _dataset()
+    pred = fit_predictor(ds, 4, 3, method, ridge=1e-6)
+    R, lay = fit_statistic(pred)
+    flay = FitLayout(2, 2, 4, 3, method)
+    scale, _ = channel_scale(*channel_stats([np.hstack(t) for t in ds.trajectories()]), ds.input_names + ds.output_names)
+    X = np.vstack([flay.data_rows((np.hstack([u, y]) / scale)[j : j + 7].reshape(1, -1))
+                   for u, y in ds.trajectories() for j in range(u.shape[0] - 6)])
+    assert R.shape == (lay.width, lay.width) == (flay.width, flay.width)
+    np.testing.assert_allclose(R.T @ R, X.T @ X, rtol=1e-10, atol=1e-9)
+    # and the predictor re-solved from it is the shipped one (scaled domain)
+    G, _ = solve_g(R, lay, 1.0, 1e-6, 1e-10)
+    ref = _solve_r(hankel_r_factor(ds.trajectories(), flay, scale), flay, 1.0, 1e-6, 1e-10)["G"]
+    assert np.abs(G - ref).max() <= 1e-9 * np.abs(ref).max()
+
+
+def test_incremental_predictor_ships_the_increment_fit():
+    ds = _dataset(2)
+    pred = fit_incremental(ds, 5, 3, "lsq", ridge=1e-6)
+    R, lay = fit_statistic(pred)
+    inc = fit_predictor(difference_dataset(ds), 4, 3, "lsq", ridge=1e-6)
+    assert (lay.t_ini, lay.method) == (4, "lsq")
+    np.testing.assert_allclose(R.T @ R, inc.options["_r_factor"].T @ inc.options["_r_factor"], rtol=1e-12)
+
+
+def test_hand_built_predictor_has_no_statistic():
+    import dataclasses
+
+    pred = fit_predictor(_dataset(), 4, 3, "lsq", ridge=1e-6)
+    bare = dataclasses.replace(pred, options={k: v for k, v in pred.options.items() if k != "_r_factor"})
+    with pytest.raises(DataError, match=r"^this predictor carries no R factor of its data"):
+        fit_statistic(bare)
+
+
+def test_written_statistic_and_its_manifest_entry(tmp_path):
+    pred = fit_incremental(_dataset(), 5, 3, "lsq", ridge=1e-4)
+    entry = write_fit_statistic(pred, tmp_path, "s1", AdaptSettings(forgetting=0.99))
+    R = np.load(tmp_path / entry["file"])
+    np.testing.assert_array_equal(R, fit_statistic(pred)[0])
+    assert entry["shape"] == [R.shape[0], R.shape[1]] and entry["signal"] == "increments"
+    assert entry["layout"]["t_ini"] == 4 and entry["adapt"]["forgetting"] == 0.99
+    assert entry["channel_scale"] == pred.options["channel_scale"] and entry["ridge"] == 1e-4
+    json.dumps(entry)  # JSON-able for the manifest
+
+
+@pytest.mark.parametrize("form, method, R_mode", [("absolute", "lsq", "offset"), ("absolute", "pem", "increment"),
+                                                  ("incremental", "lsq", "absolute")])
+def test_hessian_model_reproduces_the_problems_hessian(form, method, R_mode):
+    """T^T P T of the CasADi-built QP equals the model evaluated at the shipped G (independent reference)."""
+    ds = _dataset(4)
+    pred = fit_incremental(ds, 5, 3, "lsq", ridge=1e-6) if form == "incremental" else \
+        fit_predictor(ds, 4, 3, method, ridge=1e-6)
+    prob = _problem(pred, R_mode)
+    ad = adapter(prob, AdaptSettings(window=50))
+    from ddpc_codegen.design.adaptation import _fit_congruence
+
+    T = _fit_congruence(pred, ad.layout)[0]
+    H = ad.hessian.hessian(ad.G, ad.layout)
+    np.testing.assert_allclose(H, T.T @ prob.P @ T, rtol=1e-9, atol=1e-9 * np.abs(prob.P).max())
+    assert ad.hessian.positive_definite(ad.G, ad.layout)
+
+
+def test_adapt_settings_defaults_and_values():
+    assert adapt_settings(None) == AdaptSettings()
+    s = adapt_settings({"enabled": True, "forgetting": 0.995, "period_ticks": 100, "dither": 0.01, "window": 120})
+    assert (s.enabled, s.forgetting, s.period_ticks, s.dither, s.window) == (True, 0.995, 100, 0.01, 120)
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"forget": 0.9}, r"^c.toml: \[adapt\] unknown key\(s\) \['forget'\]; allowed: \['dither', 'enabled', "
+                      r"'forgetting', 'max_change', 'min_excitation', 'period_ticks', 'window'\]$"),
+    ({"forgetting": 0.0}, r"^c.toml: \[adapt\] forgetting must be in \(0, 1\]; got 0.0$"),
+    ({"forgetting": 1.01}, r"^c.toml: \[adapt\] forgetting must be in \(0, 1\]; got 1.01$"),
+    ({"dither": -0.1}, r"^c.toml: \[adapt\] dither must be >= 0; got -0.1$"),
+    ({"period_ticks": 0}, r"^c.toml: \[adapt\] period_ticks must be an integer >= 1; got 0$"),
+    ({"window": 2.5}, r"^c.toml: \[adapt\] window must be an integer >= 1; got 2.5$"),
+    ({"enabled": "yes"}, r"^c.toml: \[adapt\] enabled must be true or false; got 'yes'$"),
+])
+def test_adapt_settings_errors_name_key_and_value(table, message):
+    with pytest.raises(ConfigError, match=message):
+        adapt_settings(table, "c.toml")
