@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -38,38 +37,24 @@ def expand_paths(items: list[str]) -> list[Path]:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from ddpc_codegen.design.config import SteeringConfig
-    from ddpc_codegen.design.fleet import fit_files
+    from ddpc_codegen.experiments.solver_build import FleetOptions, build_solver
 
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     cfg = SteeringConfig.from_toml(args.config)
     paths = expand_paths(args.data)
     say(f"[{cfg.name}] {len(paths)} files, Tini={cfg.t_ini} Tf={cfg.t_f} {cfg.predictor['method']}, "
         f"{args.workers} worker(s){' on ' + args.address if args.address else ''}")
-    opts = {k: v for k, v in cfg.predictor.items() if k not in ("method", "form")}
-    if cfg.predictor.get("form", "absolute") != "absolute":
-        raise ConfigError(f"{cfg.source}: [predictor] form = {cfg.predictor['form']!r}: the fleet fit streams "
-                          "samples, not increments; fit this config with `ddpc-codegen codegen` on one dataset")
-    fit = fit_files(paths, cfg.t_ini, cfg.t_f, cfg.predictor["method"], workers=args.workers, address=args.address,
-                    chunk_columns=args.chunk_columns, log=say, **opts)
-    pred = fit.predictor
-    if (pred.m, pred.p) != (cfg.m, cfg.p):
-        raise ConfigError(f"{cfg.source}: the config has m={cfg.m}, p={cfg.p}; the files have m={pred.m}, p={pred.p}")
-    say(f"  excitation: {pred.excitation().summary()}")
-    report: dict[str, Any] = {"files": fit.files, "used": fit.used, "skipped": [list(s) for s in fit.skipped],
-                              "pieces": fit.pieces, "samples": fit.samples, "columns": fit.columns,
-                              "workers": fit.workers, "fit_s": round(fit.seconds, 3),
-                              "peak_mib_per_worker": round(fit.peak_mib_per_worker, 1), "rank": pred.rank,
-                              "predictor_digest": pred.digest}
-    if not args.no_codegen:
-        from ddpc_codegen.codegen import generate
-        from ddpc_codegen.design.problem import SteeringProblem
-
-        out = Path(args.out) / cfg.name
-        t0 = time.perf_counter()
-        generate(SteeringProblem(pred, cfg), out, args.backend)
-        say(f"  generated + compiled {out}/ in {time.perf_counter() - t0:.1f} s")
-        report["solver"] = str(out)
-    print(json.dumps(report, indent=2) if args.json else (report.get("solver") or fit.summary()))
+    out = None if args.no_codegen else Path(args.out) / cfg.name
+    built = build_solver(cfg, paths, out, backend=args.backend, log=say,
+                         fleet=FleetOptions(args.workers, args.address, args.chunk_columns))
+    pred = built.problem.predictor
+    fleet = dict(built.report["fleet"])
+    summary = fleet.pop("summary")
+    report: dict[str, Any] = {**fleet, "rank": pred.rank, "predictor_digest": pred.digest}
+    if built.path is not None:
+        say(f"  generated + compiled {built.path}/ in {built.report['codegen_s']:.1f} s")
+        report["solver"] = str(built.path)
+    print(json.dumps(report, indent=2) if args.json else (report.get("solver") or summary))
     return 0
 
 

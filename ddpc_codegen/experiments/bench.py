@@ -29,7 +29,9 @@ from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.experiments.bench_codegen import aarch64_figures, osqp_accuracy, standalone_figures, table_lines
 
-SIZES = {"flying": dict(m=2, p=2, t_ini=20, t_f=15), "hopping": dict(m=3, p=3, t_ini=20, t_f=25)}
+# preview: a 500 ms horizon (what a PX4 / ArduPilot height loop needs) on 10 piecewise-linear knots
+SIZES = {"flying": dict(m=2, p=2, t_ini=20, t_f=15), "hopping": dict(m=3, p=3, t_ini=20, t_f=25),
+         "preview": dict(m=2, p=2, t_ini=20, t_f=100, knots=10)}
 
 
 def _plant(m: int, seed: int):
@@ -66,7 +68,8 @@ def _simulate(A, B, C, off, u, x0):
     return y, x
 
 
-def build_problem(size: str, seed: int = 0) -> tuple[SteeringProblem, tuple]:
+def bench_data(size: str, seed: int = 0) -> tuple[SteeringConfig, IODataset, tuple]:
+    """(config, PRBS dataset, plant (A, B, C, offset)) of a benchmark size."""
     d = SIZES[size]
     m, ti, tf = d["m"], d["t_ini"], d["t_f"]
     A, B, C, off = _plant(m, seed)
@@ -76,8 +79,14 @@ def build_problem(size: str, seed: int = 0) -> tuple[SteeringProblem, tuple]:
     ds = IODataset(u, y - off, 0.005)
     cfg = SteeringConfig(t_ini=ti, t_f=tf, m=m, p=m, Q=[100.0] * m, R=[1.0] * m, R_mode="offset",
                          lambda_sigma=1e3, u_min=[-0.3] * m, u_max=[0.3] * m, du_max=[0.02] * m,
-                         name=f"bench_{size}", predictor={"method": "lsq"})
-    return SteeringProblem(fit_predictor(ds, ti, tf, "lsq"), cfg), (A, B, C, off)
+                         name=f"bench_{size}", predictor={"method": "lsq"}, knots=d.get("knots"))
+    return cfg, ds, (A, B, C, off)
+
+
+def build_problem(size: str, seed: int = 0) -> tuple[SteeringProblem, tuple]:
+    """(interpreted problem, plant) of a benchmark size (no solver generated)."""
+    cfg, ds, plant = bench_data(size, seed)
+    return SteeringProblem(fit_predictor(ds, cfg.t_ini, cfg.t_f, "lsq"), cfg), plant
 
 
 def theta_stream(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1) -> np.ndarray:
@@ -130,15 +139,18 @@ def _stats(times: np.ndarray, err: float, fast: float | None = None, extra: dict
 
 
 def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
-    from ddpc_codegen.codegen import generate
+    from ddpc_codegen.experiments.solver_build import build_solver
     from ddpc_codegen.runtime.loader import load_solver
 
-    problem, plant = build_problem(size)
-    solvers = {b: load_solver(generate(problem, workdir / f"{size}_{b}", backend=b, name=f"bench_{size}_{b}"))
-               for b in ("daqp", "osqp")}
+    cfg, ds, plant = bench_data(size)
+    built = {b: build_solver(cfg, ds, workdir / f"{size}_{b}", backend=b, name=f"bench_{size}_{b}")
+             for b in ("daqp", "osqp")}
+    problem = built["daqp"].problem
+    solvers = {b: load_solver(v.path) for b, v in built.items()}
     thetas = theta_stream(problem, plant, solvers["daqp"], n)
     solvers["daqp"].reset()
-    log(f"  {size}: {n} ticks, n_u={problem.n_u}, n_theta={problem.n_theta}; computing exact references ...")
+    log(f"  {size}: {n} ticks, n_u={problem.n_u}, n_z={problem.n_z}, n_theta={problem.n_theta}; computing exact "
+        "references ...")
     ref = np.array([problem.solve_theta(th, solver="exact").u.ravel() for th in thetas])
     results: dict[str, dict] = {}
     # Which ticks have an active bound (the unconstrained optimum is infeasible): the hard ones.
@@ -180,7 +192,7 @@ def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
         tp, outs = _time_python(call, thetas)
         its = [o.info.iter for o in outs]
         results[f"osqp_interp_{eps:.0e}".replace("e-0", "e-")] = _stats(
-            tp, err_of([o.x for o in outs]), None, {"median_iter": float(np.median(its))}, active)
+            tp, err_of([problem.to_u(o.x) for o in outs]), None, {"median_iter": float(np.median(its))}, active)
     # Interpreted exact (CasADi daqp from Python) and the numpy unconstrained gain.
     tp, outs = _time_python(lambda th: problem.solve_theta(th, solver="exact"), thetas)
     results["daqp_interp"] = _stats(tp, err_of([o.u.ravel() for o in outs]), active=active)
@@ -250,7 +262,7 @@ def _bench_cvxpygen(problem: SteeringProblem, thetas: np.ndarray, ref: np.ndarra
 
     log(f"  {size}: generating the CVXPYgen solver ...")
     L = np.linalg.cholesky(problem.P)
-    z = cp.Variable(problem.n_u, name="z")
+    z = cp.Variable(problem.n_z, name="z")
     th = cp.Parameter(problem.n_theta, name="theta")
     cons = []
     fin_lo, fin_hi = np.isfinite(problem.lb_u), np.isfinite(problem.ub_u)
@@ -278,7 +290,7 @@ def _bench_cvxpygen(problem: SteeringProblem, thetas: np.ndarray, ref: np.ndarra
     def call(t):
         th.value = t
         prob.solve(method="CPG")
-        return z.value
+        return None if z.value is None else problem.to_u(z.value)
 
     tp, outs = _time_python(call, thetas)
     errs = [np.abs(o - r).max() if o is not None and np.all(np.isfinite(o)) else np.inf for o, r in zip(outs, ref)]

@@ -12,10 +12,8 @@ import numpy as np
 
 from ddpc_codegen.runtime.hopping import HoppingWindow
 from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.hopping_data import prepare_hopping
-from ddpc_codegen.design.fit import fit_configured
-from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.experiments.pipeline import CollectSpec, collect, default_config
+from ddpc_codegen.experiments.solver_build import build_solver
 
 
 class _Timed:
@@ -40,22 +38,18 @@ class _Timed:
 def completion_timing(log=print, duration: float = 40.0) -> dict:
     """Median / p99 µs per call of the generated completion (unbounded and bounded calls apart) and of
     the interpreted one, and their largest difference, on the windows of a 20 s noisy hopping run."""
-    from ddpc_codegen.codegen import OnlineCompletion, generate
     from ddpc_codegen.runtime.loader import load_solver
 
     cfg = SteeringConfig.from_toml(default_config("hopping"))
     raw = collect("hopping", CollectSpec(duration=duration, seed=1, amplitude=(0.01, 0.02, 0.02))).to_dataset("none")
-    hd = prepare_hopping(raw, cfg)
-    prob = SteeringProblem(fit_configured(cfg, hd.dataset), cfg)
-    sp = hd.spec
     held = collect("hopping", CollectSpec(duration=20.0, seed=5, noise=True, amplitude=(0.01, 0.02, 0.02)))
     with tempfile.TemporaryDirectory() as tmp:
         log("  generating the hopping solver with its completion ...")
-        solver = load_solver(generate(prob, Path(tmp) / "artio_bench", name="artio_bench",
-                                      artificial_io=OnlineCompletion.from_spec(hd.art, sp)))
-        out = {"depth": hd.art.depth, "rank": hd.art.rank}
+        built = build_solver(cfg, raw, Path(tmp) / "artio_bench", name="artio_bench")
+        solver, art, sp = load_solver(built.path), built.art, built.art_spec
+        out = {"depth": art.depth, "rank": art.rank}
         runs = {}
-        for label, op in (("generated", solver.artificial_io), ("interpreted", hd.art)):
+        for label, op in (("generated", solver.artificial_io), ("interpreted", art)):
             timed = _Timed(op)
             win = HoppingWindow(timed, cfg.t_ini, **sp.window_settings())
             for k in range(cfg.t_ini, held.n):

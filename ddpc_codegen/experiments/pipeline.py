@@ -47,19 +47,21 @@ from pathlib import Path
 from typing import Any, Callable
 
 
+from ddpc_codegen.design.artificial_io import ArtificialIO
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.errors import DataError
-from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.hopping_data import ArtificialIOSpec, prepare_hopping
-from ddpc_codegen.design.fit import fit_configured
+from ddpc_codegen.design.hopping_data import ArtificialIOSpec
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.errors import DataError
+from ddpc_codegen.experiments.solver_build import BuiltSolver, build_solver
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, SimResult, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
 
 __all__ = [
     "ROOT",
+    "BuiltSolver",
+    "build_solver",
     "CollectSpec",
     "SteeringSetup",
     "collect",
@@ -154,10 +156,6 @@ class SteeringSetup:
     raw: IODataset | None = None
 
 
-def _fit(cfg: SteeringConfig, ds: IODataset) -> Predictor:
-    return fit_configured(cfg, ds)
-
-
 def build_setup(
     scenario: str,
     *,
@@ -172,7 +170,7 @@ def build_setup(
     progress: bool = False,
     fit: Callable[[SteeringConfig, IODataset], Predictor] | None = None,
 ) -> SteeringSetup:
-    """Data -> predictor -> steering problem -> generated, compiled, loaded solver.
+    """Data -> predictor -> steering problem -> generated, compiled, loaded solver (:func:`build_solver`).
 
     Args:
         scenario: "flying" or "hopping".
@@ -196,39 +194,29 @@ def build_setup(
     if isinstance(raw, SimResult):
         raw = raw.to_dataset("none", t_min=getattr(raw.scenario_obj, "settle_time", 0.0) if scenario == "flying" else 0.0)
     info["raw_samples"] = raw.n_samples
-    art = None
-    art_spec = art_spec or ArtificialIOSpec(**cfg.artificial_io)
-    if scenario == "flying":
-        ds = raw
-        if save_data and cfg.dataset:
-            ds.save(cfg.dataset)
-    else:
-        hd = prepare_hopping(raw, cfg, art_spec, where="the recorded hopping data", progress=progress)
-        ds, art = hd.dataset, hd.art
-        info["artificial_io"] = hd.report
-        if save_data and cfg.dataset:  # the raw log is what `ddpc-codegen codegen` builds a hopping solver from
-            raw.save(cfg.dataset)
-            ds.save(Path(cfg.dataset).with_name("hopping_stitched.npz"))
-    say(f"[{scenario}] fitting the {cfg.predictor['method']} predictor on {ds.n_trajectories} "
-                   f"trajectories, {ds.n_samples} samples ...", progress)
-    pred = (fit or _fit)(cfg, ds)
+    name = solver_name or f"steer_{scenario}"
+    if generate_dir is not None:
+        say(f"[{scenario}] fitting, generating + compiling the C solver generated/{name} ...", progress)
+    b = build_solver(cfg, raw, None if generate_dir is None else Path(generate_dir) / name, backend=backend,
+                     name=name, fit=fit, art_spec=art_spec, log=lambda msg: say(msg, progress))
+    if save_data and cfg.dataset:  # the raw log is what `ddpc-codegen codegen` builds a hopping solver from
+        raw.save(cfg.dataset)
+        if b.art is not None:
+            b.dataset.save(Path(cfg.dataset).with_name("hopping_stitched.npz"))
+    if b.art is not None:
+        info["artificial_io"] = b.report["artificial_io"]
+    pred = b.problem.predictor
     info["excitation"] = pred.excitation().summary()
     info["predictor"] = {"method": pred.method, "rank": pred.rank, "columns": pred.n_columns,
                          **{k: v for k, v in pred.options.items() if not k.startswith("_")}}
-    prob = SteeringProblem(pred, cfg)
-    setup = SteeringSetup(scenario, cfg, pred, prob, ds, art=art, art_spec=art_spec, info=info, raw=raw)
-    if generate_dir is not None:
-        from ddpc_codegen.codegen import OnlineCompletion, generate
+    setup = SteeringSetup(scenario, b.config, pred, b.problem, b.dataset, art=b.art, art_spec=b.art_spec, info=info,
+                          raw=raw)
+    if b.path is not None:
         from ddpc_codegen.runtime.loader import load_solver
 
-        name = solver_name or f"steer_{scenario}"
-        t0 = time.perf_counter()
-        say(f"[{scenario}] generating + compiling the C solver generated/{name} ...", progress)
-        online = None if art is None else OnlineCompletion.from_spec(art, art_spec)
-        path = generate(prob, Path(generate_dir) / name, backend=backend, name=name, artificial_io=online)
-        setup.solver = load_solver(path)
-        setup.solver_path = Path(path)
-        info["codegen_s"] = round(time.perf_counter() - t0, 2)
+        setup.solver = load_solver(b.path)
+        setup.solver_path = b.path
+        info["codegen_s"] = b.report["codegen_s"]
         info["backend"] = setup.solver.backend
     info["setup_s"] = round(time.perf_counter() - t_start, 2)
     return setup
