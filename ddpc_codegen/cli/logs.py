@@ -8,7 +8,7 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
-from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.data import IODataset, output_path
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.resample import RULES, LogImportWarning
 from ddpc_codegen.logs.tlog import TLOG_PRESETS, import_tlog, list_tlog_messages
@@ -46,6 +46,7 @@ def _presets_help(presets: dict) -> str:
 def _common(p: argparse.ArgumentParser, presets: dict) -> None:
     p.add_argument("files", nargs="+", metavar="FILE", help="log file(s); each adds its own trajectories")
     p.add_argument("-o", "--out", metavar="DATA.npz", help="dataset file to write (required unless --list)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--preset", choices=sorted(presets), help="named channel set (see below)")
     p.add_argument("--input", action="append", default=[], metavar="SPEC", help="input (setpoint) channel; repeatable")
     p.add_argument("--output", action="append", default=[], metavar="SPEC", help="output (state) channel; repeatable")
@@ -161,9 +162,11 @@ def _summary(ds: IODataset, out: Path) -> str:
 
 
 def _need_out(args: argparse.Namespace) -> Path:
+    """The checked output file (refused before any log is read: a folder, or an existing file without
+    --overwrite)."""
     if not args.out:
         raise DataError("-o/--out DATA.npz is required (or use --list to inspect the log)")
-    return Path(args.out)
+    return output_path(args.out, args.overwrite)
 
 
 def _run_ulog(args: argparse.Namespace) -> int:
@@ -175,7 +178,7 @@ def _run_ulog(args: argparse.Namespace) -> int:
         return 0
     out = _need_out(args)
     ds = _with_warnings(lambda: import_ulog(args.files, args.input, args.output, **_common_kwargs(args)))
-    path = ds.save(out)
+    path = ds.save(out, overwrite=args.overwrite)
     print(_summary(ds, path))
     return 0
 
@@ -191,12 +194,12 @@ def _run_tlog(args: argparse.Namespace) -> int:
         ds = import_tlog(args.files)
         print(f"{', '.join(args.files)}: already an IODataset (the bridge's log), no conversion needed: {ds!r}")
         if args.out:
-            print(f"wrote {ds.save(args.out)}")
+            print(f"wrote {ds.save(args.out, overwrite=args.overwrite)}")
         return 0
     out = _need_out(args)
     ds = _with_warnings(lambda: import_tlog(args.files, args.input, args.output, sysid=args.sysid,
                                             time_source=args.time_source, dialect=args.dialect,
                                             **_common_kwargs(args)))
-    path = ds.save(out)
+    path = ds.save(out, overwrite=args.overwrite)
     print(_summary(ds, path))
     return 0

@@ -61,6 +61,7 @@ def register(subparsers: Any) -> None:
     )
     _common(cp)
     cp.add_argument("-o", "--out", required=True, help="output .npz path")
+    cp.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     cp.add_argument("--amplitude", default=None, help="PRBS amplitude per input channel, comma-separated (m, rad); default by scenario")
     cp.add_argument("--min-hold", type=int, default=4, help="PRBS bit length in control ticks (default 4 = 20 ms)")
     cp.add_argument("--split", choices=("auto", "none", "hops", "aerial"), default="auto", help="trajectory split (hopping default: hops)")
@@ -135,6 +136,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_collect(args: argparse.Namespace) -> int:
     from ddpc_codegen.sim.loop import Excitation, default_excitation, simulate
 
+    from ddpc_codegen.design.data import output_path
+
+    output_path(args.out, args.overwrite)  # refused before the simulation, not after it
     params, scenario, pushes, duration = _setup(args, 60.0)
     m_in = 2 if args.scenario == "flying" else 3
     if args.amplitude is None:
@@ -162,7 +166,7 @@ def _cmd_collect(args: argparse.Namespace) -> int:
         args.split,
         metadata={"excitation": {"amplitude": list(map(float, amp)), "min_hold": args.min_hold}, "duration": duration},
     )
-    path = ds.save(args.out)
+    path = ds.save(args.out, overwrite=args.overwrite)
     m = res.metrics()
     m.update(dataset=str(path), n_trajectories=ds.n_trajectories, n_samples=ds.n_samples)
     if args.plot:

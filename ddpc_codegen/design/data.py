@@ -19,7 +19,7 @@ from scipy.signal import max_len_seq
 
 from ddpc_codegen.errors import DataError
 
-__all__ = ["IODataset", "prbs", "output_noise"]
+__all__ = ["IODataset", "prbs", "output_noise", "output_path", "MAX_ARRAY_BYTES"]
 
 
 def _as_signal(x: Any, what: str, index: int) -> np.ndarray:
@@ -197,11 +197,15 @@ class IODataset:
         )
 
     # ------------------------------------------------------------------ persistence
-    def save(self, path: str | Path) -> Path:
-        """Write the dataset as a compressed ``.npz`` (arrays + JSON metadata)."""
-        path = Path(path)
-        if path.suffix != ".npz":
-            path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+    def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
+        """Write the dataset as a compressed ``.npz`` (arrays + JSON metadata); returns the path written
+        (``.npz`` appended when missing).
+
+        Raises:
+            DataError: ``path`` is a folder, or the file exists and ``overwrite`` is False (what a user
+                recorded is never replaced unasked).
+        """
+        path = output_path(path, overwrite)
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays: dict[str, np.ndarray] = {}
         for i, (a, b) in enumerate(zip(self.u, self.y)):
@@ -242,14 +246,53 @@ class IODataset:
                        metadata=header.get("metadata", {}))
         except DataError as e:
             raise DataError(f"dataset {path}: {e}") from e
-        except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile,
-                zlib.error) as e:
+        except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, RecursionError,
+                zipfile.BadZipFile, zlib.error) as e:
             # damaged: BadZipFile / zlib.error / EOFError; foreign: KeyError / TypeError / AttributeError
             raise DataError(f"dataset {path} is damaged or not an IODataset file ({type(e).__name__}: {e}); "
                             "record or export it again") from e
 
 
 _HEADER_KEYS = ("n_trajectories", "dt", "input_names", "output_names", "input_units", "output_units")
+# Per stored array, checked on its declared shape before a byte is decompressed: 2 GiB is ~10^8 samples
+# of a 2-channel signal (a week at 200 Hz); a larger declaration is a damaged or hostile file.
+MAX_ARRAY_BYTES = 2**31
+MAX_HEADER_BYTES = 2**24  # the JSON header (names, units, metadata)
+
+
+def output_path(path: str | Path, overwrite: bool = False) -> Path:
+    """The ``.npz`` file a dataset is written to, refused when it is a folder or (unless ``overwrite``)
+    an existing file."""
+    given = Path(path)
+    if given.is_dir():
+        raise DataError(f"{given} is a folder; give the dataset file to write, e.g. {given / 'data.npz'}")
+    out = given if given.suffix == ".npz" else given.with_name(given.name + ".npz")
+    if out.is_dir():
+        raise DataError(f"{out} is a folder; give the dataset file to write, e.g. {out / 'data.npz'}")
+    if out.exists() and not overwrite:
+        raise DataError(f"{out} exists; pass --overwrite to replace it, or choose another file")
+    return out
+
+
+def _entry(z: Any, key: str, limit: int = MAX_ARRAY_BYTES) -> np.ndarray:
+    """Entry ``key`` of an open npz, read only after its declared shape and dtype were checked against
+    the bytes it stores and ``limit`` (a huge declared shape would exhaust memory before any other check)."""
+    info = z.zip.getinfo(f"{key}.npy")
+    with z.zip.open(info) as f:
+        major, _ = np.lib.format.read_magic(f)
+        read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(f, max_header_size=10000)
+        stored = info.file_size - f.tell()
+    if dtype.hasobject or dtype.kind not in "biuf":
+        raise DataError(f"entry {key!r} has dtype {dtype}; only numbers are read")
+    declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if declared > limit:
+        raise DataError(f"entry {key!r} declares shape {tuple(shape)} ({declared / 2**20:.0f} MiB), more than the "
+                        f"{limit / 2**20:.0f} MiB allowed")
+    if declared != stored:
+        raise DataError(f"entry {key!r} declares shape {tuple(shape)} of {dtype} ({declared} bytes) but stores "
+                        f"{stored} bytes")
+    return z[key]
 
 
 def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], list[np.ndarray] | None]:
@@ -257,7 +300,7 @@ def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], lis
     with np.load(path, allow_pickle=False) as z:
         if "header" not in z.files:
             raise DataError(f"not an IODataset file (no 'header' entry; entries: {sorted(z.files)[:8]})")
-        header = json.loads(bytes(z["header"]).decode())
+        header = json.loads(bytes(_entry(z, "header", MAX_HEADER_BYTES)).decode())
         if not isinstance(header, dict) or header.get("format") != "ddpc-iodataset":
             raise DataError("not an IODataset file (its header is not a ddpc-iodataset header)")
         missing = [k for k in _HEADER_KEYS if k not in header]
@@ -266,12 +309,14 @@ def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], lis
         n = header["n_trajectories"]
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise DataError(f"header n_trajectories must be a positive integer; got {n!r}")
+        if n > len(z.files):
+            raise DataError(f"header n_trajectories = {n} but the file holds {len(z.files)} entries")
         absent = [k for i in range(n) for k in (f"u_{i}", f"y_{i}") if k not in z.files]
         if absent:
             raise DataError(f"entries {absent[:6]} are missing")
-        u = [z[f"u_{i}"] for i in range(n)]
-        y = [z[f"y_{i}"] for i in range(n)]
-        ph = [z[f"phase_{i}"] for i in range(n)] if header.get("has_phases") else None
+        u = [_entry(z, f"u_{i}") for i in range(n)]
+        y = [_entry(z, f"y_{i}") for i in range(n)]
+        ph = [_entry(z, f"phase_{i}") for i in range(n)] if header.get("has_phases") else None
     return header, u, y, ph
 
 
