@@ -62,7 +62,7 @@ def c_api_page() -> str:
     for template, what in HEADERS.items():
         decls = declarations(template)
         out += [f"## {what}\n", "| kind | name | what |", "|---|---|---|"]
-        out += [f"| {kind} | `{_cell(name)}` | {_cell(doc)} |" for kind, name, doc in decls]
+        out += [f"| {kind} | `{name}` | {_cell(doc)} |" for kind, name, doc in decls]
         out += ["", "??? note \"the whole header\"", "", "    ```c"]
         out += ["    " + ln if ln else "" for ln in _names((TEMPLATES / template).read_text()).splitlines()]
         out += ["    ```", ""]

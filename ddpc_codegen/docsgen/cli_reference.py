@@ -85,17 +85,22 @@ def _cell(text: Any) -> str:
     return str(text).replace("|", "\\|").replace("<", "&lt;").replace("\n", " ")
 
 
+def _code(text: Any) -> str:
+    """A code span inside a table cell: only the pipe needs escaping (a code span shows ``<`` as is)."""
+    return "`" + str(text).replace("|", "\\|").replace("\n", " ") + "`"
+
+
 def _row(p: argparse.ArgumentParser, a: argparse.Action) -> str:
-    name = ", ".join(f"`{s}`" for s in a.option_strings) or f"`{a.metavar or a.dest}`"
+    name = ", ".join(_code(s) for s in a.option_strings) or _code(a.metavar or a.dest)
     if a.choices is not None:
-        value = " \\| ".join(f"`{c}`" for c in a.choices)
+        value = " \\| ".join(_code(c) for c in a.choices)
     elif a.nargs == 0:
         value = "flag"
     else:
-        value = f"`{a.metavar or a.dest.upper()}`"
-    default = "" if a.default in (None, False, argparse.SUPPRESS) or a.nargs == 0 else f"`{a.default}`"
+        value = _code(a.metavar or a.dest.upper())
+    default = "" if a.default in (None, False, argparse.SUPPRESS) or a.nargs == 0 else _code(a.default)
     helptext = p._get_formatter()._expand_help(a) if a.help else ""
-    return f"| {name} | {value} | {_cell(default)} | {_cell(helptext)} |"
+    return f"| {name} | {value} | {default} | {_cell(helptext)} |"
 
 
 def _parser_md(p: argparse.ArgumentParser, title: str, level: int) -> list[str]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import inspect
 import re
 import tempfile
 from pathlib import Path
@@ -70,13 +71,13 @@ def config_rules() -> dict[str, dict[str, dict[str, Any]]]:
 
 def attribute_docs(cls: type) -> dict[str, str]:
     """Field descriptions from a Google-style ``Attributes:`` docstring section (``a, b: text`` too)."""
-    doc = (cls.__doc__ or "").split("Attributes:", 1)
+    doc = (inspect.getdoc(cls) or "").split("Attributes:", 1)
     if len(doc) < 2:
         return {}
     out: dict[str, str] = {}
     current: list[str] = []
     for line in doc[1].splitlines():
-        m = re.match(r"^\s{4,8}([a-z_][a-z0-9_, ]*):\s*(.*)$", line)
+        m = re.match(r"^ {4}([a-z_][a-z0-9_, ]*):\s*(.*)$", line)
         if m:
             current = [k.strip() for k in m.group(1).split(",")]
             for k in current:
@@ -118,6 +119,10 @@ def _cell(v: Any) -> str:
     return str(v).replace("|", "\\|").replace("<", "&lt;")
 
 
+def _code(v: Any) -> str:
+    return "`" + str(v).replace("|", "\\|") + "`"
+
+
 def _config_section() -> list[str]:
     out = ["## Steering config (`configs/*.toml`)\n",
            "Loaded by `SteeringConfig.from_toml`; an unknown table or key is an error naming it.\n"]
@@ -125,7 +130,7 @@ def _config_section() -> list[str]:
         out += [f"### `[{section}]`\n" if section != "top level" else "### Top level\n",
                 "| key | required | default | rules (the validator's messages) |", "|---|---|---|---|"]
         for key, r in keys.items():
-            default = "" if r["default"] is None else f"`{_cell(r['default'])}`"
+            default = "" if r["default"] is None else _code(r["default"])
             if isinstance(r["default"], list) and all(v is None for v in r["default"]):
                 default = "unbounded"
             out.append(f"| `{key}` | {'yes' if r['required'] else ''} | {default} | "
@@ -145,7 +150,7 @@ def _profile_section() -> list[str]:
         out += [f"### `[{table}]`\n", "| key | default | what | rules (the validator's messages) |",
                 "|---|---|---|---|"]
         for key, r in keys.items():
-            default = "" if r["default"] is None else f"`{_cell(r['default'])}`"
+            default = "" if r["default"] is None else _code(r["default"])
             out.append(f"| `{key}` | {default} | {_cell(r['doc'])} | {_cell('; '.join(r['rules']) or 'any value')} |")
         out.append("")
     return out

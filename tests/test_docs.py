@@ -1,0 +1,231 @@
+"""The README and the docs site: the site builds with --strict, the generated reference pages follow
+the code (every CLI flag, every config key and rule, every C function), the results page and the
+README table are rendered from the reports, and the README stays one screen of real commands."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from ddpc_codegen.docsgen import results
+from ddpc_codegen.docsgen.c_api import TEMPLATES, c_api_page, declarations
+from ddpc_codegen.docsgen.cli_reference import cli_page, flags_of, parser_of, parsers
+from ddpc_codegen.docsgen.config_reference import attribute_docs, config_page, config_rules
+
+ROOT = Path(__file__).resolve().parent.parent
+README = (ROOT / "README.md").read_text()
+
+
+# ----------------------------------------------------------------------------- the site
+def test_site_builds_with_strict(tmp_path):
+    """mkdocs build --strict: a broken link, a missing nav page or a docstring warning fails."""
+    env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
+    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    for page in ("reference/cli", "reference/config", "reference/python-api", "reference/c-api", "results"):
+        assert (tmp_path / "site" / page / "index.html").is_file(), page
+
+
+# ----------------------------------------------------------------------------- CLI reference
+def test_cli_page_lists_every_flag_of_every_parser():
+    page = cli_page()
+    seen = 0
+
+    def walk(p, title):
+        nonlocal seen
+        for flag in flags_of(p):
+            assert f"`{flag}`" in page, f"{title}: {flag} missing from the CLI reference"
+            seen += 1
+        for a in p._actions:
+            for name, sub in (getattr(a, "choices", None) or {}).items() if hasattr(a, "add_parser") else ():
+                assert f"`{title} {name}`" in page
+                walk(sub, f"{title} {name}")
+
+    for name, p in parsers().items():
+        assert f"## {name}" in page
+        walk(p, name)
+    assert seen > 100  # the four commands have well over a hundred flags between them
+
+
+def test_parser_of_captures_the_parser_main_builds():
+    import argparse
+
+    def main(argv):
+        p = argparse.ArgumentParser(prog="probe")
+        p.add_argument("--speed", type=float)
+        p.parse_args(argv)
+        raise AssertionError("nothing after parsing runs")
+
+    assert flags_of(parser_of(main)) == ["--speed"]
+    with pytest.raises(RuntimeError, match=r"^test_docs\._returns_early returned without parsing its arguments$"):
+        parser_of(_returns_early)
+
+
+def _returns_early(argv: list[str]) -> int:
+    return 0
+
+
+# ----------------------------------------------------------------------------- config reference
+def test_config_page_lists_every_key_with_the_validators_rules():
+    from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.errors import ConfigError
+
+    rules = config_rules()
+    page = config_page()
+    for section, keys in rules.items():
+        for key in keys:
+            assert f"| `{key}` |" in page, (section, key)
+    # the rule on the page is the validator's own message (checked independently here)
+    with pytest.raises(ConfigError) as e:
+        SteeringConfig.from_dict({"horizon": {"t_ini": 0, "t_f": 2}, "signals": {"inputs": ["u"], "outputs": ["y"]},
+                                  "cost": {"Q": [1.0], "R": [1.0]}})
+    rule = str(e.value).split("t_ini ", 1)[1].split(";")[0]
+    assert rule in rules["horizon"]["t_ini"]["rules"]
+    assert rules["horizon"]["t_ini"]["required"] and not rules["horizon"]["dt"]["required"]
+    assert rules["cost"]["R_mode"]["default"] == "offset"
+    for table in ("controller", "trajectory", "contact", "steering"):
+        assert f"### `[{table}]`" in page
+
+
+def test_attribute_docs_reads_grouped_and_continued_entries():
+    class Example:
+        """Example.
+
+        Attributes:
+            alpha: first line
+                continued.
+            kp, kd: gains [1/s^2], [1/s].
+
+        Other text.
+        """
+
+    assert attribute_docs(Example) == {"alpha": "first line continued.", "kp": "gains [1/s^2], [1/s].",
+                                       "kd": "gains [1/s^2], [1/s]."}
+    assert attribute_docs(int) == {}
+
+
+# ----------------------------------------------------------------------------- C API reference
+def test_c_api_page_lists_every_function_of_the_header_templates():
+    page = c_api_page()
+    for template in ("solver.h.in", "artio.h.in"):
+        text = (TEMPLATES / template).read_text()
+        names = set(re.findall(r"^\S.*?\$\{name\}(_\w+)\(", text, re.M))
+        assert names, template
+        found = {n for kind, n, _ in declarations(template) if kind == "function"}
+        assert found == {f"<name>{n}" for n in names}, template
+        for n in names:
+            assert f"`<name>{n}`" in page
+    assert "${" not in page
+
+
+# ----------------------------------------------------------------------------- results rendering
+SUMMARY = {"flying": {"baseline": {"rmse_z": 0.09, "rmse_pitch": 0.002}, "steered": {"rmse_z": 0.0017, "rmse_pitch": 0.0021},
+                      "solve_us": {"median": 9.5, "p99": 20.25}, "fallbacks": 0},
+           "meta": {"wall_time_s": 12.5, "machine": "x86_64", "python": "3.11", "mass_error_kg": -0.2,
+                    "figures": ["reports/flying.png"]}}
+
+
+def test_results_page_says_what_is_not_measured_yet():
+    page = results.results_page({})
+    for name, target in results.REPORTS.items():
+        assert f"Not measured yet -- run `{target}` (it writes `reports/{name}`" in page
+
+
+def test_results_page_and_readme_block_render_the_summary(tmp_path):
+    page = results.results_page({"summary.json": SUMMARY})
+    assert "| flying   | steered  |         1.7 |" in page and "9.5 / 20.2" in page  # 1.7 mm, µs as printed
+    assert "![flying](figures/flying.png)" in page
+    assert "Not measured yet -- run `make bench`" in page
+    block = results.readme_block({"summary.json": SUMMARY})
+    assert block.startswith(results.BEGIN) and block.endswith(results.END) and "90.0" in block
+
+
+def test_markdown_table_escapes_pipes_inside_cells_and_moves_notes_to_a_code_block():
+    grid = "| a | mean |apex err| [mm] |\n|---|---:|\n| x |  1 |\n* a note"
+    assert results.markdown_table(grid) == ("| a | mean \\|apex err\\| [mm] |\n|---|---:|\n| x |  1 |\n\n"
+                                            "```\n* a note\n```")
+
+
+def test_replace_block_and_its_error():
+    text = f"intro\n{results.BEGIN}\nold\n{results.END}\noutro\n"
+    assert results.replace_block(text, "NEW") == "intro\nNEW\noutro\n"
+    with pytest.raises(ValueError, match=re.escape("no results markers in the text: expected")):
+        results.replace_block("no markers", "NEW")
+
+
+def test_load_reports_names_a_broken_report(tmp_path):
+    (tmp_path / "bench.json").write_text("{not json")
+    (tmp_path / "summary.json").write_text(json.dumps(SUMMARY))
+    with pytest.raises(ValueError, match=re.escape(f"{tmp_path / 'bench.json'}: not valid JSON (")):
+        results.load_reports(tmp_path)
+    (tmp_path / "bench.json").unlink()
+    assert results.load_reports(tmp_path) == {"summary.json": SUMMARY}
+
+
+def test_main_rewrites_page_readme_and_figures(tmp_path, monkeypatch):
+    reports, docs = tmp_path / "reports", tmp_path / "docs"
+    reports.mkdir()
+    (reports / "flying.png").write_bytes(b"png")
+    summary = {**SUMMARY, "meta": {**SUMMARY["meta"], "figures": [str(reports / "flying.png")]}}
+    (reports / "summary.json").write_text(json.dumps(summary))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"top\n{results.BEGIN}\nstale\n{results.END}\nbottom\n")
+    assert results.main(["--reports", str(reports), "--docs", str(docs), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert "stale" not in text and "| flying   | baseline |        90.0 |" in text and text.endswith("bottom\n")
+    assert (docs / "figures" / "flying.png").read_bytes() == b"png"
+    assert "# Results" in (docs / "results.md").read_text()
+    readme.write_text("no markers")
+    assert results.main(["--reports", str(reports), "--docs", str(docs), "--readme", str(readme)]) == 2
+
+
+# ----------------------------------------------------------------------------- README
+def test_readme_is_one_screen_and_opens_with_the_two_commands():
+    lines = README.splitlines()
+    assert len(lines) <= 150
+    first_block = README.split("```bash\n", 1)[1].split("```", 1)[0].splitlines()
+    assert README.index("```bash") < README.index("\n## ")  # before any section
+    assert first_block[0].startswith("make demo") and first_block[1].startswith("make test")
+
+
+def test_readme_has_the_results_markers_and_no_history_wording():
+    assert README.count(results.BEGIN) == 1 and README.count(results.END) == 1
+    for phrase in ("this session", "the run before", "the helper", "previous release", "earlier run"):
+        assert phrase not in README.lower()
+
+
+def _commands(text: str) -> list[list[str]]:
+    cmds = []
+    for block in re.findall(r"```(?:bash|sh)\n(.*?)```", text, re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = line.split(" #", 1)[0].strip()
+            if line and not line.startswith("#"):
+                cmds.append(shlex.split(line))
+    return cmds
+
+
+def test_readme_shell_blocks_name_only_existing_targets_and_commands():
+    targets = set(re.findall(r"^([a-z][\w-]*):", (ROOT / "Makefile").read_text(), re.M))
+    scripts = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"])
+    cmds = _commands(README)
+    assert len(cmds) >= 5
+    for words in cmds:
+        prog = Path(words[0]).name
+        if prog == "make":
+            assert words[1] in targets, words
+        else:
+            assert prog in scripts | {"pip"}, words
+            if words[0].startswith(".venv/bin/"):
+                assert prog in scripts
+    for words in cmds:  # the subcommands named exist too
+        if Path(words[0]).name == "ddpc-codegen":
+            assert f"`ddpc-codegen {words[1]}`" in cli_page(), words
