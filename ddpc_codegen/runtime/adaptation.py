@@ -285,6 +285,7 @@ class Adapter:
     def resolve(self) -> str:
         """Re-solve G from R and verify it: "accepted" (pending until :meth:`swap`) or the rejection reason."""
         self.counts["resolves"] += 1
+        self.pending = None  # a new re-solve replaces any candidate not yet swapped in
         G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
         reason = self._verify(G)
         if reason is None:
