@@ -71,7 +71,8 @@ from firmware_bridge.bridge_config import (BridgeConfig, FaultInjectingSolver, F
 from firmware_bridge.hopping_loop import HoppingLoop, hopping_window
 from firmware_bridge.link import CommandTracker, MavLink
 from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
-from firmware_bridge.preflight import PreflightError, VehicleInfo, check_trajectory_bounds
+from firmware_bridge.preflight import (PreflightError, VehicleInfo, check_trajectory_bounds, check_trajectory_extent,
+                                       trajectory_rate_warning)
 from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.report import Reporting, gap_statistics
@@ -122,8 +123,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         # Hopping: the contact flag is read (and logged) whenever the robot sends one; it drives the
         # phases only with source "signal".
         self.telem = TelemetryState(c.attitude_stream, c.position_stream, contact.signal_name if self.hopping else None)
-        x0 = 0.0 if self.hopping else self.ctrl.trajectory.start_point()[0]
-        self.frame = TrajectoryFrame(c.frame, anchor=(x0, 0.0))
+        xy0 = (0.0, 0.0) if self.hopping else self.ctrl.trajectory.start_position()[:2]
+        self.frame = TrajectoryFrame(c.frame, anchor=xy0)
         self.rec = TickRecorder(self.m, self.p, capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
         self.tilt_max = math.radians(c.max_tilt_deg)
         self._exc = None
@@ -167,13 +168,16 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
         self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill)
         lo, hi = solver_input_bounds(solver)
-        if self.hopping:  # the nominal hop: from the leg's rest length up to the apex
+        if self.hopping:  # the nominal hop: from the leg's rest length up to the apex target
             cc = self.ctrl_cfg
             check_trajectory_bounds(np.array([cc.leg_length, cc.apex_height]), float(lo[0]), float(hi[0]), "hop")
-        else:
-            traj = self.ctrl.trajectory
-            t = np.linspace(0.0, traj.t_start + 5 * traj.spin_up + traj.period, 2000)
-            check_trajectory_bounds(traj.sample(t)["z"], float(lo[0]), float(hi[0]))
+        else:  # any trajectory: its own extent and time span (the ellipse, a file, a random path)
+            check_trajectory_extent(self.ctrl.trajectory, float(lo[0]), float(hi[0]))
+            du = (man.get("bounds") or {}).get("du_max") or [None]
+            warning = trajectory_rate_warning(self.ctrl.trajectory, math.inf if du[0] is None else float(du[0]),
+                                              c.rate_hz)
+            if warning:
+                print(f"[bridge] WARNING: {warning}", file=sys.stderr, flush=True)
         self.t_f = d["t_f"]
         self._ahead = self.period * np.arange(self.t_f)
 

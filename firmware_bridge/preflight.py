@@ -33,6 +33,8 @@ __all__ = [
     "params_to_read",
     "resolve_guid_options",
     "check_trajectory_bounds",
+    "check_trajectory_extent",
+    "trajectory_rate_warning",
     "check_solver_loop",
 ]
 
@@ -129,6 +131,41 @@ def check_trajectory_bounds(z: np.ndarray, z_min: float, z_max: float, what: str
         raise ValueError(f"the {what} spans z = {lo:.3f} .. {hi:.3f} m but the solver's z_ref bounds are "
                          f"[{z_min:g}, {z_max:g}] m: steering could never engage; regenerate the solver with "
                          "wider [bounds] or fly a trajectory inside them")
+
+
+def check_trajectory_extent(trajectory, z_min: float, z_max: float) -> None:
+    """:func:`check_trajectory_bounds` on a trajectory's own height range (its ``extent()``: every
+    height it takes at any time, the spline's overshoot between a file's samples included).
+
+    Raises:
+        ValueError: naming the trajectory (its source, for a file), its range and the bounds.
+    """
+    lo, hi = trajectory.extent()["z"]
+    source = getattr(trajectory, "source", None)
+    check_trajectory_bounds(np.array([lo, hi]), z_min, z_max, f"trajectory {source}" if source else "trajectory")
+
+
+# Seconds of a never-ending trajectory (time span to inf) that the rate check samples.
+RATE_CHECK_SPAN = 600.0
+
+
+def trajectory_rate_warning(trajectory, dz_max: float, rate_hz: float) -> str | None:
+    """A warning when the trajectory's height moves faster than the solver may move z_ref
+    (``dz_max`` [m per tick] at ``rate_hz``): the steered reference then lags the path by
+    construction. Sampled at the tick rate over the trajectory's ``time_span()`` (the first
+    :data:`RATE_CHECK_SPAN` s of an endless one). None when it fits or ``dz_max`` is unbounded.
+    """
+    if not np.isfinite(dz_max):
+        return None
+    t0, t1 = trajectory.time_span()
+    t1 = min(t1, t0 + RATE_CHECK_SPAN)
+    t = np.arange(t0, t1 + 0.5 / rate_hz, 1.0 / rate_hz)
+    vz = float(np.max(np.abs(trajectory.sample(t)["vz"]))) if t.size else 0.0
+    if vz <= dz_max * rate_hz * (1.0 + 1e-9):
+        return None
+    return (f"the trajectory climbs or sinks at up to {vz:.3f} m/s but the solver moves z_ref by at most "
+            f"{dz_max:g} m per tick ({dz_max * rate_hz:.3f} m/s at {rate_hz:g} Hz): the steered reference "
+            "lags the path there")
 
 
 def check_solver_loop(manifest: dict, autopilot: str, thrust_field: str) -> str | None:

@@ -63,7 +63,7 @@ from ddpc_codegen.robot.frames import quat_from_euler
 from ddpc_codegen.robot.hop_cycle import spring_mass_stance, stance_height
 from ddpc_codegen.robot.signals import OUTPUTS, REFERENCES
 from ddpc_codegen.robot.state import AttitudeTarget, MeasuredState
-from ddpc_codegen.robot.trajectory import EllipseTrajectory
+from ddpc_codegen.robot.trajectory import EllipseTrajectory, Trajectory
 
 __all__ = [
     "MeasuredState",
@@ -159,10 +159,11 @@ class HeightLegAngleController:
 
     Args:
         config: :class:`ControllerConfig`.
-        trajectory: flying only, the desired x-z path (default :class:`EllipseTrajectory`).
+        trajectory: flying only, the desired path (any :class:`~ddpc_codegen.robot.trajectory.Trajectory`;
+            default :class:`EllipseTrajectory`).
     """
 
-    def __init__(self, config: ControllerConfig, trajectory: EllipseTrajectory | None = None) -> None:
+    def __init__(self, config: ControllerConfig, trajectory: Trajectory | None = None) -> None:
         self.config = config
         self.trajectory = trajectory if (trajectory is not None or config.mode != "flying") else EllipseTrajectory()
         self.mode = config.mode
@@ -196,6 +197,7 @@ class HeightLegAngleController:
         self.phase = FLYING if self.mode == "flying" else DESCENT
         self._pd_correction = 0.0  # flying: x-PD part of the pitch command, held for look-ahead
         self._pd_correction_y = 0.0
+        self._yaw_des = 0.0  # flying: the path's heading now [rad, trajectory frame]
         self._t_now = -math.inf
         if self.mode == "hopping":
             apex0 = c.initial_apex if c.initial_apex is not None else c.apex_height
@@ -237,10 +239,17 @@ class HeightLegAngleController:
     def _nominal_flying(self, s: MeasuredState) -> np.ndarray:
         c = self.config
         d = self.trajectory.sample(s.t)
-        ax = float(d["ax"])
-        corr = c.kp_xy * (float(d["x"]) - s.position[0]) + c.kd_xy * (float(d["vx"]) - s.velocity[0])
+        # Horizontal PD + the path's acceleration, turned into the commanded heading's frame (yaw 0:
+        # x forward, y left), so pitch tilts along the heading and roll across it.
+        yaw = float(d["yaw"])
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        ex = c.kp_xy * (float(d["x"]) - s.position[0]) + c.kd_xy * (float(d["vx"]) - s.velocity[0])
+        ey = c.kp_xy * (float(d["y"]) - s.position[1]) + c.kd_xy * (float(d["vy"]) - s.velocity[1])
+        corr = cy * ex + sy * ey
+        ax = cy * float(d["ax"]) + sy * float(d["ay"])
         self._pd_correction = corr
-        self._pd_correction_y = c.kp_xy * (0.0 - s.position[1]) + c.kd_xy * (0.0 - s.velocity[1])
+        self._pd_correction_y = -sy * ex + cy * ey - sy * float(d["ax"]) + cy * float(d["ay"])
+        self._yaw_des = yaw
         pitch = self._clip_tilt(math.atan2(ax + corr, c.g))
         r = np.array([float(d["z"]), pitch])
         self.y_des = r.copy()
@@ -335,7 +344,8 @@ class HeightLegAngleController:
             d = self.trajectory.sample(ts)
             y = np.empty((n, 2))
             y[:, 0] = d["z"]
-            y[:, 1] = np.clip(np.arctan2(d["ax"] + self._pd_correction, c.g), -c.max_tilt, c.max_tilt)
+            a_fwd = np.cos(d["yaw"]) * d["ax"] + np.sin(d["yaw"]) * d["ay"]
+            y[:, 1] = np.clip(np.arctan2(a_fwd + self._pd_correction, c.g), -c.max_tilt, c.max_tilt)
             ph = np.full(n, FLYING, dtype=np.int8)
         else:
             y, ph = self._predict_hopping(ts)
@@ -430,9 +440,10 @@ class HeightLegAngleController:
         tilt = max(math.cos(roll) * math.cos(pitch), math.cos(c.max_tilt))
         thrust_n = max(c.model_mass * acc / tilt, 0.0)
         thrust = min(thrust_n / c.max_thrust, 1.0)
-        euler = np.array([roll, pitch, 0.0])
+        yaw = self._yaw_des if self.mode == "flying" else 0.0
+        euler = np.array([roll, pitch, yaw])
         return AttitudeTarget(
-            q=quat_from_euler(roll, pitch, 0.0),
+            q=quat_from_euler(roll, pitch, yaw),
             thrust=thrust,
             thrust_newton=thrust * c.max_thrust,
             euler=euler,

@@ -1,13 +1,55 @@
-"""Desired trajectories the companion controller flies (world ENU, SI units)."""
+"""Desired trajectories the companion controller flies (trajectory frame: x forward, y left, z up; SI units).
+
+Every kind follows one protocol (:class:`Trajectory`), which is all the controller, the simulator and
+the bridge's checks use:
+
+* ``sample(t)``: x, vx, ax, y, vy, ay, z, vz, az [m, m/s, m/s^2] and yaw [rad] at time(s) t;
+* ``start_position()``: (x, y, z) where the path starts (``start_point()``: its (x, z));
+* ``time_span()``: (t0, t1) [s], the part of trajectory time in which the path moves: before t0
+  it holds its start, after t1 it holds its end or repeats what [t0, t1] showed (t1 = inf: it never
+  repeats nor stops);
+* ``extent()``: {"x", "y", "z"} -> (low, high) [m], bounds of every position the path takes, at
+  any time (exact for the ellipse and the samples, a guaranteed bound for the random path).
+"""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["EllipseTrajectory", "RandomSmoothTrajectory", "SampledTrajectory", "Trajectory"]
+__all__ = ["EllipseTrajectory", "RandomSmoothTrajectory", "SampledTrajectory", "Trajectory", "AXES"]
+
+AXES = ("x", "y", "z")
+
+
+@runtime_checkable
+class Trajectory(Protocol):
+    """What the controller, the simulator and the bridge need from a desired path (module docstring)."""
+
+    def sample(self, t: np.ndarray | float) -> dict[str, np.ndarray]:
+        """x, vx, ax, y, vy, ay, z, vz, az, yaw at time(s) t (arrays shaped like t)."""
+
+    def start_point(self) -> tuple[float, float]:
+        """(x, z) of the start [m]."""
+
+    def start_position(self) -> tuple[float, float, float]:
+        """(x, y, z) of the start [m]."""
+
+    def time_span(self) -> tuple[float, float]:
+        """(t0, t1) [s]: the part of trajectory time in which the path moves (t1 may be inf)."""
+
+    def extent(self) -> dict[str, tuple[float, float]]:
+        """{"x", "y", "z"} -> (low, high) [m]: bounds of every position the path takes."""
+
+
+def _planar(out: dict[str, np.ndarray], like: np.ndarray) -> dict[str, np.ndarray]:
+    """Complete an x-z sample with y = vy = ay = yaw = 0 (the path lies in the sagittal plane)."""
+    zero = np.zeros_like(like, dtype=float)
+    out.update(y=zero, vy=zero, ay=zero, yaw=zero)
+    return out
 
 
 def _is_number(x: object) -> bool:
@@ -46,8 +88,19 @@ class EllipseTrajectory:
     def start_point(self) -> tuple[float, float]:
         return self.center[0], self.center[1] - self.radii[1]
 
+    def start_position(self) -> tuple[float, float, float]:
+        return self.center[0], 0.0, self.center[1] - self.radii[1]
+
+    def time_span(self) -> tuple[float, float]:
+        """From t_start over the spin-up (5 time constants: within e^-5 of the full rate) and one period."""
+        return self.t_start, self.t_start + 5.0 * self.spin_up + self.period
+
+    def extent(self) -> dict[str, tuple[float, float]]:
+        (cx, cz), (ax_, az_) = self.center, self.radii
+        return {"x": (cx - ax_, cx + ax_), "y": (0.0, 0.0), "z": (cz - az_, cz + az_)}
+
     def sample(self, t: np.ndarray | float) -> dict[str, np.ndarray]:
-        """x, vx, ax, z, vz, az at time(s) t (arrays shaped like t)."""
+        """x, vx, ax, y, vy, ay, z, vz, az, yaw at time(s) t (arrays shaped like t; y = yaw = 0)."""
         t = np.asarray(t, dtype=float)
         w = 2.0 * math.pi / self.period
         tau = self.spin_up
@@ -58,14 +111,14 @@ class EllipseTrajectory:
         ddphi = np.where(t > self.t_start, w * e / tau, 0.0)
         ax_, az_ = self.radii
         sp, cp = np.sin(phi), np.cos(phi)
-        return {
+        return _planar({
             "x": self.center[0] + ax_ * sp,
             "vx": ax_ * cp * dphi,
             "ax": ax_ * (cp * ddphi - sp * dphi**2),
             "z": self.center[1] - az_ * cp,
             "vz": az_ * sp * dphi,
             "az": az_ * (sp * ddphi + cp * dphi**2),
-        }
+        }, t)
 
 
 # ----------------------------------------------------------------------------- random smooth
@@ -155,8 +208,23 @@ class RandomSmoothTrajectory:
     def start_point(self) -> tuple[float, float]:
         return self.center
 
+    def start_position(self) -> tuple[float, float, float]:
+        return self.center[0], 0.0, self.center[1]
+
+    def time_span(self) -> tuple[float, float]:
+        """From t_start on, for ever (the path neither stops nor repeats)."""
+        return self.t_start, math.inf
+
+    def extent(self) -> dict[str, tuple[float, float]]:
+        """center +- 2 sum(A) per axis (|sin(.) - sin(phi)| <= 2, the fade-in weight <= 1)."""
+        out = {"y": (0.0, 0.0)}
+        for i, (name, c) in enumerate(zip("xz", self.center)):
+            r = 2.0 * float(self._terms[3 * i].sum())
+            out[name] = (c - r, c + r)
+        return out
+
     def sample(self, t: np.ndarray | float) -> dict[str, np.ndarray]:
-        """x, vx, ax, z, vz, az at time(s) t (arrays shaped like t)."""
+        """x, vx, ax, y, vy, ay, z, vz, az, yaw at time(s) t (arrays shaped like t; y = yaw = 0)."""
         t = np.asarray(t, dtype=float)
         s = np.maximum(t - self.t_start, 0.0)
         w, w1, w2 = _smoothstep(s, self.spin_up)
@@ -170,7 +238,7 @@ class RandomSmoothTrajectory:
             out[name] = c + w * d
             out[f"v{name}"] = w1 * d + w * d1
             out[f"a{name}"] = w2 * d + 2.0 * w1 * d1 + w * d2
-        return out
+        return _planar(out, t)
 
 
 # ----------------------------------------------------------------------------- sampled (files)
@@ -194,61 +262,122 @@ def _natural_spline_m(t: np.ndarray, v: np.ndarray) -> np.ndarray:
     return m
 
 
+def _cubic_coefficients(t: np.ndarray, v: np.ndarray, vel: np.ndarray | None) -> np.ndarray:
+    """(n-1, 4) per segment: v(t_i + s) = c0 + c1 s + c2 s^2 + c3 s^3. Without velocities the natural
+    cubic spline (position, velocity and acceleration continuous); with them the cubic Hermite spline
+    through (t, v, vel) (position and velocity continuous and as given, acceleration jumps at samples)."""
+    h = np.diff(t)
+    slope = np.diff(v) / h
+    if vel is None:
+        m = _natural_spline_m(t, v)
+        c1 = slope - h * (2.0 * m[:-1] + m[1:]) / 6.0
+        c2, c3 = 0.5 * m[:-1], (m[1:] - m[:-1]) / (6.0 * h)
+    else:
+        c1 = vel[:-1]
+        c2 = (3.0 * slope - 2.0 * vel[:-1] - vel[1:]) / h
+        c3 = (vel[:-1] + vel[1:] - 2.0 * slope) / (h * h)
+    return np.column_stack([v[:-1], c1, c2, c3])
+
+
+def _cubic_range(t: np.ndarray, c: np.ndarray) -> tuple[float, float]:
+    """Exact (min, max) of the piecewise cubic over [t0, t_n]: the samples and every interior
+    extremum (roots of c1 + 2 c2 s + 3 c3 s^2 inside a segment)."""
+    h = np.diff(t)
+    ends = np.concatenate([c[:, 0], [float(np.polyval(c[-1, ::-1], h[-1]))]])
+    a, b, q = 3.0 * c[:, 3], 2.0 * c[:, 2], c[:, 1]
+    disc = b * b - 4.0 * a * q
+    ok = disc >= 0.0
+    r = np.sqrt(np.where(ok, disc, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quad = np.abs(a) > 1e-12 * (np.abs(b) + np.abs(q) + 1e-300)
+        roots = [np.where(quad, (-b + r) / (2.0 * a), -q / b), np.where(quad, (-b - r) / (2.0 * a), -q / b)]
+    cand = [ends]
+    for s in roots:
+        inside = ok & np.isfinite(s) & (s > 0.0) & (s < h)
+        si = s[inside]
+        ci = c[inside]
+        cand.append(ci[:, 0] + si * (ci[:, 1] + si * (ci[:, 2] + si * ci[:, 3])))
+    allv = np.concatenate(cand)
+    return float(allv.min()), float(allv.max())
+
+
 @dataclass(frozen=True)
 class SampledTrajectory:
-    """An x-z path through given samples (e.g. from a file): natural cubic spline per axis, so
-    position, velocity and acceleration are continuous. Before the first sample the robot holds
-    the first point, after the last the last point (velocity and acceleration 0 there).
+    """A path through given samples (e.g. from a file): per axis a cubic spline (natural, or Hermite
+    where velocities are given), so position and velocity are continuous (acceleration too without
+    velocities). Before the first sample the robot holds the first point, after the last the last
+    (velocity and acceleration 0 there). Yaw, if given, is splined like a position (unwrapped).
 
     Attributes:
         t: (n,) strictly increasing times [s] (trajectory time: 0 = when the run / off-board starts).
         x, z: (n,) positions [m].
         source: where the samples came from (for messages and logs).
+        y: (n,) lateral positions [m] (None: 0, the sagittal x-z plane).
+        yaw: (n,) heading [rad] in the trajectory frame (None: 0, the heading at the start).
+        vx, vy, vz: (n,) velocities [m/s] at the samples (None: the natural spline's).
     """
 
     t: tuple[float, ...]
     x: tuple[float, ...]
     z: tuple[float, ...]
     source: str = "<samples>"
+    y: tuple[float, ...] | None = None
+    yaw: tuple[float, ...] | None = None
+    vx: tuple[float, ...] | None = None
+    vy: tuple[float, ...] | None = None
+    vz: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
         if t.ndim != 1 or t.size < 2:
             raise ValueError(f"{self.source}: a trajectory needs at least 2 samples; got {t.size}")
-        if len(self.x) != t.size or len(self.z) != t.size:
-            raise ValueError(f"{self.source}: t, x, z must have the same length; got {t.size}, {len(self.x)}, {len(self.z)}")
+        cols = {k: getattr(self, k) for k in ("x", "z", "y", "yaw", "vx", "vy", "vz") if getattr(self, k) is not None}
+        bad = {k: len(v) for k, v in cols.items() if len(v) != t.size}
+        if bad:
+            raise ValueError(f"{self.source}: every column must have the {t.size} samples of t; got "
+                             + ", ".join(f"{k}: {n}" for k, n in bad.items()))
         if not np.all(np.diff(t) > 0):
             raise ValueError(f"{self.source}: t must be strictly increasing")
-        xs = np.asarray(self.x, dtype=float), np.asarray(self.z, dtype=float)
-        object.__setattr__(self, "_m", tuple(_natural_spline_m(t, v) for v in xs))
+        arr = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
+        if any(not np.all(np.isfinite(v)) for v in arr.values()):
+            raise ValueError(f"{self.source}: every value must be a finite number")
+        coef = {ax: _cubic_coefficients(t, arr.get(ax, np.zeros(t.size)), arr.get(f"v{ax}")) for ax in AXES}
+        coef["yaw"] = _cubic_coefficients(t, np.unwrap(arr.get("yaw", np.zeros(t.size))), None)
+        object.__setattr__(self, "_t", t)
+        object.__setattr__(self, "_coef", coef)
 
     def start_point(self) -> tuple[float, float]:
         return float(self.x[0]), float(self.z[0])
+
+    def start_position(self) -> tuple[float, float, float]:
+        return float(self.x[0]), float(self.y[0]) if self.y is not None else 0.0, float(self.z[0])
 
     @property
     def duration(self) -> float:
         return float(self.t[-1])
 
+    def time_span(self) -> tuple[float, float]:
+        """From the first sample to the last (held before and after)."""
+        return float(self.t[0]), float(self.t[-1])
+
+    def extent(self) -> dict[str, tuple[float, float]]:
+        """Exact range of each axis (the spline's extremes between samples included)."""
+        return {ax: _cubic_range(self._t, self._coef[ax]) for ax in AXES}
+
     def sample(self, t: np.ndarray | float) -> dict[str, np.ndarray]:
-        """x, vx, ax, z, vz, az at time(s) t (arrays shaped like t)."""
-        tk = np.asarray(self.t, dtype=float)
+        """x, vx, ax, y, vy, ay, z, vz, az, yaw at time(s) t (arrays shaped like t)."""
+        tk = self._t
         tq = np.asarray(t, dtype=float)
         tc = np.clip(tq, tk[0], tk[-1])
         inside = (tq > tk[0]) & (tq < tk[-1])
         i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, tk.size - 2)
-        h = tk[i + 1] - tk[i]
-        a, b = (tk[i + 1] - tc) / h, (tc - tk[i]) / h
+        s = tc - tk[i]
         out = {}
-        for name, v, m in (("x", self.x, self._m[0]), ("z", self.z, self._m[1])):
-            v = np.asarray(v, dtype=float)
-            m0, m1, v0, v1 = m[i], m[i + 1], v[i], v[i + 1]
-            out[name] = a * v0 + b * v1 + ((a**3 - a) * m0 + (b**3 - b) * m1) * h * h / 6.0
-            vel = (v1 - v0) / h + ((1 - 3 * a * a) * m0 + (3 * b * b - 1) * m1) * h / 6.0
-            out[f"v{name}"] = np.where(inside, vel, 0.0)
-            out[f"a{name}"] = np.where(inside, a * m0 + b * m1, 0.0)
+        for name in (*AXES, "yaw"):
+            c = self._coef[name][i]
+            c0, c1, c2, c3 = c[..., 0], c[..., 1], c[..., 2], c[..., 3]
+            out[name] = c0 + s * (c1 + s * (c2 + s * c3))
+            if name != "yaw":
+                out[f"v{name}"] = np.where(inside, c1 + s * (2.0 * c2 + 3.0 * s * c3), 0.0)
+                out[f"a{name}"] = np.where(inside, 2.0 * c2 + 6.0 * s * c3, 0.0)
         return out
-
-
-# What the controller and the simulator need from a desired path: sample(t) -> x, vx, ax, z, vz, az
-# and start_point() -> (x, z).
-Trajectory = EllipseTrajectory | RandomSmoothTrajectory | SampledTrajectory

@@ -1,22 +1,25 @@
 """Desired trajectories from files (CSV or TOML), for in-process runs and the MAVLink bridge.
 
 Both formats give samples of trajectory time ``t`` [s] (0 = start of the run / of off-board
-flight; strictly increasing, >= 0) and sagittal position ``x``, ``z`` [m] (trajectory frame:
-x forward, z up). Between samples a natural cubic spline (:class:`SampledTrajectory`) gives
-continuous position, velocity and acceleration (the controller uses x'' as its pitch
-feed-forward); before the first sample the first point is held, after the last the last.
-Attitude is not a column: the leg angle (pitch) follows from x through the controller's
-horizontal PD, as in the paper.
+flight; strictly increasing, >= 0) and position ``x``, ``z`` [m] (trajectory frame: x forward,
+y left, z up), and optionally ``y`` [m] (a 3-D path; without it y = 0, the sagittal plane),
+``yaw`` [rad] (heading in the trajectory frame, 0 = the heading at the start; without it 0) and
+velocities ``vx``, ``vy``, ``vz`` [m/s] (each alone; without them the spline chooses them).
+Between samples a cubic spline (:class:`SampledTrajectory`) gives continuous position and velocity
+(natural spline: acceleration too; Hermite where velocities are given); the controller uses the
+horizontal accelerations as its tilt feed-forward and the yaw as the commanded heading. Before
+the first sample the first point is held, after the last the last.
 
-CSV: a header row naming the columns (any order, ``t,x,z``), one sample per row; blank lines
-and lines starting with ``#`` are skipped::
+CSV: a header row naming the columns (any order, ``t,x,z`` and any optional ones), one sample per
+row; blank lines and lines starting with ``#`` are skipped::
 
-    # t [s], x [m], z [m]
-    t,x,z
-    0.0,0.0,1.0
-    0.5,0.1,1.02
+    # t [s], x [m], y [m], z [m]: the start of a figure eight
+    t,x,y,z
+    0.0,0.0,0.0,1.0
+    0.5,0.1,0.05,1.02
 
-TOML: an array of tables ``[[point]]`` with keys t, x, z (optional top-level ``description``)::
+TOML: an array of tables ``[[point]]`` with keys t, x, z and any optional ones (the same set in
+every point; optional top-level ``description``)::
 
     description = "a hop over the table"
     [[point]]
@@ -40,9 +43,11 @@ from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
 from ddpc_codegen.tomlconfig import check_keys, load_toml
 
-__all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS"]
+__all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS", "OPTIONAL_COLUMNS"]
 
 COLUMNS = ("t", "x", "z")
+OPTIONAL_COLUMNS = ("y", "yaw", "vx", "vy", "vz")
+_ALL = COLUMNS + OPTIONAL_COLUMNS
 MAX_SAMPLES = 1_000_000
 
 
@@ -78,19 +83,25 @@ def trajectory_from_arg(text: str):
     raise ConfigError(f"trajectory {text!r}: expected 'ellipse', 'random[:SEED]' or a .csv / .toml file")
 
 
-def save_trajectory_csv(path: str | Path, trajectory, t_end: float, dt: float = 0.05) -> Path:
-    """Write ``trajectory.sample`` on [0, t_end] every ``dt`` seconds as a trajectory CSV."""
+def save_trajectory_csv(path: str | Path, trajectory, t_end: float, dt: float = 0.05,
+                        columns: tuple[str, ...] = COLUMNS) -> Path:
+    """Write ``trajectory.sample`` on [0, t_end] every ``dt`` seconds as a trajectory CSV with
+    ``columns`` (t, x, z and any of :data:`OPTIONAL_COLUMNS`)."""
     if not (dt > 0 and t_end > dt):
         raise ConfigError(f"save_trajectory_csv needs t_end > dt > 0; got t_end={t_end!r}, dt={dt!r}")
+    bad = [c for c in columns if c not in _ALL]
+    if bad or any(c not in columns for c in COLUMNS):
+        raise ConfigError(f"save_trajectory_csv columns must include {list(COLUMNS)} and only {list(_ALL)}; "
+                          f"got {list(columns)}")
     t = np.arange(0.0, t_end + 0.5 * dt, dt)
-    d = trajectory.sample(t)
+    d = {**trajectory.sample(t), "t": t}
     path = Path(path)
     with path.open("w", newline="") as f:
-        f.write(f"# sampled from {type(trajectory).__name__}; t [s], x [m], z [m]\n")
+        f.write(f"# sampled from {type(trajectory).__name__}; t [s], positions [m], yaw [rad], velocities [m/s]\n")
         w = csv.writer(f)
-        w.writerow(COLUMNS)
-        for row in zip(t, d["x"], d["z"]):
-            w.writerow([repr(float(v)) for v in row])
+        w.writerow(columns)
+        for k in range(t.size):
+            w.writerow([repr(float(d[c][k])) for c in columns])
     return path
 
 
@@ -108,8 +119,8 @@ def _number(text: object, where: str) -> float:
     return v
 
 
-def _read_csv(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
-    """[(where, (t, x, z))] per data row; ``where`` = 'FILE row N' (N = line number)."""
+def _read_csv(path: Path) -> list[tuple[str, dict[str, float]]]:
+    """[(where, {column: value})] per data row; ``where`` = 'FILE row N' (N = line number)."""
     try:
         lines = path.read_text().splitlines()
     except UnicodeDecodeError as e:
@@ -123,17 +134,18 @@ def _read_csv(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
         if header is None:
             header = [c.strip().lower() for c in cells]
             missing = [c for c in COLUMNS if c not in header]
-            unknown = [c for c in header if c not in COLUMNS]
+            unknown = [c for c in header if c not in _ALL]
             if unknown or missing or len(set(header)) != len(header):
                 raise ConfigError(f"{path} row {lineno}: the header must name the columns {list(COLUMNS)} once each "
-                                  f"(any order); got {cells!r}" + (f"; unknown {unknown}" if unknown else "")
+                                  f"(any order; optional: {list(OPTIONAL_COLUMNS)}); got {cells!r}"
+                                  + (f"; unknown {unknown}" if unknown else "")
                                   + (f"; missing {missing}" if missing else ""))
             continue
         if len(cells) != len(header):
             raise ConfigError(f"{path} row {lineno}: expected {len(header)} values ({','.join(header)}); "
                               f"got {len(cells)}: {line.strip()!r}")
         vals = {h: _number(c, f"{path} row {lineno}, column {h!r}") for h, c in zip(header, cells)}
-        rows.append((f"{path} row {lineno}", (vals["t"], vals["x"], vals["z"])))
+        rows.append((f"{path} row {lineno}", vals))
         if len(rows) > MAX_SAMPLES:
             raise ConfigError(f"{path}: more than {MAX_SAMPLES} samples; resample the trajectory")
     if header is None:
@@ -141,8 +153,8 @@ def _read_csv(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
     return rows
 
 
-def _read_toml(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
-    """[(where, (t, x, z))] per [[point]] table; ``where`` = 'FILE point[i]'."""
+def _read_toml(path: Path) -> list[tuple[str, dict[str, float]]]:
+    """[(where, {key: value})] per [[point]] table; ``where`` = 'FILE point[i]'."""
     raw = check_keys(load_toml(path), ("description", "point"), "top level:", str(path))
     pts = raw.get("point")
     if not isinstance(pts, list) or not all(isinstance(p, dict) for p in pts):
@@ -150,27 +162,31 @@ def _read_toml(path: Path) -> list[tuple[str, tuple[float, float, float]]]:
     rows = []
     for i, p in enumerate(pts):
         where = f"{path} point[{i}]"
-        unknown = [k for k in p if k not in COLUMNS]
+        unknown = [k for k in p if k not in _ALL]
         if unknown:
-            raise ConfigError(f"{where}: unknown key(s) {unknown}; a point has exactly {list(COLUMNS)} "
-                              "(attitude follows from x through the controller)")
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; a point has {list(COLUMNS)} and optionally "
+                              f"{list(OPTIONAL_COLUMNS)} (roll and pitch follow from the path through the controller)")
         missing = [c for c in COLUMNS if c not in p]
         if missing:
             raise ConfigError(f"{where}: missing key(s) {missing}; each point needs {list(COLUMNS)}")
-        rows.append((where, tuple(_number(p[c], f"{where} key {c!r}") for c in COLUMNS)))
+        if i and set(p) != set(pts[0]):
+            raise ConfigError(f"{where}: has keys {sorted(p)} but point[0] has {sorted(pts[0])}; "
+                              "every point needs the same keys")
+        rows.append((where, {c: _number(p[c], f"{where} key {c!r}") for c in p}))
     return rows
 
 
-def _build(rows: list[tuple[str, tuple[float, float, float]]], src: str) -> SampledTrajectory:
+def _build(rows: list[tuple[str, dict[str, float]]], src: str) -> SampledTrajectory:
     if len(rows) < 2:
         raise ConfigError(f"{src}: a trajectory needs at least 2 samples; got {len(rows)}")
     prev_t, prev_where = -math.inf, ""
-    for where, (t, _, _) in rows:
+    for where, vals in rows:
+        t = vals["t"]
         if t < 0:
             raise ConfigError(f"{where}: t = {t!r} is negative; trajectory time starts at 0")
         if t <= prev_t:
             raise ConfigError(f"{where}: t = {t!r} is not after t = {prev_t!r} (at {prev_where}); "
                               "times must be strictly increasing")
         prev_t, prev_where = t, where
-    t, x, z = (tuple(r[1][i] for r in rows) for i in range(3))
-    return SampledTrajectory(t, x, z, source=src)
+    cols = {c: tuple(r[1][c] for r in rows) for c in _ALL if c in rows[0][1]}
+    return SampledTrajectory(source=src, **cols)

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
@@ -158,3 +160,139 @@ def test_trajectory_from_a_command_line_value(tmp_path):
         trajectory_from_arg("spiral")
     with pytest.raises(ConfigError, match="does not exist"):
         trajectory_from_arg(str(tmp_path / "missing.csv"))
+
+
+# ----------------------------------------------------------------------------- one protocol, 3-D files
+def test_every_kind_follows_the_trajectory_protocol():
+    from ddpc_codegen.robot.trajectory import Trajectory
+
+    kinds = [EllipseTrajectory(), RandomSmoothTrajectory(seed=2),
+             SampledTrajectory((0.0, 1.0, 2.0), (0.0, 0.5, 1.0), (1.0, 1.1, 1.0), y=(0.0, 0.2, 0.0))]
+    keys = {f"{p}{ax}" for p in ("", "v", "a") for ax in "xyz"} | {"yaw"}
+    for tr in kinds:
+        assert isinstance(tr, Trajectory)
+        d = tr.sample(np.linspace(0.0, 3.0, 7))
+        assert set(d) == keys and all(v.shape == (7,) for v in d.values())
+        x, y, z = tr.start_position()
+        assert (x, z) == tr.start_point()
+        np.testing.assert_allclose([tr.sample(0.0)[a] for a in "xyz"], (x, y, z), atol=1e-12)
+    assert EllipseTrajectory(t_start=2.0, spin_up=0.5, period=8.0).time_span() == (2.0, 12.5)
+    assert RandomSmoothTrajectory(t_start=1.5).time_span() == (1.5, float("inf"))
+    assert kinds[2].time_span() == (0.0, 2.0)
+    assert EllipseTrajectory(center=(0.5, 1.2), radii=(1.0, 0.3)).extent() == {
+        "x": (-0.5, 1.5), "y": (0.0, 0.0), "z": (pytest.approx(0.9), pytest.approx(1.5))}
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-2.0, 2.0), min_size=2, max_size=12), st.lists(st.floats(0.05, 2.0), min_size=11, max_size=11),
+       st.booleans())
+def test_a_files_extent_is_the_exact_range_of_its_spline(values, steps, with_velocity):
+    """Against dense sampling: never narrower (the overshoot between samples counts), barely wider."""
+    n = len(values)
+    t = np.concatenate([[0.0], np.cumsum(steps[: n - 1])])
+    vz = tuple(np.cos(np.arange(n))) if with_velocity else None
+    tr = SampledTrajectory(tuple(t), tuple(np.zeros(n)), tuple(values), vz=vz)
+    lo, hi = tr.extent()["z"]
+    dense = tr.sample(np.linspace(t[0], t[-1], 200_001))["z"]
+    assert lo <= dense.min() + 1e-12 and hi >= dense.max() - 1e-12
+    assert lo >= dense.min() - 1e-6 and hi <= dense.max() + 1e-6
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000))
+def test_the_random_paths_extent_bounds_it_for_all_time(seed):
+    tr = RandomSmoothTrajectory(seed=seed)
+    d = tr.sample(np.linspace(0.0, 400.0, 40_001))
+    for ax in "xz":
+        lo, hi = tr.extent()[ax]
+        assert lo <= d[ax].min() and d[ax].max() <= hi
+
+
+def test_velocity_columns_give_a_hermite_spline_through_them():
+    t = (0.0, 1.0, 2.5)
+    tr = SampledTrajectory(t, (0.0, 1.0, 1.5), (1.0, 1.0, 1.0), vx=(0.0, 2.0, 0.0))
+    d = tr.sample(np.array([1e-9, 1.0, 2.5 - 1e-9]))
+    np.testing.assert_allclose(d["vx"], (0.0, 2.0, 0.0), atol=1e-6)  # the given velocities
+    np.testing.assert_allclose(tr.sample(np.array(t))["x"], (0.0, 1.0, 1.5), atol=1e-12)
+    for seg in (np.arange(0.01, 0.98, DT), np.arange(1.02, 2.49, DT)):  # acceleration jumps at a sample
+        _derivatives_consistent(tr, seg)
+    assert tr.sample(0.5)["vz"] == 0.0  # the other axes keep the natural spline
+
+
+def test_3d_files_with_yaw_and_velocities_round_trip(tmp_path):
+    src = SampledTrajectory(tuple(np.linspace(0, 6, 31)), tuple(np.sin(np.linspace(0, 6, 31))),
+                            tuple(1.0 + 0.1 * np.linspace(0, 6, 31)), y=tuple(np.sin(2 * np.linspace(0, 6, 31))),
+                            yaw=tuple(0.3 * np.linspace(0, 6, 31)))
+    cols = ("t", "x", "y", "z", "yaw", "vx", "vy", "vz")
+    path = save_trajectory_csv(tmp_path / "eight.csv", src, 6.0, dt=0.1, columns=cols)
+    tr = load_trajectory(path)
+    assert tr.y is not None and tr.yaw is not None and tr.vz is not None
+    q = np.linspace(0.2, 5.8, 57)
+    for k in ("x", "y", "z", "yaw", "vx", "vy"):
+        np.testing.assert_allclose(tr.sample(q)[k], src.sample(q)[k], atol=5e-3, err_msg=k)
+    toml = tmp_path / "eight.toml"
+    toml.write_text("".join(f"[[point]]\nt = {a}\nx = {b}\ny = {c}\nz = 1.0\nyaw = 0.1\n"
+                            for a, b, c in ((0, 0, 0), (1, 0.5, 0.3), (2, 1.0, 0.0))))
+    tr = load_trajectory(toml)
+    assert tr.y == (0.0, 0.3, 0.0) and tr.sample(1.0)["yaw"] == pytest.approx(0.1)
+    with pytest.raises(ConfigError, match=r"save_trajectory_csv columns must include \['t', 'x', 'z'\] and only"):
+        save_trajectory_csv(tmp_path / "x.csv", src, 6.0, columns=("t", "x", "z", "pitch"))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[[point]]\nt = 0\nx = 0\nz = 1\ny = 0\n[[point]]\nt = 1\nx = 0\nz = 1\n",
+     r"bad.toml point\[1\]: has keys \['t', 'x', 'z'\] but point\[0\] has \['t', 'x', 'y', 'z'\]; every point needs "
+     r"the same keys"),
+    ("[[point]]\nt = 0\nx = 0\nz = 1\nroll = 0.1\n",
+     r"bad.toml point\[0\]: unknown key\(s\) \['roll'\]; a point has \['t', 'x', 'z'\] and optionally "
+     r"\['y', 'yaw', 'vx', 'vy', 'vz'\]"),
+])
+def test_toml_optional_keys_errors(tmp_path, text, message):
+    (tmp_path / "bad.toml").write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_trajectory(tmp_path / "bad.toml")
+
+
+def test_csv_with_optional_columns_and_bad_header(tmp_path):
+    (tmp_path / "ok.csv").write_text("z,t,y,x,vz\n1,0,0,0,0\n1.2,1,0.5,0.2,0\n")
+    tr = load_trajectory(tmp_path / "ok.csv")
+    assert tr.start_position() == (0.0, 0.0, 1.0) and tr.sample(0.5)["y"] > 0.0
+    (tmp_path / "bad.csv").write_text("t,x,z,pitch\n0,0,1,0\n")
+    with pytest.raises(ConfigError, match=r"bad.csv row 1: the header must name the columns \['t', 'x', 'z'\] once "
+                                          r"each \(any order; optional: \['y', 'yaw', 'vx', 'vy', 'vz'\]\); got "
+                                          r".*; unknown \['pitch'\]$"):
+        load_trajectory(tmp_path / "bad.csv")
+
+
+def test_the_controller_flies_y_and_yaw_of_the_path():
+    """y: roll from the lateral PD + the path's lateral acceleration; yaw: the commanded heading, pitch and
+    roll along and across it (yaw 0: today's x-z law unchanged)."""
+    from ddpc_codegen.robot.controller import HeightLegAngleController
+    from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.robot.frames import euler_from_quat
+    from ddpc_codegen.robot.state import MeasuredState
+
+    cfg = load_profile("pogox").controller
+    t = tuple(np.linspace(0.0, 4.0, 41))
+    ay_path = SampledTrajectory(t, (0.0,) * 41, (1.0,) * 41, y=tuple(0.2 * np.sin(np.linspace(0.0, 4.0, 41))))
+    turned = SampledTrajectory(t, tuple(0.3 * np.sin(np.linspace(0.0, 4.0, 41))), (1.0,) * 41,
+                               yaw=(np.pi / 2,) * 41)
+    st0 = MeasuredState(t=2.0, position=np.array([0.0, 0.0, 1.0]), velocity=np.zeros(3), euler=np.zeros(3),
+                        body_rates=np.zeros(3), contact=False)
+    c = HeightLegAngleController(cfg, ay_path)
+    off = MeasuredState(t=2.0, position=np.array([0.0, -0.3, 1.0]), velocity=np.zeros(3), euler=np.zeros(3),
+                        body_rates=np.zeros(3), contact=False)
+    r = c.nominal_reference(off)
+    d = ay_path.sample(2.0)
+    want_roll = -np.arctan2(d["ay"] + cfg.kp_xy * (d["y"] + 0.3) + cfg.kd_xy * d["vy"], cfg.g)
+    sp = c.track(r, off)
+    assert sp.euler[0] == pytest.approx(np.clip(want_roll, -cfg.max_tilt, cfg.max_tilt)) and abs(sp.euler[0]) > 0.01
+    c = HeightLegAngleController(cfg, turned)
+    r = c.nominal_reference(st0)
+    sp = c.track(r, st0)
+    d = turned.sample(2.0)
+    e_x = d["ax"] + cfg.kp_xy * d["x"] + cfg.kd_xy * d["vx"]
+    # Heading +90 deg (facing +y): the x motion is across the heading, a roll (x = -left), pitch 0.
+    assert r[1] == pytest.approx(0.0, abs=1e-12) and sp.euler[2] == pytest.approx(np.pi / 2)
+    assert sp.euler[0] == pytest.approx(np.clip(np.arctan2(e_x, cfg.g), -cfg.max_tilt, cfg.max_tilt))
+    np.testing.assert_allclose(euler_from_quat(sp.q), sp.euler, atol=1e-12)
