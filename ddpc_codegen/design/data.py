@@ -19,7 +19,7 @@ from scipy.signal import max_len_seq
 
 from ddpc_codegen.errors import DataError
 
-__all__ = ["IODataset", "prbs", "output_noise", "output_path", "MAX_ARRAY_BYTES"]
+__all__ = ["IODataset", "prbs", "output_noise", "output_path", "checked_entry", "MAX_ARRAY_BYTES"]
 
 
 def _as_signal(x: Any, what: str, index: int) -> np.ndarray:
@@ -274,7 +274,7 @@ def output_path(path: str | Path, overwrite: bool = False) -> Path:
     return out
 
 
-def _entry(z: Any, key: str, limit: int = MAX_ARRAY_BYTES) -> np.ndarray:
+def checked_entry(z: Any, key: str, limit: int = MAX_ARRAY_BYTES) -> np.ndarray:
     """Entry ``key`` of an open npz, read only after its declared shape and dtype were checked against
     the bytes it stores and ``limit`` (a huge declared shape would exhaust memory before any other check)."""
     info = z.zip.getinfo(f"{key}.npy")
@@ -300,7 +300,7 @@ def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], lis
     with np.load(path, allow_pickle=False) as z:
         if "header" not in z.files:
             raise DataError(f"not an IODataset file (no 'header' entry; entries: {sorted(z.files)[:8]})")
-        header = json.loads(bytes(_entry(z, "header", MAX_HEADER_BYTES)).decode())
+        header = json.loads(bytes(checked_entry(z, "header", MAX_HEADER_BYTES)).decode())
         if not isinstance(header, dict) or header.get("format") != "ddpc-iodataset":
             raise DataError("not an IODataset file (its header is not a ddpc-iodataset header)")
         missing = [k for k in _HEADER_KEYS if k not in header]
@@ -314,9 +314,9 @@ def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], lis
         absent = [k for i in range(n) for k in (f"u_{i}", f"y_{i}") if k not in z.files]
         if absent:
             raise DataError(f"entries {absent[:6]} are missing")
-        u = [_entry(z, f"u_{i}") for i in range(n)]
-        y = [_entry(z, f"y_{i}") for i in range(n)]
-        ph = [_entry(z, f"phase_{i}") for i in range(n)] if header.get("has_phases") else None
+        u = [checked_entry(z, f"u_{i}") for i in range(n)]
+        y = [checked_entry(z, f"y_{i}") for i in range(n)]
+        ph = [checked_entry(z, f"phase_{i}") for i in range(n)] if header.get("has_phases") else None
     return header, u, y, ph
 
 

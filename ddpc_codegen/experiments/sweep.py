@@ -27,7 +27,6 @@ import fcntl
 import hashlib
 import itertools
 import json
-import pickle
 import sys
 import time
 from collections import OrderedDict
@@ -47,6 +46,7 @@ from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import ConfigError, ManifestError
 from ddpc_codegen.experiments.pipeline import SteeringSetup, build_setup, collect
 from ddpc_codegen.experiments.evaluate import run
+from ddpc_codegen.experiments.sweep_cache import load_predictor, save_predictor
 from ddpc_codegen.experiments.sweep_spec import METRICS, Point, SweepSpec
 
 __all__ = ["SweepContext", "evaluate_point", "run_sweep", "read_results", "columns", "TIMING_COLUMNS"]
@@ -107,17 +107,13 @@ def _cached_fit(cfg: SteeringConfig, ds: IODataset, cache_dir: str) -> Predictor
     if key in _FITS:
         _FITS.move_to_end(key)
         return _FITS[key]
-    path = Path(cache_dir) / "fits" / f"{key}.pkl"
+    path = Path(cache_dir) / "fits" / f"{key}.npz"
     with _locked(path.with_suffix(".lock")):
-        if path.exists():
-            with open(path, "rb") as f:
-                pred = pickle.load(f)  # written by this sweep's own workers (same cache folder)
+        if path.exists():  # numbers + JSON with a content hash, never pickle (the folder is user-writable)
+            pred = load_predictor(path, key)
         else:
             pred = fit_configured(cfg, ds)
-            tmp = path.with_suffix(".tmp")
-            with open(tmp, "wb") as f:
-                pickle.dump(pred, f)
-            tmp.replace(path)
+            save_predictor(path, pred, key)
     return _remember(_FITS, key, pred)
 
 
