@@ -66,9 +66,11 @@ def include_dirs_of(backend: str, artio: bool = False) -> list[str]:
 
 
 def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], backend: str,
-                      march_native: bool = False, verbose: bool = False, artio: bool = False) -> tuple[Path, list[str]]:
+                      march_native: bool = False, verbose: bool = False, artio: bool = False,
+                      adapt: bool = False) -> tuple[Path, list[str]]:
     """Build ``module`` from ``units`` -- the very sources CMake and the Makefile compile, with the same
-    portable flags; returns (extension path, compiler flags used)."""
+    portable flags; returns (extension path, compiler flags used). ``adapt``: also declare the online
+    predictor update (``<name>_adapt.h``, emitted only when adaptation is enabled)."""
     flags = list(PORTABLE_FLAGS) + (["-march=native"] if march_native else [])
     include_dirs = [str(out_dir)] + [str(out_dir / i) for i in include_dirs_of(backend, artio)]
     glue = f'#include "{name}_solver.h"\n'  # which includes <name>_artio.h in a hopping solver
@@ -78,6 +80,11 @@ def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], 
         from ddpc_codegen.codegen.artio import cdef_text as artio_cdef
 
         ffi.cdef(artio_cdef(name))
+    if adapt:
+        from ddpc_codegen.codegen.adapt import cdef_text as adapt_cdef
+
+        ffi.cdef(adapt_cdef(name))
+        glue += f'#include "{name}_adapt.h"\n'
     ffi.set_source(module, glue, sources=[str(u) for u in units], include_dirs=include_dirs,
                    libraries=["m"], extra_compile_args=flags)
     # A fresh directory per build: distutils caches the directories it created per process, so

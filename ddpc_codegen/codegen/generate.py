@@ -8,6 +8,7 @@ renames on one file system). A failed compile or a vector mismatch leaves the ol
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import shutil
@@ -18,12 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.codegen import vectors as test_vectors
+from ddpc_codegen.codegen.adapt import emit_adapt
 from ddpc_codegen.codegen.artio import OnlineCompletion, manifest_entry
 from ddpc_codegen.codegen.build import compile_extension
-from ddpc_codegen.codegen.emit import BACKENDS, DEFAULTS, VECTOR_TOL, VECTORS_FILE, check_name, emit_sources
+from ddpc_codegen.codegen.emit import (BACKENDS, BANNER, DEFAULTS, VECTOR_TOL, VECTORS_FILE, check_name, data_files,
+                                      emit_sources)
 from ddpc_codegen.codegen.manifest import build_manifest, write_manifest
 from ddpc_codegen.codegen.tuning import choose_rho
 from ddpc_codegen.design.adaptation import ship_fit_statistic
+from ddpc_codegen.runtime.adaptation import AdaptSettings
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import CodegenError
 
@@ -57,6 +61,7 @@ def generate(
     verbose: bool = False,
     artificial_io: OnlineCompletion | None = None,
     provenance: dict | None = None,
+    adapt: AdaptSettings | None = None,
 ) -> Path:
     """Emit (and compile) the steering solver of ``problem`` into the folder ``out_dir``.
 
@@ -73,6 +78,8 @@ def generate(
             (``<name>_artio.h``; in Python ``solver.artificial_io``); its noise level must be > 0.
         provenance: what the data were (JSON-able; manifest ``dataset``), e.g. the bridge's
             ``thrust_field``, which the bridge checks against the vehicle before flying the solver.
+        adapt: online predictor updates (``[adapt]``); when enabled, ``<name>_adapt.{h,c}`` are emitted and
+            compiled in (the non-adaptive folder is unchanged); the manifest's ``fit_statistic`` records them.
     Returns:
         the solver folder (with manifest.json), loadable by :func:`ddpc_codegen.load_solver`; it also
         builds without Python (CMakeLists.txt, Makefile, example_main.c).
@@ -92,7 +99,7 @@ def generate(
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.build-", dir=out.parent))
     try:
         _build(problem, tmp, name, backend, compile, march_native, max_iter, eps, n_vectors, verbose,
-               artificial_io, provenance)
+               artificial_io, provenance, adapt)
     except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(e, CodegenError):
@@ -104,13 +111,16 @@ def generate(
 
 
 def _build(problem: SteeringProblem, out: Path, name: str, backend: str, compile: bool, march_native,
-           max_iter, eps, n_vectors: int, verbose: bool, artificial_io, provenance) -> None:
+           max_iter, eps, n_vectors: int, verbose: bool, artificial_io, provenance, adapt=None) -> None:
     """Emit, compile, write the manifest and replay the vectors, all inside ``out`` (a fresh folder)."""
     cfg = problem.config
     settings = _settings(problem, backend, max_iter, eps)
     native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)
     t0 = time.perf_counter()
     units = emit_sources(problem, out, name, backend, settings, artificial_io)
+    adaptive = adapt is not None and adapt.enabled
+    if adaptive:
+        units += emit_adapt(problem, adapt, out, name, BANNER, data_files)
     vec = test_vectors.record(problem, n_vectors)
     vec_file = out / VECTORS_FILE.format(name=name)
     vec_sha = test_vectors.write(vec_file, name, vec)
@@ -121,18 +131,20 @@ def _build(problem: SteeringProblem, out: Path, name: str, backend: str, compile
     art_key = None
     if artificial_io is not None:
         art_key = [hashlib.sha256(artificial_io.art.basis.tobytes()).hexdigest(), manifest_entry(artificial_io)]
+    if adaptive:
+        art_key = [art_key, dataclasses.asdict(adapt)]
     ident = hashlib.sha256(json.dumps([problem.predictor.digest, cfg.digest, backend, settings, native, name, art_key],
                                       sort_keys=True, default=str).encode()).hexdigest()[:12]
     module = f"_ddpc_{name}_{ident}"
     ext, flags = compile_extension(out, name, module, units, backend, march_native=native, verbose=verbose,
-                                   artio=artificial_io is not None)
+                                   artio=artificial_io is not None, adapt=adaptive)
     settings["build_seconds"] = round(time.perf_counter() - t0, 3)
     sources = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".c", ".h")
                      and not any(part.startswith("build") for part in p.relative_to(out).parts))
     extra = {"vectors": {"file": vec_file.name, "sha256": vec_sha, **vec.summary()},
              "artificial_io": None if artificial_io is None else manifest_entry(artificial_io),
              "dataset": dict(provenance or {}),
-             "fit_statistic": ship_fit_statistic(problem.predictor, out, name)}  # for online updates
+             "fit_statistic": ship_fit_statistic(problem.predictor, out, name, adapt)}  # for online updates
     write_manifest(out, build_manifest(problem, name, backend, module, ext, sources, out, settings, flags, extra))
     verify_vectors(out, vec, VECTOR_TOL[backend])
 

@@ -120,3 +120,31 @@ def test_rank_deficient_factor_is_refused_at_init(tmp_path):
 
     with pytest.raises(DataError, match=r"^the shipped R factor is rank deficient"):
         compile_adapt(prob, AdaptSettings(window=10), tmp_path, "ad_rank")
+
+
+def test_generate_with_adaptation_adds_the_update_and_leaves_the_rest_as_it_was(tmp_path):
+    """generate(adapt=...): the compiled extension carries <name>_adapt_*, the manifest the fit statistic;
+    every other source is byte-for-byte the non-adaptive build's, and adapt disabled emits nothing new."""
+    import json
+
+    from ddpc_codegen.codegen.generate import generate
+    from ddpc_codegen.runtime.loader import load_solver
+
+    prob = _problem("incremental")
+    st = AdaptSettings(enabled=True, forgetting=0.995, window=40)
+    folders = {k: generate(prob, tmp_path / k, name="adsolver", n_vectors=4, adapt=a)
+               for k, a in (("plain", None), ("off", AdaptSettings()), ("on", st))}
+    man = {k: json.loads((f / "manifest.json").read_text()) for k, f in folders.items()}
+    assert man["plain"]["sources"] == man["off"]["sources"]
+    extra = set(man["on"]["sources"]) - set(man["plain"]["sources"])
+    assert extra == {"adsolver_adapt.c", "adsolver_adapt.h", "adsolver_adapt_data.c", "adsolver_adapt_data.h"}
+    assert all(man["on"]["sources"][f] == h for f, h in man["plain"]["sources"].items())
+    fs = man["on"]["fit_statistic"]
+    assert fs["adapt"]["forgetting"] == 0.995 and fs["signal"] == "increments"
+    R = np.load(folders["on"] / fs["file"])
+    np.testing.assert_array_equal(R, adapter(prob, st).R)
+    solver = load_solver(folders["on"])
+    lib, ffi = solver._lib, solver._ffi
+    ws = ffi.new("adsolver_adapt_workspace *")
+    assert lib.adsolver_adapt_init(ws) == 0 and lib.adsolver_adapt_swap(ws) == 0
+    assert not hasattr(load_solver(folders["plain"])._lib, "adsolver_adapt_init")
