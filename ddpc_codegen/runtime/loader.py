@@ -17,7 +17,7 @@ import numpy as np
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.result import SteeringResult, stack_window
 from ddpc_codegen.errors import DataError, ManifestError
-from ddpc_codegen.runtime.manifest import check_files, read_manifest
+from ddpc_codegen.runtime.manifest import check_files, read_manifest, sha256_file
 
 __all__ = ["GeneratedSolver", "load_solver"]
 
@@ -161,16 +161,22 @@ class GeneratedSolver:
                               info.solve_time_us * 1e-6, _NAN, bool(info.fast_path), extra, predict)
 
     def _predict(self, theta: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        theta, u = np.ascontiguousarray(theta, dtype=float), np.ascontiguousarray(u, dtype=float)
+        if theta.shape != (self.n_theta,) or u.size != self.n_u:  # C reads n_theta and n_u doubles
+            raise DataError(f"predict needs theta ({self.n_theta},) and u of {self.n_u} entries; got {theta.shape}, "
+                            f"{u.shape}")
         y = np.empty(self.n_y)
         s = np.empty(max(1, self.n_sigma))
         fb = self._ffi.from_buffer
-        self._fn["predict"](fb("double[]", theta), fb("double[]", np.ascontiguousarray(u, dtype=float)),
+        self._fn["predict"](fb("double[]", theta), fb("double[]", u),
                             fb("double[]", y), fb("double[]", s))
         return y.reshape(self.t_f, self.p), s[: self.n_sigma].reshape(self.t_ini, self.p)
 
     def step_u(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
         """Lowest-overhead call for loops: (status code, u (n_u,) view, valid until the next call).
         theta must be a float64 array of n_theta entries (NaN / inf give the status "nonfinite")."""
+        if getattr(theta, "shape", None) != (self.n_theta,):  # no broadcasting of a scalar or a row
+            raise DataError(f"theta must have shape ({self.n_theta},); got {np.shape(theta)}")
         self._theta[:] = theta
         return self._fn["solve"](self._ws, self._pt, self._pu, self._ffi.NULL), self._u
 
@@ -178,12 +184,59 @@ class GeneratedSolver:
         """Run every row of ``thetas`` (n, n_theta) in C, each tick timed in C; returns
         (times in µs, status codes, u (n, n_u))."""
         th = np.ascontiguousarray(thetas, dtype=float)
+        if th.ndim != 2 or th.shape[1] != self.n_theta:  # C reads n * n_theta doubles from this buffer
+            raise DataError(f"thetas must have shape (n, {self.n_theta}); got {th.shape}")
         n = th.shape[0]
         times, sts, us = np.empty(n), np.empty(n, dtype=np.int32), np.empty((n, self.n_u))
         fb = self._ffi.from_buffer
         self._fn["bench"](self._ws, fb("double[]", th), n, fb("double[]", us), fb("double[]", times),
                           fb("int[]", sts))
         return times, sts, us
+
+
+def _check_weights(folder: Path, man: dict) -> None:
+    """``weights`` in manifest.json: Q (p, p), R and R_du (m, m) finite, lambda_sigma a number >= 0."""
+    w, d = man.get("weights"), man["dims"]
+    if not isinstance(w, dict):
+        raise ManifestError(f"{folder}: manifest.json 'weights' must be an object with Q, R, R_du, lambda_sigma; "
+                            f"got {w!r}")
+    for key, n in (("Q", d["p"]), ("R", d["m"]), ("R_du", d["m"])):
+        try:
+            a = np.asarray(w.get(key), dtype=float)
+        except (TypeError, ValueError):
+            a = np.empty(0)
+        if a.shape != (n, n) or not np.isfinite(a).all():
+            raise ManifestError(f"{folder}: manifest.json weights.{key} must be a finite {n}x{n} matrix (dims); "
+                                f"got {w.get(key)!r}")
+    ls = w.get("lambda_sigma")
+    if isinstance(ls, bool) or not isinstance(ls, (int, float)) or not math.isfinite(ls) or ls < 0:
+        raise ManifestError(f"{folder}: manifest.json weights.lambda_sigma must be a number >= 0; got {ls!r}")
+
+
+def _check_listing(folder: Path, man: dict) -> None:
+    """What manifest.json lists is what the folder holds: every source inside the folder and every C
+    source there listed; the test vectors file present with its recorded hash."""
+    root = folder.resolve()
+    for rel in man["sources"]:
+        if Path(rel).is_absolute() or not (root / rel).resolve().is_relative_to(root):
+            raise ManifestError(f"{folder}: manifest.json source {rel!r} is outside the solver folder")
+    if f"{man['name']}_solver.c" not in man["sources"]:
+        raise ManifestError(f"{folder}: manifest.json 'sources' does not list {man['name']}_solver.c")
+    present = {p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() and p.suffix in (".c", ".h")
+               and not any(part.startswith(("build", ".")) for part in p.relative_to(root).parts)}
+    unlisted = sorted(present - set(man["sources"]))
+    if unlisted:
+        raise ManifestError(f"{folder}: {unlisted[:5]} are in the folder but not in manifest.json 'sources' "
+                            "(added after generation?); regenerate")
+    vec = man["vectors"]
+    name, digest = vec.get("file"), vec.get("sha256")
+    if not isinstance(name, str) or not name or Path(name).name != name:
+        raise ManifestError(f"{folder}: manifest.json vectors.file must be a file name in the folder; got {name!r}")
+    if not (folder / name).is_file():
+        raise ManifestError(f"{folder}: test vectors {name} listed in manifest.json are missing; regenerate")
+    if sha256_file(folder / name) != digest:
+        raise ManifestError(f"{folder}: test vectors {name} differ from the ones recorded at generation (edited?); "
+                            "regenerate")
 
 
 def _import_extension(folder: Path, man: dict, ext: Path):
@@ -228,5 +281,7 @@ def load_solver(path: str | Path, config: SteeringConfig | str | Path | None = N
         raise ManifestError(
             f"{folder} was generated from a different predictor ({man['predictor_hash'][:12]}… vs {predictor_hash[:12]}…)"
         )
+    _check_weights(folder, man)
+    _check_listing(folder, man)
     ext = check_files(folder, man)
     return GeneratedSolver(folder, man, _import_extension(folder, man, ext))
