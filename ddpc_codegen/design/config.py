@@ -37,6 +37,10 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
                       "denoise_online", "refit_residual"),
     "data": ("dataset", "max_output_noise"),
 }
+# Sizes a steering problem can have (a 10 s preview at 200 Hz; a Gram matrix of 8000^2 doubles = 512 MB).
+MAX_HORIZON = 2000
+MAX_CHANNELS = 32
+MAX_HANKEL_ROWS = 8000
 # [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.
 _ART_INT_MIN = {"t_d": 1, "t_a": 1, "t_d_online": 0, "min_ascent": 1, "ground_margin": 0}
 
@@ -143,6 +147,7 @@ class SteeringConfig:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise _err(src, key, f"must be a positive integer; got {v!r}")
             set_(key, int(v))
+        self._check_sizes()
         m, p = self.m, self.p
         set_("Q", _weight(self.Q, p, "[cost] Q", src))
         set_("R", _weight(self.R, m, "[cost] R", src))
@@ -228,6 +233,21 @@ class SteeringConfig:
             else:
                 raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
         set_("artificial_io", art)
+
+    def _check_sizes(self) -> None:
+        """Upper limits, checked before any matrix is formed: the Hankel has (m+p)(Tini+Tf) rows and its
+        Gram matrix that many squared (a 5000-step horizon would ask for gigabytes before any other check)."""
+        src = self.source
+        for key in ("t_ini", "t_f"):
+            if getattr(self, key) > MAX_HORIZON:
+                raise _err(src, f"[horizon] {key}", f"must be at most {MAX_HORIZON} steps; got {getattr(self, key)}")
+        for key, what in (("m", "inputs"), ("p", "outputs")):
+            if getattr(self, key) > MAX_CHANNELS:
+                raise _err(src, f"[signals] {what}", f"must have at most {MAX_CHANNELS} channels; got {getattr(self, key)}")
+        rows = (self.m + self.p) * (self.t_ini + self.t_f)
+        if rows > MAX_HANKEL_ROWS:
+            raise _err(src, "[horizon] t_ini/t_f", f"give a Hankel of (m+p)*(t_ini+t_f) = {rows} rows, more than "
+                       f"{MAX_HANKEL_ROWS}; shorten the horizons (move blocking keeps long previews cheap)")
 
     def _check_signals(self) -> None:
         """Names and units: lists of strings of the right length, channel names unique; name and dataset strings."""

@@ -141,3 +141,18 @@ def test_max_output_noise_is_validated_per_output(tmp_path):
         _load(tmp_path, BASE + "[data]\nmax_output_noise = [5e-4, 1e-3]\n")
     with pytest.raises(ConfigError, match=r"\[data\] max_output_noise must be >= 0"):
         _load(tmp_path, BASE + "[data]\nmax_output_noise = -1.0\n")
+
+
+@pytest.mark.parametrize("horizon, m, message", [
+    ({"t_ini": 20, "t_f": 5000}, 2, "[horizon] t_f must be at most 2000 steps; got 5000"),
+    ({"t_ini": 2001, "t_f": 5}, 2, "[horizon] t_ini must be at most 2000 steps; got 2001"),
+    ({"t_ini": 1001, "t_f": 1000}, 2, "[horizon] t_ini/t_f give a Hankel of (m+p)*(t_ini+t_f) = 8004 rows, more than "
+     "8000; shorten the horizons (move blocking keeps long previews cheap)"),
+    ({"t_ini": 10, "t_f": 10}, 33, "[signals] inputs must have at most 32 channels; got 33"),
+])
+def test_size_limits_before_any_matrix(horizon, m, message):
+    raw = {"horizon": horizon, "signals": {"inputs": [f"u{i}" for i in range(m)], "outputs": ["y0", "y1"]},
+           "cost": {"Q": [1.0, 1.0], "R": [1.0] * m}}
+    with pytest.raises(ConfigError) as e:
+        SteeringConfig.from_dict(raw, source="c.toml")
+    assert str(e.value) == f"c.toml: {message}"
