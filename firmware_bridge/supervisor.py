@@ -13,6 +13,7 @@ from firmware_bridge.hopping_loop import completion_time_warning
 from firmware_bridge.preflight import (VehicleInfo, check_autopilot, check_solver_loop, decode_param_value,
                                        hover_param, params_to_read, resolve_guid_options)
 from firmware_bridge.profiles import ArduPilotProfile
+from firmware_bridge.truth import TRUTH_MESSAGES
 
 __all__ = ["Supervisor"]
 
@@ -75,7 +76,7 @@ class Supervisor:
             self.params[name] = decode_param_value(msg.param_value, msg.param_type, self.hb_autopilot or 0)
             if name == "COM_OF_LOSS_T":
                 self.profile.offboard_loss_timeout = float(msg.param_value)
-        elif typ == "SIM_STATE":
+        elif typ in ("SIM_STATE", "HIL_STATE_QUATERNION"):
             self.truth.update(msg, rx)
         elif typ == "STATUSTEXT":
             self._last_text = str(msg.text).rstrip("\x00")  # the autopilot's reason for a refusal
@@ -87,11 +88,11 @@ class Supervisor:
         for name in sorted({self.cfg.attitude_stream, self.cfg.position_stream}):
             self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(_MSG_IDS[name]), float(us)),
                                 f"SET_MESSAGE_INTERVAL {name} {self.cfg.rate_hz:g} Hz")
-        if isinstance(self.profile, ArduPilotProfile):
-            # The simulator's truth, logged beside the EKF (SITL only: a real vehicle refuses it).
-            self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
-                                (float(mavlink.MAVLINK_MSG_ID_SIM_STATE), float(us)),
-                                f"SET_MESSAGE_INTERVAL SIM_STATE {self.cfg.rate_hz:g} Hz (SITL truth)")
+        # The simulator's truth, logged beside the EKF (SITL only: a real vehicle refuses it or, PX4 without
+        # ground truth, sends nothing): ArduPilot's SIM_STATE, PX4 SIH's HIL_STATE_QUATERNION.
+        name, msg_id = TRUTH_MESSAGES["ardupilot" if isinstance(self.profile, ArduPilotProfile) else "px4"]
+        self.tracker.submit(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(us)),
+                            f"SET_MESSAGE_INTERVAL {name} {self.cfg.rate_hz:g} Hz (SITL truth)")
         self.counts["stream_requests"] += 1
 
     def _preflight(self, timeout: float = 3.0) -> None:

@@ -1,12 +1,20 @@
-"""The simulator's true state, when the vehicle is a SITL that sends it: ArduPilot's SIM_STATE.
+"""The simulator's true state, when the vehicle is a SITL that sends it: ArduPilot's SIM_STATE,
+PX4 SIH's HIL_STATE_QUATERNION.
 
 Kept in the tick log beside the EKF telemetry (``truth_*`` columns, nan without it) so that a
 flight's error can be measured against the truth as well as against the autopilot's estimate;
-never used for control. ArduCopter SITL sends SIM_STATE (id 108) only when asked
-(SET_MESSAGE_INTERVAL; measured: 200/s when asked for 200 Hz, none otherwise).
+never used for control. Both are sent only when asked (SET_MESSAGE_INTERVAL):
 
-SIM_STATE has no time stamp (ArduPilot sends it from the same loop as ATTITUDE / LOCAL_POSITION_NED):
-a tick holds the newest one, like the telemetry, and logs its age. Its fields: ``lat`` / ``lon``
+* ArduCopter SITL: SIM_STATE (id 108); measured: 200/s when asked for 200 Hz, none otherwise.
+* PX4 SIH: HIL_STATE_QUATERNION (id 115), which PX4's mavlink module fills from SIH's ground-truth
+  topics (``vehicle_global_position_groundtruth``, ``vehicle_attitude_groundtruth``); measured on
+  the shared SIH build: none unless asked, ~50/s when asked for 50 Hz; ``time_usec`` 0. Its fields:
+  ``lat`` / ``lon`` [degE7], ``alt`` [mm AMSL], ``vx`` / ``vy`` / ``vz`` [cm/s, NED],
+  ``attitude_quaternion`` (w, x, y, z; body FRD -> NED). A real PX4 has no ground truth and
+  does not send it.
+
+Neither has a usable time stamp (each is sent from the same loop as the attitude / position
+telemetry): a tick holds the newest one, like the telemetry, and logs its age. SIM_STATE's fields: ``lat`` / ``lon``
 [deg] (``lat_int`` / ``lon_int`` [degE7] when the extension is present: float32 degrees resolve
 only ~0.4 m of latitude and ~1.4 m of longitude at ArduPilot's test site, -35 / 149 deg), ``alt`` [m above mean sea level], ``vn`` / ``ve`` / ``vd`` [m/s, NED],
 ``roll`` / ``pitch`` / ``yaw`` [rad, body FRD w.r.t. NED]. Here they become local ENU like the
@@ -27,9 +35,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ddpc_codegen.robot.frames import euler_enu_from_ned
+from ddpc_codegen.robot.frames import euler_enu_from_ned, euler_from_quat
 
-__all__ = ["SimTruth", "EARTH_RADIUS_M"]
+__all__ = ["SimTruth", "EARTH_RADIUS_M", "TRUTH_MESSAGES"]
+
+# The ground-truth message of each SITL (MAVLink id), by autopilot profile name.
+TRUTH_MESSAGES = {"ardupilot": ("SIM_STATE", 108), "px4": ("HIL_STATE_QUATERNION", 115)}
 
 EARTH_RADIUS_M = 6378137.0  # WGS-84 equatorial radius (what ArduPilot's flat-earth offsets use)
 
@@ -53,6 +64,7 @@ class SimTruth:
     lat0: float = math.nan
     lon0: float = math.nan
     alt0: float = math.nan
+    source: str = ""
     _alt: float = math.nan
 
     @property
@@ -60,21 +72,29 @@ class SimTruth:
         return self.seq > 0
 
     def update(self, msg, rx: float) -> None:
-        """Fold in one SIM_STATE message received at ``rx`` [s]."""
-        lat, lon = _degrees(msg)
-        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(msg.alt)):
-            return
+        """Fold in one SIM_STATE or HIL_STATE_QUATERNION message received at ``rx`` [s]."""
+        typ = msg.get_type()
+        if typ == "HIL_STATE_QUATERNION":
+            lat, lon, alt = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
+            v_ned = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+            # the FRD -> NED quaternion's Euler angles are NED roll / pitch / yaw
+            rpy = tuple(euler_from_quat(msg.attitude_quaternion))
+        else:
+            lat, lon = _degrees(msg)
+            alt, v_ned, rpy = float(msg.alt), (msg.vn, msg.ve, msg.vd), (msg.roll, msg.pitch, msg.yaw)
+        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)) or (lat == 0 and lon == 0):
+            return  # not yet valid (PX4 sends zeros before SIH has a position)
         if not math.isfinite(self.lat0):
             self.lat0, self.lon0 = lat, lon
         if not math.isfinite(self.alt0):
-            self.alt0 = float(msg.alt)  # until the take-off point is captured: the first sample
-        self._alt = float(msg.alt)
+            self.alt0 = alt  # until the take-off point is captured: the first sample
+        self._alt = alt
         north = math.radians(lat - self.lat0) * EARTH_RADIUS_M
         east = math.radians(lon - self.lon0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat0))
         self.position[:] = (east, north, self._alt - self.alt0)
-        self.velocity[:] = (msg.ve, msg.vn, -msg.vd)
-        self.euler[:] = euler_enu_from_ned((msg.roll, msg.pitch, msg.yaw))
-        self.rx, self.seq = rx, self.seq + 1
+        self.velocity[:] = (v_ned[1], v_ned[0], -v_ned[2])
+        self.euler[:] = euler_enu_from_ned(rpy)
+        self.rx, self.seq, self.source = rx, self.seq + 1, typ
 
     def capture_ground(self) -> None:
         """Heights count from where the vehicle is now (call while it stands disarmed)."""
@@ -90,7 +110,7 @@ class SimTruth:
         """For the tick log's metadata: the source and origin (None when nothing arrived)."""
         if not self.present:
             return None
-        return {"source": "SIM_STATE", "samples": self.seq, "lat0_deg": self.lat0, "lon0_deg": self.lon0,
+        return {"source": self.source, "samples": self.seq, "lat0_deg": self.lat0, "lon0_deg": self.lon0,
                 "alt0_m": self.alt0, "frame": "local ENU from (lat0, lon0); up from the take-off altitude alt0"}
 
 

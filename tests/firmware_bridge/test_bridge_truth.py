@@ -1,5 +1,5 @@
-"""The SITL's true state (ArduPilot SIM_STATE) as the bridge logs it: local ENU from lat / lon / alt,
-heights from the take-off point, NED -> ENU."""
+"""The SITL's true state (ArduPilot SIM_STATE, PX4 SIH HIL_STATE_QUATERNION) as the bridge logs it:
+local ENU from lat / lon / alt, heights from the take-off point, NED -> ENU."""
 
 from __future__ import annotations
 
@@ -50,3 +50,31 @@ def test_float_degrees_are_used_without_the_integer_extension_and_bad_samples_ar
     bad = _sim_state(LAT0, LON0, float("nan"))
     tr.update(bad, rx=0.02)
     assert tr.seq == 2 and tr.rx == 0.01
+
+
+def _hil_state(lat_e7: int, lon_e7: int, alt_mm: int, v_ned_cms=(0, 0, 0), q=(1.0, 0.0, 0.0, 0.0)):
+    """A HIL_STATE_QUATERNION as PX4 SIH sends it (degE7, mm AMSL, cm/s NED, FRD -> NED quaternion)."""
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    msg = mavlink.MAVLink_hil_state_quaternion_message(0, q, 0.0, 0.0, 0.0, lat_e7, lon_e7, alt_mm, *v_ned_cms,
+                                                       0, 0, 0, 0, 0)
+    return mavlink.MAVLink(None).parse_char(bytearray(msg.pack(mav)))
+
+
+def test_px4_sih_hil_state_quaternion_becomes_local_enu_from_the_take_off_point():
+    from ddpc_codegen.robot.frames import quat_from_euler
+
+    lat0, lon0 = 473977432, 85455942  # what the shared PX4 SIH reports (Zurich), degE7
+    tr = SimTruth()
+    tr.update(_hil_state(0, 0, 0), rx=0.5)               # before SIH has a position: zeros, skipped
+    assert not tr.present
+    tr.update(_hil_state(lat0, lon0, 489399), rx=1.0)
+    tr.capture_ground()
+    np.testing.assert_allclose(tr.position, 0.0, atol=1e-9)
+    q = quat_from_euler(0.1, 0.2, math.radians(30))       # NED roll, pitch, yaw 30 deg (east of north)
+    tr.update(_hil_state(lat0 + 1000, lon0 - 2000, 490649, v_ned_cms=(100, 200, -50), q=tuple(q)), rx=1.01)
+    north = math.radians(1000e-7) * 6378137.0
+    east = math.radians(-2000e-7) * 6378137.0 * math.cos(math.radians(lat0 * 1e-7))
+    np.testing.assert_allclose(tr.position, (east, north, 1.25), atol=1e-6)
+    np.testing.assert_allclose(tr.velocity, (2.0, 1.0, 0.5), atol=1e-9)
+    np.testing.assert_allclose(tr.euler, (0.1, -0.2, math.radians(60)), atol=1e-6)
+    assert tr.as_dict()["source"] == "HIL_STATE_QUATERNION" and tr.seq == 2
