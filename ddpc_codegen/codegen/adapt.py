@@ -8,6 +8,9 @@ are its constant data.
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +19,7 @@ from ddpc_codegen.codegen.render import placeholders, render
 from ddpc_codegen.design.adaptation import adapter
 from ddpc_codegen.runtime.adaptation import AdaptSettings
 
-__all__ = ["emit_adapt", "cdef_text", "context"]
+__all__ = ["emit_adapt", "cdef_text", "context", "compile_alone"]
 
 
 def _c(x: float) -> str:
@@ -77,3 +80,26 @@ int {name}_adapt_push({name}_adapt_workspace *ws, const double *window);
 int {name}_adapt_resolve({name}_adapt_workspace *ws);
 int {name}_adapt_swap({name}_adapt_workspace *ws);
 """
+
+
+def compile_alone(problem, settings: AdaptSettings, folder: Path, name: str):
+    """Emit and compile the update on its own (cffi, the package's portable flags) for tests and the
+    benchmark; returns the module's (ffi, lib). A solver's own extension carries it via ``generate(adapt=)``."""
+    import cffi
+
+    from ddpc_codegen.codegen.build import PORTABLE_FLAGS
+    from ddpc_codegen.codegen.emit import BANNER, data_files
+
+    folder = Path(folder)
+    units = emit_adapt(problem, settings, folder, name, BANNER, data_files)
+    ffi = cffi.FFI()
+    ffi.cdef(cdef_text(name))
+    module = f"_adapt_alone_{name}"
+    ffi.set_source(module, f'#include "{name}_adapt.h"\n', sources=[str(u) for u in units],
+                   include_dirs=[str(folder)], libraries=["m"], extra_compile_args=PORTABLE_FLAGS)
+    built = ffi.compile(tmpdir=tempfile.mkdtemp(dir=folder))
+    spec = importlib.util.spec_from_file_location(module, built)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[module] = mod
+    spec.loader.exec_module(mod)
+    return mod.ffi, mod.lib

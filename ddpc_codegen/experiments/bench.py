@@ -331,6 +331,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="reports/bench.json")
     ap.add_argument("--skip-predictor", action="store_true", help="skip the 10^6-sample predictor fit")
     ap.add_argument("--skip-scale", action="store_true", help="skip the fleet-fit and sweep scaling (Ray)")
+    ap.add_argument("--skip-adapt", action="store_true", help="skip the online predictor update timing")
     ap.add_argument("--skip-artio", action="store_true", help="skip the hopping artificial-IO completion timing")
     args = ap.parse_args(argv)
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
@@ -349,6 +350,11 @@ def main(argv: list[str] | None = None) -> int:
 
         log("hopping artificial-IO completion ...")
         report["hopping_completion"] = completion_timing(log)
+    if not args.skip_adapt:
+        from ddpc_codegen.experiments.bench_adapt import adapt_timing
+
+        log("online predictor update (C) ...")
+        report["adapt"] = {size: adapt_timing(size) for size in SIZES}
     if not args.skip_predictor:
         log("predictor fit on 10^6 samples (fresh process) ...")
         report["predictor_1e6"] = predictor_scaling()
@@ -365,6 +371,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\npredictor fit, 10^6 samples (m=p=2, Tini=20, Tf=15): lsq {p['lsq_seconds']:.1f} s, "
               f"pem {p['pem_seconds']:.1f} s, peak RSS {p['peak_rss_mib']:.0f} MiB "
               f"({p['rss_before_fit_mib']:.0f} MiB before fitting)")
+    if "adapt" in report:
+        from ddpc_codegen.experiments.bench_adapt import adapt_lines
+
+        print("\n" + "\n".join(adapt_lines(list(report["adapt"].values()))))
     print(f"\nwrote {out}")
     return 0
 

@@ -2,18 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-import tempfile
-from pathlib import Path
-
-import cffi
 import numpy as np
 import pytest
 
-from ddpc_codegen.codegen.adapt import cdef_text, emit_adapt
-from ddpc_codegen.codegen.build import PORTABLE_FLAGS
-from ddpc_codegen.codegen.emit import BANNER, data_files
+from ddpc_codegen.codegen.adapt import compile_alone
 from ddpc_codegen.design.adaptation import adapter
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
@@ -41,22 +33,6 @@ def _problem(form: str) -> SteeringProblem:
     return SteeringProblem(pred, cfg)
 
 
-def compile_adapt(problem, settings: AdaptSettings, folder: Path, name: str):
-    """Emit and compile the update alone (cffi, the package's portable flags); returns (ffi, lib)."""
-    units = emit_adapt(problem, settings, folder, name, BANNER, data_files)
-    ffi = cffi.FFI()
-    ffi.cdef(cdef_text(name))
-    module = f"_adapt_test_{name}"
-    ffi.set_source(module, f'#include "{name}_adapt.h"\n', sources=[str(u) for u in units], include_dirs=[str(folder)],
-                   libraries=["m"], extra_compile_args=PORTABLE_FLAGS)
-    built = ffi.compile(tmpdir=tempfile.mkdtemp(dir=folder))
-    spec = importlib.util.spec_from_file_location(module, built)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[module] = mod
-    spec.loader.exec_module(mod)
-    return mod.ffi, mod.lib
-
-
 def _arr(ffi, ptr, n):
     return np.frombuffer(ffi.buffer(ptr, 8 * n), dtype=np.float64).copy()
 
@@ -68,7 +44,7 @@ def test_generated_update_equals_the_numpy_reference(form, tmp_path):
     prob = _problem(form)
     st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4)
     name = f"ad_{form}"
-    ffi, lib = compile_adapt(prob, st, tmp_path, name)
+    ffi, lib = compile_alone(prob, st, tmp_path, name)
     ref = adapter(prob, st)
     ws = ffi.new(f"{name}_adapt_workspace *")
     assert getattr(lib, f"{name}_adapt_init")(ws) == 0
@@ -119,7 +95,7 @@ def test_rank_deficient_factor_is_refused_at_init(tmp_path):
     from ddpc_codegen.errors import DataError
 
     with pytest.raises(DataError, match=r"^the shipped R factor is rank deficient"):
-        compile_adapt(prob, AdaptSettings(window=10), tmp_path, "ad_rank")
+        compile_alone(prob, AdaptSettings(window=10), tmp_path, "ad_rank")
 
 
 def test_generate_with_adaptation_adds_the_update_and_leaves_the_rest_as_it_was(tmp_path):

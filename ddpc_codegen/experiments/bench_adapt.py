@@ -1,0 +1,81 @@
+"""Timing of the generated online predictor update (issue 30): the rank-one update per tick and the
+re-solve + verification of G, in C, at the benchmark's flying and hopping sizes.
+
+The problems are the benchmark's (``bench.build_problem``) refitted with a relative ridge of 1e-6 (the
+update re-solves G by a triangular solve, which needs a full-rank R11: the configs' ridge gives it).
+Times are wall-clock per call through cffi (~0.2 us of call overhead included).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+
+import numpy as np
+
+from ddpc_codegen.codegen.adapt import compile_alone
+from ddpc_codegen.design.adaptation import fit_layout
+from ddpc_codegen.design.data import IODataset, prbs
+from ddpc_codegen.design.predictor import fit_predictor
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.runtime.adaptation import AdaptSettings
+
+TARGET_UPDATE_US, TARGET_RESOLVE_MS = 5.0, 2.0
+
+
+def _ridge_problem(size: str) -> SteeringProblem:
+    from ddpc_codegen.experiments.bench import _simulate, build_problem
+
+    prob, (A, B, C, off) = build_problem(size)
+    c = prob.config
+    u = prbs(4000, c.m, amplitude=0.05, min_hold=4, seed=0)
+    y, _ = _simulate(A, B, C, off, u, np.zeros(A.shape[0]))
+    pred = fit_predictor(IODataset(u, y - off, 0.005), c.t_ini, c.t_f, "lsq", ridge=1e-6)
+    return SteeringProblem(pred, c)
+
+
+def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 5) -> dict:
+    """Median / max microseconds of ``<name>_adapt_push`` and milliseconds of ``<name>_adapt_resolve``."""
+    prob = _ridge_problem(size)
+    st = AdaptSettings(enabled=True)
+    name = f"bench_adapt_{size}"
+    with tempfile.TemporaryDirectory() as tmp:
+        ffi, lib = compile_alone(prob, st, tmp, name)
+        ws = ffi.new(f"{name}_adapt_workspace *")
+        if getattr(lib, f"{name}_adapt_init")(ws) != 0:
+            raise RuntimeError("the benchmark's R factor is rank deficient")
+        lay = fit_layout(prob.predictor)
+        rng = np.random.default_rng(0)
+        wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05
+        push, resolve = getattr(lib, f"{name}_adapt_push"), getattr(lib, f"{name}_adapt_resolve")
+        t_push = np.empty(n_updates)
+        for k in range(n_updates):
+            buf = ffi.from_buffer("double[]", wins[k])
+            t0 = time.perf_counter()
+            push(ws, buf)
+            t_push[k] = time.perf_counter() - t0
+        t_res = np.empty(n_resolves)
+        for k in range(n_resolves):
+            t0 = time.perf_counter()
+            resolve(ws)
+            t_res[k] = time.perf_counter() - t0
+    return {"size": size, "width": lay.width, "window": st.window,
+            "update_us_median": round(float(np.median(t_push)) * 1e6, 2),
+            "update_us_p99": round(float(np.percentile(t_push, 99)) * 1e6, 2),
+            "resolve_ms_median": round(float(np.median(t_res)) * 1e3, 3),
+            "resolve_ms_max": round(float(np.max(t_res)) * 1e3, 3),
+            "targets": {"update_us": TARGET_UPDATE_US, "resolve_ms": TARGET_RESOLVE_MS}}
+
+
+def adapt_lines(rows: list[dict]) -> list[str]:
+    """Table lines of :func:`adapt_timing` results."""
+    out = ["online update (C): size  width  update us (median/p99)  re-solve+verify ms (median/max)"]
+    for r in rows:
+        out.append(f"  {r['size']:<8} {r['width']:>5}  {r['update_us_median']:>8.2f} / {r['update_us_p99']:<8.2f}"
+                   f"  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:.3f}")
+    return out
+
+
+if __name__ == "__main__":
+    res = [adapt_timing(s) for s in ("flying", "hopping")]
+    print("\n".join(adapt_lines(res)))
