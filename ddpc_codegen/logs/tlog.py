@@ -85,6 +85,9 @@ TLOG_PRESETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 _ATTITUDE_SETPOINTS = ("SET_ATTITUDE_TARGET", "ATTITUDE_TARGET")
 _MAV_AUTOPILOT_INVALID = 8
 _MAV_TYPE_GCS = 6
+# HEARTBEAT types of vehicles that do not fly: a steering predictor for a flying robot fitted on their logs
+# is almost surely a wrong file (the import still works; it warns).
+_NOT_FLYING = {5: "ANTENNA_TRACKER", 10: "GROUND_ROVER", 11: "SURFACE_BOAT", 12: "SUBMARINE"}
 
 # type_mask bits meaning "ignore this field" (MAVLink common.xml)
 _ATT_MASK = {"q": 128, "thrust": 64, "body_roll_rate": 1, "body_pitch_rate": 2, "body_yaw_rate": 4}
@@ -257,6 +260,14 @@ def _channel(msgs: dict[str, list[TlogRow]], path: Path, spec: ChannelSpec, role
     return clean_series(raw, origin_us=origin, on_nan=on_nan, notes=notes, crop_us=crop), info
 
 
+def _warn_not_flying(rows, systems: set[int], path: Path, notes: Notes) -> None:
+    """A warning when a system whose outputs are imported reports a vehicle type that does not fly."""
+    kinds = sorted({(r[1], r[3].type) for r in rows if r[1] in systems and r[3].type in _NOT_FLYING})
+    for sys_id, typ in kinds:
+        notes.warn(f"{path.name}: system {sys_id} reports HEARTBEAT type {typ} (MAV_TYPE_{_NOT_FLYING[typ]}): not a "
+                   "flying vehicle; is this the right log?")
+
+
 def _import_file(path: Path, ins: Sequence[ChannelSpec], outs: Sequence[ChannelSpec], wanted: set[str], *,
                  opts: ImportOptions, sysid: int | None, time_source: str, dialect: str,
                  notes: Notes) -> tuple[dict, list, int, list[dict]]:
@@ -272,6 +283,7 @@ def _import_file(path: Path, ins: Sequence[ChannelSpec], outs: Sequence[ChannelS
                                crop=crop, on_nan=opts.on_nan, notes=notes)
             series[role].append(ser)
             info.append(ci)
+    _warn_not_flying(msgs.get("HEARTBEAT", []), {ci["sysid"] for ci in info if ci["role"] == "output"}, path, notes)
     senders = {(ci["sysid"], ci["compid"]) for ci in info}
     if time_source == "boot" and len(senders) > 1:
         raise DataError(f"time_source='boot' mixes clocks: channels come from systems/components "
@@ -376,7 +388,7 @@ def import_tlog(
     if opts.filters_modes and time_source == "boot":
         raise DataError("mode filters need time_source='log': HEARTBEAT carries no time_boot_ms")
     notes = Notes()
-    wanted = {s.source for s in ins + outs} | ({"HEARTBEAT"} if opts.filters_modes else set())
+    wanted = {s.source for s in ins + outs} | {"HEARTBEAT"}  # also for the vehicle type check
     if "SET_POSITION_TARGET_LOCAL_NED" in wanted:
         wanted |= set(_ATTITUDE_SETPOINTS)  # to tell an attitude off-board log apart when it is missing
     per_file, chan_info = [], []

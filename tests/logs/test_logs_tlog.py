@@ -198,3 +198,21 @@ def test_bridge_npz_logs_need_no_conversion(tmp_path):
     c = IODataset(np.zeros((40, 1)), np.zeros((40, 2)), 0.005).save(tmp_path / "c.npz")
     with pytest.raises(DataError, match="cannot merge .*c.npz .* channels/dt differ"):
         import_tlog([a, c])
+
+
+def test_ground_rover_log_warns(flight, tmp_path):
+    p = flight.writer(vehicle_type=10).write(tmp_path / "rover.tlog")
+    with pytest.warns(LogImportWarning) as rec:
+        import_tlog(p, preset="pogox-flying")
+    msgs = [str(w.message) for w in rec]
+    assert ("rover.tlog: system 1 reports HEARTBEAT type 10 (MAV_TYPE_GROUND_ROVER): not a flying vehicle; is this "
+            "the right log?") in msgs
+
+
+def test_quadrotor_log_does_not_warn_about_the_vehicle(tlog):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        import_tlog(tlog, preset="pogox-flying")
+    assert not [w for w in rec if "flying vehicle" in str(w.message)]

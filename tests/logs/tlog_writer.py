@@ -90,7 +90,7 @@ class SyntheticMavlinkFlight:
     def pitch(self, t):
         return np.interp(np.asarray(t, dtype=float), np.arange(self.p_knots.size) * 200_000, self.p_knots)
 
-    def writer(self, *, mavlink1_attitude: bool = False, ignore_position_at=()) -> TlogWriter:
+    def writer(self, *, mavlink1_attitude: bool = False, ignore_position_at=(), vehicle_type: int = 2) -> TlogWriter:
         from ddpc_codegen.robot.frames import quat_from_euler_array
 
         w = TlogWriter()
@@ -98,7 +98,7 @@ class SyntheticMavlinkFlight:
         for s in range(0, self.t1 // 1_000_000 + 1):
             t = s * 1_000_000
             main = 3 if s in (6, 7) else 6
-            w.add(UNIX_T0_US + t, veh.heartbeat_encode(2, 12, 1 | 128, main << 16, 4), 1, 1)
+            w.add(UNIX_T0_US + t, veh.heartbeat_encode(vehicle_type, 12, 1 | 128, main << 16, 4), 1, 1)
             w.add(UNIX_T0_US + t + 1, comp.heartbeat_encode(18, 8, 0, 0, 4), 1, 191)
         for t in range(0, self.t1 + 1, 10_000):
             ms = (t + self.vehicle_boot_us) // 1000
