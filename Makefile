@@ -58,7 +58,7 @@ codegen: install data/flying.npz data/hopping_raw.npz
 bridge-demo: install
 	$(PY) -m ddpc_codegen.testbed.bridge_demo $(if $(SCENARIO),--scenario $(SCENARIO))
 
-# Real autopilots (see the README for building them; found through DDPC_ARDUPILOT_SITL and
+# Real autopilots (docs/guides/px4.md and ardupilot.md say how to build them; found through DDPC_ARDUPILOT_SITL and
 # DDPC_PX4_SITL): from the ground, baseline -> collect -> codegen -> steer, each SITL in a private
 # network namespace; reports/sitl.json and the flight logs in reports/sitl_<autopilot>/.
 sitl-demo: install

@@ -141,7 +141,8 @@ def results_page(reports: dict[str, dict]) -> str:
                 ("sitl.json", "Real autopilots in the loop (`make sitl-demo`)", _sitl_section)]
     out = ["# Results\n", "<!-- written by python -m ddpc_codegen.docsgen.results: edit the code, not this page -->\n",
            "Every figure on this page is rendered from `reports/*.json` by the make target that measured it. "
-           "What the figures mean and how the steering behaves is explained in the concepts pages.\n"]
+           "What the figures mean and how the steering behaves: [reference steering](concepts/reference-steering.md), "
+           "[artificial IO](concepts/artificial-io.md) and [the simple fixes](concepts/baselines.md).\n"]
     for name, title, render in sections:
         out.append(f"## {title}\n")
         out.append(render(reports[name]) if name in reports else _missing(name))
