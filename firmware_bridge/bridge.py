@@ -71,11 +71,13 @@ from firmware_bridge.bridge_config import (BridgeConfig, FaultInjectingSolver, F
 from firmware_bridge.hopping_loop import HoppingLoop, hopping_window
 from firmware_bridge.link import CommandTracker, MavLink
 from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
+from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.preflight import (PreflightError, VehicleInfo, check_trajectory_bounds, check_trajectory_extent,
                                        trajectory_rate_warning)
 from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.report import Reporting, gap_statistics
+from firmware_bridge.safety import TickSafety, make_gate
 from firmware_bridge.setpoints import SetpointShaping
 from firmware_bridge.supervisor import Supervisor
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
@@ -85,7 +87,7 @@ from firmware_bridge.truth import SimTruth
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
            "default_controller_config", "gap_statistics"]
 
-class Bridge(Supervisor, Reporting, SetpointShaping):
+class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety):
     """The tick loop (see the module docstring). ``run()`` returns the summary dict.
 
     Args:
@@ -113,7 +115,9 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         if c.mode == "steer":
             self._setup_solver(solver)
         elif c.mode in BASELINE_MODES:  # a baseline behind the steering's interface
-            self.policy, self._ahead = baseline_policy(c.mode, getattr(c, c.mode), c.rate_hz, self.m, self.hopping)
+            lo, hi = c.reference_bounds()
+            self.policy, self._ahead = baseline_policy(c.mode, getattr(c, c.mode), c.rate_hz, self.m, self.hopping, hi - lo)
+        self.gate = make_gate(c, c.mode, self.period, self.solver)  # the last gate on every applied reference
         if self.hopping:
             window = hopping_window(self.solver, self.steerer.t_ini) if self.steerer is not None else None
             self.hop = HoppingLoop(self.ctrl, contact, self.policy if self.steerer is not None else None, window)
@@ -242,6 +246,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         self._stale_mode_sent = False
         self._k_exc = 0
         self.truth = SimTruth()            # the SITL's true state, when it sends one (logged, not used)
+        self._init_safety()
 
     # ------------------------------------------------------------------ main loop
     def run(self, install_signals: bool = True) -> dict:
@@ -259,8 +264,9 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         gc_was = gc.isenabled()
         try:
             self._wait_for_vehicle()
-            self._preflight()
-            self._request_streams()
+            if not self._stop:  # interrupted while waiting: straight to the log and the summary
+                self._preflight()
+                self._request_streams()
             gc.collect()
             gc.freeze()  # keep the collector's full passes off the tick path (objects made so far are immortal)
             gc.disable()
@@ -349,6 +355,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         engaged = self.armed and self.offboard and hb_ok
         n_new = max(tel.seq_total - self._seen_total, 0)
         self._seen_total = tel.seq_total
+        stalled = self._check_stall(now)  # before the staleness: a quiet tick is still a tick of the clock
         if not self._check_staleness(now, age, fresh, event):
             return
         gap, fill = self._lockstep_gap(tclk) if event else (False, 0)
@@ -367,6 +374,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         if self.hop is not None:
             state = self.hop.observe(state, tel)
         ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
+        flags = self._gate_reference(ref) | (GATE_FLAGS["stall"] if stalled else 0)  # the last gate
         if fresh and engaged:
             self._ref_offset = ref["u"] - ref["y"]  # applied reference - measured output (a stall resumes here)
         if not fresh and c.stale_action != "reference":
@@ -378,6 +386,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
         else:
             q, thrust, _ = self._clamp(self.ctrl.track(ref["u"], state))
             field = self.profile.thrust_field(thrust, float(ref["u"][0]), float(state.position[2]))
+        q, thrust, field, bad = self._gate_setpoint(q, thrust, field)
+        self._safety_events(ref, flags | bad)
         t_vehicle = tel.newest_stamp() if event else self._vehicle_now(now)
         sent = self._send_setpoint(q, field, int(round(t_vehicle * 1000.0)) if math.isfinite(t_vehicle) else 0)
         t_sent = time.monotonic()
@@ -385,7 +395,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
                      t_traj=t_traj if self._traj_t0 is not None else math.nan, age=age, q=q, thrust=thrust,
                      field=field, event=event or n_new > 0, engaged=engaged and ref["reason"] not in ("takeoff", "blend"),
                      fresh=fresh, sent=sent, gap=gap,
-                     n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6)
+                     n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6, gate=flags | bad)
 
     def _reference(self, state, t_traj: float, hb_ok: bool, engaged: bool, fresh: bool, fill: int) -> dict:
         """Stage (a) and the mode's reference: steered / passthrough / collect, or why not."""
@@ -426,13 +436,17 @@ class Bridge(Supervisor, Reporting, SetpointShaping):
             ref["reason"] = "blend"
             if self.steerer is not None:
                 self.policy.observe(r_nom, y)
+                ref["observed"] = True
         elif self.cfg.mode == "steer" and self.hop is not None:
             self.hop.lost(fill)
             ref.update(self.hop.steer(y, r_nom, t_traj, self._ahead))
         elif self.cfg.mode == "steer":
             self.policy.lost(fill, y)
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
-            ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None)
+            ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None,
+                       observed=True)
+            if out.reason == "step_too_large" and out.result is not None:  # clamped to the guard by the gate
+                ref["candidate"] = np.asarray(out.result.u[0], dtype=float)
         elif self.cfg.mode in BASELINE_MODES:
             if self.cfg.mode == "feedforward":  # the row of this trajectory tick (a re-engagement continues it)
                 self.policy.seek(feedforward_row(t_traj, self.period))

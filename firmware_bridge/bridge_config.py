@@ -13,18 +13,20 @@ from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
-from ddpc_codegen.robot.profile import load_profile
+from ddpc_codegen.robot.profile import Envelope, load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
 from firmware_bridge.baseline_modes import load_feedforward
 from firmware_bridge.link import mavlink
+from firmware_bridge.validate import check_bridge_values
 
 BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
 
 
-def check_output_path(path: str, flag: str) -> None:
+def check_output_path(path: str, flag: str, overwrite: bool = True) -> None:
     """Before anything flies: ``path`` must be writable (its folder exists and takes new files), or
-    ValueError naming the flag and the path -- a log discovered unwritable after the flight is lost."""
+    ValueError naming the flag and the path -- a log discovered unwritable after the flight is lost.
+    With ``overwrite`` False an existing file is refused too (a flight log is never replaced silently)."""
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
     if p.is_dir():
@@ -32,6 +34,8 @@ def check_output_path(path: str, flag: str) -> None:
     if not folder.is_dir():
         raise ValueError(f"{flag} {path}: folder {folder} does not exist")
     existed = p.exists()
+    if existed and not overwrite:
+        raise ValueError(f"{flag} {path}: exists; pass --overwrite to replace it")
     try:  # a real open: permission bits say nothing for root or for special filesystems
         with open(p, "ab"):
             pass
@@ -83,6 +87,7 @@ class BridgeConfig:
         stale_stream_limit: stop streaming after telemetry has been stale this long [s] so the
             autopilot's off-board-loss failsafe takes over (0: never stop).
         link_timeout: nothing heard from the vehicle (heartbeat or telemetry) for this long [s] -> link lost.
+        vehicle_lost_timeout: the link lost this long [s] -> the flight ends ("vehicle lost", exit 7).
         max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
         max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard; hopping's
             default, as in the simulator's loop).
@@ -109,7 +114,8 @@ class BridgeConfig:
         duration: stop after this long in off-board [s] (None: until signalled).
         timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
         lockstep: tick only on telemetry, controller time = vehicle time stamps.
-        log: tick log path (.npz; an IODataset). summary: JSON summary path.
+        log: tick log path (.npz; an IODataset); an existing file is refused unless ``overwrite``.
+        summary: JSON summary path.
         dataset_skip: seconds after each activation left out of the dataset part of the log.
         settle: seconds after activation excluded from the RMSE in the summary.
         excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed
@@ -127,6 +133,7 @@ class BridgeConfig:
             ``cpu_latency_us`` PM QoS request held (each if permitted; see :mod:`.realtime`).
         cpu_latency_us: PM QoS CPU wake-up latency bound [us] while real time (None: no request).
         cpus: pin the loop to these CPUs (None: any).
+        envelope: what the last gate lets reach the vehicle (the profile's ``[envelope]``; None: defaults).
     """
 
     url: str = "udpin:127.0.0.1:14540"
@@ -149,6 +156,7 @@ class BridgeConfig:
     stale_action: str = "reference"
     stale_stream_limit: float = 1.0
     link_timeout: float = 3.0
+    vehicle_lost_timeout: float = 10.0
     max_tilt_deg: float = 30.0
     thrust_min: float = 0.0
     thrust_max: float = 1.0
@@ -169,6 +177,7 @@ class BridgeConfig:
     wait_heartbeat: float = 30.0
     lockstep: bool = False
     log: str | None = None
+    overwrite: bool = False
     summary: str | None = None
     dataset_skip: float = 0.0
     settle: float = 3.0
@@ -184,11 +193,13 @@ class BridgeConfig:
     cpu_latency_us: int | None = 0
     cpus: tuple | None = None
     verbose: bool = False
+    envelope: Envelope | None = None
 
     def __post_init__(self) -> None:
+        check_bridge_values(self)
         for key, flag in (("log", "--log"), ("summary", "--summary")):
             if getattr(self, key):
-                check_output_path(getattr(self, key), flag)
+                check_output_path(getattr(self, key), flag, overwrite=self.overwrite or key == "summary")
         if self.mode not in BRIDGE_MODES:
             raise ValueError(f"mode must be one of {', '.join(BRIDGE_MODES)}; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:
@@ -201,7 +212,8 @@ class BridgeConfig:
             if self.scenario != "flying":
                 raise ValueError("feedforward mode flies the flying scenario (the hopping ILC runs in-process)")
             # Checked here, before anything connects: the table's clock, tick and columns.
-            load_feedforward(self.feedforward, self.rate_hz, 2)  # the flying loop: z_ref, pitch_ref
+            lo, hi = self.reference_bounds()
+            load_feedforward(self.feedforward, self.rate_hz, 2, hi - lo)  # the flying loop: z_ref, pitch_ref
         if self.stale_action not in ("reference", "hover", "land"):
             raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
         if not (self.rate_hz > 0 and self.max_age > 0):
@@ -218,6 +230,12 @@ class BridgeConfig:
         if self.scenario == "hopping":
             self._hopping_defaults()
         self._check_channel_values()
+
+    def reference_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of each applied reference: the envelope's height range, angles within the controller's
+        ``max_tilt`` (the last gate's bounds)."""
+        ctrl = self.controller or default_controller_config()
+        return (self.envelope or Envelope()).reference_bounds(self.scenario, ctrl.max_tilt)
 
     @property
     def scenario(self) -> str:

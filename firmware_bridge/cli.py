@@ -148,6 +148,8 @@ def _bridge_safety_args(g) -> None:
                    help="stop streaming after this long stale so the autopilot's offboard-loss failsafe acts [s] "
                         "(0: stream forever)")
     g.add_argument("--link-timeout", type=float, default=_D["link_timeout"], help="nothing heard from the vehicle (heartbeat or telemetry) for this long = link lost [s]")
+    g.add_argument("--vehicle-lost-timeout", type=float, default=_D["vehicle_lost_timeout"],
+                   help="the link lost this long ends the flight: log written, exit 7 (default 10 s)")
     g.add_argument("--frame", choices=("start", "world"), default=_D["frame"],
                    help="start: fly the trajectory from where the robot is, along its heading, when it enters "
                         "off-board (no turn, no jump); world: trajectory in the autopilot's local ENU, heading east")
@@ -165,7 +167,9 @@ def _bridge_safety_args(g) -> None:
 
 
 def _bridge_logging_args(g) -> None:
-    g.add_argument("--log", default=None, help="tick log (.npz, loads as an IODataset)")
+    g.add_argument("--log", default=None, help="tick log (.npz, loads as an IODataset); an existing file is refused "
+                                               "unless --overwrite")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing --log file")
     g.add_argument("--summary", default=None, help="write the summary JSON here")
     g.add_argument("--dataset-skip", type=float, default=_D["dataset_skip"], help="seconds after activation left out of the dataset")
     g.add_argument("--settle", type=float, default=_D["settle"], help="seconds after activation left out of the RMSE")
@@ -178,8 +182,8 @@ def _bridge_logging_args(g) -> None:
 
 
 def _profile_from_args(a: argparse.Namespace):
-    """(ControllerConfig, EllipseTrajectory, ContactConfig, SteeringGuards) of the robot profile named
-    by --profile / --scenario (all None: the flying default), with --contact / --contact-name applied."""
+    """(ControllerConfig, EllipseTrajectory, ContactConfig, SteeringGuards, Envelope) of the robot profile
+    named by --profile / --scenario (all None: the flying default), with --contact / --contact-name applied."""
     from dataclasses import replace
 
     from ddpc_codegen.robot.profile import load_profile
@@ -188,7 +192,7 @@ def _profile_from_args(a: argparse.Namespace):
     if name is None:
         if a.contact or a.contact_name:
             raise ValueError("--contact / --contact-name are for hopping (--scenario hopping)")
-        return None, None, None, None
+        return None, None, None, None, None
     prof = load_profile(name)
     if a.scenario and prof.controller.mode != a.scenario:
         raise ValueError(f"--scenario {a.scenario} but profile {prof.name} has controller mode {prof.controller.mode!r}")
@@ -198,7 +202,7 @@ def _profile_from_args(a: argparse.Namespace):
     if a.contact_name:
         contact = replace(contact, signal_name=a.contact_name)
     traj = prof.trajectory if prof.controller.mode == "flying" else None  # hopping: the hop cycle, no path
-    return prof.controller, traj, contact, prof.steering
+    return prof.controller, traj, contact, prof.steering, prof.envelope
 
 
 def _max_step(a: argparse.Namespace, guards) -> tuple | None:
@@ -213,7 +217,7 @@ def _max_step(a: argparse.Namespace, guards) -> tuple | None:
 def bridge_config_from_args(a: argparse.Namespace):
     from firmware_bridge.bridge import BridgeConfig
 
-    ctrl, traj, contact, guards = _profile_from_args(a)
+    ctrl, traj, contact, guards, envelope = _profile_from_args(a)
     if a.trajectory:
         from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
 
@@ -224,17 +228,18 @@ def bridge_config_from_args(a: argparse.Namespace):
         guid_options=a.guid_options, force_guid_options=a.force_guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
         target_component=a.target_component, rate_hz=a.rate, attitude_stream=ATTITUDE_STREAMS[a.attitude_stream],
         position_stream=POSITION_STREAMS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
-        stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout, max_tilt_deg=a.max_tilt_deg,
+        stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout,
+        vehicle_lost_timeout=a.vehicle_lost_timeout, max_tilt_deg=a.max_tilt_deg,
         thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), max_gap_fill=a.max_gap_fill,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
         approach_timeout=a.approach_timeout, approach_tolerance=a.approach_tolerance,
         land=a.land, blend_rates=a.blend_rates,
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
-        lockstep=a.lockstep, log=a.log, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
+        lockstep=a.lockstep, log=a.log, overwrite=a.overwrite, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
         inject_solver_failure=a.inject_solver_failure, controller=ctrl, contact=contact, trajectory=traj, frame=a.frame, rt_priority=a.rt_priority,
         cpu_latency_us=qos_request(a.cpu_latency_us), cpus=a.cpus,
-        verbose=a.verbose)
+        verbose=a.verbose, envelope=envelope)
 
 
 def format_summary(s: dict) -> str:
@@ -264,7 +269,9 @@ def format_summary(s: dict) -> str:
 
 def bridge_main(argv: list[str] | None = None) -> int:
     """``ddpc-bridge``: exit 0 on a clean stop, 2 on a configuration error, 3 if no vehicle answered,
-    4 if the vehicle is not what the bridge was told (preflight), 5 if a flight phase failed (arming)."""
+    4 if the vehicle is not what the bridge was told (preflight), 5 if a flight phase failed (arming),
+    6 if interrupted (SIGINT / SIGTERM) before the first tick, 7 if the vehicle was lost (link lost for
+    ``--vehicle-lost-timeout``). The log is written in every case that got past the configuration."""
     args = build_bridge_parser().parse_args(argv)
     from ddpc_codegen.errors import DDPCError
 
@@ -289,6 +296,12 @@ def bridge_main(argv: list[str] | None = None) -> int:
         print(f"ddpc-bridge: error: {e}", file=sys.stderr)
         return 5
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary), flush=True)
+    if summary["stop_reason"] == "vehicle lost":
+        print(f"ddpc-bridge: error: vehicle lost: nothing heard for {args.vehicle_lost_timeout:g} s", file=sys.stderr)
+        return 7
+    if summary["ticks"] == 0 and summary["stop_reason"] == "signal":
+        print("ddpc-bridge: interrupted before the first tick (nothing flown)", file=sys.stderr)
+        return 6
     return 0
 
 

@@ -20,6 +20,12 @@ A touchdown estimated from telemetry is confirmed 0-1 samples after the foot wen
 plane; the samples in between are relabelled ground in the steering history and the tick log
 (:attr:`PhaseEstimator.backdate`): spring dynamics labelled aerial would corrupt the aerial data.
 
+A contact signal is believed only while it is plausible: a value other than 0 / 1, or a contact reported
+while the foot (estimated from telemetry) is more than ``CONTACT_HEIGHT_TOL`` above the ground -- a
+touchdown faster than the hop's own dynamics allow -- is refused: the phases switch to the telemetry
+estimate for the rest of the flight, counted (``contact_refused``) and said once in ``notes`` (the bridge
+logs them as events).
+
 At the first engagement the controller is released at rest where the robot hovers (the first
 arc's apex is the measured height, trajectory time 0) and the estimator starts in DESCENT. A telemetry
 hole (lock-step: a missing stamp), stale telemetry or a re-engagement resets the hopping history
@@ -42,7 +48,9 @@ from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
 from ddpc_codegen.runtime.policy import SteeringPolicy
 
-__all__ = ["HoppingLoop", "hopping_window", "completion_time_warning"]
+__all__ = ["HoppingLoop", "hopping_window", "completion_time_warning", "CONTACT_HEIGHT_TOL"]
+
+CONTACT_HEIGHT_TOL = 0.05  # m: a foot this far above the ground cannot be on it (telemetry noise is mm)
 
 
 def hopping_window(solver, t_ini: int) -> HoppingWindow:
@@ -126,8 +134,9 @@ class HoppingLoop:
         self.contact = contact
         self.estimator = PhaseEstimator(contact)
         self.steering = HoppingSteering(policy, window, c.g_eff, c.dt) if policy is not None else None
-        self.counts = {"contact_missing": 0, "contact_old": 0}
+        self.counts = {"contact_missing": 0, "contact_old": 0, "contact_refused": 0}
         self.phase = DESCENT
+        self.notes: list[str] = []  # what the bridge should log as events (drained by it)
 
     @property
     def uses_signal(self) -> bool:
@@ -145,12 +154,32 @@ class HoppingLoop:
                 return dataclasses.replace(state, contact=self.estimator.contact)
             if not telem.contact_stamp >= telem.newest_stamp() - 1e-6:
                 self.counts["contact_old"] += 1  # an older flag than the state sample: used, counted
-            self.estimator.update(z, vz, float(e[0]), float(e[1]), signal=telem.contact)
-        else:
+            why = self._implausible(telem.contact_value, z, float(e[0]), float(e[1]))
+            if why is None:
+                self.estimator.update(z, vz, float(e[0]), float(e[1]), signal=telem.contact)
+                return dataclasses.replace(state, contact=self.estimator.contact)
+            self._refuse_signal(why)
+        if not self.uses_signal:
             self.estimator.update(z, vz, float(e[0]), float(e[1]))
             if self.estimator.backdate and self.steering is not None:
                 self.steering.relabel(self.estimator.backdate, GROUND)
         return dataclasses.replace(state, contact=self.estimator.contact)
+
+    def _implausible(self, value: int | None, z: float, roll: float, pitch: float) -> str | None:
+        """Why this contact flag cannot be true, or None."""
+        if value not in (0, 1):
+            return f"contact value {value} (a contact flag is 0 or 1)"
+        h = self.estimator.foot_height(z, roll, pitch)
+        if value == 1 and h > CONTACT_HEIGHT_TOL:
+            return f"contact reported with the foot {h:.3f} m above the ground (more than {CONTACT_HEIGHT_TOL:g} m)"
+        return None
+
+    def _refuse_signal(self, why: str) -> None:
+        """Stop believing the contact signal: phases from the telemetry estimate from now on."""
+        self.counts["contact_refused"] += 1
+        self.contact = dataclasses.replace(self.contact, source="estimate")
+        self.estimator.config = self.contact
+        self.notes.append(f"contact signal refused: {why}; phases from the telemetry estimate from now on")
 
     @property
     def backdate(self) -> int:

@@ -38,7 +38,7 @@ class Reporting:
 
     def _record(self, ref: dict, state, *, now: float, t_sent: float, t_vehicle: float, t_traj: float, age: float,
                 q, thrust: float, field: float, event: bool, engaged: bool, fresh: bool, sent: bool, gap: bool,
-                n_new: int, latency: float) -> None:
+                n_new: int, latency: float, gate: int = 0) -> None:
         """One row of the tick log (see :mod:`.ticklog` for the fields)."""
         i = self.rec.new_row()
         A = self.rec.arrays
@@ -73,6 +73,7 @@ class Reporting:
         A["sent"][i] = sent
         A["valid"][i] = event and engaged and fresh if self.cfg.lockstep else engaged and fresh
         A["gap"][i] = gap
+        A["gate"][i] = gate
         A["phase"][i] = self.ctrl.phase
         if self.hop is not None and self.hop.backdate:
             # A touchdown confirmed late: the samples already on the ground before it are ground samples.
@@ -94,7 +95,8 @@ class Reporting:
                 # what SET_ATTITUDE_TARGET.thrust meant: a solver fits the loop it was collected in
                 "thrust_field": "climb_rate" if self.profile.climb_rate_thrust else "thrust",
                 # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
-                "frame": self.frame.as_dict(), "truth": self.truth.as_dict(),
+                "frame": self.frame.as_dict(), "truth": self.truth.as_dict(), "events": list(self.events),
+                "stalls": list(self.stalls),
                 "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
                                                            "config_hash": self.solver.manifest.get("config_hash"),
                                                            "predictor_hash": self.solver.manifest.get("predictor_hash")}}
@@ -136,6 +138,8 @@ class Reporting:
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
             "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
             "events": self.events, "approach": self.approach_result,
+            # the last gate: ticks per action (rate_limited, envelope, nonfinite_*, guard_clamped, stall) and its bounds
+            "gate": self.gate.summary(), "stalls": list(self.stalls), "telemetry_dropped": self.telem.dropped,
         }
         if self.hop is not None:
             out["hopping"] = self.hop.summary()
@@ -166,7 +170,7 @@ class Reporting:
 
     def _finish(self) -> None:
         c = self.cfg
-        if c.log and self.rec.n:
+        if c.log:  # always, even without a tick (interrupted, vehicle lost): the log says what happened
             self.log_path = self.ticklog().save(c.log)
         s = self.summary()
         if c.summary:

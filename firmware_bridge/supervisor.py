@@ -277,6 +277,11 @@ class Supervisor:
             self._event(f"vehicle silent (no heartbeat, no telemetry) for {c.link_timeout:g} s: link lost")
         elif now - self.last_heard <= c.link_timeout:
             self._link_lost = False
+        if self._link_lost and now - self.last_heard > c.vehicle_lost_timeout:
+            # Waiting on for --timeout would hide it: the flight is over, and the exit code says so (7).
+            self._event(f"vehicle lost: nothing heard for {now - self.last_heard:.1f} s: stopping")
+            self.stop_reason = "vehicle lost"
+            self._stop = True
 
     def _supervise_arming(self, now: float) -> None:
         """--arm: once both telemetry streams arrive (and, for ArduPilot, in the guided mode), arm;

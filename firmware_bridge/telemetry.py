@@ -12,7 +12,9 @@ conversions are :mod:`ddpc_codegen.robot.frames`' scalar path (the MAVROS conven
 
 :class:`TelemetryState` keeps the newest sample of each stream (attitude, position) with its
 sender time stamp and its receive time, so that a tick always uses the newest telemetry and
-knows its age.
+knows its age. A sample with a non-finite field (a NaN quaternion or position) or a quaternion far from
+unit norm is dropped and counted (``dropped``): it never reaches the frames or the setpoints; the
+stream's last good sample ages instead, so a flood of them is stale telemetry.
 """
 
 from __future__ import annotations
@@ -93,7 +95,9 @@ class TelemetryState:
             raise ValueError(f"position stream must be one of {STREAMS['position']}; got {self.position_msg!r}")
         self.wanted = {self.attitude_msg, self.position_msg}
         self.contact: bool | None = None
+        self.contact_value: int | None = None  # the flag as sent (0 / 1; anything else is implausible)
         self.contact_stamp = math.nan
+        self.dropped = 0  # samples with a non-finite field or a non-unit quaternion, never used
         if self.contact_name:
             self.wanted.add("NAMED_VALUE_INT")
 
@@ -110,7 +114,11 @@ class TelemetryState:
             name = msg.name if isinstance(msg.name, str) else msg.name.decode(errors="ignore")
             if name.rstrip("\x00") == self.contact_name:
                 self.contact, self.contact_stamp = msg.value != 0, msg.time_boot_ms * 1e-3
+                self.contact_value = int(msg.value)
             return False  # not a state stream: it never triggers a tick
+        if not _plausible(msg, typ):
+            self.dropped += 1
+            return False
         if typ == "ODOMETRY":
             stamp = msg.time_usec * 1e-6
             e = euler_from_quat(quat_enu_flu_from_ned_frd(msg.q))
@@ -173,7 +181,26 @@ class TelemetryState:
     def reset(self) -> None:
         """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""
         self.att, self.pos = Sample(history=self.att.history), Sample(history=self.pos.history)
-        self.contact, self.contact_stamp = None, math.nan
+        self.contact, self.contact_value, self.contact_stamp = None, None, math.nan
+
+
+_FIELDS = {
+    "ODOMETRY": ("x", "y", "z", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed"),
+    "LOCAL_POSITION_NED": ("x", "y", "z", "vx", "vy", "vz"),
+    "ATTITUDE": ("roll", "pitch", "yaw", "rollspeed", "pitchspeed", "yawspeed"),
+    "ATTITUDE_QUATERNION": ("q1", "q2", "q3", "q4", "rollspeed", "pitchspeed", "yawspeed"),
+}
+
+
+def _plausible(msg, typ: str) -> bool:
+    """Every field the state uses is finite, and a quaternion has (nearly) unit norm."""
+    vals = [getattr(msg, k) for k in _FIELDS[typ]]
+    q = list(msg.q) if typ == "ODOMETRY" else vals[:4] if typ == "ATTITUDE_QUATERNION" else None
+    if q is not None:
+        vals += q
+    if not all(math.isfinite(v) for v in vals):
+        return False
+    return q is None or abs(math.sqrt(sum(v * v for v in q)) - 1.0) < 0.1
 
 
 class TrajectoryFrame:

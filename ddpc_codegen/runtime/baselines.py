@@ -13,11 +13,17 @@ loop that runs the steering (the simulator hook, the MAVLink bridge) can run the
   loop resets it at every liftoff), or set by :meth:`~FeedforwardPolicy.seek` from the loop's own
   trajectory clock (the bridge); beyond the table the last row is held.
 
+The loaders (:meth:`PrefilterPolicy.load`, :meth:`FeedforwardPolicy.load`) check what a file can say
+about itself -- size before reading, the table's declared shape before loading it, types, finiteness,
+ranges -- and raise :class:`~ddpc_codegen.errors.ConfigError` naming the file and the key; what fits
+the loop (channels, tick, the robot's envelope) the caller checks (the bridge: :mod:`firmware_bridge.baseline_modes`).
+
 numpy only: no CasADi, no simulator.
 """
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,9 +31,11 @@ import numpy as np
 
 from ddpc_codegen.design.baselines import PrefilterModel
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.robot.validate import Range, check_number, check_numbers, check_size, load_json_bounded
 from ddpc_codegen.runtime.steerer import SteerOutcome
 
-__all__ = ["PassthroughPolicy", "PrefilterPolicy", "FeedforwardPolicy"]
+__all__ = ["PassthroughPolicy", "PrefilterPolicy", "FeedforwardPolicy", "check_prefilter_dict", "FF_MAX_ROWS",
+           "FF_MAX_COLS", "PREFILTER_MAX_LEAD"]
 
 
 @dataclass
@@ -72,8 +80,12 @@ class PrefilterPolicy:
 
     @classmethod
     def load(cls, path: str | Path, **kw) -> "PrefilterPolicy":
-        """From a prefilter JSON file (:meth:`PrefilterModel.save`)."""
-        return cls(PrefilterModel.load(path), **kw)
+        """From a prefilter JSON file (:meth:`PrefilterModel.save`), every field checked
+        (:func:`check_prefilter_dict`)."""
+        raw = load_json_bounded(path, "prefilter")
+        if not isinstance(raw, dict) or not isinstance(raw.get("prefilter"), dict):
+            raise ConfigError(f"{path}: not a prefilter JSON file (no 'prefilter' table)")
+        return cls(PrefilterModel.from_dict(check_prefilter_dict(raw["prefilter"], str(path)), str(path)), **kw)
 
     def reset(self) -> None:
         """Memoryless: nothing to forget."""
@@ -154,11 +166,94 @@ class FeedforwardPolicy:
 
     @classmethod
     def load(cls, path: str | Path) -> "FeedforwardPolicy":
+        """From a :meth:`save` npz: the arrays' declared shapes are read before any data (a table of
+        at most :data:`FF_MAX_ROWS` x :data:`FF_MAX_COLS` numbers, a scalar dt in (0, 1] s, a clock name)."""
+        p = check_size(path, FF_MAX_BYTES, "feed-forward table")
+        shapes = _npz_shapes(p)
+        for key, ok, want in (("delta", lambda s, k: len(s) == 2 and 1 <= s[0] <= FF_MAX_ROWS
+                               and 1 <= s[1] <= FF_MAX_COLS and k in "fiu", f"(N, m) numbers with N <= {FF_MAX_ROWS} "
+                               f"and m <= {FF_MAX_COLS}"),
+                              ("dt", lambda s, k: s == () and k in "fiu", "one number"),
+                              ("clock", lambda s, k: s == () and k == "U", "one string")):
+            if key not in shapes:
+                raise ConfigError(f"{p}: not a feed-forward table (no '{key}' array)")
+            if not ok(*shapes[key]):
+                raise ConfigError(f"{p}: {key} must be {want}; got shape {shapes[key][0]} of kind {shapes[key][1]!r}")
         try:
-            with np.load(path) as z:
-                return cls(z["delta"], float(z["dt"]), str(z["clock"]))
-        except (OSError, KeyError, ValueError) as e:
-            raise ConfigError(f"{path}: not a feed-forward table ({type(e).__name__}: {e})") from None
+            with np.load(p, allow_pickle=False) as z:
+                delta, dt, clock = z["delta"].astype(float), z["dt"].item(), str(z["clock"])
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as e:
+            raise ConfigError(f"{p}: not a feed-forward table ({type(e).__name__}: {e})") from None
+        dt = check_number(dt, f"{p}: dt", Range(lo=0.0, lo_open=True, hi=1.0))
+        if not np.all(np.isfinite(delta)):
+            bad = np.argwhere(~np.isfinite(delta))[0]
+            raise ConfigError(f"{p}: delta must be finite; row {bad[0]} column {bad[1]} is {delta[tuple(bad)]!r}")
+        if clock not in ("trajectory", "liftoff"):
+            raise ConfigError(f"{p}: clock must be 'trajectory' or 'liftoff'; got {clock!r}")
+        return cls(delta, dt, clock)
 
     def summary(self) -> dict:
         return dict(self.counts)
+
+
+FF_MAX_BYTES = 64_000_000   # a 10^6-row table of two references is 16 MB
+FF_MAX_ROWS = 1_000_000     # 83 min at 200 Hz
+FF_MAX_COLS = 16
+PREFILTER_MAX_LEAD = 2000   # ticks (10 s at 200 Hz): the desired path is sampled this far ahead every tick
+_PREFILTER_KEYS = ("gain", "offset", "lead", "dt", "names", "residual_rms", "r2")
+
+
+def _npz_shapes(path: Path) -> dict[str, tuple[tuple, str]]:
+    """{name: (shape, dtype kind)} of an npz's arrays from their headers alone (no data read)."""
+    out = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist()[:64]:
+                if not info.filename.endswith(".npy"):
+                    continue
+                with zf.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                    shape, _, dtype = read(f)
+                out[info.filename[:-4]] = (tuple(shape), dtype.kind)
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        raise ConfigError(f"{path}: not a feed-forward table ({type(e).__name__}: {e})") from None
+    return out
+
+
+def check_prefilter_dict(d: dict, src: str) -> dict:
+    """The ``prefilter`` table of a prefilter JSON file: known keys; gain, offset, lead one per channel
+    (1..16), gains finite with 1e-3 <= |g| <= 1e3, offsets finite, leads integers in 0..2000 ticks, dt in
+    (0, 1] s; names strings; residual_rms / r2 numbers or null (informational). Returns it with tuples.
+
+    Raises:
+        ConfigError: naming ``src`` and the key.
+    """
+    for key in d:
+        if key not in _PREFILTER_KEYS:
+            raise ConfigError(f"{src}: prefilter {key} is not a known key; allowed: {list(_PREFILTER_KEYS)}")
+    for key in ("gain", "offset", "lead", "dt"):
+        if key not in d:
+            raise ConfigError(f"{src}: prefilter {key} is missing")
+    gain = d["gain"]
+    if not isinstance(gain, list) or not 1 <= len(gain) <= 16:
+        raise ConfigError(f"{src}: prefilter gain must be a list of 1 to 16 numbers; got {gain!r}")
+    n = len(gain)
+    out = dict(d)
+    out["gain"] = check_numbers(gain, f"{src}: prefilter gain", Range(lo=-1e3, hi=1e3, n=n))
+    if any(abs(g) < 1e-3 for g in out["gain"]):
+        raise ConfigError(f"{src}: prefilter gain must be at least 1e-3 in magnitude per channel; got {gain!r}")
+    out["offset"] = check_numbers(d["offset"], f"{src}: prefilter offset", Range(lo=-1e4, hi=1e4, n=n))
+    out["lead"] = check_numbers(d["lead"], f"{src}: prefilter lead", Range(lo=0, hi=PREFILTER_MAX_LEAD, integer=True, n=n))
+    out["dt"] = check_number(d["dt"], f"{src}: prefilter dt", Range(lo=0.0, lo_open=True, hi=1.0))
+    names = d.get("names", [])
+    if not isinstance(names, list) or len(names) not in (0, n) or not all(isinstance(v, str) and len(v) <= 64 for v in names):
+        raise ConfigError(f"{src}: prefilter names must be {n} strings (or none); got {names!r}")
+    out["names"] = tuple(names)
+    for key in ("residual_rms", "r2"):
+        v = d.get(key, [])
+        if not isinstance(v, list) or len(v) not in (0, n) or not all(
+                x is None or (isinstance(x, (int, float)) and not isinstance(x, bool)) for x in v):
+            raise ConfigError(f"{src}: prefilter {key} must be {n} numbers (or none); got {v!r}")
+        out[key] = tuple(v)
+    return out

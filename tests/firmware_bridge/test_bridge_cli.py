@@ -33,7 +33,7 @@ def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
 
     with pytest.raises(ValueError, match="frame must be 'start' or 'world'; got 'body'"):
         BridgeConfig(mode="passthrough", frame="body")
-    with pytest.raises(ValueError, match="max_gap_fill must be an integer >= 0; got -1"):
+    with pytest.raises(ValueError, match=r"--max-gap-fill must be an integer in \[0, 1000\]; got -1"):
         BridgeConfig(mode="passthrough", max_gap_fill=-1)
     with pytest.raises(ValueError, match=r"prefilter mode needs a prefilter JSON file \(--prefilter"):
         BridgeConfig(mode="prefilter")
@@ -67,8 +67,15 @@ def test_bridge_flag_defaults_are_the_config_dataclass_defaults():
     (["udpin:127.0.0.1:14999", "--log", "/nonexistent-dir/x.npz"], "--log /nonexistent-dir/x.npz: folder /nonexistent-dir does not exist"),
     (["udpin:127.0.0.1:14999", "--summary", "/proc/x.json"], "--summary /proc/x.json: not writable"),
     (["/dev/ttyDOES-NOT-EXIST"], "serial device /dev/ttyDOES-NOT-EXIST does not exist"),
-    (["udpin:127.0.0.1:14999", "--takeoff", "--approach-tolerance", "0"], "approach_tolerance must be positive; got 0.0"),
-    (["udpin:127.0.0.1:14999", "--takeoff", "--approach-timeout", "-1"], "approach_timeout must be positive; got -1.0"),
+    (["udpin:127.0.0.1:14999", "--takeoff", "--approach-tolerance", "0"], "--approach-tolerance must be a finite number in (0, 10]; got 0.0"),
+    (["udpin:127.0.0.1:14999", "--takeoff", "--approach-timeout", "-1"], "--approach-timeout must be a finite number in (0, 3600]; got -1.0"),
+    # issue 28: command-line values out of their range, refused before anything connects
+    (["udpin:127.0.0.1:14999", "--sysid", "300"], "--sysid must be an integer in [1, 255]; got 300"),
+    (["udpin:127.0.0.1:14999", "--max-tilt-deg", "400"], "--max-tilt-deg must be a finite number in (0, 90); got 400.0"),
+    (["udpin:127.0.0.1:14999", "--duration", "-1"], "--duration must be a finite number in (0, 86400]; got -1.0"),
+    (["udpin:127.0.0.1:14999", "--max-age-ms", "nan"], "--max-age-ms must be a finite number in (0, 10000]; got nan"),
+    (["udpin:127.0.0.1:14999", "--target-system", "256"], "--target-system must be an integer in [0, 255]; got 256"),
+    (["udpin:127.0.0.1:14999", "--rate", "inf"], "--rate must be a finite number in (0, 1000]; got inf"),
 ])
 def test_bad_ports_paths_and_devices_are_refused_before_anything_flies(capsys, args, message):
     """Issue 12: errors named at start (exit 2), not a traceback or a log lost after the flight."""

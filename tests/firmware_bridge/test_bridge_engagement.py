@@ -158,8 +158,9 @@ def test_the_approach_holds_or_times_out_as_configured_and_says_so(tmp_path, z):
     else:
         assert ap["held"] is True and ap["waited_s"] == pytest.approx(1.0, abs=0.011)
         assert "at the trajectory's start height: trajectory starts" in out and "WARNING" not in out
-    for key in ("approach_timeout", "approach_tolerance"):
-        with pytest.raises(ValueError, match=f"{key} must be positive; got nan"):
+    for key, msg in (("approach_timeout", r"--approach-timeout must be a finite number in \(0, 3600\]; got nan"),
+                     ("approach_tolerance", r"--approach-tolerance must be a finite number in \(0, 10\]; got nan")):
+        with pytest.raises(ValueError, match=msg):
             BridgeConfig(mode="passthrough", takeoff=True, **{key: float("nan")})
 
 
