@@ -117,7 +117,7 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
                      "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle") + list(vehicle_args),
             env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
         cmd = _py() + ["firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{port}", "--offboard", "--duration",
-                       str(duration), "--log", str(ticks), "--summary", str(summ), "--rt-priority", str(rt_priority),
+                       str(duration), "--log", str(ticks), "--overwrite", "--summary", str(summ), "--rt-priority", str(rt_priority),
                        "--cpu-latency-us", str(cpu_latency_us), *_pin_args(pin, "bridge"),
                        "--wait-heartbeat", "30", "--timeout", str(duration + 60)] + bridge_args
         log(f"  [{name}] {' '.join(cmd[2:])}")

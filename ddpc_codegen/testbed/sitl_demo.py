@@ -61,7 +61,7 @@ def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, 
     return [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
             "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
             "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
-            "--log", str(out / f"{name}.npz"), "--summary", str(out / f"{name}.json"), "--verbose",
+            "--log", str(out / f"{name}.npz"), "--overwrite", "--summary", str(out / f"{name}.json"), "--verbose",
             "--rt-priority", "10", "--approach-timeout", f"{APPROACH_TIMEOUT:g}", *extra]
 
 
