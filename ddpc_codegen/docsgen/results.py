@@ -189,17 +189,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--docs", default=str(ROOT / "docs"), help="docs folder (results.md, figures/)")
     ap.add_argument("--readme", default=str(ROOT / "README.md"), help="README with the results markers")
     a = ap.parse_args(argv)
+    readme = Path(a.readme)
     try:
         reports = load_reports(Path(a.reports))
-        readme = Path(a.readme)
-        readme.write_text(replace_block(readme.read_text(), readme_block(reports)))
+        if "summary.json" in reports:  # the README's table is make demo's: other targets leave it alone
+            readme.write_text(replace_block(readme.read_text(), readme_block(reports)))
     except ValueError as e:
         print(f"docsgen: error: {e}", file=sys.stderr)
         return 2
     if "summary.json" in reports:
         copy_figures(reports["summary.json"], ROOT, Path(a.docs) / "figures")
     (Path(a.docs) / "results.md").write_text(results_page(reports))
-    print(f"rendered {', '.join(reports) or 'no reports'} into {Path(a.docs) / 'results.md'} and {readme}")
+    print(f"rendered {', '.join(reports) or 'no reports'} into {Path(a.docs) / 'results.md'}"
+          + (f" and {readme}" if "summary.json" in reports else ""))
     return 0
 
 
