@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_bridge import sitl as h
+from ddpc_codegen.testbed import sitl as h
 
 
 def test_discovery_reads_the_environment(tmp_path):
@@ -97,7 +97,7 @@ def test_fly_ilc_learns_each_table_from_the_previous_flight(tmp_path, monkeypatc
 
     from ddpc_codegen.design.baselines import PrefilterModel
     from ddpc_codegen.runtime.baselines import FeedforwardPolicy
-    from firmware_bridge import sitl_demo
+    from ddpc_codegen.testbed import sitl_demo
     from firmware_bridge.ticklog import TickRecorder
 
     dt, dur = 0.005, 6.0
