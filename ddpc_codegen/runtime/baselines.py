@@ -187,7 +187,7 @@ class FeedforwardPolicy:
         dt = check_number(dt, f"{p}: dt", Range(lo=0.0, lo_open=True, hi=1.0))
         if not np.all(np.isfinite(delta)):
             bad = np.argwhere(~np.isfinite(delta))[0]
-            raise ConfigError(f"{p}: delta must be finite; row {bad[0]} column {bad[1]} is {delta[tuple(bad)]!r}")
+            raise ConfigError(f"{p}: delta must be finite; row {bad[0]} column {bad[1]} is {float(delta[tuple(bad)])!r}")
         if clock not in ("trajectory", "liftoff"):
             raise ConfigError(f"{p}: clock must be 'trajectory' or 'liftoff'; got {clock!r}")
         return cls(delta, dt, clock)

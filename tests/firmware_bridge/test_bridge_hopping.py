@@ -242,10 +242,28 @@ def test_signal_source_holds_the_phase_until_the_first_flag():
     hop = _loop("signal")
     tel = SimpleNamespace(contact=None, contact_stamp=float("nan"), newest_stamp=lambda: 1.0)
     assert not hop.observe(_state(0.3, -1.0), tel).contact and hop.counts["contact_missing"] == 1
-    tel.contact, tel.contact_stamp = True, 0.995  # a flag one sample older than the state: used, counted
+    tel.contact, tel.contact_value, tel.contact_stamp = True, 1, 0.995  # one sample older than the state: used, counted
     for _ in range(3):
         st = hop.observe(_state(0.3, -1.0), tel)
     assert st.contact and hop.counts["contact_old"] == 3
+
+
+@pytest.mark.parametrize("value, z, why", [
+    (7, 0.6, "contact signal refused: contact value 7 (a contact flag is 0 or 1); phases from the telemetry estimate"),
+    (-1, 0.6, "contact signal refused: contact value -1 (a contact flag is 0 or 1)"),
+    (1, 0.6, "contact signal refused: contact reported with the foot 0.200 m above the ground (more than 0.05 m)"),
+])
+def test_implausible_contact_signals_fall_back_to_the_estimate(value, z, why):
+    """Issue 28: values other than 0 / 1, or a touchdown the hop's dynamics cannot have made (the foot high
+    above the ground), are refused once: the phases come from the telemetry estimate from then on."""
+    hop = _loop("signal")
+    tel = SimpleNamespace(contact=value != 0, contact_value=value, contact_stamp=1.0, newest_stamp=lambda: 1.0)
+    st = hop.observe(_state(z, -1.0), tel)
+    assert not st.contact and hop.contact.source == "estimate" and hop.counts["contact_refused"] == 1
+    assert len(hop.notes) == 1 and hop.notes[0].startswith(why)
+    for _ in range(20):  # the flag keeps saying "ground": ignored, the foot is in the air
+        st = hop.observe(_state(0.6, -1.0), tel)
+    assert not st.contact and hop.counts["contact_refused"] == 1 and hop.summary()["contact_source"] == "estimate"
 
 
 

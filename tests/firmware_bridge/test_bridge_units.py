@@ -104,6 +104,37 @@ def test_every_telemetry_stream_gives_the_same_enu_flu_state(kind):
         assert tel.newest_stamp() == pytest.approx(1.234)
 
 
+@pytest.mark.parametrize("kind", ["ATTITUDE", "ATTITUDE_QUATERNION", "ODOMETRY"])
+@pytest.mark.parametrize("bad", ["nan_attitude", "nan_position", "inf_rate", "zero_quaternion"])
+def test_telemetry_with_a_nonfinite_field_is_dropped_and_counted(kind, bad):
+    """Issue 28: a NaN quaternion or position never reaches the state (frames, setpoints): the sample is
+    dropped and counted, the last good one stays (and ages)."""
+    q_good = quat_ned_frd_from_enu_flu(quat_from_euler(0.1, -0.2, 0.3))
+    p_good, v, w = (1.0, 2.0, -3.0), (0.1, 0.2, 0.3), (0.0, 0.1, 0.0)
+    tel = TelemetryState("ODOMETRY" if kind == "ODOMETRY" else kind,
+                         "ODOMETRY" if kind == "ODOMETRY" else "LOCAL_POSITION_NED")
+    for m in _telemetry(kind, q_good, w, p_good, v):
+        assert tel.update(m, rx=1.0)
+    before = (tel.euler.copy(), tel.position.copy(), tel.att.seq, tel.pos.seq)
+    nan = math.nan
+    q = {"nan_attitude": (nan, 0.0, 0.0, 1.0), "zero_quaternion": (0.0, 0.0, 0.0, 0.0)}.get(bad, q_good)
+    if kind == "ATTITUDE" and bad == "zero_quaternion":
+        q = (nan, nan, nan, nan)  # no quaternion in ATTITUDE: its Euler angles come out NaN
+    p = (nan, 0.0, 0.0) if bad == "nan_position" else p_good
+    rates = (math.inf, 0.0, 0.0) if bad == "inf_rate" else w
+    with np.errstate(invalid="ignore"):
+        msgs = _telemetry(kind, q, rates, p, v, ms=1300)
+    used = [tel.update(m, rx=2.0) for m in msgs]
+    assert tel.dropped >= 1 and not all(used)
+    assert np.all(np.isfinite(tel.euler)) and np.all(np.isfinite(tel.position)) and np.all(np.isfinite(tel.rates))
+    if not used[0]:  # the attitude sample was the bad one: the state still holds the last good attitude
+        np.testing.assert_array_equal(tel.euler, before[0])
+        assert tel.att.seq == before[2]
+    if not used[-1]:
+        np.testing.assert_array_equal(tel.position, before[1])
+        assert tel.pos.seq == before[3]
+
+
 # (the frame math itself is tested against scipy in tests/robot/test_frames.py)
 
 
