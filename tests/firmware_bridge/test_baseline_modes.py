@@ -15,7 +15,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ddpc_codegen.errors import ConfigError
 from firmware_bridge.baseline_modes import load_feedforward, load_prefilter
 from firmware_bridge.bridge_config import BridgeConfig
 
