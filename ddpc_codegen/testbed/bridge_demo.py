@@ -47,7 +47,7 @@ from firmware_bridge.realtime import kernel_preemption
 
 __all__ = ["main", "run_demo", "free_udp_port", "truth_rmse"]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository (ddpc_codegen/testbed/ -> .)
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:

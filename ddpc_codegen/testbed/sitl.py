@@ -310,6 +310,45 @@ class Sitl:
         raise SitlError(f"no heartbeat from the {self.autopilot} SITL on {self.url} within the timeout; "
                         f"log tail:\n{self.log_tail()}")
 
+    def set_params(self, params: Mapping[str, float], timeout: float = 15.0) -> dict[str, float]:
+        """Set parameters on the running SITL over MAVLink (PARAM_SET, repeated until the echoed
+        PARAM_VALUE carries the value), e.g. between two flights; call it while no other client holds
+        the SITL's port (a bridge process is done). Float parameters only (PX4 packs integers bytewise).
+
+        Returns:
+            name -> the value the SITL echoed.
+        Raises:
+            SitlError: a parameter was not confirmed within ``timeout`` [s] (unknown name, or no answer).
+        """
+        if not params:
+            return {}
+        conn = self.connect()
+        got: dict[str, float] = {}
+        try:
+            t_end = time.monotonic() + timeout
+            next_send = 0.0
+            while len(got) < len(params) and time.monotonic() < t_end:
+                if time.monotonic() >= next_send:
+                    next_send = time.monotonic() + 1.0
+                    for name, value in params.items():
+                        if name not in got:
+                            conn.mav.param_set_send(conn.target_system, conn.target_component, name.encode(),
+                                                    float(value), 9)  # MAV_PARAM_TYPE_REAL32
+                msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
+                if msg is None:
+                    continue
+                name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
+                name = name.rstrip("\x00")
+                if name in params and abs(float(msg.param_value) - float(params[name])) <= 1e-4 * max(1.0, abs(params[name])):
+                    got[name] = float(msg.param_value)
+        finally:
+            conn.close()
+        missing = sorted(set(params) - set(got))
+        if missing:
+            raise SitlError(f"the {self.autopilot} SITL did not confirm {missing} within {timeout:g} s "
+                            "(unknown parameter, or no answer)")
+        return got
+
     def _port_ready(self) -> bool:
         """TCP: the SITL's server accepts connections (probed here because pymavlink prints and
         sleeps on a refused connect). UDP listeners are always ready."""

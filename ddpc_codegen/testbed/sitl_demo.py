@@ -1,6 +1,8 @@
 """The documented workflow against a real autopilot SITL: take off from the ground, fly the
 baseline (passthrough), collect, generate the solver, steer, then the simple baselines (prefilter;
-ILC: repeated flights of the same ellipse, :func:`fly_ilc`) -- and the figures (``make sitl-demo``).
+ILC: repeated flights of the same ellipse, :func:`fly_ilc`), then beyond the ellipse (a non-repeating
+3-D steps file and unseen changes, :mod:`.sitl_conditions`) -- and the figures (``make sitl-demo``).
+The steering config is whatever ``configs/sitl_<autopilot>.toml`` says.
 
 Each flight is one ``ddpc-bridge`` process with ``--arm --offboard --takeoff --land``: it arms the
 vehicle on the ground (retrying while the EKF initialises), takes off to the trajectory start,
@@ -25,12 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, STEPS_DURATION, fly_condition, write_steps_trajectory
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
 __all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "APPROACH_TIMEOUT", "bridge_command", "fly",
-           "flight_figures", "fly_ilc", "run_pipeline", "main"]
+           "flight_figures", "fly_ilc", "run_pipeline", "main", "format_condition"]
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]  # the repository (ddpc_codegen/testbed/ -> .)
 # ArduCopter: SET_ATTITUDE_TARGET.thrust as a thrust (GUID_OPTIONS bit 3), as the profile assumes.
 SITL_PARAMS = {"ardupilot": {"GUID_OPTIONS": 8}, "px4": {}}
 PROFILES = {"ardupilot": "arducopter_sitl", "px4": "px4_sih"}
@@ -101,20 +104,23 @@ def codegen(config: Path, dataset: Path, out: Path) -> Path:
 
 
 def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
-    """RMSE of z (telemetry; and of the simulator's true height where the SITL sends it: ArduPilot's
-    SIM_STATE, None otherwise) after ``settle`` s of trajectory, steered fraction of the engaged
-    ticks after the warm-up, tick-to-tick thrust change (rms) -- from a tick log."""
+    """From a tick log, after ``settle`` s of trajectory: RMSE of z on the telemetry (EKF) and on the
+    simulator's true height (ArduPilot SIM_STATE, PX4 SIH HIL_STATE_QUATERNION; None without it), the
+    estimator's own error (RMS of EKF - true height), the steered fraction of the engaged ticks, the
+    tick-to-tick thrust change (rms) and the largest tick-to-tick step of the applied height reference."""
     t = load_ticklog(log_path).ticks
     on = t["active"].astype(bool) & (np.nan_to_num(t["t_traj"], nan=-1.0) >= settle)
     ez = t["y"][on, 0] - t["y_des"][on, 0]
     dthr = np.diff(t["sp_thrust"][on])
+    du = np.abs(np.diff(t["u"][on, 0]))
     steered = t["reason"][on] == _STEERED
-    ezt = t["truth_position"][on, 2] - t["y_des"][on, 0] if "truth_position" in t else np.zeros(0)
-    ezt = ezt[np.isfinite(ezt)]
-    return {"rmse_z": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
-            "rmse_z_truth": float(np.sqrt(np.mean(ezt ** 2))) if ezt.size else None,
+    zt = t["truth_position"][on, 2] if "truth_position" in t else np.zeros(0)
+    ok = np.isfinite(zt)
+    ezt, est = zt[ok] - t["y_des"][on, 0][ok], t["y"][on, 0][ok] - zt[ok]
+    rms = lambda e: float(np.sqrt(np.mean(e ** 2))) if e.size else None  # noqa: E731
+    return {"rmse_z": rms(ez), "rmse_z_truth": rms(ezt), "estimator_rms": rms(est),
             "engaged_fraction": float(steered.mean()) if steered.size else None,
-            "thrust_step_rms": float(np.sqrt(np.mean(dthr ** 2))) if dthr.size else None,
+            "thrust_step_rms": rms(dthr), "max_ref_step": float(du.max()) if du.size else None,
             "ticks": int(on.sum())}
 
 
@@ -164,12 +170,20 @@ def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
 
 def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect_s: float = 30.0,
                  steer_s: float = 13.0, sitl_params: dict | None = None, baselines: bool = True,
-                 ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None) -> dict:
+                 ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None,
+                 conditions: list[str] | None = None, rounds: int = 2, steps_s: float = STEPS_DURATION) -> dict:
     """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> with ``baselines``: the
     prefilter baseline, identified from the same collect log, and ``ilc_iterations`` ILC flights of
-    ``baseline_s`` each, :func:`fly_ilc`, with ``ilc_law`` if given); the figures (JSON-ready).
+    ``baseline_s`` each, :func:`fly_ilc`, with ``ilc_law`` if given; then each of ``conditions``
+    (:data:`~ddpc_codegen.testbed.sitl_conditions.CONDITIONS`: "steps", "wind", "motor", "heavy") on
+    the non-repeating steps file, ``rounds`` times, ``steps_s`` s per flight); the figures (JSON-ready).
     ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
     climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
+    if conditions and not baselines:
+        raise ValueError("conditions need the baselines (the prefilter is fitted there)")
+    unknown = sorted(set(conditions or ()) - set(CONDITIONS[autopilot]))
+    if unknown:
+        raise ValueError(f"unknown condition(s) {unknown}; choose from {sorted(CONDITIONS[autopilot])}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
@@ -185,6 +199,10 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
             fly(sitl, autopilot, "passthrough", out, baseline_s, extra=("--profile", str(ctrl_ff_profile(autopilot, out))),
                 tag="ctrl_ff")
             ilc = fly_ilc(sitl, autopilot, out, baseline_s, pf, ilc_iterations, ilc_law)
+        if conditions:
+            steps = write_steps_trajectory(out / "steps.csv")
+            res["conditions"] = {name: fly_condition(sitl, autopilot, name, out, steps, solver, pf, rounds, steps_s)
+                                 for name in conditions}
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     if baselines:
         fp = flight_figures(out / f"{autopilot}_prefilter.npz")
@@ -200,6 +218,12 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
             "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"],
             "ilc": ilc,
         }
+        res.setdefault("conditions", {})
+        res["conditions"] = {"ellipse": {k: res["baselines"][k] for k in ("rmse_z", "rmse_z_truth", "thrust_step_rms")}
+                             | {"estimator_rms": fb["estimator_rms"],
+                                "max_ref_step": {"passthrough": fb["max_ref_step"], "ctrl_ff": fc["max_ref_step"],
+                                                 "prefilter": fp["max_ref_step"], "steered": fs["max_ref_step"]}},
+                             **res["conditions"]}
     res.update({
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
         "rmse_z_truth": {"baseline": fb["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
@@ -219,32 +243,86 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m ddpc_codegen.testbed.sitl_demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=str(ROOT / "reports"), help="folder for sitl.json and the flight logs")
     p.add_argument("--autopilot", action="append", choices=("px4", "ardupilot"), help="default: every available")
+    p.add_argument("--conditions", default="steps,wind,motor,heavy",
+                   help="after the ellipse, on the non-repeating steps file (comma list, 'none': skip; default %(default)s)")
+    p.add_argument("--rounds", type=int, default=2, help="flights of each method per condition (default %(default)s)")
+    p.add_argument("--steps-s", type=float, default=STEPS_DURATION, help="seconds of each steps-file flight")
+    p.add_argument("--fit-prefilter", metavar="COLLECT_LOG", default=None,
+                   help="only fit the prefilter baseline on a collect flight's tick log (as the demo does) and exit")
+    p.add_argument("--prefilter-out", default="prefilter.json", help="where --fit-prefilter writes (default %(default)s)")
+    p.add_argument("--write-steps", metavar="CSV", default=None,
+                   help="only write the demo's non-repeating 3-D steps trajectory file and exit")
     a = p.parse_args(argv)
+    if a.fit_prefilter or a.write_steps:
+        if a.fit_prefilter:
+            print(fit_prefilter_from_log(Path(a.fit_prefilter), Path(a.prefilter_out)))
+        if a.write_steps:
+            print(write_steps_trajectory(a.write_steps))
+        return 0
+    conds = [] if a.conditions.strip() == "none" else [c.strip() for c in a.conditions.split(",") if c.strip()]
+    if a.rounds < 1:
+        p.error(f"--rounds must be >= 1; got {a.rounds}")
     report: dict = {}
     for ap in a.autopilot or ["px4", "ardupilot"]:
         why = missing_reason(ap)
         if why:
             print(f"[sitl-demo] {ap}: skipped: {why}", flush=True)
             continue
-        print(f"[sitl-demo] {ap}: ground -> baseline -> collect -> codegen -> steer ...", flush=True)
+        flights = sum(not isinstance(CONDITIONS[ap].get(c), str) for c in conds) * a.rounds * 4
+        print(f"[sitl-demo] {ap}: ground -> baseline -> collect -> codegen -> steer -> prefilter, ctrl ff, ilc"
+              f"{f' -> {len(conds)} condition(s) x {a.rounds} round(s): {flights} more flights' if conds else ''} "
+              "(~40 s of wall time per flight) ...", flush=True)
         res = run_isolated("ddpc_codegen.testbed.sitl_demo:run_pipeline",
-                           {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}")}, timeout=900)
+                           {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}"), "conditions": conds,
+                            "rounds": a.rounds, "steps_s": a.steps_s}, timeout=900 + 120 * flights)
         report[ap] = res
-        r, rt = res["rmse_z"], res["rmse_z_truth"]
-        truth = (f" (true height {1e3 * rt['baseline']:.1f} -> {1e3 * rt['steered']:.1f} mm)"
-                 if rt["baseline"] is not None and rt["steered"] is not None else "")
-        print(f"[sitl-demo] {ap}: rmse z {1e3 * r['baseline']:.1f} -> {1e3 * r['steered']:.1f} mm{truth}, "
-              f"steered {100 * res['engaged_fraction']:.1f} %, rate {res['rate_hz']:.1f} Hz, "
-              f"fallbacks {res['fallbacks']}, {res['wall_s']:.0f} s", flush=True)
-        for flight, ap_end in res["approach"].items():
-            if ap_end is not None and not ap_end["held"]:
-                print(f"[sitl-demo] {ap}: WARNING: the {flight} flight started {ap_end['error_at_start_m']:+.3f} m off its "
-                      f"start height (did not hold it within {ap_end['timeout_s']:g} s)", flush=True)
-        if "baselines" in res:
-            print(format_baselines(ap, res["baselines"]), flush=True)
+        print_result(ap, res)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "sitl.json").write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
     return 0 if report else 1
+
+
+def print_result(ap: str, res: dict) -> None:
+    """The printed lines of one autopilot: the ellipse, the baselines, each condition and its target."""
+    r, rt = res["rmse_z"], res["rmse_z_truth"]
+    truth = (f" (true height {1e3 * rt['baseline']:.1f} -> {1e3 * rt['steered']:.1f} mm)"
+             if rt["baseline"] is not None and rt["steered"] is not None else "")
+    print(f"[sitl-demo] {ap}: rmse z {1e3 * r['baseline']:.1f} -> {1e3 * r['steered']:.1f} mm{truth}, "
+          f"steered {100 * res['engaged_fraction']:.1f} %, rate {res['rate_hz']:.1f} Hz, "
+          f"fallbacks {res['fallbacks']}, {res['wall_s']:.0f} s", flush=True)
+    for flight, ap_end in res["approach"].items():
+        if ap_end is not None and not ap_end["held"]:
+            print(f"[sitl-demo] {ap}: WARNING: the {flight} flight started {ap_end['error_at_start_m']:+.3f} m off its "
+                  f"start height (did not hold it within {ap_end['timeout_s']:g} s)", flush=True)
+    if "baselines" in res:
+        print(format_baselines(ap, res["baselines"]), flush=True)
+    for name, c in res.get("conditions", {}).items():
+        print(format_condition(ap, name, c), flush=True)
+
+
+def format_condition(ap: str, name: str, c: dict) -> str:
+    """One condition's lines: each method's EKF and true-height RMSE, the estimator's error, and the
+    target: steered >= 2x better than the best simple method on the true height (or within 1.2x of
+    the estimator's error), >= 10x better than passthrough on the ellipse."""
+    if "skipped" in c:
+        return f"[sitl-demo] {ap} {name}: {c['skipped']}"
+    mm = lambda v: "-" if v is None else f"{1e3 * v:.1f}"  # noqa: E731
+    lines = []
+    for key, what in (("rmse_z", "EKF"), ("rmse_z_truth", "true")):
+        v = c[key]
+        lines.append(f"[sitl-demo] {ap} {name} {what} height rmse: " + ", ".join(
+            f"{m.replace('_', ' ')} {mm(v.get(m))}" for m in ("passthrough", "ctrl_ff", "prefilter", "ilc", "steered"))
+            + " mm")
+    vt = c["rmse_z_truth"]
+    simple = [vt.get(m) for m in ("ctrl_ff", "prefilter", "ilc") if vt.get(m) is not None]
+    if vt.get("steered") and simple:
+        best, est = min(simple), c.get("estimator_rms")
+        goal = f">= 10x passthrough ({vt['passthrough'] / vt['steered']:.1f}x)" if name == "ellipse" else (
+            f">= 2x the best simple method ({best / vt['steered']:.2f}x)")
+        est_txt = f"; estimator error {mm(est)} mm (steered {vt['steered'] / est:.2f}x of it)" if est else ""
+        lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest reference step "
+                     f"{mm((c.get('max_ref_step') or {}).get('steered'))} mm per tick")
+    return "\n".join(lines)
 
 
 def format_baselines(ap: str, b: dict) -> str:

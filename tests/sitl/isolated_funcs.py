@@ -140,3 +140,38 @@ def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.
                 br.wait()
     return {"rc": rc, "stall_s": stall, "log": str(out / "px4_passthrough.npz"),
             "summary": str(out / "px4_passthrough.json"), "console": console.read_text()[-4000:]}
+
+
+def sitl_conditions_and_truth(autopilot: str) -> dict:
+    """Start the SITL; set each unseen change of the demo (:data:`CONDITIONS`) and undo it, as the demo
+    does between flights; then ask for the SITL's ground-truth message as the bridge does and read a
+    few, through :class:`firmware_bridge.truth.SimTruth`; what was echoed and seen."""
+    from firmware_bridge.truth import TRUTH_MESSAGES, SimTruth
+
+    from ddpc_codegen.testbed.sitl import SitlError, make_sitl
+    from ddpc_codegen.testbed.sitl_conditions import CONDITIONS
+
+    echoed, refused = {}, None
+    with make_sitl(autopilot) as sitl:
+        sitl.connect(timeout=60).close()
+        for name, spec in CONDITIONS[autopilot].items():
+            if not isinstance(spec, str):
+                echoed[name] = (sitl.set_params(spec[0]), sitl.set_params(spec[1]))
+        try:
+            sitl.set_params({"NO_SUCH_PARAM_X": 1.0}, timeout=3.0)
+        except SitlError as e:
+            refused = str(e)
+        conn = sitl.connect(timeout=30)
+        msg_name, msg_id = TRUTH_MESSAGES[autopilot]
+        conn.mav.command_long_send(conn.target_system, conn.target_component, 511, 0, msg_id, 20000, 0, 0, 0, 0, 0)
+        truth = SimTruth()
+        t_end = time.monotonic() + 60.0  # ArduCopter fills SIM_STATE's position once its simulation runs
+        while truth.seq < 20 and time.monotonic() < t_end:
+            m = conn.recv_match(type=msg_name, blocking=True, timeout=1.0)
+            if m is not None:
+                truth.update(m, time.monotonic())
+                if truth.seq == 1:
+                    truth.capture_ground()
+        conn.close()
+    return {"echoed": echoed, "refused": refused, "truth_samples": truth.seq, "source": truth.source,
+            "truth_position": truth.position.tolist()}

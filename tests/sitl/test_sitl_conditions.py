@@ -1,0 +1,91 @@
+"""Beyond the ellipse (:mod:`ddpc_codegen.testbed.sitl_conditions`): the non-repeating steps file, the
+per-round figures and the printed target lines (no SITL needed), and against the real SITLs (skipped
+without them): each unseen change is a parameter the SITL accepts and echoes, and the ground truth
+arrives as the bridge asks for it (PX4 SIH: HIL_STATE_QUATERNION, ArduCopter: SIM_STATE)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.robot.trajectory_files import load_trajectory
+from ddpc_codegen.testbed import sitl as h
+from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, METHODS, summarize_rounds, write_steps_trajectory
+from ddpc_codegen.testbed.sitl_demo import format_condition, main
+
+
+def test_the_steps_file_is_a_non_repeating_3d_path_with_height_steps(tmp_path):
+    tr = load_trajectory(write_steps_trajectory(tmp_path / "steps.csv", seed=0))
+    assert tr.y is not None and tr.start_position() == (0.0, 0.0, 1.0)
+    t = np.arange(0.0, 22.0, 0.005)
+    d = tr.sample(t)
+    levels = [float(tr.sample(ts + 1.5)["z"]) for ts in (4.0, 8.0, 12.0, 16.0)]
+    steps = np.abs(np.diff([1.0, *levels]))
+    assert np.all((steps >= 0.15 - 1e-6) & (steps <= 0.3 + 1e-6)), steps
+    assert np.ptp(d["x"]) > 1.1 and np.ptp(d["y"]) > 0.45         # it moves in x and y
+    # Each step's ramp stays under both SITL configs' z rate bound (ArduCopter 1 m/s, PX4 1.2 m/s).
+    assert np.max(np.abs(d["vz"])) < 1.0
+    # No repetition: the 11 s and 7.3 s horizontal periods and the steps never line up.
+    assert np.max(np.abs(tr.sample(t[t < 8.0] + 11.0)["y"] - d["y"][t < 8.0])) > 0.1
+    other = load_trajectory(write_steps_trajectory(tmp_path / "other.csv", seed=1))
+    assert not np.allclose(other.sample(t)["z"], d["z"])
+
+
+def _flight(v: float, est: float | None = 0.01) -> dict:
+    return {"rmse_z": v, "rmse_z_truth": v + 0.001, "thrust_step_rms": 0.002, "max_ref_step": 0.004,
+            "fallbacks": 0, "estimator_rms": est}
+
+
+def test_rounds_are_averaged_per_method_and_ilc_is_none_off_the_ellipse():
+    r1 = {m: _flight(v) for m, v in zip(METHODS, (0.10, 0.06, 0.04, 0.01))}
+    r2 = {m: _flight(v, est=0.02) for m, v in zip(METHODS, (0.12, 0.08, 0.05, 0.02))}
+    s = summarize_rounds([r1, r2])
+    assert s["rmse_z"] == {"passthrough": pytest.approx(0.11), "ctrl_ff": pytest.approx(0.07),
+                           "prefilter": pytest.approx(0.045), "steered": pytest.approx(0.015), "ilc": None}
+    assert s["rmse_z_truth"]["steered"] == pytest.approx(0.016) and s["rmse_z_truth"]["ilc"] is None
+    assert s["estimator_rms"] == pytest.approx(math.sqrt((4 * 0.01**2 + 4 * 0.02**2) / 8))
+    assert s["rounds"] == [r1, r2]
+    r2["steered"]["rmse_z_truth"] = None  # a flight without truth: no mean for that method
+    assert summarize_rounds([r1, r2])["rmse_z_truth"]["steered"] is None
+
+
+def test_condition_lines_state_the_target_on_the_true_height():
+    c = {"rmse_z": {"passthrough": 0.1, "ctrl_ff": 0.05, "prefilter": 0.04, "ilc": None, "steered": 0.01},
+         "rmse_z_truth": {"passthrough": 0.1, "ctrl_ff": 0.05, "prefilter": 0.04, "ilc": None, "steered": 0.016},
+         "estimator_rms": 0.008, "max_ref_step": {"steered": 0.005}}
+    assert format_condition("px4", "heavy", c).splitlines() == [
+        "[sitl-demo] px4 heavy EKF height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 10.0 mm",
+        "[sitl-demo] px4 heavy true height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 16.0 mm",
+        "[sitl-demo] px4 heavy target >= 2x the best simple method (2.50x); estimator error 8.0 mm (steered 2.00x of "
+        "it); largest reference step 5.0 mm per tick"]
+    assert format_condition("px4", "wind", {"skipped": CONDITIONS["px4"]["wind"]}) == (
+        "[sitl-demo] px4 wind: PX4 SIH in this build has no wind parameter (no SIH_WIND_*): not flown")
+    c["ilc"] = None
+    c["rmse_z_truth"]["ilc"] = 0.03
+    assert "target >= 10x passthrough (6.2x)" in format_condition("ardupilot", "ellipse", c)
+
+
+def test_demo_tools_write_the_steps_file_and_refuse_bad_rounds(tmp_path, capsys):
+    assert main(["--write-steps", str(tmp_path / "s.csv")]) == 0
+    assert load_trajectory(tmp_path / "s.csv").duration == pytest.approx(22.0)
+    with pytest.raises(SystemExit):
+        main(["--rounds", "0", "--autopilot", "px4"])
+    assert "--rounds must be >= 1; got 0" in capsys.readouterr().err
+
+
+@pytest.mark.sitl
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_unseen_changes_are_sitl_parameters_and_the_truth_arrives(autopilot):
+    why = h.missing_reason(autopilot)
+    if why:
+        pytest.skip(why)
+    res = h.run_isolated("sitl.isolated_funcs:sitl_conditions_and_truth", {"autopilot": autopilot}, timeout=240)
+    for name, spec in CONDITIONS[autopilot].items():
+        if not isinstance(spec, str):
+            assert res["echoed"][name] == [pytest.approx(spec[0]), pytest.approx(spec[1])], name
+    assert "did not confirm ['NO_SUCH_PARAM_X'] within 3 s" in res["refused"]
+    assert res["truth_samples"] >= 20 and res["source"] == {"px4": "HIL_STATE_QUATERNION", "ardupilot": "SIM_STATE"}[
+        autopilot]
+    assert np.all(np.abs(res["truth_position"]) < 0.5)  # standing on the ground where it was captured
