@@ -89,3 +89,14 @@ def test_unseen_changes_are_sitl_parameters_and_the_truth_arrives(autopilot):
     assert res["truth_samples"] >= 20 and res["source"] == {"px4": "HIL_STATE_QUATERNION", "ardupilot": "SIM_STATE"}[
         autopilot]
     assert np.all(np.abs(res["truth_position"]) < 0.5)  # standing on the ground where it was captured
+
+
+def test_the_pipeline_refuses_unknown_conditions_before_starting_a_sitl(tmp_path):
+    from ddpc_codegen.testbed.sitl_demo import run_pipeline
+
+    with pytest.raises(ValueError, match=r"^unknown condition\(s\) \['rain'\]; choose from \['heavy', 'motor', "
+                                         r"'steps', 'wind'\]$"):
+        run_pipeline("px4", str(tmp_path / "x"), conditions=["heavy", "rain"])
+    with pytest.raises(ValueError, match=r"^conditions need the baselines \(the prefilter is fitted there\)$"):
+        run_pipeline("px4", str(tmp_path / "x"), conditions=["heavy"], baselines=False)
+    assert not (tmp_path / "x").exists()
