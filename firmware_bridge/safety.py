@@ -76,6 +76,7 @@ class TickSafety:
         if cand is not None and self.steerer is not None and self.steerer.max_step is not None:
             u = ref["r_nom"] + np.clip(cand - ref["r_nom"], -self.steerer.max_step, self.steerer.max_step)
             flags |= GATE_FLAGS["guard_clamped"]
+            self.gate.counts["guard_clamped"] += 1
         applied, g = self.gate.apply(u, ref["r_nom"])
         if (ref.pop("observed", False) and self.hop is None and self.steerer is not None and self.steerer.ready
                 and not np.array_equal(applied, ref["u"])):
