@@ -90,7 +90,7 @@ def context(oc: OnlineCompletion, base: dict) -> dict:
     ws_words = (4 * rows + 5 * rows + 2.25 * rows * rows + r + r * r + r + r * rows  # arrays of the header
                 + 3 * r * rows + (r + 1) * (r + 2) // 2 + r * (r + 1) // 2 + 12 * (r + 1) + 8 * rows)
     ctx["ws_kib"] = int(ws_words * 8 / 1024) + 1
-    ctx["ws_daqp"] = render("ws_daqp.h.in", n_u=r, n_c=rows, n_u1=r + 1, n_l=(r + 1) * (r + 2) // 2,
+    ctx["ws_daqp"] = render("ws_daqp.h.in", n_z=r, n_c=rows, n_u1=r + 1, n_l=(r + 1) * (r + 2) // 2,
                             n_m=r * rows, n_g1=rows, n_r=r * (r + 1) // 2, daqp_words=DAQP_STRUCT_WORDS,
                             daqp_version=libs.DAQP_VERSION, name=base["name"]).rstrip("\n")
     ctx["daqp_wire"] = render("daqp_wire.in", ws_type=f"{base['name']}_artio_workspace").rstrip("\n")

@@ -85,11 +85,13 @@ def data_arrays(problem: SteeringProblem) -> dict[str, tuple[np.ndarray, str]]:
     pr, c = problem.predictor, problem.config
     width = problem.ug0 - problem.lg0
     bounds = np.concatenate([c.u_min, c.u_max, c.y_min, c.y_max, c.du_max]).astype(float)
+    knots = {} if problem.B is None else {"B": (problem.B.T, "knot basis u = B z, column-major n_u x n_z")}
     return {
-        "K": (problem.K.T, "unconstrained gain, column-major n_u x n_theta"),
+        **knots,
+        "K": (problem.K.T, "unconstrained gain, column-major n_z x n_theta"),
         "K0": (problem.k0, "unconstrained offset"),
-        "LB_U": (problem.lb_u, "simple bounds on u"),
-        "UB_U": (problem.ub_u, "simple bounds on u"),
+        "LB_U": (problem.lb_u, "simple bounds on z (u at the knots)"),
+        "UB_U": (problem.ub_u, "simple bounds on z (u at the knots)"),
         "A_G": (problem.A_g, "general rows, row-major"),
         "A_G_CM": (problem.A_g.T, "general rows, column-major"),
         "WIDTH_G": (width, "u_g - l_g of each general row (independent of theta)"),
@@ -104,12 +106,18 @@ def data_arrays(problem: SteeringProblem) -> dict[str, tuple[np.ndarray, str]]:
 def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -> dict:
     """Every value the templates use (besides the data arrays and the library file lists)."""
     c = problem.config
-    n_u, n_g = problem.n_u, problem.n_g
+    n_z, n_g = problem.n_z, problem.n_g  # the QP's size; n_u: the references over the horizon
+    blocked = problem.B is not None
     ctx = {
         "banner": BANNER, "name": name, "NAME": name.upper(), "backend": backend,
         "backend_id": BACKENDS.index(backend),
-        "m": c.m, "p": c.p, "t_ini": c.t_ini, "t_f": c.t_f, "n_u": n_u, "n_theta": problem.n_theta,
-        "n_g": n_g, "n_g1": max(1, n_g), "n_c": n_u + n_g, "n_w": problem.n_w, "n_y": c.p * c.t_f,
+        "m": c.m, "p": c.p, "t_ini": c.t_ini, "t_f": c.t_f, "n_u": problem.n_u, "n_z": n_z,
+        "blocked": int(blocked), "n_u_ws": problem.n_u if blocked else 1,
+        "knots_note": (f"the references at {len(c.knots)} knots (samples {', '.join(map(str, c.knots))}), linear "
+                       "in between" if blocked else "the steered references over the horizon, time-major"),
+        "knots_c": ", ".join(map(str, c.knots)) if blocked else "0",
+        "n_theta": problem.n_theta,
+        "n_g": n_g, "n_g1": max(1, n_g), "n_c": n_z + n_g, "n_w": problem.n_w, "n_y": c.p * c.t_f,
         "n_sigma": c.p * c.t_ini, "n_bounds": 3 * c.m + 2 * c.p + 1,
         "theta_tail": "; u_nom (m*Tf)" if problem.has_nominal else "",
         "feas_tol": repr(FEAS_TOL), "vector_tol": repr(VECTOR_TOL[backend]),
@@ -117,11 +125,11 @@ def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -
     }
     if backend == "daqp":
         ctx.update(daqp_wire=render("daqp_wire.in", ws_type=f"{name}_workspace").rstrip("\n"),
-                   daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL), n_u1=n_u + 1,
-                   n_l=(n_u + 1) * (n_u + 2) // 2, n_m=max(1, n_u * n_g), n_r=n_u * (n_u + 1) // 2,
+                   daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL), n_u1=n_z + 1,
+                   n_l=(n_z + 1) * (n_z + 2) // 2, n_m=max(1, n_z * n_g), n_r=n_z * (n_z + 1) // 2,
                    daqp_words=DAQP_STRUCT_WORDS)
     else:
-        ctx.update(rho=repr(float(settings["rho"])), eps=repr(float(settings["eps"])), n_uu=n_u * n_u,
+        ctx.update(rho=repr(float(settings["rho"])), eps=repr(float(settings["eps"])), n_uu=n_z * n_z,
                    max_refine=MAX_REFINE)
     return ctx
 

@@ -39,10 +39,12 @@ def build_manifest(problem, name: str, backend: str, module: str, extension: Pat
         "backend": backend,
         "module": module,
         "extension": extension.name,
-        "dims": {"m": c.m, "p": c.p, "t_ini": c.t_ini, "t_f": c.t_f, "n_u": problem.n_u,
+        "dims": {"m": c.m, "p": c.p, "t_ini": c.t_ini, "t_f": c.t_f, "n_u": problem.n_u, "n_z": problem.n_z,
                  "n_theta": problem.n_theta, "n_g": problem.n_g, "n_y": c.p * c.t_f, "n_sigma": c.p * c.t_ini},
         "signals": {"inputs": list(c.input_names), "outputs": list(c.output_names), "dt": c.dt},
         "R_mode": c.R_mode,
+        # the QP variable: the references at these samples, linear in between (null: every sample)
+        "knots": None if c.knots is None else list(c.knots),
         "has_nominal": problem.has_nominal,
         "bounds": {"u_min": _inf_list(c.u_min), "u_max": _inf_list(c.u_max), "y_min": _inf_list(c.y_min),
                    "y_max": _inf_list(c.y_max), "du_max": _inf_list(c.du_max)},

@@ -24,7 +24,7 @@ def osqp_embedded_solver(problem: SteeringProblem, settings: dict, rho: float | 
     """The OSQP object the backend is generated from (P, A fixed; q, l, u per tick; no adaptive rho)."""
     l0, u0 = _bounds(problem)
     s = osqp.OSQP()
-    s.setup(sp.triu(sp.csc_matrix(problem.P), format="csc"), np.zeros(problem.n_u), sp.csc_matrix(problem.A),
+    s.setup(sp.triu(sp.csc_matrix(problem.P), format="csc"), np.zeros(problem.n_z), sp.csc_matrix(problem.A),
             l0, u0, rho=float(settings["rho"] if rho is None else rho), adaptive_rho=False, verbose=False,
             eps_abs=float(settings["eps"]), eps_rel=float(settings["eps"]), max_iter=int(settings["max_iter"]),
             warm_starting=True, polishing=False)

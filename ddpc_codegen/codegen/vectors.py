@@ -71,7 +71,8 @@ def _easy_thetas(problem: SteeringProblem, n: int, seed: int) -> np.ndarray:
 
 
 def violation(problem: SteeringProblem, z: np.ndarray, th: np.ndarray) -> float:
-    """Largest bound violation of z at theta relative to max(1, |bound|) (the C solver's measure)."""
+    """Largest violation of the QP's rows by its variable z (n_z,) at theta relative to max(1, |bound|)
+    (the C solver's measure; with knots the C solver also checks every tick, as ``problem.check`` does)."""
     _, l, u = problem.qp_vectors(th)
     az = np.concatenate([z, problem.A_g @ z])
     with np.errstate(invalid="ignore"):
@@ -91,12 +92,12 @@ def record(problem: SteeringProblem, n: int = 48, seed: int = 0, feas_tol: float
     us, sts, fast = [], [], []
     for th in thetas:
         r = problem.solve_theta(th, solver="exact")
-        z = np.asarray(r.u, dtype=float).ravel()
-        ok = r.ok and np.all(np.isfinite(z)) and violation(problem, z, th) <= feas_tol
-        us.append(z if ok else np.full(problem.n_u, np.nan))
+        u = np.asarray(r.u, dtype=float).ravel()
+        ok = r.ok and np.all(np.isfinite(u)) and violation(problem, problem.to_z(u), th) <= feas_tol
+        us.append(u if ok else np.full(problem.n_u, np.nan))
         sts.append(0 if ok else STATUS_CODES.get(r.status if not r.ok else "unverified", -4))
         zf = problem.unconstrained(th)
-        fast.append(bool(ok and violation(problem, zf, th) <= feas_tol))
+        fast.append(bool(ok and violation(problem, zf, th) <= feas_tol and problem.check(zf, th) == "solved"))
     return Vectors(thetas, np.array(us), np.array(sts, dtype=int), np.array(fast, dtype=bool))
 
 

@@ -56,6 +56,10 @@ def _check_schema(path: Path, man: object) -> dict:
         v = man["bounds"].get(key)
         if not isinstance(v, list) or not all(x is None or isinstance(x, (int, float)) for x in v):
             raise ManifestError(f"{path}: bounds.{key} must be a list of numbers or null, got {v!r}")
+    knots = man.get("knots")  # absent in solvers generated before knots existed: every sample free
+    if knots is not None and (not isinstance(knots, list) or not all(
+            isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in knots)):
+        raise ManifestError(f"{path}: 'knots' must be a list of sample indices or null, got {knots!r}")
     art = man.get("artificial_io")
     if art is not None:
         if not isinstance(art, dict):

@@ -195,8 +195,9 @@ def test_regenerating_gives_identical_bytes(problem, tmp_path):
 def test_manifest_contents_and_mismatch_refused(problem, plant, solvers, tmp_path):
     s = solvers["daqp"]
     man = s.manifest
-    assert man["dims"] == {"m": M, "p": P, "t_ini": TI, "t_f": TF, "n_u": M * TF, "n_theta": problem.n_theta,
+    assert man["dims"] == {"m": M, "p": P, "t_ini": TI, "t_f": TF, "n_u": M * TF, "n_z": M * TF, "n_theta": problem.n_theta,
                            "n_g": problem.n_g, "n_y": P * TF, "n_sigma": P * TI}
+    assert man["knots"] is None  # every sample free
     assert man["config_hash"] == problem.config.digest and man["predictor_hash"] == problem.predictor.digest
     assert man["bounds"]["u_max"] == [1.5, 1.2] and man["versions"]["casadi"] and man["compiler"]["flags"]
     assert "-march=native" not in man["compiler"]["flags"]
