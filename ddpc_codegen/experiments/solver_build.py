@@ -23,6 +23,7 @@ from ddpc_codegen.design.hopping_data import ArtificialIOSpec, is_hopping_config
 from ddpc_codegen.design.match import conform_dataset
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.design.step_response import settling_report
 from ddpc_codegen.errors import ConfigError, DataError
 
 __all__ = ["BuiltSolver", "FleetOptions", "build_solver", "load_checked", "noise_warning", "PROVENANCE_KEYS"]
@@ -185,6 +186,9 @@ def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: 
     report["fit_s"] = round(time.perf_counter() - t0, 3)
     log(f"  excitation: {pred.excitation().summary()}")
     log(f"  predictor: {pred.method}, rank {pred.rank}, fitted in {report['fit_s']:.2f} s")
+    lines, warnings = settling_report(pred)  # does the horizon cover the loop the data describe?
+    for line in lines + warnings:
+        log("  " + line)
     built.problem, built.report = SteeringProblem(pred, cfg), report
     if out is not None:
         from ddpc_codegen.codegen import generate
