@@ -235,7 +235,14 @@ def test_prefilter_mode_sends_the_prefilter_law_over_the_link(tmp_path):
     # one tick apart on the trajectory clock (lock-step: every tick is one period)
     np.testing.assert_allclose(t["t_traj"][k + d] - t["t_traj"][k], d * 0.005, atol=1e-9)
     want = t["r_nom"][k, 0] + (t["y_des"][k + d, 0] - c) / g - t["y_des"][k, 0]
-    np.testing.assert_allclose(t["u"][k, 0], want, atol=1e-9)
+    # The first prefilter ticks after the hand-over: the last gate moves the correction toward the law at
+    # its rate (25 mm per tick, the envelope's default 5 m/s) instead of stepping; the law holds after.
+    from firmware_bridge.gate import GATE_FLAGS
+
+    limited = (t["gate"][k] & GATE_FLAGS["rate_limited"]) != 0
+    assert limited.sum() < 10 and not limited[-100:].any()
+    np.testing.assert_allclose(t["u"][k[~limited], 0], want[~limited], atol=1e-9)
+    assert np.all(np.abs(np.diff(t["u"][k[:12], 0])) <= 0.025 + np.abs(np.diff(t["r_nom"][k[:12], 0])) + 1e-9)
     np.testing.assert_allclose(t["u"][k, 1], t["r_nom"][k, 1], atol=1e-12)
     assert s["prefilter"]["model"]["lead"] == [d, 0]
 
