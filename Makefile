@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test lint docs demo codegen bench bridge-demo sitl-demo clean
+.PHONY: install test test-durations lint docs demo codegen bench bridge-demo sitl-demo clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -23,9 +23,23 @@ $(LIBS_STAMP): ddpc_codegen/codegen/libs.py | $(STAMP)
 	@touch $(LIBS_STAMP)
 
 # Lint first (seconds), then every test tier (markers: e2e, realtime, compiler, sitl, slow; select
-# one with `$(PY) -m pytest -m compiler`).
+# one with `$(PY) -m pytest -m compiler`) in two phases: what tolerates a second process runs on
+# TEST_WORKERS pytest-xdist workers, a test file per worker (module fixtures built once); the tiers
+# that measure wall-clock time (realtime, sitl) then run alone. Both phases run (unless interrupted)
+# and the target fails if either fails, or if neither ran a test (PYTEST_ARGS may narrow both);
+# solvers are built once for both (DDPC_TEST_CACHE, tests/support/solver_cache.py).
+TEST_WORKERS ?= auto
+SERIAL_TIERS := realtime or sitl
+PHASE_RC = r=$$?; [ $$r -eq 2 ] && exit 2; [ $$r -eq 5 ] || { ran=1; [ $$r -eq 0 ] || rc=$$r; }
 test: install lint
-	$(PY) -m pytest -q
+	@export DDPC_TEST_CACHE=$$(mktemp -d); rc=0; ran=0; \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not ($(SERIAL_TIERS))" $(PYTEST_ARGS); $(PHASE_RC); \
+	$(PY) -m pytest -q -m "$(SERIAL_TIERS)" $(PYTEST_ARGS); $(PHASE_RC); \
+	rm -rf $$DDPC_TEST_CACHE; [ $$ran -eq 1 ] || rc=5; exit $$rc
+
+# Re-measure every test serially into tests/durations.json (sets the `slow` marker; see tests/conftest.py).
+test-durations: install
+	$(PY) -m pytest -q --record-durations $(PYTEST_ARGS)
 
 lint: install
 	$(VENV)/bin/ruff check .

@@ -27,10 +27,20 @@ def problems() -> dict[str, SteeringProblem]:
 
 
 @pytest.fixture(scope="session")
-def generated(problems, tmp_path_factory) -> dict[tuple[str, str], Path]:
-    """(size, backend) -> generated folder named ``<size>_<backend>`` (the solver name too)."""
+def generated(request, tmp_path_factory) -> dict[tuple[str, str], Path]:
+    """(size, backend) -> generated folder named ``<size>_<backend>`` (the solver name too); built once
+    per test run for every xdist worker (:mod:`solver_cache`), the problems formed only when building."""
     from ddpc_codegen.codegen import generate
+    from support.solver_cache import cache_root, shared_build
 
-    root = tmp_path_factory.mktemp("solvers")
-    return {(s, b): generate(problems[s], root / f"{s}_{b}", backend=b, name=f"{s}_{b}")
-            for s in SIZES for b in BACKENDS}
+    def build(folder: Path) -> None:
+        problems = request.getfixturevalue("problems")
+        for s in SIZES:
+            for b in BACKENDS:
+                generate(problems[s], folder / f"{s}_{b}", backend=b, name=f"{s}_{b}")
+
+    # sized_problem's inputs are code (bench.build_problem, seed 0) and the bounds, so the code digest
+    # in the key covers them
+    recipe = {"what": "codegen test solvers", "sizes": SIZES, "backends": BACKENDS, "y_bound": 0.25}
+    folder = shared_build(cache_root(tmp_path_factory.getbasetemp()), recipe, build)
+    return {(s, b): folder / f"{s}_{b}" for s in SIZES for b in BACKENDS}

@@ -202,26 +202,27 @@ def procs(tmp_path):
         pr.cleanup()
 
 
-_SOLVERS: dict[str, Path] = {}
-
-
 @pytest.fixture(scope="session")
 def flying_solver(tmp_path_factory) -> Path:
     """A steering solver for the flying loop: 30 s of PRBS-excited in-process data, lsq predictor,
-    configs/flying.toml otherwise, DAQP backend (~3-5 s; built once per session even though several
-    modules import this fixture)."""
+    configs/flying.toml otherwise, DAQP backend (~3-5 s; built once per test run, shared by every
+    xdist worker and both phases of ``make test`` through :mod:`solver_cache`)."""
+    from support.solver_cache import cache_root, shared_build
+
+    toml = ROOT / "configs" / "flying.toml"
+    recipe = {"what": "bridge flying solver", "sim": ["flying", 30.0, True, 11, True], "predictor": "lsq",
+              "backend": "daqp", "name": "bridge_test_flying", "config": toml.read_text()}
+    return shared_build(cache_root(tmp_path_factory.getbasetemp()), recipe, _build_flying_solver) / "flying"
+
+
+def _build_flying_solver(folder: Path) -> None:
     from ddpc_codegen import SteeringConfig, SteeringProblem, fit_predictor, generate
     from ddpc_codegen.sim import simulate
 
-    if "flying" in _SOLVERS:
-        return _SOLVERS["flying"]
-    out = tmp_path_factory.mktemp("solver") / "flying"
     ds = simulate("flying", 30.0, excitation=True, seed=11, noise=True).to_dataset()
     cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml").replace(predictor={"method": "lsq"})
     pred = fit_predictor(ds, cfg.t_ini, cfg.t_f, method="lsq")
-    generate(SteeringProblem(pred, cfg), out, backend="daqp", name="bridge_test_flying")
-    _SOLVERS["flying"] = out
-    return out
+    generate(SteeringProblem(pred, cfg), folder / "flying", backend="daqp", name="bridge_test_flying")
 
 
 @pytest.fixture
