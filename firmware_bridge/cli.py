@@ -256,6 +256,11 @@ def format_summary(s: dict) -> str:
         f"  rmse z (telemetry, after settle) {f(s['rmse_z_measured'], '{:.4f}')} m  "
         f"link rx {s['link'].get('rx', 0)} bad {s['link'].get('bad_data', 0)} foreign {s['link'].get('foreign', 0)}",
     ]
+    g = s.get("gate")
+    if g is not None:
+        lines.append(f"  gate: rate-limited {g['rate_limited']}  envelope {g['envelope']}  non-finite "
+                     f"{g['nonfinite_reference'] + g['nonfinite_setpoint']}  guard clamped {g['guard_clamped']}  "
+                     f"stalls {len(s.get('stalls', []))}  telemetry dropped {s.get('telemetry_dropped', 0)}")
     if "hopping" in s:
         h = s["hopping"]
         lines.append(f"  hopping: phases from {h['contact_source']}, touchdowns {h['touchdowns']} liftoffs {h['liftoffs']}"
