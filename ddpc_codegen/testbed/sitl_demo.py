@@ -213,25 +213,8 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
                                  for name in conditions}
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     if baselines:
-        fp = flight_figures(out / f"{autopilot}_prefilter.npz")
-        fc = flight_figures(out / f"{autopilot}_ctrl_ff.npz")
-        res["baselines"] = {
-            "rmse_z": {"passthrough": fb["rmse_z"], "ctrl_ff": fc["rmse_z"], "prefilter": fp["rmse_z"],
-                       "ilc": ilc["rmse_z"], "steered": fs["rmse_z"]},
-            "rmse_z_truth": {"passthrough": fb["rmse_z_truth"], "ctrl_ff": fc["rmse_z_truth"],
-                             "prefilter": fp["rmse_z_truth"], "ilc": ilc["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
-            "thrust_step_rms": {"passthrough": fb["thrust_step_rms"], "ctrl_ff": fc["thrust_step_rms"],
-                                "prefilter": fp["thrust_step_rms"], "ilc": ilc["thrust_step_rms_per_iteration"][-1],
-                                "steered": fs["thrust_step_rms"]},
-            "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"],
-            "ilc": ilc,
-        }
-        res.setdefault("conditions", {})
-        res["conditions"] = {"ellipse": {k: res["baselines"][k] for k in ("rmse_z", "rmse_z_truth", "thrust_step_rms")}
-                             | {"estimator_rms": fb["estimator_rms"],
-                                "max_ref_step": {"passthrough": fb["max_ref_step"], "ctrl_ff": fc["max_ref_step"],
-                                                 "prefilter": fp["max_ref_step"], "steered": fs["max_ref_step"]}},
-                             **res["conditions"]}
+        res["baselines"], ellipse = ellipse_figures(out, autopilot, ilc)
+        res["conditions"] = {"ellipse": ellipse, **res.get("conditions", {})}
     res.update({
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
         "rmse_z_truth": {"baseline": fb["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
@@ -244,6 +227,23 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         "wall_s": round(time.monotonic() - t0, 1),
     })
     return res
+
+
+def ellipse_figures(out: Path, autopilot: str, ilc: dict) -> tuple[dict, dict]:
+    """The ellipse's flights (passthrough, ctrl ff, prefilter, ILC, steered) in ``out``: the
+    ``baselines`` figures, and the same as a condition (estimator error and reference steps too)."""
+    f = {m: flight_figures(out / f"{autopilot}_{name}.npz") for m, name in
+         (("passthrough", "passthrough"), ("ctrl_ff", "ctrl_ff"), ("prefilter", "prefilter"), ("steered", "steer"))}
+    pick = lambda key, ilc_value: {"passthrough": f["passthrough"][key], "ctrl_ff": f["ctrl_ff"][key],  # noqa: E731
+                                   "prefilter": f["prefilter"][key], "ilc": ilc_value, "steered": f["steered"][key]}
+    baselines = {"rmse_z": pick("rmse_z", ilc["rmse_z"]), "rmse_z_truth": pick("rmse_z_truth", ilc["rmse_z_truth"]),
+                 "thrust_step_rms": pick("thrust_step_rms", ilc["thrust_step_rms_per_iteration"][-1]),
+                 "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"], "ilc": ilc}
+    est = [v["estimator_rms"] for v in f.values() if v["estimator_rms"] is not None]
+    ellipse = {k: baselines[k] for k in ("rmse_z", "rmse_z_truth", "thrust_step_rms")}
+    ellipse.update(estimator_rms=float(np.sqrt(np.mean(np.square(est)))) if est else None,
+                   max_ref_step={m: v["max_ref_step"] for m, v in f.items()})
+    return baselines, ellipse
 
 
 def main(argv: list[str] | None = None) -> int:
