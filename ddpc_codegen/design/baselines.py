@@ -143,6 +143,9 @@ def fit_prefilter(u, y=None, *, max_lead: int = 200, dt: float | None = None, sm
     if any(a.shape[1] != m or b.shape[1] != m or a.shape[0] != b.shape[0] for a, b in segs):
         raise DataError(f"the prefilter needs u and y of equal length with m == p channels; got "
                         f"{[(a.shape, b.shape) for a, b in segs]}")
+    # A segment no longer than max_lead has no sample that every lead can use (seen: a 117-tick piece
+    # of an ArduCopter collect log between two stale stretches, with max_lead 200).
+    segs = [(a, b) for a, b in segs if a.shape[0] > max_lead]
     if sum(max(a.shape[0] - max_lead, 0) for a, _ in segs) < 3 * (max_lead + 2):
         raise DataError(f"too few samples ({sum(a.shape[0] for a, _ in segs)}) to fit a prefilter with "
                         f"max_lead={max_lead}; record longer or lower max_lead")

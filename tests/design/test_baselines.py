@@ -57,6 +57,16 @@ def test_prefilter_with_noise_within_stated_tolerance():
     assert pf.lead == LEAD
 
 
+def test_prefilter_skips_trajectories_shorter_than_the_largest_lead():
+    """A log split by stale stretches has short pieces: they carry no sample every lead can use."""
+    u = _inputs()
+    short = _inputs(15, seed=3)
+    pf = fit_prefilter([u, short], [_static_loop(u), _static_loop(short)], max_lead=20, dt=0.005)
+    ref = fit_prefilter(u, _static_loop(u), max_lead=20, dt=0.005)
+    np.testing.assert_array_equal(pf.gain, ref.gain)
+    assert pf.lead == ref.lead == LEAD
+
+
 def test_prefilter_smoothing_keeps_the_static_model():
     """A unity-DC low-pass commutes with y = g u[k-d] + c: the same model, to the filter's edge
     effects at the ends of the record (0.5 % in gain, 2 mm in offset here)."""
