@@ -2,15 +2,16 @@
 
 Only when adaptation is enabled: the non-adaptive folder is unchanged. The C is the twin of
 :class:`ddpc_codegen.runtime.adaptation.Adapter` (sizes fixed here, state in a caller-owned workspace):
-the shipped R factor, the channel scale and the QP Hessian model (:func:`ddpc_codegen.design.adaptation.hessian_model`)
-are its constant data.
+the shipped R factor, the channel scale and the QP model (:func:`ddpc_codegen.design.adaptation.qp_model`: the
+maps from G to the solver's Hessian, linear-term map, output rows and gain) are its constant data.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
+import itertools
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -21,36 +22,61 @@ from ddpc_codegen.runtime.adaptation import AdaptSettings
 
 __all__ = ["emit_adapt", "cdef_text", "context", "compile_alone"]
 
+_SERIAL = itertools.count()  # a process cannot dlopen two builds under one module name
+
 
 def _c(x: float) -> str:
     r = repr(float(x))
     return r if ("." in r or "e" in r) else r + ".0"
 
 
-def context(ad, name: str, banner: str) -> dict:
-    """Template values of the update of ``ad`` (an :class:`~ddpc_codegen.runtime.adaptation.Adapter`)."""
-    lay, s = ad.layout, ad.settings
-    w, q, nu, nf = lay.width, lay.q_y + lay.q_s, lay.u_rows.size, lay.m * lay.t_f
-    ws_words = 2 * w * w + 2 * q * lay.r + s.window * w + w + nu * nu + nf * nf
+def _pairs(M: np.ndarray) -> tuple[np.ndarray, str, int]:
+    """(values, "i0, j0, i1, j1, ..." , count) of the nonzeros of M, row by row (C has no empty arrays:
+    a zero matrix gives one unread pair)."""
+    i, j = np.nonzero(M)
+    idx = ", ".join(f"{a}, {b}" for a, b in zip(i.tolist(), j.tolist())) or "0, 0"
+    return M[i, j], idx, int(i.size)
+
+
+def context(ad, problem, name: str, banner: str) -> dict:
+    """Template values of the update of ``ad`` (an :class:`~ddpc_codegen.runtime.adaptation.Adapter` with a
+    QP model) for the solver of ``problem``."""
+    lay, s, qp = ad.layout, ad.settings, ad.qp
+    w, q, nu = lay.width, lay.q_y + lay.q_s, lay.u_rows.size
+    n_z, n_g1, n_th = problem.n_z, max(1, problem.n_g), problem.n_theta
+    n_o, n_wu = qp.Lm.shape[0], qp.Rm.shape[1]
+    qp_words = 2 * (n_z * n_z + 2 * n_g1 * n_z + 2 * n_z * n_th + n_g1 * n_th) + n_o * (lay.r + n_wu + 2 * n_z)
+    ws_words = 2 * w * w + 2 * q * lay.r + s.window * w + w + nu * nu + qp_words + n_z * n_z
+    sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
             "window": s.window, "forgetting": _c(s.forgetting), "period_ticks": s.period_ticks,
-            "w2": w * w, "qr": q * lay.r, "ring": s.window * w, "nu2": nu * nu, "nf2": nf * nf, "n_urows": nu,
+            "w2": w * w, "qr": q * lay.r, "ring": s.window * w, "nu2": nu * nu, "n_urows": nu,
             "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": _c(ad.slack_weight), "ridge": _c(ad.ridge),
             "rcond": _c(ad.rcond), "max_change": _c(s.max_change), "min_excitation": _c(s.min_excitation),
-            "check_hessian": int(ad.hessian is not None)}
+            "n_z": n_z, "n_g": problem.n_g, "n_g1": n_g1, "n_theta": n_th, "n_w": problem.n_w, "n_y": qp.n_y,
+            "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
+            "y_rows": ", ".join(map(str, qp.y_rows.tolist())) or "0",
+            "nz2": n_z * n_z, "ngz": n_g1 * n_z, "nzth": n_z * n_th, "ngth": n_g1 * n_th,
+            "n_lg": n_o * lay.r, "n_gd": n_o * n_wu, "n_gu": n_o * n_z,
+            **{f"{k}_ij": v[1] for k, v in sparse.items()}, **{f"n_{k}": v[2] for k, v in sparse.items()},
+            "_sparse": {k: v[0] for k, v in sparse.items()}}
 
 
-def data_arrays(ad) -> dict[str, tuple[np.ndarray, str]]:
+def data_arrays(ad, ctx: dict) -> dict[str, tuple[np.ndarray, str]]:
     """Constant arrays of the update (suffix -> (values, comment))."""
-    lay = ad.layout
-    q, nf = lay.q_y + lay.q_s, lay.m * lay.t_f
-    hm = ad.hessian
+    lay, qp = ad.layout, ad.qp
+    sp = ctx["_sparse"]
     return {
         "ADAPT_R0": (ad.R, f"shipped R factor of the scaled fit data, row-major {lay.width} x {lay.width}"),
         "ADAPT_SCALE": (ad.scale, "channel scale (u then y) of the fit"),
-        "ADAPT_WH": (hm.W if hm is not None else np.zeros((q, q)), f"Hessian model W, row-major {q} x {q}"),
-        "ADAPT_PFIX": (hm.P_fixed if hm is not None else np.zeros((nf, nf)), f"Hessian model P_fixed, {nf} x {nf}"),
+        "ADAPT_LM": (sp["lm"], "nonzeros of Lm: data-unit predictor rows of the fit's targets"),
+        "ADAPT_RM": (sp["rm"], "nonzeros of Rm: fit regressors -> data-unit [w; u] columns"),
+        "ADAPT_C0": (sp["c0"], "nonzeros of C0: the constant part of the data-unit predictor"),
+        "ADAPT_B": (sp["b"], "nonzeros of the knot basis u = B z"),
+        "ADAPT_WD": (sp["wd"], "nonzeros of Wd: the cost's weight on the predicted [y; sigma]"),
+        "ADAPT_PFIX": (qp.P_fixed, "the part of P independent of G, row-major n_z x n_z"),
+        "ADAPT_FFIX": (qp.F_fixed.T, "the part of F_q independent of G, column-major n_z x n_theta"),
     }
 
 
@@ -58,8 +84,8 @@ def emit_adapt(problem, settings: AdaptSettings, out_dir: Path, name: str, banne
     """Write ``<name>_adapt.{h,c}`` and ``<name>_adapt_data.{h,c}`` into ``out_dir``; returns the compilation
     units. ``data_files(arrays, ctx, stem)`` renders constant arrays (emit's helper)."""
     ad = adapter(problem, settings)
-    ctx = context(ad, name, banner)
-    h, c = data_files(data_arrays(ad), ctx, f"{name}_adapt_data")
+    ctx = context(ad, problem, name, banner)
+    h, c = data_files(data_arrays(ad, ctx), ctx, f"{name}_adapt_data")
     (out_dir / f"{name}_adapt_data.h").write_text(h)
     (out_dir / f"{name}_adapt_data.c").write_text(c)
     for tpl, fname in (("adapt.h.in", "adapt.h"), ("adapt.c.in", "adapt.c")):
@@ -70,35 +96,32 @@ def emit_adapt(problem, settings: AdaptSettings, out_dir: Path, name: str, banne
 def cdef_text(name: str) -> str:
     """The update's C API as cffi declares it."""
     return f"""
+typedef struct {{ const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM; }} {name}_qpdata;
 typedef struct {{ int updates; int skipped; int resolves; int accepted; int swaps; int clipped; int rejected[6];
                  double error_current; double error_candidate; double excitation; }} {name}_adapt_counts;
 typedef struct {{ double R[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...]; double x[...];
-                 double Rx[...]; double H[...]; int head; int n_ring; int pending; {name}_adapt_counts counts; ...; }}
+                 double Rx[...]; {name}_qpdata qd[2]; int head; int n_ring; int pending; int spare;
+                 {name}_adapt_counts counts; ...; }}
         {name}_adapt_workspace;
 int {name}_adapt_init({name}_adapt_workspace *ws);
 int {name}_adapt_push({name}_adapt_workspace *ws, const double *window);
 int {name}_adapt_resolve({name}_adapt_workspace *ws);
-int {name}_adapt_swap({name}_adapt_workspace *ws);
+int {name}_adapt_swap({name}_adapt_workspace *ws, {name}_workspace *solver);
 """
 
 
 def compile_alone(problem, settings: AdaptSettings, folder: Path, name: str):
-    """Emit and compile the update on its own (cffi, the package's portable flags) for tests and the
-    benchmark; returns the module's (ffi, lib). A solver's own extension carries it via ``generate(adapt=)``."""
-    import cffi
-
-    from ddpc_codegen.codegen.build import PORTABLE_FLAGS
-    from ddpc_codegen.codegen.emit import BANNER, data_files
+    """Emit the adaptive solver (daqp backend) into ``folder`` and compile it with cffi (the package's portable
+    flags) without test vectors or manifest, for tests and the benchmark; returns the module's (ffi, lib)."""
+    from ddpc_codegen.codegen.build import compile_extension
+    from ddpc_codegen.codegen.emit import DEFAULTS, emit_sources
 
     folder = Path(folder)
-    units = emit_adapt(problem, settings, folder, name, BANNER, data_files)
-    ffi = cffi.FFI()
-    ffi.cdef(cdef_text(name))
-    module = f"_adapt_alone_{name}"
-    ffi.set_source(module, f'#include "{name}_adapt.h"\n', sources=[str(u) for u in units],
-                   include_dirs=[str(folder)], libraries=["m"], extra_compile_args=PORTABLE_FLAGS)
-    built = ffi.compile(tmpdir=tempfile.mkdtemp(dir=folder))
-    spec = importlib.util.spec_from_file_location(module, built)
+    settings = dataclasses.replace(settings, enabled=True)
+    units = emit_sources(problem, folder, name, "daqp", dict(DEFAULTS["daqp"]), adapt=settings)
+    module = f"_adapt_alone_{name}_{next(_SERIAL)}"
+    ext, _ = compile_extension(folder, name, module, units, "daqp", adapt=True)
+    spec = importlib.util.spec_from_file_location(module, ext)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[module] = mod
     spec.loader.exec_module(mod)

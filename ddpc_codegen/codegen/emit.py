@@ -80,8 +80,9 @@ def _values(a: np.ndarray) -> str:
     return ",\n  ".join(", ".join(c_float(v) for v in flat[i : i + 6]) for i in range(0, flat.size, 6))
 
 
-def data_arrays(problem: SteeringProblem) -> dict[str, tuple[np.ndarray, str]]:
-    """Constant arrays (suffix -> (values, comment)); layouts as the C code reads them."""
+def data_arrays(problem: SteeringProblem, adaptive: bool = False) -> dict[str, tuple[np.ndarray, str]]:
+    """Constant arrays (suffix -> (values, comment)); layouts as the C code reads them. ``adaptive``: also the
+    parameter maps as matrices (an adaptive solver applies rebuilt ones instead of CasADi's baked C)."""
     pr, c = problem.predictor, problem.config
     width = problem.ug0 - problem.lg0
     bounds = np.concatenate([c.u_min, c.u_max, c.y_min, c.y_max, c.du_max]).astype(float)
@@ -100,6 +101,37 @@ def data_arrays(problem: SteeringProblem) -> dict[str, tuple[np.ndarray, str]]:
         "GY": (np.hstack([pr.Gy_w, pr.Gy_u]).T, "y predictor [Gy_w Gy_u], column-major"),
         "GS": (np.hstack([pr.Gs_w, pr.Gs_u]).T, "slack predictor [Gs_w Gs_u], column-major"),
         "BOUNDS": (bounds, "u_min, u_max, y_min, y_max, du_max per channel"),
+        **({"F_Q_CM": (problem.F_q.T, "linear-term map q = F_q theta + q0, column-major n_z x n_theta"),
+            "Q0": (problem.q0, "linear term at theta = 0"),
+            "F_G_CM": (problem.F_g.T, "row-bound map l_g = F_g theta + lg0, column-major n_g x n_theta"),
+            "LG0": (problem.lg0, "l_g at theta = 0"), "UG0": (problem.ug0, "u_g at theta = 0")} if adaptive else {}),
+    }
+
+
+def adapt_context(name: str, adaptive: bool) -> dict:
+    """The placeholders of solver.{h,c} and qp_daqp.c that differ in an adaptive solver; without adaptation
+    they render exactly the non-adaptive text (the plain build stays byte for byte)."""
+    if not adaptive:
+        return {"ws_adapt": "", "qpdata_decl": "", "init_qd": "", "qd_shipped": "",
+                "reset_body": f"{{ (void){name}_init(ws); }}", "sym_A_G_CM": f"{name}_A_G_CM", "sym_K": f"{name}_K",
+                "sym_P": f"{name}_P", "sym_A_G": f"{name}_A_G",
+                "bounds_call": f"call_casadi({name}_bounds_map, theta, ws->lg, ws->ug);",
+                "q_call": f"call_casadi({name}_param_map_q, theta, ws->q, 0);"}
+    return {
+        "ws_adapt": f"\n  const {name}_qpdata *qd; /* the QP data in use: shipped, or a verified online rebuild */",
+        "qpdata_decl": ("\n\n/* The QP data online adaptation rebuilds (layouts as in <name>_data.h); a workspace reads them "
+                        "through\n * its qd pointer, which <name>_adapt_swap moves between ticks. */\ntypedef struct {\n"
+                        "  const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM;\n"
+                        f"}} {name}_qpdata;"),
+        "init_qd": f"\n  ws->qd = &{name}_qd_shipped; /* (re)initialising returns to the shipped QP data */",
+        "qd_shipped": (f"\n\nstatic const {name}_qpdata {name}_qd_shipped = {{{name}_P, {name}_A_G, {name}_A_G_CM, "
+                       f"{name}_K, {name}_F_Q_CM,\n                                             {name}_F_G_CM}};"),
+        "reset_body": (f"{{\n  const {name}_qpdata *qd = ws->qd; /* a failed tick keeps the swapped-in data */\n"
+                       f"  (void){name}_init(ws);\n  ws->qd = qd;\n  if ({name}_qp_init(ws) != 0) ws->ready = 0;\n}}"),
+        "sym_A_G_CM": "ws->qd->A_G_CM", "sym_K": "ws->qd->K", "sym_P": "ws->qd->P", "sym_A_G": "ws->qd->A_G",
+        "bounds_call": (f"matvec(ws->qd->F_G_CM, theta, N_G, N_THETA, {name}_LG0, ws->lg);\n"
+                        f"  matvec(ws->qd->F_G_CM, theta, N_G, N_THETA, {name}_UG0, ws->ug);"),
+        "q_call": f"matvec(ws->qd->F_Q_CM, theta, N_Z, N_THETA, {name}_Q0, ws->q);",
     }
 
 
@@ -185,15 +217,22 @@ def _build_files(out_dir: Path, ctx: dict, units: list[Path], includes: list[str
 
 
 def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: str, settings: dict,
-                 artio=None) -> list[Path]:
+                 artio=None, adapt=None) -> list[Path]:
     """Write every source and build file of the solver into ``out_dir``; returns the library's
     compilation units (what CMake, the Makefile and the Python extension all compile).
     ``artio`` (an :class:`~ddpc_codegen.codegen.artio.OnlineCompletion`, hopping): also emit the
-    generated artificial-IO completion (with DAQP's sources, whatever the steering backend)."""
+    generated artificial-IO completion (with DAQP's sources, whatever the steering backend).
+    ``adapt`` (an enabled :class:`~ddpc_codegen.runtime.adaptation.AdaptSettings`): also emit the online
+    update (``<name>_adapt.{h,c}``) and read the G-dependent QP data through the workspace (daqp only)."""
     if backend not in BACKENDS:
         raise CodegenError(f"unknown backend {backend!r}; choose one of {list(BACKENDS)}")
+    adaptive = adapt is not None and adapt.enabled
+    if adaptive and backend != "daqp":
+        raise CodegenError(f"online adaptation ([adapt] enabled) needs the daqp backend; got {backend!r} (the "
+                           "embedded OSQP bakes the Hessian and the constraint matrix into its generated workspace)")
     out_dir.mkdir(parents=True, exist_ok=True)
     ctx = context(problem, name, backend, settings)
+    ctx.update(adapt_context(name, adaptive))
     ctx.update(_param_maps(problem, name, out_dir))
     if artio is not None:
         artio.check()  # before anything slow is emitted
@@ -211,7 +250,7 @@ def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: st
                             if artio is not None else "/* no artificial-IO completion: not a hopping solver */")
     ctx["artio_example"] = render("artio_example.in", name=name, NAME=name.upper()) if artio is not None else ""
     ctx["ws_backend"] = render_ctx(f"ws_{backend}.h.in", ctx).rstrip("\n")
-    h, c = data_files(data_arrays(problem), ctx, f"{name}_data")
+    h, c = data_files(data_arrays(problem, adaptive), ctx, f"{name}_data")
     (out_dir / f"{name}_data.h").write_text(h)
     (out_dir / f"{name}_data.c").write_text(c)
     for tpl, fname in (("solver.h.in", "solver.h"), ("solver.c.in", "solver.c"), ("qp.h.in", "qp.h"),
@@ -223,8 +262,13 @@ def emit_sources(problem: SteeringProblem, out_dir: Path, name: str, backend: st
         from ddpc_codegen.codegen.artio import emit_artio
 
         units += emit_artio(artio, out_dir, ctx, data_files)
+    if adaptive:
+        from ddpc_codegen.codegen.adapt import emit_adapt
+
+        units += emit_adapt(problem, adapt, out_dir, name, ctx["banner"], data_files)
     _build_files(out_dir, ctx, units, includes)
+    hidden = {"ws_backend", "daqp_wire"} | (set() if adaptive else set(adapt_context(name, False)))
     (out_dir / "codegen_context.json").write_text(json.dumps(
-        {k: v for k, v in ctx.items() if k not in ("ws_backend", "daqp_wire")}, indent=1, sort_keys=True) + "\n")
+        {k: v for k, v in ctx.items() if k not in hidden}, indent=1, sort_keys=True) + "\n")
     return units
 

@@ -19,11 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.codegen import vectors as test_vectors
-from ddpc_codegen.codegen.adapt import emit_adapt
 from ddpc_codegen.codegen.artio import OnlineCompletion, manifest_entry
 from ddpc_codegen.codegen.build import compile_extension
-from ddpc_codegen.codegen.emit import (BACKENDS, BANNER, DEFAULTS, VECTOR_TOL, VECTORS_FILE, check_name, data_files,
-                                      emit_sources)
+from ddpc_codegen.codegen.emit import (BACKENDS, DEFAULTS, VECTOR_TOL, VECTORS_FILE, check_name, emit_sources)
 from ddpc_codegen.codegen.manifest import build_manifest, write_manifest
 from ddpc_codegen.codegen.tuning import choose_rho
 from ddpc_codegen.design.adaptation import ship_fit_statistic
@@ -78,8 +76,10 @@ def generate(
             (``<name>_artio.h``; in Python ``solver.artificial_io``); its noise level must be > 0.
         provenance: what the data were (JSON-able; manifest ``dataset``), e.g. the bridge's
             ``thrust_field``, which the bridge checks against the vehicle before flying the solver.
-        adapt: online predictor updates (``[adapt]``); when enabled, ``<name>_adapt.{h,c}`` are emitted and
-            compiled in (the non-adaptive folder is unchanged); the manifest's ``fit_statistic`` records them.
+        adapt: online predictor updates; default: the config's ``[adapt]``. When enabled (daqp backend only),
+            ``<name>_adapt.{h,c}`` are emitted and compiled in, listed in CMakeLists/Makefile, the G-dependent
+            QP data are read through the workspace (the non-adaptive folder is unchanged byte for byte); the
+            manifest's ``fit_statistic`` and ``adapt`` record them.
     Returns:
         the solver folder (with manifest.json), loadable by :func:`ddpc_codegen.load_solver`; it also
         builds without Python (CMakeLists.txt, Makefile, example_main.c).
@@ -117,10 +117,9 @@ def _build(problem: SteeringProblem, out: Path, name: str, backend: str, compile
     settings = _settings(problem, backend, max_iter, eps)
     native = bool(cfg.codegen.get("march_native", False) if march_native is None else march_native)
     t0 = time.perf_counter()
-    units = emit_sources(problem, out, name, backend, settings, artificial_io)
-    adaptive = adapt is not None and adapt.enabled
-    if adaptive:
-        units += emit_adapt(problem, adapt, out, name, BANNER, data_files)
+    adapt = cfg.adapt if adapt is None else adapt
+    adaptive = adapt.enabled
+    units = emit_sources(problem, out, name, backend, settings, artificial_io, adapt)
     vec = test_vectors.record(problem, n_vectors)
     vec_file = out / VECTORS_FILE.format(name=name)
     vec_sha = test_vectors.write(vec_file, name, vec)
@@ -144,7 +143,8 @@ def _build(problem: SteeringProblem, out: Path, name: str, backend: str, compile
     extra = {"vectors": {"file": vec_file.name, "sha256": vec_sha, **vec.summary()},
              "artificial_io": None if artificial_io is None else manifest_entry(artificial_io),
              "dataset": dict(provenance or {}),
-             "fit_statistic": ship_fit_statistic(problem.predictor, out, name, adapt)}  # for online updates
+             "fit_statistic": ship_fit_statistic(problem.predictor, out, name, adapt),  # for online updates
+             **({"adapt": dataclasses.asdict(adapt)} if adaptive else {})}
     write_manifest(out, build_manifest(problem, name, backend, module, ext, sources, out, settings, flags, extra))
     verify_vectors(out, vec, VECTOR_TOL[backend])
 

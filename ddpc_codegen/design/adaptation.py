@@ -8,8 +8,10 @@ The runtime update itself (Givens rank-one update of R, re-solve of G, verificat
 * :func:`write_fit_statistic` -- ``<name>_fit_r.npy`` beside the manifest and the manifest's
   ``fit_statistic`` entry (shape, scale, forgetting defaults);
 * :func:`adapt_settings` -- the ``[adapt]`` table of a steering config, checked;
-* :func:`hessian_model` -- the steering QP's Hessian as a function of the re-solved G (for the check);
-* :func:`adapter` -- the interpreted :class:`~ddpc_codegen.runtime.adaptation.Adapter` of a problem.
+* :func:`qp_model` -- the steering QP's data (Hessian, linear-term map, output rows, gain) as a function of
+  the re-solved G (rebuilt and checked before a swap; knots included);
+* :func:`adapter` -- the interpreted :class:`~ddpc_codegen.runtime.adaptation.Adapter` of a problem;
+* :class:`AdaptiveProblem` -- the interpreted twin of an adaptive generated solver (same API).
 
 For the incremental (offset-free) predictor the statistic is that of the increment fit (Tini - 1 past
 increments): the update feeds it windows of increments.
@@ -17,6 +19,7 @@ increments): the update feeds it windows of increments.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 from pathlib import Path
@@ -25,9 +28,11 @@ import numpy as np
 
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import ConfigError, DataError
-from ddpc_codegen.runtime.adaptation import AdaptLayout, Adapter, AdaptSettings, HessianModel
+from ddpc_codegen.runtime.adapt_qp import QPData, QPModel, SampleWindow
+from ddpc_codegen.runtime.adaptation import AdaptLayout, Adapter, AdaptSettings
 
-__all__ = ["fit_statistic", "fit_layout", "write_fit_statistic", "ship_fit_statistic", "adapt_settings", "hessian_model", "adapter",
+__all__ = ["fit_statistic", "fit_layout", "write_fit_statistic", "ship_fit_statistic", "adapt_settings", "qp_model", "adapter",
+           "AdaptiveProblem", "installed",
            "FIT_FILE"]
 
 FIT_FILE = "{name}_fit_r.npy"
@@ -119,37 +124,64 @@ def adapt_settings(table: dict | None, src: str = "config") -> AdaptSettings:
     return AdaptSettings(**table)
 
 
-def _fit_congruence(predictor: Predictor, layout: AdaptLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(T (n_u, n_u), Sy (q_y,), L (q_y, q_y)): data-unit future inputs u = T v map the fit's scaled future
-    inputs v, outputs y = L (Sy * fitted targets) (L accumulates increments, identity for samples)."""
-    m, p, tf = predictor.m, predictor.p, predictor.t_f
+def _predictor_maps(predictor: Predictor, layout: AdaptLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Lm (n_o, q), Rm (r, n_w + n_u), C0 (n_o, n_w + n_u)) with [Gy_w Gy_u; Gs_w Gs_u] = Lm G Rm + C0 for a
+    fit-domain G (q, r): the channel scale (as ``predictor._unscale``) and, for an increment fit, the
+    differencing of the window and the accumulation of the predicted increments (as ``fit.compose_increments``)."""
+    m, p, ti, tf = predictor.m, predictor.p, predictor.t_ini, predictor.t_f
     scale = np.asarray(predictor.options["channel_scale"], float)
-    Du = np.diag(np.tile(scale[:m], tf))
-    Sy = np.tile(scale[m:], tf)
-    if layout.t_ini == predictor.t_ini:
-        return Du, Sy, np.eye(p * tf)
-    K = np.kron(np.eye(tf) - np.eye(tf, k=-1), np.eye(m))  # u_f -> du_f (given u_ini[-1])
-    return np.linalg.solve(K, Du), Sy, np.kron(np.tril(np.ones((tf, tf))), np.eye(p))
+    su, sy = scale[:m], scale[m:]
+    tl = layout.t_ini
+    s_in = np.concatenate([np.tile(su, tl), np.tile(sy, tl), np.tile(su, tf)])
+    s_out = np.concatenate([np.tile(sy, tf), np.tile(sy, tl) if layout.q_s else np.zeros(0)])
+    n_y, n_w = p * tf, (m + p) * ti
+    n_o, n_wu = n_y + p * ti, n_w + m * tf
+    Lm, C0 = np.zeros((n_o, layout.q_y + layout.q_s)), np.zeros((n_o, n_wu))
+    if tl == ti:  # a fit on samples: G's rows and columns are the predictor's, scaled
+        Lm[: n_y + layout.q_s] = np.diag(s_out)
+        return Lm, np.diag(1.0 / s_in), C0
+    Im, Ip = np.eye(m), np.eye(p)
+    D = np.diff(np.eye(ti), axis=0)  # window -> its increments
+    last_u, last_y = np.kron(np.eye(1, ti, ti - 1), Im), np.kron(np.eye(1, ti, ti - 1), Ip)
+    Lm[:n_y] = np.kron(np.tril(np.ones((tf, tf))), Ip) * s_out[None, :]  # accumulate dy_f from y_ini[-1]
+    Rd = np.zeros((layout.r, n_wu))  # [u_ini; y_ini; u_f] -> [du_ini; dy_ini; du_f]
+    a, b = m * tl, (m + p) * tl
+    Rd[:a, : m * ti] = np.kron(D, Im)
+    Rd[a:b, m * ti : n_w] = np.kron(D, Ip)
+    Rd[b:, n_w:] = np.kron(np.eye(tf) - np.eye(tf, k=-1), Im)
+    Rd[b:, : m * ti] = -np.kron(np.eye(tf, 1), Im) @ last_u  # du_f[0] = u_f[0] - u_ini[-1]
+    C0[:n_y, m * ti : n_w] = np.kron(np.ones((tf, 1)), Ip) @ last_y
+    return Lm, Rd / s_in[:, None], C0
 
 
-def hessian_model(problem) -> HessianModel:
-    """The steering QP's Hessian P (n_u x n_u, a :class:`~ddpc_codegen.design.problem.SteeringProblem`) as
-    T^T P T = Gf^T W Gf + P_fixed of the fit-domain G, with P_fixed = T^T (P - prediction part) T fixed."""
+def qp_model(problem) -> QPModel:
+    """The steering QP's G-dependent data as a function of the fit-domain G (a
+    :class:`~ddpc_codegen.design.problem.SteeringProblem`, with or without knots): fixed parts taken from the
+    problem itself, so that the shipped G rebuilds the shipped QP.
+
+    Raises:
+        DataError: the problem's QP has a linear term at theta = 0 (the fast-path offset would then
+            depend on G; the steering QP as formed here never has one).
+    """
     pr, c = problem.predictor, problem.config
-    P = np.asarray(problem.P, float)
-    if P.shape != (pr.Gy_u.shape[1],) * 2:
-        raise DataError(f"the QP Hessian has shape {P.shape}, not the predictor's future inputs "
-                        f"{pr.Gy_u.shape[1]}: the Hessian check knows the unblocked QP only")
+    if np.any(problem.q0 != 0.0):
+        raise DataError("the steering QP has a nonzero linear term at theta = 0; online adaptation rebuilds "
+                        "the gain K only, not its offset")
     lay = fit_layout(pr)
-    T, Sy, L = _fit_congruence(pr, lay)
-    Qb = np.kron(np.eye(c.t_f), c.Q)
-    pred = 2.0 * (pr.Gy_u.T @ Qb @ pr.Gy_u + c.lambda_sigma * (pr.Gs_u.T @ pr.Gs_u))  # CasADi's hessian of J
-    W = np.zeros((lay.q_y + lay.q_s,) * 2)
-    W[: lay.q_y, : lay.q_y] = 2.0 * (Sy[:, None] * (L.T @ Qb @ L) * Sy[None, :])
-    if lay.q_s:
-        Ss = np.tile(np.asarray(pr.options["channel_scale"], float)[c.m:], c.t_ini)
-        W[lay.q_y :, lay.q_y :] = 2.0 * c.lambda_sigma * np.diag(Ss * Ss)
-    return HessianModel(W=W, P_fixed=T.T @ (P - pred) @ T)
+    Lm, Rm, C0 = _predictor_maps(pr, lay)
+    n_y, n_s = c.p * c.t_f, c.p * c.t_ini
+    Wd = np.zeros((n_y + n_s,) * 2)
+    Wd[:n_y, :n_y] = 2.0 * np.kron(np.eye(c.t_f), c.Q)  # CasADi's Hessian of the cost (J without the 1/2)
+    Wd[n_y:, n_y:] = 2.0 * c.lambda_sigma * np.eye(n_s)
+    y_lo, y_hi = np.tile(c.y_min, c.t_f), np.tile(c.y_max, c.t_f)
+    y_rows = np.nonzero(np.isfinite(y_lo) | np.isfinite(y_hi))[0]  # the first general rows, in this order
+    B = np.eye(problem.n_u) if problem.B is None else problem.B
+    zero = QPModel(Lm, Rm, C0, B, Wd, np.zeros_like(problem.P), np.zeros_like(problem.F_q), y_rows,
+                   problem.A_g, problem.F_g, problem.n_w, n_y)
+    Gd = np.block([[pr.Gy_w, pr.Gy_u], [pr.Gs_w, pr.Gs_u]])
+    Pg, Fg = zero.terms(Gd)
+    return QPModel(Lm, Rm, C0, B, Wd, problem.P - Pg, problem.F_q - Fg, y_rows, problem.A_g, problem.F_g,
+                   problem.n_w, n_y)
 
 
 def adapter(problem, settings: AdaptSettings) -> Adapter:
@@ -158,4 +190,65 @@ def adapter(problem, settings: AdaptSettings) -> Adapter:
     R, lay = fit_statistic(pr)
     o = pr.options
     return Adapter(lay, R, np.asarray(o["channel_scale"], float), settings, slack_weight=float(o["slack_weight"]),
-                   ridge=float(o["ridge"]), rcond=float(o["rcond"]), hessian=hessian_model(problem))
+                   ridge=float(o["ridge"]), rcond=float(o["rcond"]), qp=qp_model(problem))
+
+
+class AdaptiveProblem:
+    """The interpreted twin of an adaptive generated solver: a :class:`~ddpc_codegen.design.problem.SteeringProblem`
+    whose G-dependent QP data are replaced by the numpy reference's verified rebuilds, with the same adaptation
+    API as :class:`~ddpc_codegen.runtime.loader.GeneratedSolver` (``adapt_push`` .. ``adapt_counts``).
+
+    ``solver``: the interpreted solver of every tick (``"fast"``: the fast path, then the exact active set).
+    """
+
+    def __init__(self, problem, settings: AdaptSettings, solver: str = "fast") -> None:
+        self.adapter = adapter(problem, settings)
+        self.adapt_settings = settings
+        self.problem = problem
+        self.shipped = problem
+        self.config, self.has_nominal, self.method = problem.config, problem.has_nominal, solver
+        lay = self.adapter.layout
+        self._window = SampleWindow(lay.depth, lay.m, lay.p, lay.t_ini != problem.predictor.t_ini)
+
+    def solve(self, u_ini, y_ini, y_des, u_nom=None):
+        """One tick on the current QP data (SteeringProblem.solve)."""
+        return self.problem.solve(u_ini, y_ini, y_des, u_nom, solver=self.method)
+
+    def solve_theta(self, theta, **kw):
+        return self.problem.solve_theta(theta, **{"solver": self.method, **kw})
+
+    def reset(self) -> None:
+        self.problem.reset()
+
+    def adapt_push(self, u, y) -> bool:
+        w = self._window.push(np.asarray(u, float), np.asarray(y, float))
+        return False if w is None else self.adapter.push(w)
+
+    def adapt_clear(self) -> None:
+        self._window.clear()
+
+    def adapt_resolve(self) -> str:
+        return self.adapter.resolve()
+
+    def adapt_swap(self) -> bool:
+        if not self.adapter.swap():
+            return False
+        self.problem = installed(self.shipped, self.adapter.qp_data)
+        return True
+
+    def adapt_counts(self) -> dict:
+        return dict(self.adapter.counts)
+
+
+def installed(problem, data: QPData):
+    """A copy of ``problem`` solving with the rebuilt QP data (and predicting with their data-unit predictor,
+    so its bound check sees the outputs the rebuilt QP bounds); warm starts dropped."""
+    pr = problem.predictor
+    nw, ny = problem.n_w, pr.Gy_w.shape[0]
+    new = copy.copy(problem)
+    new.predictor = dataclasses.replace(pr, Gy_w=data.Gd[:ny, :nw], Gy_u=data.Gd[:ny, nw:], Gs_w=data.Gd[ny:, :nw],
+                                        Gs_u=data.Gd[ny:, nw:])
+    new.P, new.A_g, new.F_q, new.F_g, new.K = data.P, data.A_g, data.F_q, data.F_g, data.K
+    new.A = np.vstack([np.eye(problem.n_z), data.A_g])
+    new.reset()
+    return new

@@ -6,6 +6,7 @@ See ``configs/flying.toml`` for an annotated example.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import tomllib
@@ -16,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.runtime.adaptation import AdaptSettings
 
 __all__ = ["SteeringConfig", "R_MODES", "BACKENDS"]
 
@@ -26,7 +28,7 @@ _PREDICTOR_FORMS = ("absolute", "incremental")
 
 # section -> allowed keys (unknown keys are errors: a typo must not silently fall back to a default)
 _SCHEMA: dict[str, tuple[str, ...]] = {
-    "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data"),
+    "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data", "adapt"),
     "horizon": ("t_ini", "t_f", "dt", "knots"),
     "signals": ("inputs", "outputs", "input_units", "output_units"),
     "cost": ("Q", "R", "R_mode", "R_du", "lambda_sigma"),
@@ -36,6 +38,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online",
                       "denoise_online", "refit_residual"),
     "data": ("dataset", "max_output_noise"),
+    "adapt": ("enabled", "forgetting", "period_ticks", "dither", "max_change", "window", "min_excitation"),
 }
 # Sizes a steering problem can have (a 10 s preview at 200 Hz; a Gram matrix of 8000^2 doubles = 512 MB).
 MAX_HORIZON = 2000
@@ -137,6 +140,7 @@ class SteeringConfig:
     artificial_io: dict = field(default_factory=dict)
     dataset: str | None = None
     max_output_noise: np.ndarray | None = None
+    adapt: AdaptSettings | dict | None = None  # [adapt] table -> AdaptSettings (online predictor updates; disabled by default)
     source: str = "<config>"
 
     def __post_init__(self) -> None:
@@ -233,6 +237,11 @@ class SteeringConfig:
             else:
                 raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
         set_("artificial_io", art)
+        from ddpc_codegen.design.adaptation import adapt_settings  # lazy: adaptation imports the predictor
+
+        if not isinstance(self.adapt, (dict, AdaptSettings, type(None))):
+            raise _err(src, "[adapt]", f"must be a table; got {self.adapt!r}")
+        set_("adapt", self.adapt if isinstance(self.adapt, AdaptSettings) else adapt_settings(self.adapt, src))
 
     def _check_sizes(self) -> None:
         """Upper limits, checked before any matrix is formed: the Hankel has (m+p)(Tini+Tf) rows and its
@@ -339,6 +348,7 @@ class SteeringConfig:
             artificial_io=raw.get("artificial_io", {}),
             dataset=raw.get("data", {}).get("dataset"),
             max_output_noise=raw.get("data", {}).get("max_output_noise"),
+            adapt=raw.get("adapt"),
             source=source,
         )
 
@@ -358,6 +368,7 @@ class SteeringConfig:
             **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
             **({"knots": list(self.knots)} if self.knots is not None else {}),
             **({"artificial_io": dict(self.artificial_io)} if self.artificial_io else {}),
+            **({"adapt": dataclasses.asdict(self.adapt)} if self.adapt.enabled else {}),
         }
 
     @property
@@ -365,6 +376,7 @@ class SteeringConfig:
         """SHA-256 of the validated problem-defining values (not of file formatting)."""
         d = self.to_dict()
         d.pop("codegen", None)  # how it is compiled does not change what it solves
+        d.pop("adapt", None)  # nor does what may update it in flight (the solver's build identity records it)
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
     def replace(self, **changes: Any) -> "SteeringConfig":

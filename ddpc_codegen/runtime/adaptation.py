@@ -10,7 +10,7 @@ At a low rate G is re-solved from R exactly as the batch fit does (the pem slack
 ridge appended, then G^T = R11^-1 R12; :func:`solve_g`), so with f = 1 and every column fed one by one
 the result is the batch refit. A candidate G is verified before it may replace the current one
 (:meth:`Adapter.resolve`): finite, R11 well conditioned, a bounded change, a positive definite QP
-Hessian (when a Hessian model is given), the recent window exciting enough, and a smaller prediction
+Hessian and the rest of the rebuilt QP data (when a QP model is given), the recent window exciting enough, and a smaller prediction
 error than the current G's on that window. Rejections are counted by reason. The candidate only
 becomes current on :meth:`Adapter.swap` (between control ticks).
 
@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.runtime.adapt_qp import QPData, QPModel
 
-__all__ = ["AdaptLayout", "AdaptSettings", "HessianModel", "Adapter", "givens_update", "extra_rows", "solve_g",
+__all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "extra_rows", "solve_g",
            "excitation_ratio", "REJECTIONS"]
 
 # Reasons a candidate G is rejected, in the order they are checked (the C code uses the same order).
@@ -109,37 +110,6 @@ class AdaptSettings:
     window: int = 200
     max_change: float = 0.2
     min_excitation: float = 1e-3
-
-
-@dataclass(frozen=True)
-class HessianModel:
-    """The QP Hessian as a function of G (scaled fit domain), up to a fixed congruence:
-    H = Gf^T W Gf + P_fixed with Gf = G[:, n_past:] the future-input columns (n_f = m Tf of them),
-    W (q_y + q_s, q_y + q_s), P_fixed (n_f, n_f). Positive definite <=> the steering QP stays strictly convex."""
-
-    W: np.ndarray
-    P_fixed: np.ndarray
-
-    def hessian(self, G: np.ndarray, layout: AdaptLayout) -> np.ndarray:
-        Gf = G[:, layout.r - layout.m * layout.t_f :]
-        H = Gf.T @ self.W @ Gf + self.P_fixed
-        return 0.5 * (H + H.T)
-
-    def positive_definite(self, G: np.ndarray, layout: AdaptLayout) -> bool:
-        return _cholesky_ok(self.hessian(G, layout))
-
-
-def _cholesky_ok(H: np.ndarray) -> bool:
-    """Plain Cholesky (the C code's): every pivot > 0."""
-    n = H.shape[0]
-    L = np.zeros_like(H)
-    for j in range(n):
-        d = H[j, j] - L[j, :j] @ L[j, :j]
-        if not d > 0.0:
-            return False
-        L[j, j] = np.sqrt(d)
-        L[j + 1 :, j] = (H[j + 1 :, j] - L[j + 1 :, :j] @ L[j, :j]) / L[j, j]
-    return True
 
 
 def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None:
@@ -226,7 +196,9 @@ class Adapter:
     """The online update of one predictor (the interpreted twin of ``<name>_adapt_*`` in C).
 
     R0: the shipped data-only R factor (k <= width rows); scale (m+p,): the fit's channel scale;
-    slack_weight, ridge, rcond: the fit's options; hessian: the QP's :class:`HessianModel` or None.
+    slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.runtime.adapt_qp.QPModel`
+    or None (then no QP data are rebuilt and the Hessian is not checked). ``qp_data``: the QP data of the
+    current G (None until the first swap: the shipped data are in use).
     """
 
     layout: AdaptLayout
@@ -236,7 +208,7 @@ class Adapter:
     slack_weight: float = 1.0
     ridge: float = 0.0
     rcond: float = 1e-10
-    hessian: HessianModel | None = None
+    qp: QPModel | None = None
     counts: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -260,6 +232,8 @@ class Adapter:
                             "(fit it with [predictor] ridge > 0)")
         self.G = G
         self.pending: np.ndarray | None = None
+        self.pending_qp: QPData | None = None
+        self.qp_data: QPData | None = None
         self.counts = {"updates": 0, "skipped": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
                        **{f"rejected_{k}": 0 for k in REJECTIONS}}
 
@@ -285,7 +259,7 @@ class Adapter:
     def resolve(self) -> str:
         """Re-solve G from R and verify it: "accepted" (pending until :meth:`swap`) or the rejection reason."""
         self.counts["resolves"] += 1
-        self.pending = None  # a new re-solve replaces any candidate not yet swapped in
+        self.pending, self.pending_qp = None, None  # a new re-solve replaces any candidate not yet swapped in
         G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
         reason = self._verify(G)
         if reason is None:
@@ -304,14 +278,15 @@ class Adapter:
         if np.linalg.norm(step) > big:  # a bounded change: scale the step down onto the bound
             G = self.G + step * (big / np.linalg.norm(step))
             self.counts["clipped"] += 1
-        if self.hessian is not None and not self.hessian.positive_definite(G, self.layout):
-            return "hessian"
+        data = self.qp.rebuild(G) if self.qp is not None else None
+        if isinstance(data, str):
+            return data
         cols = self.recent()
         if excitation_ratio(cols, self.layout) < self.settings.min_excitation:
             return "excitation"
         if not _prediction_error(G, cols, self.layout) < _prediction_error(self.G, cols, self.layout):
             return "prediction"
-        self.pending = G
+        self.pending, self.pending_qp = G, data
         return None
 
     def swap(self) -> bool:
@@ -319,5 +294,7 @@ class Adapter:
         if self.pending is None:
             return False
         self.G, self.pending = self.pending, None
+        if self.pending_qp is not None:
+            self.qp_data, self.pending_qp = self.pending_qp, None
         self.counts["swaps"] += 1
         return True

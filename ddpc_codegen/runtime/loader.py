@@ -111,13 +111,50 @@ class GeneratedSolver:
         elif hasattr(self._lib, f"{self.name}_artio_complete"):
             raise ManifestError(f"{folder}: the binary has an artificial-IO completion that manifest.json does not "
                                 "list (edited?); regenerate the solver")
+        self.adaptation = None  # online update (generated with [adapt] enabled), else None
+        if hasattr(self._lib, f"{self.name}_adapt_init"):
+            from ddpc_codegen.runtime.adapt_generated import GeneratedAdaptation
+
+            self.adaptation = GeneratedAdaptation(self)
 
     def __repr__(self) -> str:
         return f"GeneratedSolver({self.name!r}, backend={self.backend!r}, n_u={self.n_u}, n_theta={self.n_theta})"
 
     def reset(self) -> None:
-        """Drop the warm start: the workspace returns to exactly its post-init state."""
+        """Drop the warm start: the workspace returns to exactly its post-init state (an adaptive solver keeps
+        the QP data it last swapped in)."""
         self._fn["reset"](self._ws)
+
+    # online adaptation (issue 30): the same API as design.adaptation.AdaptiveProblem
+    def _adapt(self):
+        if self.adaptation is None:
+            raise DataError(f"solver {self.name!r} was generated without [adapt] enabled: it has no online update")
+        return self.adaptation
+
+    @property
+    def adapt_settings(self):
+        """The ``[adapt]`` settings the solver was generated with."""
+        return self._adapt().settings
+
+    def adapt_push(self, u, y) -> bool:
+        """One applied reference u (m,) and measured output y (p,); True when a Hankel column was folded in."""
+        return self._adapt().push(u, y)
+
+    def adapt_clear(self) -> None:
+        """Forget the partial window (a tick that must not update broke the sequence)."""
+        self._adapt().clear()
+
+    def adapt_resolve(self) -> str:
+        """Re-solve G, rebuild the QP data and verify both: "accepted" or the rejection reason."""
+        return self._adapt().resolve()
+
+    def adapt_swap(self) -> bool:
+        """Make a verified candidate current (between ticks); False when none is pending."""
+        return self._adapt().swap()
+
+    def adapt_counts(self) -> dict:
+        """updates, skipped, resolves, accepted, swaps, clipped and rejected_<reason> counters."""
+        return self._adapt().counts()
 
     def theta(self, u_ini, y_ini, y_des, u_nom=None) -> np.ndarray:
         """Stack and validate the parameters (same layout as SteeringProblem.theta)."""

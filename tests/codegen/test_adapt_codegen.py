@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from ddpc_codegen.codegen.adapt import compile_alone
-from ddpc_codegen.design.adaptation import adapter
+from ddpc_codegen.design.adaptation import AdaptiveProblem, adapter
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.fit import fit_incremental
@@ -24,12 +26,13 @@ def _dataset(seed: int, T: int = 400) -> IODataset:
     return IODataset(u, y + 1e-3 * rng.standard_normal(y.shape), 0.01)
 
 
-def _problem(form: str) -> SteeringProblem:
+def _problem(form: str, knots=None, bounded: bool = False) -> SteeringProblem:
     ds = _dataset(0)
-    pred = fit_incremental(ds, 5, 3, "lsq", ridge=1e-5) if form == "incremental" else \
-        fit_predictor(ds, 4, 3, "pem", ridge=1e-5)
-    cfg = SteeringConfig(t_ini=pred.t_ini, t_f=3, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode="offset",
-                         lambda_sigma=50.0, predictor={"method": pred.method})
+    pred = fit_incremental(ds, 5, 6, "lsq", ridge=1e-5) if form == "incremental" else \
+        fit_predictor(ds, 4, 6, "pem", ridge=1e-5)
+    rows = dict(y_min=[-0.05, -np.inf], y_max=[0.05, 0.5], du_max=[0.05, 0.5]) if bounded else {}
+    cfg = SteeringConfig(t_ini=pred.t_ini, t_f=6, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode="offset",
+                         lambda_sigma=50.0, knots=knots, predictor={"method": pred.method}, **rows)
     return SteeringProblem(pred, cfg)
 
 
@@ -37,17 +40,35 @@ def _arr(ffi, ptr, n):
     return np.frombuffer(ffi.buffer(ptr, 8 * n), dtype=np.float64).copy()
 
 
-@pytest.mark.parametrize("form", ["absolute", "incremental"])
-def test_generated_update_equals_the_numpy_reference(form, tmp_path):
-    """A few hundred random windows from a changed system, a re-solve every 40: R, G, the verdicts and
-    the counters of C and numpy agree (R and G to 1e-9 relative)."""
-    prob = _problem(form)
+def _qp_buffer(ffi, qd, prob) -> dict:
+    """The QP data a C qpdata view points at, as numpy arrays of the problem's shapes."""
+    nz, ng, nth = prob.n_z, prob.n_g, prob.n_theta
+    g1 = max(1, ng)
+    return {"P": _arr(ffi, qd.P, nz * nz).reshape(nz, nz),
+            "A_g": _arr(ffi, qd.A_G, g1 * nz).reshape(g1, nz)[:ng],
+            "F_q": _arr(ffi, qd.F_Q_CM, nz * nth).reshape(nth, nz).T,
+            "F_g": _arr(ffi, qd.F_G_CM, g1 * nth).reshape(nth, g1).T[:ng],
+            "K": _arr(ffi, qd.K, nz * nth).reshape(nth, nz).T}
+
+
+def _close(got, want, tol=1e-9):
+    return got.shape == want.shape and (want.size == 0 or np.abs(got - want).max() <= tol * max(1.0, np.abs(want).max()))
+
+
+@pytest.mark.parametrize("form, knots, bounded", [("absolute", None, False), ("incremental", None, True),
+                                                  ("absolute", [0, 2, 5], True)])
+def test_generated_update_equals_the_numpy_reference(form, knots, bounded, tmp_path):
+    """Windows from a changed system, a re-solve every 40: R, G, the verdicts, the counters, the rebuilt QP
+    data (P, F_q, output rows, K) and the steering answers after each swap of C and numpy agree to 1e-9."""
+    prob = _problem(form, knots, bounded)
     st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4)
-    name = f"ad_{form}"
+    name = f"ad_{form[:3]}_{'k' if knots else 'n'}"
     ffi, lib = compile_alone(prob, st, tmp_path, name)
-    ref = adapter(prob, st)
+    twin = AdaptiveProblem(prob, st, solver="fast")
+    ref = twin.adapter
     ws = ffi.new(f"{name}_adapt_workspace *")
-    assert getattr(lib, f"{name}_adapt_init")(ws) == 0
+    sws = ffi.new(f"{name}_workspace *")
+    assert getattr(lib, f"{name}_adapt_init")(ws) == 0 and getattr(lib, f"{name}_init")(sws) == 0
     lay = ref.layout
     w, q = lay.width, lay.q_y + lay.q_s
     np.testing.assert_allclose(_arr(ffi, ws.G, q * lay.r).reshape(q, lay.r), ref.G, rtol=0, atol=1e-12)
@@ -56,7 +77,9 @@ def test_generated_update_equals_the_numpy_reference(form, tmp_path):
     u = rng.standard_normal((400, 2)) * [0.3, 2.0]
     y, _ = other.simulate(u, np.zeros(4))
     sig = np.hstack([np.diff(u, axis=0), np.diff(y, axis=0)]) if form == "incremental" else np.hstack([u, y])
-    verdicts = []
+    thetas = rng.standard_normal((12, prob.n_theta)) * 0.05
+    solve, out = getattr(lib, f"{name}_solve"), np.empty(prob.n_u)
+    verdicts, solved = [], 0
     for k in range(300):
         win = np.ascontiguousarray(sig[k : k + lay.depth])
         if k == 50:
@@ -64,24 +87,36 @@ def test_generated_update_equals_the_numpy_reference(form, tmp_path):
             win[3, 1] = np.nan  # skipped by both
         c_ok = getattr(lib, f"{name}_adapt_push")(ws, ffi.from_buffer("double[]", win))
         assert c_ok == int(ref.push(win))
-        if k % 40 == 39:
-            res = getattr(lib, f"{name}_adapt_resolve")(ws)
-            verdict = ref.resolve()
-            verdicts.append(verdict)
-            assert res == (0 if verdict == "accepted" else 1 + REJECTIONS.index(verdict))
-            if verdict == "accepted":
-                np.testing.assert_allclose(_arr(ffi, ws.Gc, q * lay.r).reshape(q, lay.r), ref.pending,
-                                           rtol=0, atol=1e-9 * np.abs(ref.pending).max())
-            assert getattr(lib, f"{name}_adapt_swap")(ws) == int(ref.swap())
-            np.testing.assert_allclose(_arr(ffi, ws.G, q * lay.r).reshape(q, lay.r), ref.G, rtol=0,
-                                       atol=1e-9 * np.abs(ref.G).max())
+        if k % 40 != 39:
+            continue
+        res = getattr(lib, f"{name}_adapt_resolve")(ws)
+        verdict = ref.resolve()
+        verdicts.append(verdict)
+        assert res == (0 if verdict == "accepted" else 1 + REJECTIONS.index(verdict))
+        if verdict == "accepted":
+            np.testing.assert_allclose(_arr(ffi, ws.Gc, q * lay.r).reshape(q, lay.r), ref.pending,
+                                       rtol=0, atol=1e-9 * np.abs(ref.pending).max())
+            built = _qp_buffer(ffi, ws.qd[ws.spare], prob)
+            for key, got in built.items():
+                assert _close(got, getattr(ref.pending_qp, key)), key
+        assert getattr(lib, f"{name}_adapt_swap")(ws, sws) == int(twin.adapt_swap())
+        np.testing.assert_allclose(_arr(ffi, ws.G, q * lay.r).reshape(q, lay.r), ref.G, rtol=0,
+                                   atol=1e-9 * np.abs(ref.G).max())
+        for th in thetas:  # the steering after the swap: C on the swapped-in buffer, numpy on the rebuild
+            st_c = solve(sws, ffi.from_buffer("double[]", th), ffi.from_buffer("double[]", out), ffi.NULL)
+            r = twin.solve_theta(th)
+            assert (st_c == 0) == (r.status == "solved"), (st_c, r.status)
+            if st_c == 0:
+                solved += 1
+                assert _close(out, r.u.reshape(-1)), np.abs(out - r.u.reshape(-1)).max()
     R_c = _arr(ffi, ws.R, w * w).reshape(w, w)
     np.testing.assert_allclose(R_c, ref.R, rtol=0, atol=1e-9 * np.abs(ref.R).max())
     c = ws.counts
     assert (c.updates, c.skipped, c.resolves, c.accepted, c.swaps, c.clipped) == tuple(
         ref.counts[k] for k in ("updates", "skipped", "resolves", "accepted", "swaps", "clipped"))
     assert [c.rejected[i + 1] for i in range(len(REJECTIONS))] == [ref.counts[f"rejected_{r}"] for r in REJECTIONS]
-    assert "accepted" in verdicts  # the changed system is learnt: at least one verified swap
+    assert "accepted" in verdicts and solved > 0  # the changed system is learnt: at least one verified swap
+    assert twin.problem is not prob and not _close(twin.problem.P, prob.P, 1e-6)  # and it changed the QP
 
 
 def test_rank_deficient_factor_is_refused_at_init(tmp_path):
@@ -98,29 +133,55 @@ def test_rank_deficient_factor_is_refused_at_init(tmp_path):
         compile_alone(prob, AdaptSettings(window=10), tmp_path, "ad_rank")
 
 
-def test_generate_with_adaptation_adds_the_update_and_leaves_the_rest_as_it_was(tmp_path):
-    """generate(adapt=...): the compiled extension carries <name>_adapt_*, the manifest the fit statistic;
-    every other source is byte-for-byte the non-adaptive build's, and adapt disabled emits nothing new."""
+@pytest.mark.slow
+def test_generate_with_adaptation_emits_the_update_into_every_build_file(tmp_path):
+    """generate(adapt=...) and the config's [adapt]: the extension carries <name>_adapt_*, the manifest the fit
+    statistic and the settings, CMakeLists and Makefile list the update's sources; adapt disabled emits exactly
+    the plain build; a plain solver refuses the adaptation API with a precise message."""
     import json
 
     from ddpc_codegen.codegen.generate import generate
+    from ddpc_codegen.errors import DataError
     from ddpc_codegen.runtime.loader import load_solver
 
     prob = _problem("incremental")
     st = AdaptSettings(enabled=True, forgetting=0.995, window=40)
-    folders = {k: generate(prob, tmp_path / k, name="adsolver", n_vectors=4, adapt=a)
-               for k, a in (("plain", None), ("off", AdaptSettings()), ("on", st))}
+    on_cfg = SteeringProblem(prob.predictor, prob.config.replace(adapt={"enabled": True, "forgetting": 0.995,
+                                                                        "window": 40}))
+    folders = {k: generate(p, tmp_path / k, name="adsolver", n_vectors=4, adapt=a)
+               for k, p, a in (("plain", prob, None), ("off", prob, AdaptSettings()), ("on", prob, st),
+                               ("config", on_cfg, None))}
+    files = {k: sorted(p.name for p in f.iterdir() if p.suffix in (".c", ".h", ".txt") or p.name == "Makefile")
+             for k, f in folders.items()}
+    assert files["plain"] == files["off"]
+    assert all((folders["plain"] / f).read_bytes() == (folders["off"] / f).read_bytes() for f in files["plain"])
     man = {k: json.loads((f / "manifest.json").read_text()) for k, f in folders.items()}
-    assert man["plain"]["sources"] == man["off"]["sources"]
     extra = set(man["on"]["sources"]) - set(man["plain"]["sources"])
     assert extra == {"adsolver_adapt.c", "adsolver_adapt.h", "adsolver_adapt_data.c", "adsolver_adapt_data.h"}
-    assert all(man["on"]["sources"][f] == h for f, h in man["plain"]["sources"].items())
+    for build_file in ("CMakeLists.txt", "Makefile"):
+        text = (folders["on"] / build_file).read_text()
+        assert "adsolver_adapt.c" in text and "adsolver_adapt_data.c" in text
+        assert "adsolver_adapt" not in (folders["plain"] / build_file).read_text()
+    assert man["on"]["adapt"] == man["config"]["adapt"] == dataclasses.asdict(st) and "adapt" not in man["plain"]
     fs = man["on"]["fit_statistic"]
     assert fs["adapt"]["forgetting"] == 0.995 and fs["signal"] == "increments"
-    R = np.load(folders["on"] / fs["file"])
-    np.testing.assert_array_equal(R, adapter(prob, st).R)
+    np.testing.assert_array_equal(np.load(folders["on"] / fs["file"]), adapter(prob, st).R)
     solver = load_solver(folders["on"])
-    lib, ffi = solver._lib, solver._ffi
-    ws = ffi.new("adsolver_adapt_workspace *")
-    assert lib.adsolver_adapt_init(ws) == 0 and lib.adsolver_adapt_swap(ws) == 0
-    assert not hasattr(load_solver(folders["plain"])._lib, "adsolver_adapt_init")
+    assert solver.adapt_settings == st and solver.adapt_counts()["updates"] == 0
+    assert not solver.adapt_swap() and solver.adapt_resolve() in REJECTIONS  # nothing pushed: no excitation
+    plain = load_solver(folders["plain"])
+    assert plain.adaptation is None
+    with pytest.raises(DataError, match=r"^solver 'adsolver' was generated without \[adapt\] enabled: it has no "
+                                        r"online update$"):
+        plain.adapt_push(np.zeros(2), np.zeros(2))
+
+
+def test_adaptation_needs_the_daqp_backend(tmp_path):
+    from ddpc_codegen.codegen.generate import generate
+    from ddpc_codegen.errors import CodegenError
+
+    with pytest.raises(CodegenError, match=r"online adaptation \(\[adapt\] enabled\) needs the daqp backend; got "
+                                           r"'osqp' \(the embedded OSQP bakes the Hessian and the constraint matrix "
+                                           r"into its generated workspace\)$"):
+        generate(_problem("absolute"), tmp_path / "o", name="adosqp", backend="osqp", compile=False,
+                 adapt=AdaptSettings(enabled=True))

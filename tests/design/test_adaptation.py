@@ -1,18 +1,20 @@
-"""Design side of online updates: the shipped fit statistic, the [adapt] settings, the Hessian model."""
+"""Design side of online updates: the shipped fit statistic, the [adapt] settings, the QP model."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.adaptation import adapt_settings, adapter, fit_statistic, write_fit_statistic
+from ddpc_codegen.design.adaptation import adapt_settings, fit_statistic, qp_model, write_fit_statistic
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.design.fit import difference_dataset, fit_incremental
+from ddpc_codegen.design.fit import compose_increments, difference_dataset, fit_incremental
 from ddpc_codegen.design.hankel import channel_stats
-from ddpc_codegen.design.predictor import FitLayout, _solve_r, channel_scale, fit_predictor, hankel_r_factor
+from ddpc_codegen.design.predictor import (FitLayout, _solve_r, _unscale, channel_scale, fit_predictor,
+                                          hankel_r_factor)
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.runtime.adaptation import AdaptSettings, solve_g
@@ -80,21 +82,49 @@ def test_written_statistic_and_its_manifest_entry(tmp_path):
     json.dumps(entry)  # JSON-able for the manifest
 
 
-@pytest.mark.parametrize("form, method, R_mode", [("absolute", "lsq", "offset"), ("absolute", "pem", "increment"),
-                                                  ("incremental", "lsq", "absolute")])
-def test_hessian_model_reproduces_the_problems_hessian(form, method, R_mode):
-    """T^T P T of the CasADi-built QP equals the model evaluated at the shipped G (independent reference)."""
-    ds = _dataset(4)
-    pred = fit_incremental(ds, 5, 3, "lsq", ridge=1e-6) if form == "incremental" else \
-        fit_predictor(ds, 4, 3, method, ridge=1e-6)
-    prob = _problem(pred, R_mode)
-    ad = adapter(prob, AdaptSettings(window=50))
-    from ddpc_codegen.design.adaptation import _fit_congruence
+def _refitted(pred, lay, G):
+    """The predictor of a fit-domain G by the fit's own conversion (``_unscale``, ``compose_increments``):
+    the independent reference of the QP model's data-unit map."""
+    scale = np.asarray(pred.options["channel_scale"], float)
+    Gy, Gs = _unscale(G, scale, pred.m, pred.p, lay.t_ini, lay.t_f, lay.method)
+    nw = (pred.m + pred.p) * lay.t_ini
+    new = dataclasses.replace(pred, t_ini=lay.t_ini, Gy_w=Gy[:, :nw], Gy_u=Gy[:, nw:], Gs_w=Gs[:, :nw],
+                              Gs_u=Gs[:, nw:])
+    return compose_increments(new) if lay.t_ini != pred.t_ini else new
 
-    T = _fit_congruence(pred, ad.layout)[0]
-    H = ad.hessian.hessian(ad.G, ad.layout)
-    np.testing.assert_allclose(H, T.T @ prob.P @ T, rtol=1e-9, atol=1e-9 * np.abs(prob.P).max())
-    assert ad.hessian.positive_definite(ad.G, ad.layout)
+
+@pytest.mark.parametrize("form, method, R_mode, knots", [
+    ("absolute", "lsq", "offset", None), ("absolute", "pem", "increment", [0, 2, 5]),
+    ("incremental", "lsq", "absolute", None), ("incremental", "lsq", "offset", [0, 3, 5])])
+def test_qp_model_rebuilds_the_qp_casadi_forms_for_another_g(form, method, R_mode, knots):
+    """P, F_q, the output rows of A_g and F_g, and K rebuilt from a perturbed G equal those of the
+    SteeringProblem CasADi forms from the predictor of that G (knots, output bounds and rate rows included)."""
+    ds = _dataset(4)
+    pred = fit_incremental(ds, 5, 6, "lsq", ridge=1e-6) if form == "incremental" else \
+        fit_predictor(ds, 4, 6, method, ridge=1e-6)
+    cfg = SteeringConfig(t_ini=pred.t_ini, t_f=6, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode=R_mode,
+                         R_du=[0.2, 0.1], lambda_sigma=50.0, u_min=[-1.0] * 2, u_max=[1.0] * 2, y_min=[-5.0, -np.inf],
+                         y_max=[5.0, 3.0], du_max=[0.3, 0.5], knots=knots, predictor={"method": pred.method})
+    prob = SteeringProblem(pred, cfg)
+    model = qp_model(prob)
+    R, lay = fit_statistic(pred)
+    G0, _ = solve_g(R, lay, 1.0, 1e-6, 1e-10)
+    np.testing.assert_allclose(model.rebuild(G0).P, prob.P, rtol=1e-9, atol=1e-9 * np.abs(prob.P).max())
+    G1 = G0 * (1.0 + 0.1 * np.random.default_rng(3).standard_normal(G0.shape))
+    ref = SteeringProblem(_refitted(pred, lay, G1), cfg)
+    got = model.rebuild(G1)
+    for key in ("P", "F_q", "A_g", "F_g", "K"):
+        want = getattr(ref, key)
+        assert np.abs(getattr(got, key) - want).max() <= 1e-9 * max(1.0, np.abs(want).max()), key
+
+
+def test_qp_model_refuses_a_candidate_whose_hessian_is_not_positive_definite():
+    pred = fit_predictor(_dataset(5), 4, 3, "lsq", ridge=1e-6)
+    prob = _problem(pred)
+    model = dataclasses.replace(qp_model(prob), P_fixed=-1e6 * np.eye(prob.n_z))
+    R, lay = fit_statistic(pred)
+    assert model.rebuild(solve_g(R, lay, 1.0, 1e-6, 1e-10)[0]) == "hessian"
+    assert qp_model(prob).rebuild(np.full_like(solve_g(R, lay, 1.0, 1e-6, 1e-10)[0], np.inf)) == "nonfinite"
 
 
 def test_adapt_settings_defaults_and_values():

@@ -9,8 +9,9 @@ from hypothesis import given, settings, strategies as st
 from ddpc_codegen.design.hankel import channel_stats
 from ddpc_codegen.design.predictor import FitLayout, _solve_r, channel_scale, hankel_r_factor
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.runtime.adaptation import (AdaptLayout, Adapter, AdaptSettings, HessianModel, excitation_ratio,
-                                             givens_update, solve_g)
+from ddpc_codegen.runtime.adapt_qp import QPModel, SampleWindow
+from ddpc_codegen.runtime.adaptation import (AdaptLayout, Adapter, AdaptSettings, excitation_ratio, givens_update,
+                                             solve_g)
 from support.lti import random_lti
 
 
@@ -133,17 +134,41 @@ def test_no_improvement_on_the_recent_window_is_rejected():
     assert ad.resolve() == "prediction" and ad.counts["rejected_prediction"] == 1 and not ad.swap()
 
 
+def _never_convex(lay: AdaptLayout) -> QPModel:
+    """A QP model whose Hessian is -I whatever G is (data-unit predictor = G itself, no outputs weighted)."""
+    n_o, n_f, n_th = lay.q_y, lay.m * lay.t_f, lay.r
+    n_w = lay.r - n_f
+    return QPModel(Lm=np.eye(n_o), Rm=np.eye(lay.r), C0=np.zeros((n_o, lay.r)), B=np.eye(n_f),
+                   Wd=np.zeros((n_o, n_o)), P_fixed=-np.eye(n_f), F_fixed=np.zeros((n_f, n_th)),
+                   y_rows=np.zeros(0, int), A_g0=np.zeros((0, n_f)), F_g0=np.zeros((0, n_th)), n_w=n_w, n_y=0)
+
+
 def test_hessian_check_rejects_a_candidate_that_loses_definiteness():
     lay = AdaptLayout(2, 1, 4, 3, "lsq")
     u, y = _data(31)
     u1, y1 = _data(32)
     R0 = hankel_r_factor([(u, y)], FitLayout(2, 1, 4, 3, "lsq"), np.ones(3))
-    n_f = lay.m * lay.t_f
-    never = HessianModel(W=np.zeros((lay.q_y, lay.q_y)), P_fixed=-np.eye(n_f))
-    ad = Adapter(lay, R0, np.ones(3), AdaptSettings(forgetting=0.98, window=60), ridge=1e-6, hessian=never)
+    ad = Adapter(lay, R0, np.ones(3), AdaptSettings(forgetting=0.98, window=60), ridge=1e-6, qp=_never_convex(lay))
     for w in _windows(u1, y1, lay.depth)[:100]:
         ad.push(w)
     assert ad.resolve() == "hessian" and ad.counts["rejected_hessian"] == 1
+    assert not ad.swap() and ad.qp_data is None
+
+
+@pytest.mark.parametrize("increments", [False, True])
+def test_sample_window_is_the_last_depth_samples_or_their_increments(increments):
+    rng = np.random.default_rng(4)
+    u, y = rng.standard_normal((9, 2)), rng.standard_normal((9, 1))
+    sw = SampleWindow(4, 2, 1, increments)
+    need = 4 + increments
+    out = [sw.push(u[k], y[k]) for k in range(9)]
+    assert all(o is None for o in out[: need - 1])
+    full = np.hstack([u, y])
+    for k in range(need - 1, 9):
+        ref = full[k - need + 1 : k + 1]
+        np.testing.assert_array_equal(out[k], np.diff(ref, axis=0) if increments else ref)
+    sw.clear()
+    assert sw.push(u[0], y[0]) is None
 
 
 def test_nonfinite_windows_are_skipped_and_counted():

@@ -1,0 +1,62 @@
+"""The online update of a generated solver built with ``[adapt] enabled`` (``<name>_adapt_*`` in its
+extension), behind the adaptation API the interpreted twin has too (issue 30)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ddpc_codegen.errors import ManifestError
+from ddpc_codegen.runtime.adapt_qp import SampleWindow
+from ddpc_codegen.runtime.adaptation import REJECTIONS, AdaptSettings
+
+__all__ = ["GeneratedAdaptation"]
+
+_COUNTS = ("updates", "skipped", "resolves", "accepted", "swaps", "clipped")
+
+
+class GeneratedAdaptation:
+    """The C update of one :class:`~ddpc_codegen.runtime.loader.GeneratedSolver` instance: its own
+    ``<name>_adapt_workspace``; a swap installs the rebuilt QP data into the solver's workspace."""
+
+    def __init__(self, solver) -> None:
+        man = solver.manifest
+        fs, st = man.get("fit_statistic"), man.get("adapt")
+        if not isinstance(fs, dict) or not isinstance(st, dict):
+            raise ManifestError(f"{solver.folder}: the binary has an online update but manifest.json records no "
+                                "fit_statistic / adapt entry (edited?); regenerate the solver")
+        self._solver, self._ffi, self._lib, name = solver, solver._ffi, solver._lib, solver.name
+        self._fn = {f: getattr(self._lib, f"{name}_adapt_{f}") for f in ("init", "push", "resolve", "swap")}
+        self.settings = AdaptSettings(**st)
+        self._ws = self._ffi.new(f"{name}_adapt_workspace *")
+        if self._fn["init"](self._ws) != 0:
+            raise ManifestError(f"{solver.folder}: the shipped R factor cannot be re-solved (adapt_init failed)")
+        lay = fs["layout"]
+        self.depth = int(lay["t_ini"]) + int(lay["t_f"])
+        self._window = SampleWindow(self.depth, solver.m, solver.p, fs["signal"] == "increments")
+        self._buf = np.empty(self.depth * (solver.m + solver.p))
+        self._pbuf = self._ffi.from_buffer("double[]", self._buf)
+
+    def push(self, u: np.ndarray, y: np.ndarray) -> bool:
+        """One (u (m,), y (p,)) sample; True when a column was folded into R."""
+        w = self._window.push(np.asarray(u, float), np.asarray(y, float))
+        if w is None:
+            return False
+        self._buf[:] = w.reshape(-1)
+        return bool(self._fn["push"](self._ws, self._pbuf))
+
+    def clear(self) -> None:
+        self._window.clear()
+
+    def resolve(self) -> str:
+        code = self._fn["resolve"](self._ws)
+        return "accepted" if code == 0 else REJECTIONS[code - 1]
+
+    def swap(self) -> bool:
+        """Install a verified candidate into the solver's workspace (its warm start is dropped)."""
+        return self._fn["swap"](self._ws, self._solver._ws) == 1
+
+    def counts(self) -> dict:
+        c = self._ws.counts
+        out = {k: int(getattr(c, k)) for k in _COUNTS}
+        out.update({f"rejected_{r}": int(c.rejected[i + 1]) for i, r in enumerate(REJECTIONS)})
+        return out
