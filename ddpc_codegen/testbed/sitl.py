@@ -123,7 +123,8 @@ def run_isolated(func: str, kwargs: Mapping[str, Any], *, timeout: float,
 
     The child is started as ``unshare -n python -c ...`` (see :func:`netns_command`); without a
     namespace available it runs on the shared loopback (the caller then uses distinct
-    ``instance`` numbers). The child's process group is killed when ``timeout`` [s] passes.
+    ``instance`` numbers). The child's process group is killed when ``timeout`` [s] passes. What
+    the child prints goes to this process's stdout as it runs (progress of long runs).
 
     Raises:
         SitlError: the child failed, timed out or returned no result (its stderr tail attached).
@@ -139,8 +140,8 @@ def run_isolated(func: str, kwargs: Mapping[str, Any], *, timeout: float,
         # The child sees this process's import path (pytest's rootdir / pythonpath entries included).
         path = os.pathsep.join(p for p in sys.path if p)
         env = {**os.environ, _PARENT_NETNS_ENV: _netns_id() if prefix else "", "PYTHONPATH": path}
-        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                start_new_session=True)
+        # stdout passes through (the child's progress lines, live); stderr is kept for the error message.
+        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=None, stderr=subprocess.PIPE, start_new_session=True)
         try:
             _, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:

@@ -86,8 +86,12 @@ def write_steps_trajectory(path: str | Path, seed: int = 0, duration: float = ST
     return path
 
 
+def _say(text: str) -> None:
+    print(text, flush=True)  # live through run_isolated (the child's stdout is passed through)
+
+
 def fly_condition(sitl, autopilot: str, name: str, out: Path, trajectory: Path, solver: Path, prefilter: Path,
-                  rounds: int, duration: float = STEPS_DURATION, say=print) -> dict:
+                  rounds: int, duration: float = STEPS_DURATION, say=_say) -> dict:
     """Apply condition ``name`` (:data:`CONDITIONS`), fly every method ``rounds`` times on ``trajectory``,
     undo the condition; the figures (:func:`summarize_rounds`), or {"skipped": why}."""
     from ddpc_codegen.testbed.sitl_demo import ctrl_ff_profile, flight_figures, fly
