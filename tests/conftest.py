@@ -98,12 +98,13 @@ class DurationRecorder:
         self.total: dict[str, float] = defaultdict(float)
         self.session_cost: dict[str, float] = defaultdict(float)
         self.fixtures: dict[str, float] = {}
-        self.skipped: set[str] = set()
+        self.unmeasured: set[str] = set()
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.total[report.nodeid] += report.duration
-        if report.skipped:
-            self.skipped.add(report.nodeid)  # a skipped SITL test must not overwrite its real figure
+        if not report.passed:
+            # a skipped SITL test or one that errored early must not overwrite its real figure
+            self.unmeasured.add(report.nodeid)
         if report.when != "teardown":
             return
         for prop in report.user_properties:
@@ -114,8 +115,10 @@ class DurationRecorder:
                 else:
                     self.fixtures[key] = max(self.fixtures.get(key, 0.0), secs)
 
-    def pytest_sessionfinish(self, session: pytest.Session) -> None:
-        tests = {k: max(0.0, v - self.session_cost[k]) for k, v in self.total.items() if k not in self.skipped}
+    def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
+        if exitstatus == pytest.ExitCode.INTERRUPTED:
+            return  # a cut-short run measured a part of what it started
+        tests = {k: max(0.0, v - self.session_cost[k]) for k, v in self.total.items() if k not in self.unmeasured}
         d = Durations.load()
         d.merge(tests, self.fixtures, self.config.rootpath)
         d.save()
