@@ -5,17 +5,20 @@ held-out prediction check. Setups (data -> predictor -> solver) come from :mod:`
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
+from ddpc_codegen.design.adaptation import AdaptiveProblem
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.result import SteeringResult
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.experiments.pipeline import SteeringSetup
+from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
@@ -58,9 +61,10 @@ class SteeringHook:
     """
 
     def __init__(self, steerer: ReferenceSteerer, scenario: str, *, window: HoppingWindow | None = None,
-                 g_eff: float | None = None, dt: float = 0.005) -> None:
+                 g_eff: float | None = None, dt: float = 0.005, adaptation: OnlineAdaptation | None = None) -> None:
         self.steerer = steerer
-        self.policy = SteeringPolicy(steerer, max_gap_fill=0)  # the simulator never loses a sample
+        # the simulator never loses a sample
+        self.policy = SteeringPolicy(steerer, max_gap_fill=0, adaptation=adaptation)
         self.scenario = scenario
         self.window = window
         self.hopping = HoppingSteering(self.policy, window, g_eff, dt) if scenario == "hopping" else None
@@ -171,6 +175,8 @@ def run(
     progress: bool = False,
     label: str = "",
     completion: str = "auto",
+    adapt: bool = False,
+    changes: Sequence[tuple[float, Any]] | None = None,
 ) -> RunResult:
     """Simulate one run of ``scenario`` (a name or a scenario object, e.g. another trajectory),
     steered through ``setup`` or not.
@@ -182,6 +188,10 @@ def run(
         completion: hopping's online artificial IO: "generated" (the solver artifact's compiled
             completion), "interpreted" (``setup.art``), "auto" (generated when the generated solver
             steers and carries one).
+        adapt: online predictor updates with the config's ``[adapt]`` settings: a fresh instance of the
+            generated solver (built with ``[adapt] enabled``) or the interpreted twin
+            (:class:`~ddpc_codegen.design.adaptation.AdaptiveProblem`); the summary's ``adaptation``.
+        changes: (t, fn(stepper)) vehicle changes during the run (see :func:`~ddpc_codegen.sim.loop.simulate`).
     The simulator never gets an exception from the steering: solver failures are fallbacks
     (counted by the steerer); a simulator error ends the run as crashed.
     """
@@ -193,8 +203,11 @@ def run(
         if setup is None:
             raise DataError("a steered run needs a SteeringSetup")
         cfg = setup.config
-        if interpreted or setup.solver is None:
-            solver = InterpretedSolver(setup.problem, interpreted if isinstance(interpreted, str) else "fast")
+        method = interpreted if isinstance(interpreted, str) else "fast"
+        if adapt:
+            solver = _adaptive_solver(setup, bool(interpreted), method)
+        elif interpreted or setup.solver is None:
+            solver = InterpretedSolver(setup.problem, method)
         else:
             solver = setup.solver
             solver.reset()
@@ -203,10 +216,11 @@ def run(
         if scenario == "hopping":
             window = HoppingWindow(_completer(setup, solver, completion), cfg.t_ini, **setup.art_spec.window_settings())
         hook = SteeringHook(steerer, scenario, window=window,
-                            g_eff=_g_eff(params) if scenario == "hopping" else None, dt=cfg.dt)
+                            g_eff=_g_eff(params) if scenario == "hopping" else None, dt=cfg.dt,
+                            adaptation=OnlineAdaptation(solver, seed=seed) if adapt else None)
     t0 = time.perf_counter()
     res = simulate(sim_scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
-                   pushes=pushes, progress=progress)
+                   pushes=pushes, progress=progress, changes=changes)
     wall = time.perf_counter() - t0
     met = scenario_metrics(res)
     met["wall_s"] = round(wall, 2)
@@ -215,12 +229,29 @@ def run(
         st = steerer.summary()
         st["hook"] = dict(hook.counts)
         st["solver_us"] = percentiles(hook.solver_us)
-        st["solver"] = "interpreted" if isinstance(steerer.solver, InterpretedSolver) else f"generated:{steerer.solver.backend}"
+        st["solver"] = ("interpreted" if isinstance(steerer.solver, (InterpretedSolver, AdaptiveProblem))
+                        else f"generated:{steerer.solver.backend}")
+        if hook.policy.adaptation is not None:
+            st["adaptation"] = hook.policy.adaptation.summary()
         if hook.window is not None:
             art = hook.window.art
             st["artificial_io"] = {**hook.window.counts, **{f"op_{k}": v for k, v in art.counts.items()},
                                    "completion": "interpreted" if art is setup.art else "generated"}
     return RunResult(res, met, st, label)
+
+
+def _adaptive_solver(setup: SteeringSetup, interpreted: bool, method: str):
+    """A fresh adaptive solver of the setup: its own instance (the setup's solver stays as generated)."""
+    settings = dataclasses.replace(setup.config.adapt, enabled=True)
+    if interpreted or setup.solver_path is None:
+        return AdaptiveProblem(setup.problem, settings, method)
+    from ddpc_codegen.runtime.loader import load_solver
+
+    solver = load_solver(setup.solver_path)
+    if solver.adaptation is None:
+        raise DataError(f"{setup.solver_path}: generated without [adapt] enabled; set it in the config to adapt "
+                        "the generated solver")
+    return solver
 
 
 def _completer(setup: SteeringSetup, solver, completion: str):

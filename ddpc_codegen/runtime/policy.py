@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, SteerOutcome
 
 __all__ = ["SteeringPolicy", "nominal_horizon"]
@@ -51,12 +52,15 @@ class SteeringPolicy:
             200 Hz; 0: none).
         fallback_decay: per-tick factor of the last offset on fallback ticks (e.g. 0.9: ~50 ms
             time constant at 200 Hz); 0 (default): a fallback is exactly r_nom, as documented.
+        adaptation: online predictor updates (:class:`OnlineAdaptation`): steered ticks update, with its
+            dither on the applied reference; None (default): the predictor stays as generated.
     """
 
     steerer: ReferenceSteerer
     max_gap_fill: int = 3
     ramp_ticks: int = 40
     fallback_decay: float = 0.0
+    adaptation: OnlineAdaptation | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.ramp_ticks, bool) or not isinstance(self.ramp_ticks, int) or self.ramp_ticks < 0:
@@ -75,11 +79,15 @@ class SteeringPolicy:
         ticks fade in again."""
         self.steerer.reset()
         self._n_steered = 0
+        if self.adaptation is not None:
+            self.adaptation.solver.adapt_clear()  # a window must not span the reset
 
     def lost(self, n_missing: int, y_now: np.ndarray) -> None:
         """``n_missing`` ticks had no sample: bridge them if few, else reset the history."""
         if n_missing <= 0:
             return
+        if self.adaptation is not None:
+            self.adaptation.solver.adapt_clear()  # filled samples are not measurements: never an update
         if n_missing <= self.max_gap_fill:
             self.steerer.fill_gap(n_missing, y_now)
         else:
@@ -90,6 +98,9 @@ class SteeringPolicy:
         ``r_nom`` (m,) and the desired outputs ahead ``y_des`` (Tf, p); records (u, y)."""
         out = self.steerer.step(y_des, nominal_horizon(y_des, r_nom))
         self._blend(out, np.asarray(r_nom, dtype=float))
+        if self.adaptation is not None:  # after the solve, before the next tick: a swap lands between ticks
+            out.u = self.adaptation.perturb(out.u, out.steered)
+            self.adaptation.tick(out.u, y, out.steered)
         self.steerer.observe(out.u, y)
         return out
 
@@ -111,6 +122,8 @@ class SteeringPolicy:
 
     def observe(self, u_applied: np.ndarray, y: np.ndarray) -> None:
         """A tick on which the policy did not decide (e.g. hopping ground phase): keep the history."""
+        if self.adaptation is not None:
+            self.adaptation.tick(u_applied, y, False)
         self.steerer.observe(u_applied, y)
 
     def summary(self) -> dict:

@@ -253,12 +253,15 @@ class _Run:
 def _run_ticks(
     stepper: Stepper, ctrl: HeightLegAngleController, scenario: str, dt: float, n_ticks: int,
     logs: _TickLogs, excitation: np.ndarray, aerial_only: bool, hook: ReferenceHook | None,
-    stop_on_crash: bool, bar: Any,
+    stop_on_crash: bool, bar: Any, changes: Sequence[tuple[float, Callable[[Stepper], None]]] = (),
 ) -> _Run:
     """The closed loop, tick by tick, until n_ticks or the robot is lost."""
     run = _Run()
+    pending = sorted(changes, key=lambda c: c[0])
     for k in range(n_ticks):
         t = k * dt
+        while pending and pending[0][0] <= t:
+            pending.pop(0)[1](stepper)
         meas = stepper.measure(t)
         sp = _companion_tick(k, t, dt, scenario, meas, ctrl, logs, excitation, aerial_only, hook)
         _log_truth(k, t, stepper, ctrl, sp, logs)
@@ -289,6 +292,7 @@ def simulate(
     pushes: Sequence[Push | tuple] | None = None,
     progress: bool = False,
     stop_on_crash: bool = True,
+    changes: Sequence[tuple[float, Callable[[Stepper], None]]] | None = None,
 ) -> SimResult:
     """Run the closed loop for ``duration`` seconds and return the logs.
 
@@ -306,6 +310,8 @@ def simulate(
         pushes: :class:`Push` objects or tuples (t, force(3), duration[, point(3)]).
         progress: tqdm progress bar on stderr.
         stop_on_crash: end the run early when the robot is lost (``SimResult.crashed``).
+        changes: (t [s], fn(stepper)) pairs: fn changes the vehicle at the first tick at or after t (e.g. a
+            payload: ``stepper.plant._m += 0.3``; a thrust drop: ``stepper.plant._kf *= 0.85``).
     """
     t_wall = time.perf_counter()
     params = params or PogoXParams()
@@ -327,7 +333,7 @@ def simulate(
         bar = tqdm(total=n_ticks, file=sys.stderr, desc=f"simulate {sc.name}", unit="tick", leave=False)
     try:
         run = _run_ticks(stepper, ctrl, sc.name, dt, n_ticks, logs, excitation_array, aerial_only,
-                         reference_hook, stop_on_crash, bar)
+                         reference_hook, stop_on_crash, bar, changes or ())
     finally:
         if bar is not None:
             bar.close()

@@ -1,0 +1,78 @@
+"""Online adaptation in the loop (runtime/adapt_loop.py, the policy's hook) on the interpreted twin."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.design.adaptation import AdaptiveProblem
+from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.predictor import fit_predictor
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
+from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.runtime.policy import SteeringPolicy
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from support.lti import random_lti
+
+T_INI, T_F = 3, 4
+
+
+def _twin(**settings) -> AdaptiveProblem:
+    sys_ = random_lti(3, 1, 1, 2)
+    u = np.random.default_rng(2).standard_normal((400, 1))
+    y, _ = sys_.simulate(u, np.zeros(3))
+    pred = fit_predictor(IODataset(u, y, 0.01), T_INI, T_F, "lsq", ridge=1e-6)
+    cfg = SteeringConfig(t_ini=T_INI, t_f=T_F, m=1, p=1, Q=[10.0], R=[1.0], R_mode="offset")
+    return AdaptiveProblem(SteeringProblem(pred, cfg), AdaptSettings(enabled=True, **settings))
+
+
+def test_only_runs_of_steered_ticks_update_and_a_reset_tick_breaks_the_window():
+    twin = _twin(window=30, period_ticks=1000)
+    ad = OnlineAdaptation(twin)
+    depth = T_INI + T_F
+    steered = [True] * 10 + [False] + [True] * 8
+    rng = np.random.default_rng(0)
+    what = [ad.tick(rng.standard_normal(1), rng.standard_normal(1), s) for s in steered]
+    # 10 steered: 4 columns (ticks 7..10); the skip clears; 8 more: 2 columns
+    assert twin.adapt_counts()["updates"] == (10 - depth + 1) + (8 - depth + 1) == 6
+    assert what[:depth - 1] == ["warmup"] * (depth - 1) and what[10] == "skip" and what[-1] == "update"
+
+
+def test_a_re_solve_every_period_updates_is_recorded_and_swapped_in():
+    twin = _twin(window=20, period_ticks=25, forgetting=0.98, min_excitation=1e-6, max_change=0.5)
+    ad = OnlineAdaptation(twin)
+    other = random_lti(3, 1, 1, 9)
+    u = np.random.default_rng(5).standard_normal((200, 1))
+    y, _ = other.simulate(u, np.zeros(3))
+    for k in range(200):
+        ad.tick(u[k], y[k], True)
+    ev = ad.summary()["events"]
+    assert [e[0] for e in ev] == [T_INI + T_F - 2 + 25 * (i + 1) for i in range(len(ev))]
+    c = twin.adapt_counts()
+    assert c["resolves"] == len(ev) == (200 - T_INI - T_F + 1) // 25
+    assert c["swaps"] == sum(e[2] for e in ev) > 0 and twin.problem is not twin.shipped
+
+
+def test_dither_is_bounded_applied_only_on_steered_ticks_and_logged_through_the_policy():
+    twin = _twin(window=30, period_ticks=1000, dither=0.02)
+    ad = OnlineAdaptation(twin, seed=3)
+    u = np.array([0.5])
+    d = np.array([ad.perturb(u, True) - u for _ in range(200)])
+    assert np.all(np.abs(np.abs(d) - 0.02) < 1e-15) and {1.0, -1.0} == set(np.sign(d).ravel())
+    assert ad.perturb(u, False) is u
+    steerer = ReferenceSteerer.for_solver(twin, u_min=[-10.0], u_max=[10.0])
+    policy = SteeringPolicy(steerer, ramp_ticks=0, adaptation=OnlineAdaptation(twin, seed=3))
+    y_des = np.zeros((T_F, 1))
+    for k in range(12):
+        out = policy.decide(np.array([0.01 * k]), np.array([0.0]), y_des)
+    assert out.steered and policy.adaptation.last == "update"
+    np.testing.assert_array_equal(steerer.window()[0][-1], out.u)  # the history holds the dithered reference
+
+
+@pytest.mark.parametrize("bad, message", [({"period_ticks": 0}, r"^period_ticks must be >= 1; got 0$"),
+                                          ({"dither": -1.0}, r"^dither must be finite and >= 0; got -1.0$")])
+def test_bad_loop_settings_are_refused(bad, message):
+    with pytest.raises(ValueError, match=message):
+        OnlineAdaptation(_twin(), **bad)
