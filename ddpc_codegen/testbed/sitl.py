@@ -51,6 +51,7 @@ __all__ = [
     "run_isolated",
     "missing_reason",
     "make_sitl",
+    "free_px4_instance",
 ]
 
 ARDUPILOT_ENV = "DDPC_ARDUPILOT_SITL"
@@ -235,7 +236,7 @@ class Sitl:
                    MAV_AUTOPILOT_ARDUPILOTMEGA, files=files)
 
     @classmethod
-    def px4(cls, folder: str | Path, *, params: Mapping[str, float] | None = None, instance: int = 0,
+    def px4(cls, folder: str | Path, *, params: Mapping[str, float] | None = None, instance: int | None = None,
             model: str = "sihsim_quadx") -> "Sitl":
         """PX4 SITL with SIH; its off-board link sends to UDP ``14540 + instance`` on 127.0.0.1.
 
@@ -243,8 +244,12 @@ class Sitl:
             folder: holds ``bin/px4`` and ``etc/``.
             params: parameters set at start through PX4's ``PX4_PARAM_<NAME>`` environment hook
                 (applied by ``rcS`` after the airframe defaults, before the modules start).
+            instance: PX4's instance number (None: the first free one, :func:`free_px4_instance`).
+                PX4 holds a server socket per instance in /tmp, which network namespaces do not
+                separate: a second PX4 of the same instance says "PX4 server already running" and exits.
         """
         folder = Path(folder).resolve()
+        instance = free_px4_instance() if instance is None else int(instance)
         # bin/px4 runs from a link farm in the working directory: PX4 puts its own folder on PATH
         # for the start-up script's px4-<module> commands, and a copied build may have lost those
         # symlinks (see :func:`_px4_bin`).
@@ -392,6 +397,28 @@ class Sitl:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+PX4_SOCKET = "/tmp/px4-sock-{}"  # the PX4 daemon's server socket per instance (shared by every netns)
+
+
+def free_px4_instance(limit: int = 16, socket_path: str = PX4_SOCKET) -> int:
+    """The lowest PX4 instance number whose server socket nobody serves (absent, or left by a dead
+    PX4: a connection is refused).
+
+    Raises:
+        SitlError: all of 0 .. limit-1 are taken.
+    """
+    for i in range(limit):
+        path = socket_path.format(i)
+        if not os.path.exists(path):
+            return i
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+            try:
+                s.connect(path)
+            except OSError:
+                return i  # stale: its PX4 is gone
+    raise SitlError(f"every PX4 instance 0..{limit - 1} is running on this machine ({socket_path.format('N')})")
 
 
 def missing_reason(autopilot: str) -> str | None:

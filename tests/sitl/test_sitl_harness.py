@@ -154,3 +154,22 @@ def test_ctrl_ff_profile_is_the_autopilot_profile_with_velocity_feed_forward(tmp
          "ilc": {"rmse_z_per_iteration": [0.08, 0.002], "rmse_z_truth_per_iteration": [None, None],
                  "iterations_to_settle": 1, "iterations_run": 1}}
     assert "passthrough 80.0, ctrl ff 50.0, prefilter 10.0, ilc 2.0, steered 5.0 mm" in format_baselines(autopilot, b)
+
+
+def test_free_px4_instance_skips_served_sockets_and_reuses_stale_ones(tmp_path):
+    import socket
+
+    pattern = str(tmp_path / "sock-{}")
+    assert h.free_px4_instance(socket_path=pattern) == 0                  # nothing there
+    live = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    live.bind(pattern.format(0))
+    live.listen(1)
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(pattern.format(1))
+    stale.close()                                                          # the file stays, nobody serves it
+    try:
+        assert h.free_px4_instance(socket_path=pattern) == 1
+        with pytest.raises(h.SitlError, match=r"every PX4 instance 0\.\.0 is running on this machine"):
+            h.free_px4_instance(limit=1, socket_path=pattern)
+    finally:
+        live.close()
