@@ -12,6 +12,8 @@ possible, so that parallel runs cannot collide on the fixed ports: :func:`run_is
 Python function under ``unshare -n`` (root) or ``unshare -rn`` (an unprivileged user namespace),
 and the SITL and its client then share that namespace. Without a private namespace,
 :class:`Sitl` takes an ``instance`` number that moves every port (ArduPilot ``-I``, PX4 ``-i``).
+PX4 also holds a server socket per instance in /tmp (``/tmp/px4-sock-N``), which namespaces do not
+separate: :meth:`Sitl.px4` takes the first instance nobody serves (:func:`free_px4_instance`).
 
 Example::
 
