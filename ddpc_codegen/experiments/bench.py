@@ -345,6 +345,10 @@ def main(argv: list[str] | None = None) -> int:
             report.setdefault("standalone", {})[size] = {**sa["daqp"], "osqp": sa["osqp"]}
             arm = report[size].pop("aarch64_qemu")
             report["aarch64_qemu"] = None if arm is None else {**(report.get("aarch64_qemu") or {}), size: arm}
+        from ddpc_codegen.experiments.bench_preview import preview_tracking
+
+        log("preview tracking (Tf 15 / Tf 100 on 10 knots / Tf 100 free) ...")
+        report["preview_tracking"] = preview_tracking(Path(tmp), args.ticks, log)
     if not args.skip_artio:
         from ddpc_codegen.experiments.bench_artio import completion_timing
 
@@ -354,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
         from ddpc_codegen.experiments.bench_adapt import adapt_timing
 
         log("online predictor update (C) ...")
-        report["adapt"] = {size: adapt_timing(size) for size in SIZES}
+        # online updates of a knot-parameterized solver are not built yet (issue 30 builds on it)
+        report["adapt"] = {size: adapt_timing(size) for size in SIZES if "knots" not in SIZES[size]}
     if not args.skip_predictor:
         log("predictor fit on 10^6 samples (fresh process) ...")
         report["predictor_1e6"] = predictor_scaling()
@@ -366,6 +371,9 @@ def main(argv: list[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
     print(_table(report))
+    for name, r in report["preview_tracking"].items():
+        print(f"preview tracking {name:14} ({r['n_z']:3} QP variables): RMSE {', '.join(f'{v * 1e3:.2f}' for v in r['rmse'])} "
+              f"mm, tick median {r['tick_median_us']:.1f} µs, p99 {r['tick_p99_us']:.1f} µs")
     if "predictor_1e6" in report:
         p = report["predictor_1e6"]
         print(f"\npredictor fit, 10^6 samples (m=p=2, Tini=20, Tf=15): lsq {p['lsq_seconds']:.1f} s, "

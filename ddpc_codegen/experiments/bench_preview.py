@@ -1,0 +1,59 @@
+"""``make bench``'s preview figure: what knots cost in tracking and save in tick time.
+
+On the benchmark plant (the closed loop of :mod:`ddpc_codegen.experiments.bench`), the same desired
+trajectory (a sine plus steps) is tracked by generated solvers with a 75 ms horizon (Tf 15), a 500 ms
+horizon on 10 knots, and the same 500 ms horizon with every sample free; each tick timed in C.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.experiments.bench import build_problem
+
+__all__ = ["track", "preview_tracking"]
+
+
+def track(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1, settle: int = 200) -> dict:
+    """Closed loop of ``solver`` (anything with ``solve_theta``) on the plant for n ticks: per-output tracking
+    RMSE [m] after ``settle`` ticks, and the solver's own tick time [µs] (median, p99)."""
+    A, B, C, _ = plant
+    c = problem.config
+    m, ti, tf = c.m, c.t_ini, c.t_f
+    rng = np.random.default_rng(seed)
+    t = np.arange(n + tf) * 0.005
+    steps = np.repeat(rng.uniform(-0.15, 0.15, (len(t) // 300 + 1, m)), 300, axis=0)[: len(t)]
+    y_des = 0.1 * np.sin(2 * np.pi * 0.5 * t)[:, None] + steps
+    x, u_hist, y_hist = np.zeros(A.shape[0]), np.zeros((ti, m)), np.zeros((ti, m))
+    err, times = np.empty((n, m)), np.empty(n)
+    for k in range(n):
+        y_k = C @ x
+        err[k] = y_k - y_des[k]
+        yd = y_des[k : k + tf]
+        r = solver.solve_theta(problem.theta(u_hist, y_hist, yd, yd))
+        times[k] = r.solve_time * 1e6
+        u_k = r.u[0] if r.ok else yd[0]
+        x = A @ x + B @ u_k
+        u_hist = np.vstack([u_hist[1:], u_k])
+        y_hist = np.vstack([y_hist[1:], y_k])
+    return {"rmse": np.sqrt((err[settle:] ** 2).mean(axis=0)).tolist(), "tick_median_us": float(np.median(times)),
+            "tick_p99_us": float(np.percentile(times, 99))}
+
+
+def preview_tracking(workdir: Path, n: int = 2000, log=print) -> dict:
+    """{variant: track(...) | n_z} for Tf 15, Tf 100 on 10 knots and Tf 100 free (generated daqp solvers)."""
+    from ddpc_codegen.codegen.generate import generate
+    from ddpc_codegen.runtime.loader import load_solver
+
+    knots, plant = build_problem("preview")
+    short, _ = build_problem("flying")
+    free = SteeringProblem(knots.predictor, knots.config.replace(knots=None, name="bench_preview_free"))
+    out = {}
+    for name, prob in (("tf15", short), ("tf100_knots10", knots), ("tf100_free", free)):
+        log(f"  preview tracking: {name} ({prob.n_z} QP variables) ...")
+        solver = load_solver(generate(prob, Path(workdir) / f"track_{name}", name=f"track_{name}"))
+        out[name] = {"n_z": prob.n_z, **track(prob, plant, solver, n)}
+    return out
