@@ -46,7 +46,8 @@ def _cmd_codegen(args: argparse.Namespace) -> int:
                              march_native=args.march_native or None, log=say)
         prob = built.problem
         say(f"  generated + compiled {built.path}/ in {time.perf_counter() - t0:.1f} s "
-            f"({prob.n_u} variables, {prob.n_theta} parameters, {prob.n_g} general constraints)")
+            f"({prob.n_z} QP variables{'' if cfg.knots is None else f' on {len(cfg.knots)} knots'}, "
+            f"{prob.n_theta} parameters, {prob.n_g} general constraints)")
         print(built.path)
     return 0
 
