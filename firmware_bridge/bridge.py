@@ -61,6 +61,7 @@ import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig
+from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation, adapt_code
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
@@ -170,7 +171,12 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety):
         self.solver = solver
         self.steerer = ReferenceSteerer.for_solver(
             solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
-        self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill)
+        adaptation = None
+        if c.adapt:
+            if getattr(solver, "adaptation", None) is None:
+                raise ValueError(f"--adapt needs a solver generated with [adapt] enabled; {c.solver} has no online update")
+            adaptation = OnlineAdaptation(solver, seed=c.seed)
+        self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill, adaptation=adaptation)
         lo, hi = solver_input_bounds(solver)
         if self.hopping:  # the nominal hop: from the leg's rest length up to the apex target
             cc = self.ctrl_cfg
@@ -445,6 +451,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety):
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None,
                        observed=True)
+            if self.policy.adaptation is not None:
+                ref["adapt"] = adapt_code(self.policy.adaptation.last)
             if out.reason == "step_too_large" and out.result is not None:  # clamped to the guard by the gate
                 ref["candidate"] = np.asarray(out.result.u[0], dtype=float)
         elif self.cfg.mode in BASELINE_MODES:

@@ -94,6 +94,9 @@ class BridgeConfig:
         max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
             history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
             instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
+        adapt: steer mode: online predictor updates from steered ticks (engaged, fresh, not a fallback) with
+            the solver's [adapt] settings (a solver generated with [adapt] enabled); the tick log's ``adapt``
+            column records every update and re-solve verdict.
         arm, offboard: explicitly allowed actions: arm the vehicle (once both telemetry streams
             arrive; retried every 2 s while refused, each refusal reported, :class:`FlightError`
             after ``arm_timeout`` s); switch it to OFFBOARD / GUIDED after ``prestream`` seconds of
@@ -162,6 +165,7 @@ class BridgeConfig:
     thrust_max: float = 1.0
     max_step: tuple | None = (0.3, 0.5)
     max_gap_fill: int = 3
+    adapt: bool = False
     arm: bool = False
     offboard: bool = False
     arm_timeout: float = 120.0

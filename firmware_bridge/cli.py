@@ -159,6 +159,8 @@ def _bridge_safety_args(g) -> None:
     g.add_argument("--max-step", type=floats_or_none, default=argparse.SUPPRESS, metavar="Z,PITCH|none",
                    help="largest |steered - nominal| per reference, comma-separated, or 'none' (default: the "
                         "profile's [steering] max_step, else 0.3,0.5 flying / none hopping)")
+    g.add_argument("--adapt", action="store_true",
+                   help="steer: update the predictor online from steered ticks (a solver generated with [adapt] enabled)")
     g.add_argument("--max-gap-fill", type=int, default=_D["max_gap_fill"],
                    help="bridge up to this many lost telemetry samples in the steering history instead of "
                         "resetting it (0: always reset)")
@@ -231,6 +233,7 @@ def bridge_config_from_args(a: argparse.Namespace):
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout,
         vehicle_lost_timeout=a.vehicle_lost_timeout, max_tilt_deg=a.max_tilt_deg,
         thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), max_gap_fill=a.max_gap_fill,
+        adapt=a.adapt,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
         approach_timeout=a.approach_timeout, approach_tolerance=a.approach_tolerance,
         land=a.land, blend_rates=a.blend_rates,

@@ -74,6 +74,7 @@ class Reporting:
         A["valid"][i] = event and engaged and fresh if self.cfg.lockstep else engaged and fresh
         A["gap"][i] = gap
         A["gate"][i] = gate
+        A["adapt"][i] = ref.get("adapt", 0)
         A["phase"][i] = self.ctrl.phase
         if self.hop is not None and self.hop.backdate:
             # A touchdown confirmed late: the samples already on the ground before it are ground samples.
@@ -145,6 +146,8 @@ class Reporting:
             out["hopping"] = self.hop.summary()
         if self.steerer is not None:
             out["steering"] = self.steerer.summary()
+            if getattr(self.policy, "adaptation", None) is not None:
+                out["steering"]["adaptation"] = self.policy.adaptation.summary()
             if isinstance(self.solver, FaultInjectingSolver):
                 out["steering"]["injected_failures"] = self.solver.injected
         if self.cfg.mode == "prefilter":

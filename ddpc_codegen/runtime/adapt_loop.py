@@ -18,7 +18,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["OnlineAdaptation", "AdaptEvent"]
+from ddpc_codegen.runtime.adaptation import REJECTIONS
+
+__all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "adapt_code"]
+
+# What a tick did, as the bridge's tick log stores it: 0 nothing (no update: not steered, or no adaptation),
+# then the window filling, a column folded in, a re-solve swapped in, and each rejection of a re-solve.
+ADAPT_CODES = ("", "warmup", "update", "accepted") + REJECTIONS
+
+
+def adapt_code(last: str) -> int:
+    """The tick-log code of :attr:`OnlineAdaptation.last` ("skip" and "" are 0)."""
+    return ADAPT_CODES.index(last) if last in ADAPT_CODES else 0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,60 @@
+"""ddpc-bridge --adapt: online predictor updates from steered ticks only, every update and re-solve in the
+tick log's ``adapt`` column and the summary (over real UDP sockets with the simulated vehicle)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
+from firmware_bridge.ticklog import REASONS, load_ticklog
+from support.bridge_helpers import ROOT, free_port, read_json
+
+
+@pytest.fixture(scope="module")
+def adaptive_solver(tmp_path_factory) -> Path:
+    """The bridge's flying solver recipe with [adapt] enabled (a re-solve every 100 updates)."""
+    from ddpc_codegen import SteeringConfig, SteeringProblem, fit_predictor, generate
+    from ddpc_codegen.sim import simulate
+
+    ds = simulate("flying", 30.0, excitation=True, seed=11, noise=True).to_dataset()
+    cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml").replace(
+        predictor={"method": "lsq", "ridge": 1e-4},
+        adapt={"enabled": True, "forgetting": 0.9999, "period_ticks": 100, "window": 100, "dither": 0.002})
+    pred = fit_predictor(ds, cfg.t_ini, cfg.t_f, method="lsq", ridge=1e-4)
+    return generate(SteeringProblem(pred, cfg), tmp_path_factory.mktemp("adapt") / "flying", name="bridge_adapt")
+
+
+def test_adapt_needs_a_solver_generated_with_adaptation(flying_solver):
+    from ddpc_codegen.robot.profile import load_profile
+    from firmware_bridge.bridge import Bridge, BridgeConfig
+
+    cfg = BridgeConfig(mode="steer", solver=str(flying_solver), controller=load_profile("pogox").controller,
+                       url=f"udpin:127.0.0.1:{free_port()}", adapt=True)
+    with pytest.raises(ValueError, match=rf"^--adapt needs a solver generated with \[adapt\] enabled; "
+                                         rf"{flying_solver} has no online update$"):
+        Bridge(cfg)
+
+
+@pytest.mark.slow
+def test_steered_ticks_update_and_the_tick_log_records_every_update_and_verdict(procs, tmp_path, adaptive_solver):
+    port = free_port()
+    veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--lockstep-timeout", "0.3", name="veh")
+    br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--offboard", "--mode", "steer",
+                     "--solver", str(adaptive_solver), "--adapt", "--duration", "6",
+                     "--log", str(tmp_path / "a.npz"), "--summary", str(tmp_path / "a.json"), "--timeout", "90",
+                     name="br")
+    assert procs.wait(br, 120) == 0, procs.log(br)
+    procs.terminate(veh)
+    s = read_json(tmp_path / "a.json")["steering"]["adaptation"]
+    t = load_ticklog(tmp_path / "a.npz").ticks
+    code = t["adapt"]
+    steered = t["reason"] == REASONS.index("steered")
+    assert np.all(code[~steered] == 0)  # only steered ticks ever update
+    updates = np.isin(code, [ADAPT_CODES.index(k) for k in ADAPT_CODES[2:]])  # a column folded in (+ re-solve)
+    verdicts = code >= ADAPT_CODES.index("accepted")
+    assert s["counts"]["updates"] == int(updates.sum()) > 200
+    assert s["counts"]["resolves"] == int(verdicts.sum()) == len(s["events"]) >= 2
+    assert s["counts"]["swaps"] == int((code == ADAPT_CODES.index("accepted")).sum())
