@@ -197,6 +197,7 @@ class Sitl:
             (pymavlink syntax); expected_autopilot: HEARTBEAT.autopilot of this SITL.
         workdir: fresh temporary working directory (removed at :meth:`stop` unless ``keep``).
         startup_timeout: seconds to wait for the first heartbeat.
+        sysid: the autopilot's MAVLink system id (PX4 instance N answers as N + 1).
     """
 
     autopilot: str
@@ -211,6 +212,7 @@ class Sitl:
     proc: subprocess.Popen | None = None
     started_at: float = float("nan")
     px4_bin: Path | None = None
+    sysid: int = 1  # the autopilot's MAVLink system id (PX4: instance + 1, set by its rcS)
 
     # ---------------------------------------------------------------- constructors
     @classmethod
@@ -261,7 +263,7 @@ class Sitl:
         env = {"PX4_SIM_MODEL": model, "PX4_SIMULATOR": "sihsim"}
         env.update({f"PX4_PARAM_{k}": f"{v:g}" if isinstance(v, float) else str(v) for k, v in (params or {}).items()})
         return cls("px4", argv, f"udpin:127.0.0.1:{14540 + int(instance)}", MAV_AUTOPILOT_PX4, env=env,
-                   px4_bin=folder / "bin")
+                   px4_bin=folder / "bin", sysid=int(instance) + 1)
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> "Sitl":

@@ -65,7 +65,8 @@ def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, 
             "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
             "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
             "--log", str(out / f"{name}.npz"), "--overwrite", "--summary", str(out / f"{name}.json"), "--verbose",
-            "--rt-priority", "10", "--approach-timeout", f"{APPROACH_TIMEOUT:g}", *extra]
+            "--rt-priority", "10", "--approach-timeout", f"{APPROACH_TIMEOUT:g}",
+            "--target-system", str(getattr(sitl, "sysid", 1)), *extra]
 
 
 def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: Path | None = None,

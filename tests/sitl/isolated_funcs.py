@@ -61,7 +61,8 @@ def flight_with_autopilot_log(autopilot: str, out_dir: str, duration: float = 6.
         cmd = [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
                "--profile", PROFILES[autopilot], "--mode", "passthrough", "--arm", "--offboard", "--takeoff", "--land",
                "--duration", f"{duration:g}", "--timeout", "150", "--wait-heartbeat", "60",
-               "--log", str(out / "ticks.npz"), "--overwrite", "--summary", str(out / "summary.json")]
+               "--log", str(out / "ticks.npz"), "--overwrite", "--summary", str(out / "summary.json"),
+               "--target-system", str(sitl.sysid)]
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=out)
         stop.set()
         if rec is not None:

@@ -45,6 +45,12 @@ def test_command_lines(tmp_path):
     assert p.url == "udpin:127.0.0.1:14541" and p.argv[-2:] == ["-i", "1"]
     assert p.env["PX4_PARAM_MPC_THR_HOVER"] == "0.45" and p.env["PX4_PARAM_IMU_INTEG_RATE"] == "400"
     assert p.env["PX4_SIM_MODEL"] == "sihsim_quadx"
+    # PX4's rcS sets MAV_SYS_ID to instance + 1: every flight's bridge is told that system id.
+    assert p.sysid == 2 and s.sysid == 1
+    from ddpc_codegen.testbed.sitl_demo import bridge_command
+
+    cmd = bridge_command(p, "px4", "passthrough", tmp_path, 5.0, 60.0)
+    assert cmd[cmd.index("--target-system") + 1] == "2" and cmd[cmd.index("bridge") + 1] == p.url
 
 
 def test_px4_link_farm_replaces_lost_symlinks(tmp_path):
