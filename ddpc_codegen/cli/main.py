@@ -20,6 +20,7 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "ddpc_codegen.cli.fit",
     "ddpc_codegen.cli.sweep",
     "ddpc_codegen.experiments.demo",
+    "ddpc_codegen.experiments.adapt_eval",
 )
 
 

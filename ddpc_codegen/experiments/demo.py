@@ -14,6 +14,7 @@ mass errors the data never saw). Prints a table, writes ``reports/summary.json``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import platform
@@ -22,10 +23,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DDPCError
 from ddpc_codegen.experiments.demo_figures import demo_figures
 from ddpc_codegen.experiments.evaluate import RunResult, offset_step, prediction_check, run
-from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, say
+from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, default_config, say
 from ddpc_codegen.sim import PogoXParams, Push
 
 __all__ = ["run_demo", "format_table", "summary_block", "main", "register", "DURATIONS", "ROBUSTNESS"]
@@ -309,14 +311,20 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     pushes = [_parse_push(t) for t in args.push]
     result: dict[str, Any] = {}
     for sc in scen:
-        setup = build_setup(sc, config=args.config if len(scen) == 1 and args.config else None,
-                            generate_dir=None if args.interpreted else ROOT / "generated", save_data=False,
-                            progress=not args.quiet)
+        cfg = args.config if len(scen) == 1 and args.config else None
+        if args.adapt:  # the solver must carry the online update: [adapt] enabled (the config's other values kept)
+            cfg = SteeringConfig.from_toml(cfg or default_config(sc))
+            cfg = cfg.replace(adapt=dataclasses.replace(cfg.adapt, enabled=True))
+        setup = build_setup(sc, config=cfg, generate_dir=None if args.interpreted else ROOT / "generated",
+                            save_data=False, progress=not args.quiet,
+                            solver_name=f"steer_{sc}_adapt" if args.adapt else None)
         dur = args.duration or DURATIONS[sc]
         kw = dict(params=params, noise=args.noise or None, pushes=pushes, seed=args.seed, progress=not args.quiet)
         b = run(None, sc, dur, steer=False, **kw)
-        s = run(setup, sc, dur, interpreted=args.interpreted, **kw)
+        s = run(setup, sc, dur, interpreted=args.interpreted, adapt=args.adapt, **kw)
         result[sc] = summary_block(sc, b, s)
+        if args.adapt:
+            result[sc]["adaptation"] = s.steering["adaptation"]
         if args.plot:
             from ddpc_codegen.sim.plots import plot_result, save_figure
 
@@ -356,6 +364,8 @@ def register(subparsers: Any) -> None:
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--interpreted", nargs="?", const="fast", default=False, choices=("fast", "exact", "osqp"),
                    help="solve in Python instead of the generated C solver")
+    e.add_argument("--adapt", action="store_true",
+                   help="update the predictor online from steered ticks ([adapt] of the config, enabled)")
     e.add_argument("--plot", default=None, metavar="PATH", help="write a figure (baseline vs steered)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     e.add_argument("--quiet", action="store_true")
