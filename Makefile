@@ -28,7 +28,7 @@ $(LIBS_STAMP): ddpc_codegen/codegen/libs.py | $(STAMP)
 # that measure wall-clock time (realtime, sitl) then run alone. Both phases run (unless interrupted)
 # and the target fails if either fails, or if neither ran a test (PYTEST_ARGS may narrow both);
 # solvers are built once for both (DDPC_TEST_CACHE, tests/support/solver_cache.py).
-TEST_WORKERS ?= auto
+TEST_WORKERS ?= logical
 SERIAL_TIERS := realtime or sitl
 PHASE_RC = r=$$?; [ $$r -eq 2 ] && exit 2; [ $$r -eq 5 ] || { ran=1; [ $$r -eq 0 ] || rc=$$r; }
 test: install lint
