@@ -82,7 +82,7 @@ def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: 
         raise RuntimeError(f"{name}: ddpc-bridge exited {rc}:\n{(out / f'{name}.out').read_text()[-3000:]}\n"
                            f"{autopilot} SITL console tail:\n{sitl.log_tail()}")
     summary = json.loads((out / f"{name}.json").read_text())
-    rz, rt = summary.get("rmse_z"), summary.get("rmse_z_truth")
+    rz, rt = summary.get("rmse_z_measured"), summary.get("rmse_z_truth")
     print(f"[sitl-demo] {name}: flown ({duration:g} s), rmse z "
           f"{'-' if rz is None else f'{1e3 * rz:.1f}'} mm, true {'-' if rt is None else f'{1e3 * rt:.1f}'} mm",
           flush=True)  # progress (live through run_isolated)
