@@ -57,6 +57,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
             "n_z": n_z, "n_g": problem.n_g, "n_g1": n_g1, "n_theta": n_th, "n_w": problem.n_w, "n_y": qp.n_y,
             "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
             "y_rows": ", ".join(map(str, qp.y_rows.tolist())) or "0",
+            "win_idx": ", ".join(map(str, lay.row_order().tolist())),
             "nz2": n_z * n_z, "ngz": n_g1 * n_z, "nzth": n_z * n_th, "ngth": n_g1 * n_th,
             "n_lg": n_o * lay.r, "n_gd": n_o * n_wu, "n_gu": n_o * n_z,
             **{f"{k}_ij": v[1] for k, v in sparse.items()}, **{f"n_{k}": v[2] for k, v in sparse.items()},

@@ -1,5 +1,5 @@
 """Timing of the generated online predictor update (issue 30): the rank-one update per tick and the
-re-solve + verification of G, in C, at the benchmark's flying and hopping sizes.
+re-solve of G, rebuild of the QP data (Hessian, linear-term map, output rows, gain) and verification, in C, at the benchmark's flying and hopping sizes.
 
 The problems are the benchmark's (``bench.build_problem``) refitted with a relative ridge of 1e-6 (the
 update re-solves G by a triangular solve, which needs a full-rank R11: the configs' ridge gives it).
@@ -69,7 +69,7 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 5) -> dict:
 
 def adapt_lines(rows: list[dict]) -> list[str]:
     """Table lines of :func:`adapt_timing` results."""
-    out = ["online update (C): size  width  update us (median/p99)  re-solve+verify ms (median/max)"]
+    out = ["online update (C): size  width  update us (median/p99)  re-solve+rebuild+verify ms (median/max)"]
     for r in rows:
         out.append(f"  {r['size']:<8} {r['width']:>5}  {r['update_us_median']:>8.2f} / {r['update_us_p99']:<8.2f}"
                    f"  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:.3f}")

@@ -125,7 +125,7 @@ def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None
         if xi == 0.0:
             continue
         a = R[i, i]
-        rad = np.hypot(a, xi)
+        rad = np.sqrt(a * a + xi * xi)  # as the C (the scaled data are far from overflow)
         c, s = a / rad, xi / rad
         ri = R[i, i:].copy()
         R[i, i:] = c * ri + s * x[i:]
