@@ -56,7 +56,6 @@ def _cvxpy_deepc(ds, c, lambda_g, u_ini, y_ini, y_des, u_nom):
     return u.value, y.value
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("lambda_g", [1e-2, 1.0])
 @pytest.mark.parametrize("lambda_sigma", [1e3, 1e6])
 def test_deepc_equals_cvxpy_clarabel_with_active_bounds(plant, lambda_g, lambda_sigma):

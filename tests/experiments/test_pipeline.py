@@ -13,7 +13,7 @@ from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect
 from ddpc_codegen.experiments.evaluate import InterpretedSolver, SteeringHook, run
 from ddpc_codegen.sim import simulate
 
-pytestmark = [pytest.mark.compiler, pytest.mark.slow]
+pytestmark = pytest.mark.compiler  # slow comes from tests/durations.json (the tests that fly flying_setup)
 
 
 @pytest.fixture(scope="module")
