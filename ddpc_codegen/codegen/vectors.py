@@ -82,6 +82,25 @@ def violation(problem: SteeringProblem, z: np.ndarray, th: np.ndarray) -> float:
     return v if np.all(np.isfinite(az)) else float("inf")
 
 
+def feasible(problem: SteeringProblem, th: np.ndarray) -> bool:
+    """Whether the QP's constraints at theta admit any z (an LP by HiGHS, independent of the QP solvers)."""
+    from scipy.optimize import linprog
+
+    _, l, u = problem.qp_vectors(th)
+    lo, hi = np.isfinite(l), np.isfinite(u)
+    r = linprog(np.zeros(problem.n_z), A_ub=np.vstack([problem.A[hi], -problem.A[lo]]),
+                b_ub=np.concatenate([u[hi], -l[lo]]), bounds=(None, None), method="highs")
+    return r.status != 2  # 2: infeasible
+
+
+def _refused(problem: SteeringProblem, th: np.ndarray, status: str) -> str:
+    """The status a refused vector is recorded with: "infeasible" when no z satisfies the constraints (whatever
+    the interpreted solver said on the way), "unverified" for an answer outside its bounds, else the solver's."""
+    if status != "infeasible" and not feasible(problem, th):
+        return "infeasible"
+    return "unverified" if status == "out_of_bounds" else status
+
+
 def record(problem: SteeringProblem, n: int = 48, seed: int = 0, feas_tol: float = BOUND_TOL) -> Vectors:
     """Half easy, half bound-activating parameter vectors, solved by the interpreted exact solver.
     An exact answer outside the bounds by more than ``feas_tol`` is recorded as not solved (the C solver
@@ -95,7 +114,7 @@ def record(problem: SteeringProblem, n: int = 48, seed: int = 0, feas_tol: float
         u = np.asarray(r.u, dtype=float).ravel()
         ok = r.ok and np.all(np.isfinite(u)) and violation(problem, problem.to_z(u), th) <= feas_tol
         us.append(u if ok else np.full(problem.n_u, np.nan))
-        sts.append(0 if ok else STATUS_CODES.get(r.status if not r.ok else "unverified", -4))
+        sts.append(0 if ok else STATUS_CODES.get(_refused(problem, th, r.status) if not r.ok else "unverified", -4))
         zf = problem.unconstrained(th)
         fast.append(bool(ok and violation(problem, zf, th) <= feas_tol and problem.check(zf, th) == "solved"))
     return Vectors(thetas, np.array(us), np.array(sts, dtype=int), np.array(fast, dtype=bool))
