@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import subprocess
 
 import numpy as np
 import pytest
@@ -162,6 +163,11 @@ def test_generate_with_adaptation_emits_the_update_into_every_build_file(tmp_pat
         text = (folders["on"] / build_file).read_text()
         assert "adsolver_adapt.c" in text and "adsolver_adapt_data.c" in text
         assert "adsolver_adapt" not in (folders["plain"] / build_file).read_text()
+    # the folder builds without Python (strict C99) with the update in its library, and replays its vectors
+    make = subprocess.run(["make", "-C", str(folders["on"]), "check", "BUILD=build-check"], capture_output=True,
+                          text=True, timeout=600)
+    assert make.returncode == 0, make.stdout[-2000:] + make.stderr[-2000:]
+    assert "adsolver_adapt.o" in " ".join(p.name for p in (folders["on"] / "build-check").iterdir())
     assert man["on"]["adapt"] == man["config"]["adapt"] == dataclasses.asdict(st) and "adapt" not in man["plain"]
     fs = man["on"]["fit_statistic"]
     assert fs["adapt"]["forgetting"] == 0.995 and fs["signal"] == "increments"
