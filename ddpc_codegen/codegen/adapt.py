@@ -57,6 +57,8 @@ def context(ad, problem, name: str, banner: str) -> dict:
             "n_z": n_z, "n_g": problem.n_g, "n_g1": n_g1, "n_theta": n_th, "n_w": problem.n_w, "n_y": qp.n_y,
             "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
             "y_rows": ", ".join(map(str, qp.y_rows.tolist())) or "0",
+            "check_gain": int(qp.S0 is not None), "max_gain_change": _c(min(qp.max_gain_change, 1e300)),
+            "p_data": problem.config.p, "t_ini_data": problem.config.t_ini,
             "win_idx": ", ".join(map(str, lay.row_order().tolist())),
             "nz2": n_z * n_z, "ngz": n_g1 * n_z, "nzth": n_z * n_th, "ngth": n_g1 * n_th,
             "n_lg": n_o * lay.r, "n_gd": n_o * n_wu, "n_gu": n_o * n_z,
@@ -78,6 +80,8 @@ def data_arrays(ad, ctx: dict) -> dict[str, tuple[np.ndarray, str]]:
         "ADAPT_WD": (sp["wd"], "nonzeros of Wd: the cost's weight on the predicted [y; sigma]"),
         "ADAPT_PFIX": (qp.P_fixed, "the part of P independent of G, row-major n_z x n_z"),
         "ADAPT_FFIX": (qp.F_fixed.T, "the part of F_q independent of G, column-major n_z x n_theta"),
+        "ADAPT_S0": (qp.S0 if qp.S0 is not None else np.zeros((lay.p, lay.m)),
+                     "shipped steady-state gain (outputs per constant reference), row-major p x m"),
     }
 
 
@@ -98,7 +102,7 @@ def cdef_text(name: str) -> str:
     """The update's C API as cffi declares it."""
     return f"""
 typedef struct {{ const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM; }} {name}_qpdata;
-typedef struct {{ int updates; int skipped; int resolves; int accepted; int swaps; int clipped; int rejected[6];
+typedef struct {{ int updates; int skipped; int resolves; int accepted; int swaps; int clipped; int rejected[7];
                  double error_current; double error_candidate; double excitation; }} {name}_adapt_counts;
 typedef struct {{ double R[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...]; double x[...];
                  double Rx[...]; {name}_qpdata qd[2]; int head; int n_ring; int pending; int spare;

@@ -28,7 +28,7 @@ import numpy as np
 
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import ConfigError, DataError
-from ddpc_codegen.runtime.adapt_qp import QPData, QPModel, SampleWindow
+from ddpc_codegen.runtime.adapt_qp import QPData, QPModel, SampleWindow, steady_state_gain
 from ddpc_codegen.runtime.adaptation import AdaptLayout, Adapter, AdaptSettings
 
 __all__ = ["fit_statistic", "fit_layout", "write_fit_statistic", "ship_fit_statistic", "adapt_settings", "qp_model", "adapter",
@@ -91,7 +91,7 @@ def ship_fit_statistic(predictor: Predictor, out_dir: Path, name: str,
 
 
 _FLOAT_KEYS = {"forgetting": (0.0, 1.0, True), "dither": (0.0, np.inf, False), "max_change": (0.0, np.inf, True),
-               "min_excitation": (0.0, 1.0, False)}
+               "min_excitation": (0.0, 1.0, False), "max_gain_change": (0.0, np.inf, True)}
 _INT_KEYS = ("period_ticks", "window")
 
 
@@ -112,7 +112,8 @@ def adapt_settings(table: dict | None, src: str = "config") -> AdaptSettings:
     for key, (lo, hi, lo_open) in _FLOAT_KEYS.items():
         if key in table:
             v = table[key]
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v <= hi
+            num = isinstance(v, (int, float)) and not isinstance(v, bool)
+            ok = num and (np.isfinite(v) or (key == "max_gain_change" and v == np.inf)) and v <= hi  # inf: no check
             if not ok or (v <= lo if lo_open else v < lo):
                 opening = "(" if lo_open else "["
                 rng = f"in {opening}{lo:g}, {hi:g}]" if np.isfinite(hi) else f"{'>' if lo_open else '>='} {lo:g}"
@@ -154,10 +155,11 @@ def _predictor_maps(predictor: Predictor, layout: AdaptLayout) -> tuple[np.ndarr
     return Lm, Rd / s_in[:, None], C0
 
 
-def qp_model(problem) -> QPModel:
+def qp_model(problem, max_gain_change: float = np.inf) -> QPModel:
     """The steering QP's G-dependent data as a function of the fit-domain G (a
     :class:`~ddpc_codegen.design.problem.SteeringProblem`, with or without knots): fixed parts taken from the
-    problem itself, so that the shipped G rebuilds the shipped QP.
+    problem itself, so that the shipped G rebuilds the shipped QP. ``max_gain_change``: the bound of the
+    steady-state gain check (:func:`~ddpc_codegen.runtime.adapt_qp.steady_state_gain`; inf: none).
 
     Raises:
         DataError: the problem's QP has a linear term at theta = 0 (the fast-path offset would then
@@ -180,8 +182,15 @@ def qp_model(problem) -> QPModel:
                    problem.A_g, problem.F_g, problem.n_w, n_y)
     Gd = np.block([[pr.Gy_w, pr.Gy_u], [pr.Gs_w, pr.Gs_u]])
     Pg, Fg = zero.terms(Gd)
+    dims = (c.m, c.p, c.t_ini, c.t_f)
+    # the incremental form is offset-free: it holds any output at rest (no steady-state gain to keep)
+    check = np.isfinite(max_gain_change) and lay.t_ini == c.t_ini
+    S0 = steady_state_gain(Gd, *dims) if check else None
+    if check and S0 is None:
+        raise DataError("the shipped predictor has no steady state (I - sum of its output coefficients is singular): "
+                        "set [adapt] max_gain_change = inf to adapt without the gain check")
     return QPModel(Lm, Rm, C0, B, Wd, problem.P - Pg, problem.F_q - Fg, y_rows, problem.A_g, problem.F_g,
-                   problem.n_w, n_y)
+                   problem.n_w, n_y, dims, S0, float(max_gain_change))
 
 
 def adapter(problem, settings: AdaptSettings) -> Adapter:
@@ -190,7 +199,7 @@ def adapter(problem, settings: AdaptSettings) -> Adapter:
     R, lay = fit_statistic(pr)
     o = pr.options
     return Adapter(lay, R, np.asarray(o["channel_scale"], float), settings, slack_weight=float(o["slack_weight"]),
-                   ridge=float(o["ridge"]), rcond=float(o["rcond"]), qp=qp_model(problem))
+                   ridge=float(o["ridge"]), rcond=float(o["rcond"]), qp=qp_model(problem, settings.max_gain_change))
 
 
 class AdaptiveProblem:

@@ -38,7 +38,8 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "artificial_io": ("t_d", "t_a", "t_d_online", "min_ascent", "ground_margin", "noise_level", "noise_level_online",
                       "denoise_online", "refit_residual"),
     "data": ("dataset", "max_output_noise"),
-    "adapt": ("enabled", "forgetting", "period_ticks", "dither", "max_change", "window", "min_excitation"),
+    "adapt": ("enabled", "forgetting", "period_ticks", "dither", "max_change", "window", "min_excitation",
+              "max_gain_change"),
 }
 # Sizes a steering problem can have (a 10 s preview at 200 Hz; a Gram matrix of 8000^2 doubles = 512 MB).
 MAX_HORIZON = 2000

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["QPModel", "QPData", "cholesky", "SampleWindow"]
+__all__ = ["QPModel", "QPData", "cholesky", "SampleWindow", "steady_state_gain"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +51,33 @@ def cholesky(H: np.ndarray) -> np.ndarray | None:
     return L
 
 
+def steady_state_gain(Gd: np.ndarray, m: int, p: int, t_ini: int, t_f: int) -> np.ndarray | None:
+    """S (p, m): the constant outputs y_c the data-unit predictor Gd (p Tf + ..., (m+p) Tini + m Tf) holds for
+    constant references u_c (its last predicted step at a fixed point: y_c = A u_c + B y_c, S = (I - B)^-1 A);
+    None when I - B is singular (a pivot below 1e-12 of its largest entry). Gaussian elimination with partial
+    pivoting, step for step the C code's."""
+    rows = Gd[(t_f - 1) * p : t_f * p]
+    nw = (m + p) * t_ini
+    A = rows[:, : m * t_ini].reshape(p, t_ini, m).sum(axis=1) + rows[:, nw : nw + m * t_f].reshape(p, t_f, m).sum(axis=1)
+    B = rows[:, m * t_ini : nw].reshape(p, t_ini, p).sum(axis=1)
+    M, S = np.eye(p) - B, A.copy()
+    if not np.all(np.isfinite(M)):
+        return None
+    tiny = 1e-12 * np.abs(M).max()
+    for k in range(p):
+        best = k + int(np.argmax(np.abs(M[k:, k])))
+        if not abs(M[best, k]) > tiny:
+            return None
+        M[[k, best]], S[[k, best]] = M[[best, k]], S[[best, k]]
+        for r in range(k + 1, p):
+            f = M[r, k] / M[k, k]
+            M[r, k:] -= f * M[k, k:]
+            S[r] -= f * S[k]
+    for k in range(p - 1, -1, -1):
+        S[k] = (S[k] - M[k, k + 1 :] @ S[k + 1 :]) / M[k, k]
+    return S
+
+
 @dataclass(frozen=True)
 class QPModel:
     """What a rebuild needs (all fixed at generation time; sizes in the class docstring of the module).
@@ -72,6 +99,9 @@ class QPModel:
     F_g0: np.ndarray
     n_w: int
     n_y: int
+    dims: tuple[int, int, int, int] = (0, 0, 0, 0)  # (m, p, t_ini, t_f) of the predictor, for the gain check
+    S0: np.ndarray | None = None  # its shipped steady-state gain (p, m); None: no gain check
+    max_gain_change: float = np.inf
 
     def data_predictor(self, G: np.ndarray) -> np.ndarray:
         """Gd = Lm G Rm + C0 (n_o, n_w + n_u): [Gy_w Gy_u; Gs_w Gs_u] in the data's units."""
@@ -91,6 +121,10 @@ class QPModel:
         """The QP data of a fit-domain G (q, r), or the reason it is refused ("nonfinite", "hessian")."""
         with np.errstate(all="ignore"):
             Gd = self.data_predictor(G)
+            if self.S0 is not None:
+                S = steady_state_gain(Gd, *self.dims)
+                if S is None or not np.linalg.norm(S - self.S0) <= self.max_gain_change * np.linalg.norm(self.S0):
+                    return "gain"
             Gw, Gu = Gd[:, : self.n_w], Gd[:, self.n_w :] @ self.B
             P, F_q = self.terms(Gd)
             A_g, F_g = self.A_g0.copy(), self.F_g0.copy()

@@ -29,8 +29,9 @@ from ddpc_codegen.runtime.adapt_qp import QPData, QPModel
 __all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "extra_rows", "solve_g",
            "excitation_ratio", "REJECTIONS"]
 
-# Reasons a candidate G is rejected, in the order they are checked (the C code uses the same order).
-REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction")
+# Reasons a candidate G is rejected (the C code's codes 1..6, in this order). Checked in the order rank, nonfinite,
+# gain, (QP data) nonfinite, hessian, excitation, prediction -- numpy and C alike.
+REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction", "gain")
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,10 @@ class AdaptSettings:
     window: recent columns kept for the verification (prediction error, excitation); >= m (Tini+Tf).
     max_change: largest ||G_new - G||_F / ||G||_F of one swap (a bigger step is scaled down to it).
     min_excitation: smallest min/max |diag| of the R factor of the recent window's scaled input rows.
+    max_gain_change: largest ||S_new - S_0||_F / ||S_0||_F of the predictor's steady-state gain S (outputs per
+        constant reference, p x m) against the shipped one. Closed-loop data explain an offset the fit has no
+        term for (a payload, battery sag) by distorting the gains, e.g. height through the pitch reference;
+        the tracking loop's steady-state gains are set by its structure, so a large change is refused.
     """
 
     enabled: bool = False
@@ -110,6 +115,7 @@ class AdaptSettings:
     window: int = 200
     max_change: float = 0.2
     min_excitation: float = 1e-3
+    max_gain_change: float = 0.25
 
 
 def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None:

@@ -41,7 +41,7 @@ def test_only_runs_of_steered_ticks_update_and_a_reset_tick_breaks_the_window():
 
 
 def test_a_re_solve_every_period_updates_is_recorded_and_swapped_in():
-    twin = _twin(window=20, period_ticks=25, forgetting=0.98, min_excitation=1e-6, max_change=0.5)
+    twin = _twin(window=20, period_ticks=25, forgetting=0.98, min_excitation=1e-6, max_change=0.5, max_gain_change=1e3)
     ad = OnlineAdaptation(twin)
     other = random_lti(3, 1, 1, 9)
     u = np.random.default_rng(5).standard_normal((200, 1))
