@@ -6,8 +6,9 @@ Conditions (flying, the change at ``t_change``): ``nominal`` (none), ``mass`` (a
 down, 12 N for 3 s). Metric: the RMS of true height minus desired height within 10 s of the change
 (``nominal``: over the same window), in metres. The adapted run uses the config's ``[adapt]`` settings on
 its own instance of the generated solver. ``evidence``: how well the predictor adapted on the static run's
-closed-loop data predicts the following seconds compared with the shipped one (out of sample), the record
-that says whether adaptation *could* have been expected to help.
+closed-loop data predicts the following seconds compared with the shipped one (out of sample), and the steady-
+state gains of both: the record of why an update was refused (``gain``: the fit explains the change's offset by
+distorting the gains) or swapped in.
 
 ``ddpc-codegen adapt-eval [--out reports]`` (or ``python -m ddpc_codegen.experiments.adapt_eval``).
 """
@@ -30,7 +31,7 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.experiments.baselines import BaselineHook, fit_scenario_prefilter
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.pipeline import ROOT, build_setup, default_config
-from ddpc_codegen.runtime.adapt_qp import SampleWindow
+from ddpc_codegen.runtime.adapt_qp import SampleWindow, steady_state_gain
 from ddpc_codegen.runtime.adaptation import solve_g
 from ddpc_codegen.runtime.baselines import PrefilterPolicy
 from ddpc_codegen.sim import PogoXParams, Push, simulate
@@ -85,7 +86,8 @@ def _prefilter_run(setup, c: dict, params: PogoXParams, seed: int):
 def prediction_evidence(setup, res, settings, t0: float, split: float) -> dict[str, float]:
     """Out-of-sample check of what adaptation would learn: the predictor updated (the shipped R, the config's
     forgetting) on the closed-loop columns of ``res`` in [t0, split) against the shipped one, both predicting
-    the columns of [split, end) (sum of squared scaled output errors)."""
+    the columns of [split, end) (sum of squared scaled output errors), and both steady-state gains (outputs per
+    constant reference, p x m: what the ``gain`` verification compares)."""
     ad = adapter(setup.problem, settings)
     lay = ad.layout
     sw = SampleWindow(lay.depth, lay.m, lay.p, lay.t_ini != setup.problem.predictor.t_ini)
@@ -101,7 +103,11 @@ def prediction_evidence(setup, res, settings, t0: float, split: float) -> dict[s
     G1, _ = solve_g(ad.R, lay, ad.slack_weight, ad.ridge, ad.rcond)
     C = np.array(test)
     err = lambda G: float(np.sum((C[:, : lay.r] @ G[: lay.q_y].T - C[:, lay.r : lay.r + lay.q_y]) ** 2))  # noqa: E731
-    return {"shipped": err(ad.G), "adapted": err(G1), "fit_s": [t0, split], "test_s": [split, float(res.t[-1])]}
+    c = setup.problem.config
+    gain = lambda G: steady_state_gain(ad.qp.data_predictor(G), c.m, c.p, c.t_ini, c.t_f)  # noqa: E731
+    S0, S1 = gain(ad.G), gain(G1)
+    return {"shipped": err(ad.G), "adapted": err(G1), "fit_s": [t0, split], "test_s": [split, float(res.t[-1])],
+            "gain_shipped": None if S0 is None else S0.tolist(), "gain_adapted": None if S1 is None else S1.tolist()}
 
 
 def evaluate_adaptation(config: SteeringConfig | str | Path | None = None, *, dataset: str | Path | None = None,
