@@ -30,7 +30,6 @@ def _delays(events, kind: str, times: np.ndarray, dt: float) -> list[int | None]
     return out
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("noise, seed", [(False, 0), (True, 1)])
 def test_estimate_from_telemetry_within_two_ticks(noise, seed):
     res, states = _hop(noise, seed)
@@ -52,7 +51,6 @@ def test_estimate_from_telemetry_within_two_ticks(noise, seed):
     assert set(ds) == {1}
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("noise, seed", [(False, 0), (True, 1), (True, 2)])
 def test_profile_thresholds_detect_on_the_sensors_sample(noise, seed):
     """pogox_hopping's [contact] thresholds sit where the foot meets (h = 0) and leaves (h = -3.7 mm,
