@@ -128,11 +128,11 @@ def fly_condition(sitl, autopilot: str, name: str, out: Path, trajectory: Path, 
 
 
 def summarize_rounds(per_round: list[dict]) -> dict:
-    """Per key (rmse_z, rmse_z_truth, thrust_step_rms, max_ref_step) and method: the mean over the
+    """Per key (rmse_z, rmse_z_truth, thrust_step_rms, max_ref_step, max_offset_step) and method: the mean over the
     rounds (None where any round has none); ``ilc`` None (the path does not repeat); the estimator's
     error averaged over every flight; the rounds themselves."""
     out: dict = {}
-    for key in ("rmse_z", "rmse_z_truth", "thrust_step_rms", "max_ref_step", "fallbacks"):
+    for key in ("rmse_z", "rmse_z_truth", "thrust_step_rms", "max_ref_step", "max_offset_step", "fallbacks"):
         out[key] = {}
         for method in METHODS:
             vals = [r[method][key] for r in per_round]

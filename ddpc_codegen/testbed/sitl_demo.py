@@ -17,6 +17,7 @@ autopilot in a private one (:func:`ddpc_codegen.testbed.sitl.run_isolated`) and 
 from __future__ import annotations
 
 import argparse
+from concurrent.futures import ThreadPoolExecutor
 import json
 import math
 import subprocess
@@ -113,12 +114,15 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     """From a tick log, after ``settle`` s of trajectory: RMSE of z on the telemetry (EKF) and on the
     simulator's true height (ArduPilot SIM_STATE, PX4 SIH HIL_STATE_QUATERNION; None without it), the
     estimator's own error (RMS of EKF - true height), the steered fraction of the engaged ticks, the
-    tick-to-tick thrust change (rms) and the largest tick-to-tick step of the applied height reference."""
+    tick-to-tick thrust change (rms), the largest tick-to-tick step of the applied height reference
+    (``max_ref_step``: the trajectory's own steps included) and of its correction u - r_nom
+    (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved)."""
     t = load_ticklog(log_path).ticks
     on = t["active"].astype(bool) & (np.nan_to_num(t["t_traj"], nan=-1.0) >= settle)
     ez = t["y"][on, 0] - t["y_des"][on, 0]
     dthr = np.diff(t["sp_thrust"][on])
     du = np.abs(np.diff(t["u"][on, 0]))
+    doff = np.abs(np.diff(t["u"][on, 0] - t["r_nom"][on, 0]))
     steered = t["reason"][on] == _STEERED
     zt = t["truth_position"][on, 2] if "truth_position" in t else np.zeros(0)
     ok = np.isfinite(zt)
@@ -127,6 +131,7 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     return {"rmse_z": rms(ez), "rmse_z_truth": rms(ezt), "estimator_rms": rms(est),
             "engaged_fraction": float(steered.mean()) if steered.size else None,
             "thrust_step_rms": rms(dthr), "max_ref_step": float(du.max()) if du.size else None,
+            "max_offset_step": float(doff.max()) if doff.size else None,
             "ticks": int(on.sum())}
 
 
@@ -248,7 +253,8 @@ def ellipse_figures(out: Path, autopilot: str, ilc: dict) -> tuple[dict, dict]:
     est = [v["estimator_rms"] for v in f.values() if v["estimator_rms"] is not None]
     ellipse = {k: baselines[k] for k in ("rmse_z", "rmse_z_truth", "thrust_step_rms")}
     ellipse.update(estimator_rms=float(np.sqrt(np.mean(np.square(est)))) if est else None,
-                   max_ref_step={m: v["max_ref_step"] for m, v in f.items()})
+                   max_ref_step={m: v["max_ref_step"] for m, v in f.items()},
+                   max_offset_step={m: v["max_offset_step"] for m, v in f.items()})
     return baselines, ellipse
 
 
@@ -277,6 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.rounds < 1:
         p.error(f"--rounds must be >= 1; got {a.rounds}")
     report: dict = {}
+    jobs = {}
     for ap in a.autopilot or ["px4", "ardupilot"]:
         why = missing_reason(ap)
         if why:
@@ -286,14 +293,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[sitl-demo] {ap}: ground -> baseline -> collect -> codegen -> steer -> prefilter, ctrl ff, ilc"
               f"{f' -> {len(conds)} condition(s) x {a.rounds} round(s): {flights} more flights' if conds else ''} "
               "(~40 s of wall time per flight) ...", flush=True)
-        res = run_isolated("ddpc_codegen.testbed.sitl_demo:run_pipeline",
-                           {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}"), "conditions": conds,
-                            "rounds": a.rounds, "steps_s": a.steps_s}, timeout=900 + 120 * flights)
-        report[ap] = res
+        jobs[ap] = ("ddpc_codegen.testbed.sitl_demo:run_pipeline",
+                    {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}"), "conditions": conds,
+                     "rounds": a.rounds, "steps_s": a.steps_s}, 900 + 120 * flights)
+    # The autopilots fly at once, each SITL and its bridges in a private network namespace.
+    with ThreadPoolExecutor(max_workers=max(1, len(jobs))) as pool:
+        futures = {ap: pool.submit(run_isolated, fn, kw, timeout=t) for ap, (fn, kw, t) in jobs.items()}
+        failed = []
+        for ap, fut in futures.items():
+            try:
+                report[ap] = fut.result()
+            except Exception as e:  # one autopilot's failure must not discard the other's flights
+                failed.append(ap)
+                print(f"[sitl-demo] {ap}: FAILED: {e}", flush=True)
+    for ap, res in report.items():
         print_result(ap, res)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "sitl.json").write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
-    return 0 if report else 1
+    return 0 if report and not failed else 1
 
 
 def print_result(ap: str, res: dict) -> None:
@@ -334,8 +351,12 @@ def format_condition(ap: str, name: str, c: dict) -> str:
         goal = f">= 10x passthrough ({vt['passthrough'] / vt['steered']:.1f}x)" if name == "ellipse" else (
             f">= 2x the best simple method ({best / vt['steered']:.2f}x)")
         est_txt = f"; estimator error {mm(est)} mm (steered {vt['steered'] / est:.2f}x of it)" if est else ""
-        lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest reference step "
-                     f"{mm((c.get('max_ref_step') or {}).get('steered'))} mm per tick")
+        thr = c.get("thrust_step_rms") or {}
+        thr_txt = (f"; thrust step {thr['steered'] / thr['passthrough']:.1f}x passthrough's"
+                   if thr.get("steered") and thr.get("passthrough") else "")
+        lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest step of the steering's correction "
+                     f"{mm((c.get('max_offset_step') or {}).get('steered'))} mm per tick (reference "
+                     f"{mm((c.get('max_ref_step') or {}).get('steered'))}){thr_txt}")
     return "\n".join(lines)
 
 

@@ -144,10 +144,10 @@ def _parsed(*flags):
 
 def test_step_guard_comes_from_the_flag_then_the_profile_then_the_default():
     """PX4's profile carries the 0.6 m guard its shipped config needs ([steering] max_step), so a user
-    flying it by hand gets it; --max-step (numbers or none) overrides; other profiles keep 0.3 m."""
+    flying it by hand gets it, and so does ArduCopter's; --max-step (numbers or none) overrides; other profiles keep 0.3 m."""
     assert _parsed("--profile", "px4_sih").max_step == (0.6, 0.5)
     assert _parsed("--profile", "px4_sih", "--max-step", "0.4,0.2").max_step == (0.4, 0.2)
     assert _parsed("--profile", "px4_sih", "--max-step", "none").max_step is None
-    assert _parsed("--profile", "arducopter_sitl").max_step == (0.3, 0.5)
+    assert _parsed("--profile", "arducopter_sitl").max_step == (0.6, 0.5)
     assert _parsed().max_step == (0.3, 0.5)
     assert _parsed("--scenario", "hopping").max_step is None  # hopping's default: no guard

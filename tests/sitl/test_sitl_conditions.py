@@ -35,7 +35,7 @@ def test_the_steps_file_is_a_non_repeating_3d_path_with_height_steps(tmp_path):
 
 def _flight(v: float, est: float | None = 0.01) -> dict:
     return {"rmse_z": v, "rmse_z_truth": v + 0.001, "thrust_step_rms": 0.002, "max_ref_step": 0.004,
-            "fallbacks": 0, "estimator_rms": est}
+            "max_offset_step": 0.003, "fallbacks": 0, "estimator_rms": est}
 
 
 def test_rounds_are_averaged_per_method_and_ilc_is_none_off_the_ellipse():
@@ -54,12 +54,14 @@ def test_rounds_are_averaged_per_method_and_ilc_is_none_off_the_ellipse():
 def test_condition_lines_state_the_target_on_the_true_height():
     c = {"rmse_z": {"passthrough": 0.1, "ctrl_ff": 0.05, "prefilter": 0.04, "ilc": None, "steered": 0.01},
          "rmse_z_truth": {"passthrough": 0.1, "ctrl_ff": 0.05, "prefilter": 0.04, "ilc": None, "steered": 0.016},
-         "estimator_rms": 0.008, "max_ref_step": {"steered": 0.005}}
+         "estimator_rms": 0.008, "max_ref_step": {"steered": 0.3}, "max_offset_step": {"steered": 0.005},
+         "thrust_step_rms": {"passthrough": 0.002, "steered": 0.003}}
     assert format_condition("px4", "heavy", c).splitlines() == [
         "[sitl-demo] px4 heavy EKF height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 10.0 mm",
         "[sitl-demo] px4 heavy true height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 16.0 mm",
         "[sitl-demo] px4 heavy target >= 2x the best simple method (2.50x); estimator error 8.0 mm (steered 2.00x of "
-        "it); largest reference step 5.0 mm per tick"]
+        "it); largest step of the steering's correction 5.0 mm per tick (reference 300.0); thrust step 1.5x "
+        "passthrough's"]
     assert format_condition("px4", "wind", {"skipped": CONDITIONS["px4"]["wind"]}) == (
         "[sitl-demo] px4 wind: PX4 SIH in this build has no wind parameter (no SIH_WIND_*): not flown")
     c["ilc"] = None
