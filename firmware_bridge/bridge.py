@@ -4,7 +4,7 @@ SET_ATTITUDE_TARGET out, at 200 Hz (``ddpc-bridge``).
 One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
 
     newest telemetry (NED/FRD -> ENU/FLU -> trajectory frame) -> MeasuredState (t = trajectory time)
-    hopping: phase (contact estimate or the robot's contact flag) -> state.contact    (:mod:`.hopping`)
+    hopping: phase (contact estimate or the robot's contact flag) -> state.contact    (:mod:`.hopping_loop`)
     r_nom = controller.nominal_reference(state)             stage (a)
     u     = steer: ReferenceSteerer.step(y_des, u_nom)      the generated solver, with fallback
             passthrough: r_nom                              the model-based controller alone
@@ -30,7 +30,7 @@ history for up to ``max_gap_fill`` ticks).
 
 Before the first tick (:mod:`.preflight`): the heartbeat's autopilot must match ``autopilot`` (no
 mode command otherwise), parameters are read (hover thrust, GUID_OPTIONS: the thrust semantics),
-the trajectory must lie inside the solver's bounds. Flight phases (:mod:`.phases`): arming once
+the trajectory must lie inside the solver's bounds (:mod:`.steering_setup`). Flight phases (:mod:`.engagement`): arming once
 telemetry arrives, retried while refused; optional take-off ramp to the trajectory start (heights
 from the take-off point); bumpless (re-)engagement; the trajectory's clock and frame are fixed at
 its first start -- a stall never restarts or re-anchors it.
@@ -61,9 +61,8 @@ import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig
-from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation, adapt_code
-from ddpc_codegen.runtime.policy import SteeringPolicy
-from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
+from ddpc_codegen.runtime.adapt_loop import adapt_code
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
 from firmware_bridge.baseline_modes import BASELINE_MODES, baseline_policy, feedforward_row
 from firmware_bridge.clock import TickClock
@@ -73,13 +72,13 @@ from firmware_bridge.hopping_loop import HoppingLoop, hopping_window
 from firmware_bridge.link import CommandTracker, MavLink
 from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
 from firmware_bridge.gate import GATE_FLAGS
-from firmware_bridge.preflight import (PreflightError, VehicleInfo, check_trajectory_bounds, check_trajectory_extent,
-                                       trajectory_rate_warning)
+from firmware_bridge.preflight import PreflightError, VehicleInfo
 from firmware_bridge.profiles import Profile, make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.report import Reporting, gap_statistics
 from firmware_bridge.safety import TickSafety, make_gate
 from firmware_bridge.setpoints import SetpointShaping
+from firmware_bridge.steering_setup import SteeringSetup
 from firmware_bridge.supervisor import Supervisor
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.ticklog import TickRecorder
@@ -88,7 +87,7 @@ from firmware_bridge.truth import SimTruth
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
            "default_controller_config", "gap_statistics"]
 
-class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety):
+class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
     """The tick loop (see the module docstring). ``run()`` returns the summary dict.
 
     Args:
@@ -147,49 +146,6 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety):
         self.scheduling = "best effort"
         self._rt = RealtimeSetup()
         self._init_run_state()
-
-    # ------------------------------------------------------------------ setup
-    def _setup_solver(self, solver) -> None:
-        from ddpc_codegen.runtime.loader import load_solver
-
-        c = self.cfg
-        solver = solver if solver is not None else load_solver(c.solver)
-        man = solver.manifest
-        d = man["dims"]
-        if (d["m"], d["p"]) != (self.m, self.p):
-            raise ValueError(f"solver has m={d['m']}, p={d['p']} but the flying loop has m={self.m}, p={self.p}")
-        sig = man.get("signals", {})
-        if sig.get("inputs") and tuple(sig["inputs"]) != self.ctrl.input_names:
-            raise ValueError(f"solver inputs {sig['inputs']} != controller references {list(self.ctrl.input_names)}")
-        if sig.get("outputs") and tuple(sig["outputs"]) != self.ctrl.output_names:
-            raise ValueError(f"solver outputs {sig['outputs']} != controller outputs {list(self.ctrl.output_names)}")
-        if sig.get("dt") and abs(float(sig["dt"]) - self.period) > 1e-9:
-            raise ValueError(f"solver dt {sig['dt']} s does not match the bridge rate {c.rate_hz} Hz")
-        if c.inject_solver_failure:
-            start, count, *kind = c.inject_solver_failure
-            solver = FaultInjectingSolver(solver, int(start), int(count), kind[0] if kind else "fail")
-        self.solver = solver
-        self.steerer = ReferenceSteerer.for_solver(
-            solver, max_step=None if c.max_step is None else np.asarray(c.max_step, float))
-        adaptation = None
-        if c.adapt:
-            if getattr(solver, "adaptation", None) is None:
-                raise ValueError(f"--adapt needs a solver generated with [adapt] enabled; {c.solver} has no online update")
-            adaptation = OnlineAdaptation(solver, seed=c.seed)
-        self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill, adaptation=adaptation)
-        lo, hi = solver_input_bounds(solver)
-        if self.hopping:  # the nominal hop: from the leg's rest length up to the apex target
-            cc = self.ctrl_cfg
-            check_trajectory_bounds(np.array([cc.leg_length, cc.apex_height]), float(lo[0]), float(hi[0]), "hop")
-        else:  # any trajectory: its own extent and time span (the ellipse, a file, a random path)
-            check_trajectory_extent(self.ctrl.trajectory, float(lo[0]), float(hi[0]))
-            du = (man.get("bounds") or {}).get("du_max") or [None]
-            warning = trajectory_rate_warning(self.ctrl.trajectory, math.inf if du[0] is None else float(du[0]),
-                                              c.rate_hz)
-            if warning:
-                print(f"[bridge] WARNING: {warning}", file=sys.stderr, flush=True)
-        self.t_f = d["t_f"]
-        self._ahead = self.period * np.arange(self.t_f)
 
     def _reset_steering(self) -> None:
         """Forget the steering history (hopping: its own (u, y, phase) history too)."""
