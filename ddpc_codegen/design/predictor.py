@@ -34,6 +34,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError, ExcitationError
 from ddpc_codegen.design.hankel import PEReport, channel_stats, near_constant_channels
+from ddpc_codegen.runtime.fit_layout import FitLayout
 
 __all__ = ["Predictor", "fit_predictor", "min_samples", "FitLayout", "channel_scale", "hankel_r_factor",
            "stack_r_factors", "predictor_from_r"]
@@ -130,18 +131,6 @@ def min_samples(t_ini: int, t_f: int, m: int) -> int:
     return (m + 1) * L - 1
 
 
-def _row_order(m: int, p: int, t_ini: int, t_f: int) -> np.ndarray:
-    """Indices taking rows of the Hankel of [u y] (time-major, channels u then y)
-    to the order [Up; Yp; Uf; Yf]."""
-    d = m + p
-    L = t_ini + t_f
-    ui = [t * d + c for t in range(L) for c in range(m)]
-    yi = [t * d + m + c for t in range(L) for c in range(p)]
-    up, uf = ui[: m * t_ini], ui[m * t_ini:]
-    yp, yf = yi[: p * t_ini], yi[p * t_ini:]
-    return np.array(up + yp + uf + yf)
-
-
 def _hankel_blocks(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], depth: int, block: int,
                    scale: np.ndarray) -> Iterator[np.ndarray]:
     """Yield column blocks (b, depth*(m+p)) of the *transposed* mosaic Hankel of [u y] / scale."""
@@ -158,53 +147,6 @@ def _hankel_blocks(trajectories: Iterable[tuple[np.ndarray, np.ndarray]], depth:
 def _accumulate_r(R: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
     X = rows if R is None else np.vstack([R, rows])
     return np.linalg.qr(X, mode="r")
-
-
-@dataclass(frozen=True)
-class FitLayout:
-    """Columns of the TSQR data matrix X = [Z^T | target^T] of a fit (one row per Hankel column).
-
-    Z = [Up; Yp; Uf] has r = (m+p) Tini + m Tf rows; the targets are Yf (q_y = p Tf rows) and, for
-    ``pem``, the slack (q_s = p Tini rows, zero on data). R factors of X are at most (width, width),
-    width = r + q_y + q_s.
-    """
-
-    m: int
-    p: int
-    t_ini: int
-    t_f: int
-    method: str
-
-    @property
-    def depth(self) -> int:
-        return self.t_ini + self.t_f
-
-    @property
-    def r(self) -> int:
-        return (self.m + self.p) * self.t_ini + self.m * self.t_f
-
-    @property
-    def q_y(self) -> int:
-        return self.p * self.t_f
-
-    @property
-    def q_s(self) -> int:
-        return self.p * self.t_ini if self.method == "pem" else 0
-
-    @property
-    def width(self) -> int:
-        return self.r + self.q_y + self.q_s
-
-    @property
-    def u_rows(self) -> np.ndarray:
-        """Rows of Z holding inputs ([Up; Uf]): the PE check's."""
-        n_up, n_yp = self.m * self.t_ini, self.p * self.t_ini
-        return np.r_[0:n_up, n_up + n_yp : self.r]
-
-    def data_rows(self, blk: np.ndarray) -> np.ndarray:
-        """Hankel column block (b, depth*(m+p)) -> rows (b, width) of X as [Up Yp Uf Yf (0)]."""
-        rows = blk[:, _row_order(self.m, self.p, self.t_ini, self.t_f)]
-        return np.hstack([rows, np.zeros((rows.shape[0], self.q_s))]) if self.q_s else rows
 
 
 def channel_scale(rms: np.ndarray, std: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, tuple[str, ...]]:

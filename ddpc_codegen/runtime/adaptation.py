@@ -1,7 +1,7 @@
 """Online predictor updates (numpy reference of the generated ``<name>_adapt.c``; no casadi).
 
 The fit's sufficient statistic is the upper-triangular R factor of the scaled data matrix
-X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see ``design.predictor.FitLayout``).
+X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see :class:`.fit_layout.FitLayout`).
 Online, each new Hankel column x (width,) updates it with exponential forgetting f:
 
     R <- triu(qr([sqrt(f) R; x^T]))      (Givens rotations, O(width^2), :func:`givens_update`)
@@ -25,6 +25,7 @@ import numpy as np
 
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.runtime.adapt_qp import QPData, QPModel
+from ddpc_codegen.runtime.fit_layout import FitLayout
 
 __all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "extra_rows", "solve_g",
            "excitation_ratio", "REJECTIONS"]
@@ -34,62 +35,7 @@ __all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "extra_ro
 REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction", "gain")
 
 
-@dataclass(frozen=True)
-class AdaptLayout:
-    """Rows of the fit's data matrix: Z = [Up; Yp; Uf] (r rows), targets Yf (q_y) and the pem slack (q_s).
-
-    Same layout as ``ddpc_codegen.design.predictor.FitLayout`` (tested equal), here without design imports.
-    """
-
-    m: int
-    p: int
-    t_ini: int
-    t_f: int
-    method: str
-
-    @property
-    def depth(self) -> int:
-        return self.t_ini + self.t_f
-
-    @property
-    def r(self) -> int:
-        return (self.m + self.p) * self.t_ini + self.m * self.t_f
-
-    @property
-    def q_y(self) -> int:
-        return self.p * self.t_f
-
-    @property
-    def q_s(self) -> int:
-        return self.p * self.t_ini if self.method == "pem" else 0
-
-    @property
-    def width(self) -> int:
-        return self.r + self.q_y + self.q_s
-
-    @property
-    def u_rows(self) -> np.ndarray:
-        """Indices of the input rows ([Up; Uf]) of Z."""
-        n_up, n_yp = self.m * self.t_ini, self.p * self.t_ini
-        return np.r_[0:n_up, n_up + n_yp : self.r]
-
-    def row_order(self) -> np.ndarray:
-        """Indices taking a time-major window (depth, m+p) flattened to the order [Up; Yp; Uf; Yf]."""
-        d, m = self.m + self.p, self.m
-        ui = [t * d + c for t in range(self.depth) for c in range(m)]
-        yi = [t * d + m + c for t in range(self.depth) for c in range(self.p)]
-        nu, ny = m * self.t_ini, self.p * self.t_ini
-        return np.array(ui[:nu] + yi[:ny] + ui[nu:] + yi[ny:])
-
-    def column(self, window: np.ndarray, scale: np.ndarray) -> np.ndarray:
-        """Time-major window (depth, m+p) in data units -> the data row x (width,) of X (scaled; slack 0)."""
-        w = np.asarray(window, dtype=float)
-        if w.shape != (self.depth, self.m + self.p):
-            raise DataError(f"an adaptation window must have shape ({self.depth}, {self.m + self.p}) "
-                            f"(depth Tini+Tf, channels u then y); got {w.shape}")
-        x = np.zeros(self.width)
-        x[: self.r + self.q_y] = (w / scale).reshape(-1)[self.row_order()]
-        return x
+AdaptLayout = FitLayout  # the online update's name for the fit's layout
 
 
 @dataclass(frozen=True)
