@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test test-durations lint docs demo codegen bench bridge-demo sitl-demo clean
+.PHONY: install test test-durations lint docs demo codegen adapt-eval bench bridge-demo sitl-demo clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -77,6 +77,11 @@ bridge-demo: install
 # network namespace; reports/sitl.json and the flight logs in reports/sitl_<autopilot>/.
 sitl-demo: install
 	$(PY) -m ddpc_codegen.testbed.sitl_demo
+	$(RENDER)
+
+# Online predictor updates in-process: a vehicle change mid-flight, adapted vs static vs prefilter.
+adapt-eval: install
+	$(VENV)/bin/ddpc-codegen adapt-eval
 	$(RENDER)
 
 bench: install

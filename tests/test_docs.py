@@ -149,6 +149,24 @@ def test_results_page_and_readme_block_render_the_summary(tmp_path):
     assert block.startswith(results.BEGIN) and block.endswith(results.END) and "90.0" in block
 
 
+def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
+    cond = {"rmse_z": {"passthrough": 0.07, "ctrl_ff": 0.05, "prefilter": 0.016, "ilc": None, "steered": 0.008},
+            "rmse_z_truth": {"passthrough": 0.07, "ctrl_ff": 0.054, "prefilter": 0.0168, "ilc": None, "steered": 0.0084},
+            "estimator_rms": 0.0056, "thrust_step_rms": {"passthrough": 0.0002, "steered": 0.0005},
+            "max_offset_step": {"steered": 0.006}, "fallbacks": {"steered": 0.0}}
+    table = results._conditions_table([("ardupilot", "steps", cond), ("px4", "wind", {"skipped": "no wind parameter"})])
+    assert ("| ardupilot | steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | 8.0 | 5.6 | 2.00x | 1.50x | 6.0 | 2.5x | 0 |"
+            in table.splitlines())
+    assert "- px4 wind: no wind parameter" in table
+    adaptation = {"scenario": "flying", "duration_s": 25.0, "t_change_s": 10.0, "window_s": 10.0, "adapt": {"forgetting": 0.999},
+                  "conditions": {"mass": {"what": "+0.4 kg", "static": 0.0134, "adapted": 0.0137, "prefilter": 0.104,
+                                          "adapted_crashed": False, "adapted_over_static": 1.02,
+                                          "adaptation": {"swaps": 10, "rejected_gain": 14}}}}
+    page = results.results_page({"summary.json": {**SUMMARY, "adaptation": adaptation}})
+    assert "| mass | +0.4 kg | 13.4 | 13.7 | 104.0 | 1.02 | 10 | 14 |" in page
+    assert "Not measured yet -- run `make adapt-eval`" in results.results_page({"summary.json": SUMMARY})
+
+
 def test_markdown_table_escapes_pipes_inside_cells_and_moves_notes_to_a_code_block():
     grid = "| a | mean |apex err| [mm] |\n|---|---:|\n| x |  1 |\n* a note"
     assert results.markdown_table(grid) == ("| a | mean \\|apex err\\| [mm] |\n|---|---:|\n| x |  1 |\n\n"

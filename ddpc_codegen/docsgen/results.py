@@ -131,7 +131,59 @@ def _sitl_section(sitl: dict) -> str:
     printed = [format_baselines(a, sitl[a]["baselines"]) for a in aps if "baselines" in sitl[a]]
     if printed:
         text += "\nThe baselines flown in the same run (height RMSE):\n\n```\n" + "\n".join(printed) + "\n```\n"
+    conditions = [(a, n, c) for a in aps for n, c in (sitl[a].get("conditions") or {}).items()]
+    if conditions:
+        text += "\n" + _conditions_table(conditions)
     return text
+
+
+_METHODS = ("passthrough", "ctrl_ff", "prefilter", "ilc", "steered")
+
+
+def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
+    """Per autopilot and condition: each method's true-height RMSE (mean over the rounds), the estimator's
+    own error, the steering against the best simple method (ctrl ff, prefilter, ILC) and the estimator, the
+    largest step of the steering's correction, the thrust steps against passthrough's and the fallbacks."""
+    head = ("| autopilot | condition | " + " | ".join(m.replace("_", " ") for m in _METHODS)
+            + " | EKF steered | estimator error | best simple / steered | steered / estimator "
+            "| correction step max [mm/tick] | thrust steps / passthrough | fallbacks |")
+    lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds:\n",
+             head, "|" + "---|" * (head.count("|") - 1)]
+    for ap, name, c in conditions:
+        if "skipped" in c:
+            lines.append(f"| {ap} | {name} | " + " | ".join(["--"] * (len(_METHODS) + 7)) + " |")
+            continue
+        vt, est = c["rmse_z_truth"], c.get("estimator_rms")
+        simple = [vt.get(m) for m in ("ctrl_ff", "prefilter", "ilc") if vt.get(m) is not None]
+        st = vt.get("steered")
+        best = f"{min(simple) / st:.2f}x" if st and simple else "--"
+        vs_est = f"{st / est:.2f}x" if st and est else "--"
+        thr = c.get("thrust_step_rms") or {}
+        thr_ratio = f"{thr['steered'] / thr['passthrough']:.1f}x" if thr.get("steered") and thr.get("passthrough") else "--"
+        step = (c.get("max_offset_step") or {}).get("steered")
+        fb = (c.get("fallbacks") or {}).get("steered")
+        lines.append(f"| {ap} | {name} | " + " | ".join(_mm(vt.get(m)) for m in _METHODS)
+                     + f" | {_mm(c['rmse_z'].get('steered'))} | {_mm(est)} | {best} | {vs_est} | "
+                     + f"{'--' if step is None else f'{1e3 * step:.1f}'} | {thr_ratio} | "
+                     + f"{'--' if fb is None else f'{fb:g}'} |")
+    skipped = [f"{ap} {name}: {c['skipped']}" for ap, name, c in conditions if "skipped" in c]
+    return "\n".join(lines) + "\n" + ("".join(f"\n- {s}" for s in skipped) + "\n" if skipped else "")
+
+
+def _adaptation_section(a: dict) -> str:
+    """``ddpc-codegen adapt-eval``'s figures: static vs adapted steering vs the prefilter per condition."""
+    rows = ["| condition | change | static | adapted | prefilter | adapted / static | swaps | refused by the gain check |",
+            "|---|---|---|---|---|---|---|---|"]
+    for name, c in a.get("conditions", {}).items():
+        ad = c.get("adaptation", {})
+        adapted = "vehicle lost" if c.get("adapted_crashed") else _mm(c.get("adapted"))
+        ratio = c.get("adapted_over_static")
+        rows.append(f"| {name} | {c.get('what', '')} | {_mm(c.get('static'))} | {adapted} | {_mm(c.get('prefilter'))} | "
+                    f"{'--' if ratio is None else f'{ratio:.2f}'} | {ad.get('swaps', '--')} | {ad.get('rejected_gain', '--')} |")
+    s = a.get("adapt", {})
+    return (f"{a.get('scenario', '?')} scenario, {a.get('duration_s', '?')} s, the change at t = {a.get('t_change_s', '?')} s; "
+            f"true-height RMSE [mm] within {a.get('window_s', '?')} s of it. Settings: "
+            + ", ".join(f"{k} {v}" for k, v in s.items() if k != "enabled") + ".\n\n" + "\n".join(rows) + "\n")
 
 
 def results_page(reports: dict[str, dict]) -> str:
@@ -146,6 +198,12 @@ def results_page(reports: dict[str, dict]) -> str:
     for name, title, render in sections:
         out.append(f"## {title}\n")
         out.append(render(reports[name]) if name in reports else _missing(name))
+        if name == "summary.json":
+            out.append("### Online adaptation (`make adapt-eval`)\n")
+            adaptation = reports.get(name, {}).get("adaptation")
+            out.append(_adaptation_section(adaptation) if adaptation else
+                       "Not measured yet -- run `make adapt-eval` (it adds `adaptation` to `reports/summary.json` "
+                       "and rewrites this page).\n")
     return "\n".join(out)
 
 
