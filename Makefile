@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test test-durations lint docs demo codegen adapt-eval bench bridge-demo sitl-demo clean
+.PHONY: install test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -78,6 +78,12 @@ bridge-demo: install
 sitl-demo: install
 	$(PY) -m ddpc_codegen.testbed.sitl_demo
 	$(RENDER)
+
+# Every file kind the bridge flies on, fuzzed: 10 000 mutated files per kind (profiles, prefilter, feed-forward,
+# trajectories): each refused with a precise error or loaded with finite values only.
+fuzz: install
+	DDPC_FUZZ_EXAMPLES=10000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
+		tests/firmware_bridge/test_baseline_modes.py tests/robot/test_profile.py tests/robot/test_trajectory_files_fuzz.py
 
 # Online predictor updates in-process: a vehicle change mid-flight, adapted vs static vs prefilter.
 adapt-eval: install

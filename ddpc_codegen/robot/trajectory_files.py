@@ -43,11 +43,18 @@ from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
 from ddpc_codegen.tomlconfig import check_keys, load_toml
 
-__all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS", "OPTIONAL_COLUMNS"]
+__all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS", "OPTIONAL_COLUMNS", "RANGES",
+           "MIN_SPACING"]
 
 COLUMNS = ("t", "x", "z")
 OPTIONAL_COLUMNS = ("y", "yaw", "vx", "vy", "vz")
 _ALL = COLUMNS + OPTIONAL_COLUMNS
+# Physical ranges of the columns (a finite 1e308 still overflows the spline): time [s], positions [m],
+# yaw [rad, unwrapped], velocities [m/s]; and the closest two samples may be [s].
+RANGES = {"t": (0.0, 1e6, "s"), "x": (-1e4, 1e4, "m"), "y": (-1e4, 1e4, "m"), "z": (-1e4, 1e4, "m"),
+          "yaw": (-1e3, 1e3, "rad"), "vx": (-100.0, 100.0, "m/s"), "vy": (-100.0, 100.0, "m/s"),
+          "vz": (-100.0, 100.0, "m/s")}
+MIN_SPACING = 1e-3
 MAX_SAMPLES = 1_000_000
 
 
@@ -187,6 +194,13 @@ def _build(rows: list[tuple[str, dict[str, float]]], src: str) -> SampledTraject
         if t <= prev_t:
             raise ConfigError(f"{where}: t = {t!r} is not after t = {prev_t!r} (at {prev_where}); "
                               "times must be strictly increasing")
+        if t - prev_t < MIN_SPACING:
+            raise ConfigError(f"{where}: t = {t!r} is less than {MIN_SPACING:g} s after t = {prev_t!r} "
+                              f"(at {prev_where}); resample the trajectory")
+        for col, v in vals.items():
+            lo, hi, unit = RANGES[col]
+            if not lo <= v <= hi:
+                raise ConfigError(f"{where}: {col} = {v!r} is outside [{lo:g}, {hi:g}] {unit}")
         prev_t, prev_where = t, where
     cols = {c: tuple(r[1][c] for r in rows) for c in _ALL if c in rows[0][1]}
     return SampledTrajectory(source=src, **cols)

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 from firmware_bridge.baseline_modes import load_feedforward, load_prefilter
 from firmware_bridge.bridge_config import BridgeConfig
+from support.fuzz import fuzz_examples
 
 SPAN = np.array([21.0, 1.0472])  # the default envelope: z in [-1, 20] m, pitch within +-30 deg
 GOOD = {"gain": [0.98, 1.0], "offset": [0.01, 0.0], "lead": [60, 10], "dt": 0.005, "names": ["z_ref", "pitch_ref"],
@@ -118,7 +119,8 @@ _VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(
                     st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
 
 
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=fuzz_examples(500), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(key=st.sampled_from(sorted(GOOD) + ["extra"]), value=_VALUES, drop=st.booleans())
 def test_mutated_prefilters_are_refused_or_finite(tmp_path, key, value, drop):
     d = dict(GOOD)
@@ -149,7 +151,8 @@ _ARRAYS = st.one_of(
 )
 
 
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=fuzz_examples(500), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(key=st.sampled_from(["delta", "dt", "clock"]), value=_ARRAYS, drop=st.booleans())
 def test_mutated_feedforward_tables_are_refused_or_finite(tmp_path, key, value, drop):
     arrays = {"delta": np.zeros((5, 2)), "dt": np.float64(0.005), "clock": np.str_("trajectory")}

@@ -17,6 +17,7 @@ from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import PROFILE_RANGES, Envelope, SteeringGuards, load_profile, shipped_profiles
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.robot.validate import check_table
+from support.fuzz import fuzz_examples
 
 
 def test_pogox_profile_is_the_simulated_flying_robot():
@@ -161,7 +162,8 @@ def _all_numbers(obj) -> list[float]:
     return out
 
 
-@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=fuzz_examples(400), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(field=st.sampled_from(_FIELDS), value=_VALUES, base=st.sampled_from(["pogox", "pogox_hopping"]))
 def test_mutated_profiles_are_refused_or_finite(tmp_path, field, value, base):
     """Any value in any field: a ConfigError naming the table, or a profile whose numbers are all finite
