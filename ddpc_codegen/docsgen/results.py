@@ -143,10 +143,11 @@ _METHODS = ("passthrough", "ctrl_ff", "prefilter", "ilc", "steered")
 def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
     """Per autopilot and condition: each method's true-height RMSE (mean over the rounds), the estimator's
     own error, the steering against the best simple method (ctrl ff, prefilter, ILC) and the estimator, the
-    largest step of the steering's correction, the thrust steps against passthrough's and the fallbacks."""
+    largest tick-to-tick step of the applied height reference in the steered flights (fallbacks included;
+    the config's rate bound ``du_max`` is the limit), the thrust steps against passthrough's and the fallbacks."""
     head = ("| autopilot | condition | " + " | ".join(m.replace("_", " ") for m in _METHODS)
             + " | EKF steered | estimator error | best simple / steered | steered / estimator "
-            "| correction step max [mm/tick] | thrust steps / passthrough | fallbacks |")
+            "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks |")
     lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds:\n",
              head, "|" + "---|" * (head.count("|") - 1)]
     for ap, name, c in conditions:
@@ -160,7 +161,7 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
         vs_est = f"{st / est:.2f}x" if st and est else "--"
         thr = c.get("thrust_step_rms") or {}
         thr_ratio = f"{thr['steered'] / thr['passthrough']:.1f}x" if thr.get("steered") and thr.get("passthrough") else "--"
-        step = (c.get("max_offset_step") or {}).get("steered")
+        step = (c.get("max_ref_step") or {}).get("steered")
         fb = (c.get("fallbacks") or {}).get("steered")
         lines.append(f"| {ap} | {name} | " + " | ".join(_mm(vt.get(m)) for m in _METHODS)
                      + f" | {_mm(c['rmse_z'].get('steered'))} | {_mm(est)} | {best} | {vs_est} | "

@@ -354,9 +354,9 @@ def format_condition(ap: str, name: str, c: dict) -> str:
         thr = c.get("thrust_step_rms") or {}
         thr_txt = (f"; thrust step {thr['steered'] / thr['passthrough']:.1f}x passthrough's"
                    if thr.get("steered") and thr.get("passthrough") else "")
-        lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest step of the steering's correction "
-                     f"{mm((c.get('max_offset_step') or {}).get('steered'))} mm per tick (reference "
-                     f"{mm((c.get('max_ref_step') or {}).get('steered'))}){thr_txt}")
+        lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest reference step "
+                     f"{mm((c.get('max_ref_step') or {}).get('steered'))} mm per tick (of the correction u - r_nom "
+                     f"{mm((c.get('max_offset_step') or {}).get('steered'))}){thr_txt}")
     return "\n".join(lines)
 
 

@@ -60,7 +60,7 @@ def test_condition_lines_state_the_target_on_the_true_height():
         "[sitl-demo] px4 heavy EKF height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 10.0 mm",
         "[sitl-demo] px4 heavy true height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 16.0 mm",
         "[sitl-demo] px4 heavy target >= 2x the best simple method (2.50x); estimator error 8.0 mm (steered 2.00x of "
-        "it); largest step of the steering's correction 5.0 mm per tick (reference 300.0); thrust step 1.5x "
+        "it); largest reference step 300.0 mm per tick (of the correction u - r_nom 5.0); thrust step 1.5x "
         "passthrough's"]
     assert format_condition("px4", "wind", {"skipped": CONDITIONS["px4"]["wind"]}) == (
         "[sitl-demo] px4 wind: PX4 SIH in this build has no wind parameter (no SIH_WIND_*): not flown")
