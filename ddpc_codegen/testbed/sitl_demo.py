@@ -183,14 +183,15 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
                  steer_s: float = 13.0, sitl_params: dict | None = None, baselines: bool = True,
                  ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None,
                  conditions: list[str] | None = None, rounds: int = 2, steps_s: float = STEPS_DURATION,
-                 trajectories: tuple[str, ...] = ()) -> dict:
+                 trajectories: tuple[str, ...] = (), config: str | None = None) -> dict:
     """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> with ``baselines``: the
     prefilter baseline, identified from the same collect log, and ``ilc_iterations`` ILC flights of
     ``baseline_s`` each, :func:`fly_ilc`, with ``ilc_law`` if given; then each of ``conditions``
     (:data:`~ddpc_codegen.testbed.sitl_conditions.CONDITIONS`: "steps", "wind", "motor", "heavy") on
     the non-repeating steps file, ``rounds`` times, ``steps_s`` s per flight); with ``trajectories``
     (``--trajectory`` values, "steps" for the steps file) one more steered flight of ``steps_s`` s on each
-    right after the steered ellipse (``steered_trajectories``); the figures (JSON-ready).
+    right after the steered ellipse (``steered_trajectories``); the figures (JSON-ready). ``config``: a
+    steering config in ``configs/`` instead of the autopilot's default (:data:`CONFIGS`).
     ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
     climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
     if conditions and not baselines:
@@ -205,7 +206,8 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
     with make_sitl(autopilot, params=SITL_PARAMS[autopilot] if sitl_params is None else sitl_params) as sitl:
         base = fly(sitl, autopilot, "passthrough", out, baseline_s)
         fly(sitl, autopilot, "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT[autopilot]))
-        solver = codegen(ROOT / "configs" / CONFIGS[autopilot], out / f"{autopilot}_collect.npz", out / "generated")
+        solver = codegen(ROOT / "configs" / (config or CONFIGS[autopilot]), out / f"{autopilot}_collect.npz",
+                         out / "generated")
         steer = fly(sitl, autopilot, "steer", out, steer_s, solver=solver)
         for spec in trajectories:  # any trajectory steers with the solver collected on the ellipse
             path = str(write_steps_trajectory(out / "steps.csv")) if spec == "steps" else spec

@@ -21,7 +21,8 @@ def test_ardupilot_climb_rate_mode_collect_and_steer(tmp_path):
         pytest.skip(why)
     res = run_isolated("ddpc_codegen.testbed.sitl_demo:run_pipeline",
                        {"autopilot": "ardupilot", "out_dir": str(tmp_path), "baseline_s": 10.0, "collect_s": 20.0,
-                        "steer_s": 10.0, "sitl_params": {"GUID_OPTIONS": 0}, "baselines": False}, timeout=420)
+                        "steer_s": 10.0, "sitl_params": {"GUID_OPTIONS": 0}, "baselines": False,
+                        "config": "sitl_ardupilot_climb_rate.toml"}, timeout=420)
     r, rt = res["rmse_z"], res["rmse_z_truth"]
     assert r["steered"] * 3.0 <= r["baseline"], res
     assert rt["steered"] * 3.0 <= rt["baseline"], res           # the simulator's true height too
