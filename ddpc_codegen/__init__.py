@@ -37,7 +37,7 @@ _EXPORTS: dict[str, str] = {
     "Predictor": "ddpc_codegen.design.predictor",
     "SteeringConfig": "ddpc_codegen.design.config",
     "SteeringProblem": "ddpc_codegen.design.problem",
-    "SteeringResult": "ddpc_codegen.design.result",
+    "SteeringResult": "ddpc_codegen.design.solve_result",
     "DeePCProblem": "ddpc_codegen.design.deepc",
     "generate": "ddpc_codegen.codegen",
     "load_solver": "ddpc_codegen.runtime.loader",

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.design.solve_result import SteeringResult
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
@@ -18,7 +18,7 @@ from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
 from firmware_bridge.baseline_modes import load_feedforward
 from firmware_bridge.link import mavlink
-from firmware_bridge.validate import check_bridge_values
+from firmware_bridge.arg_checks import check_bridge_values
 
 BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
 

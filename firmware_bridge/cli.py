@@ -1,5 +1,5 @@
 """Console entry point ``ddpc-bridge`` (:func:`bridge_main`); ``python -m firmware_bridge.cli bridge ...``
-without the console script. The simulated vehicle (``ddpc-vehicle``) lives in :mod:`ddpc_codegen.testbed.cli`.
+without the console script. The simulated vehicle (``ddpc-vehicle``) lives in :mod:`ddpc_codegen.testbed.vehicle_cli`.
 
 Typical use (loopback)::
 

@@ -18,7 +18,7 @@ import numpy as np
 from ddpc_codegen.codegen import libs
 from ddpc_codegen.codegen.render import render
 from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.result import BOUND_TOL
+from ddpc_codegen.design.solve_result import BOUND_TOL
 from ddpc_codegen.errors import CodegenError
 
 __all__ = ["OnlineCompletion", "emit_artio", "manifest_entry", "cdef_text"]

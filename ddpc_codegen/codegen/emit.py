@@ -18,7 +18,7 @@ import scipy.sparse as sp
 
 from ddpc_codegen.errors import CodegenError
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.design.result import BOUND_TOL
+from ddpc_codegen.design.solve_result import BOUND_TOL
 from ddpc_codegen.codegen import libs
 from ddpc_codegen.codegen.build import include_dirs_of
 from ddpc_codegen.codegen.render import placeholders, render

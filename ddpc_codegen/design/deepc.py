@@ -19,7 +19,7 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.hankel import mosaic_hankel
-from ddpc_codegen.design.result import SteeringResult, stack_window, within_bounds
+from ddpc_codegen.design.solve_result import SteeringResult, stack_window, within_bounds
 
 __all__ = ["DeePCProblem"]
 

@@ -47,7 +47,7 @@ def _bridge() -> argparse.ArgumentParser:
 
 
 def _vehicle() -> argparse.ArgumentParser:
-    from ddpc_codegen.testbed.cli import build_vehicle_parser
+    from ddpc_codegen.testbed.vehicle_cli import build_vehicle_parser
     return build_vehicle_parser()
 
 

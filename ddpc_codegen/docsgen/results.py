@@ -66,7 +66,7 @@ def _missing(name: str) -> str:
 
 
 def _demo_section(summary: dict) -> str:
-    from ddpc_codegen.experiments.baselines import format_baselines
+    from ddpc_codegen.experiments.baselines_eval import format_baselines
     from ddpc_codegen.experiments.demo import format_robustness, format_table
 
     meta = summary.get("meta", {})

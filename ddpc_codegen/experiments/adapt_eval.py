@@ -28,7 +28,7 @@ import numpy as np
 from ddpc_codegen.design.adaptation import adapter
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.experiments.baselines import BaselineHook, fit_scenario_prefilter
+from ddpc_codegen.experiments.baselines_eval import BaselineHook, fit_scenario_prefilter
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.pipeline import ROOT, build_setup, default_config
 from ddpc_codegen.runtime.adapt_qp import SampleWindow, steady_state_gain

@@ -194,9 +194,9 @@ def run_demo(
     if robustness:
         summary["robustness"] = _robustness(setups, scenarios, durations, interpreted, quiet, noisy)
     if baselines:
-        # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines.py);
+        # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines_eval.py);
         # the runs above that are the same simulations are reused, not repeated.
-        from ddpc_codegen.experiments.baselines import evaluate_baselines, reuse_from_summary
+        from ddpc_codegen.experiments.baselines_eval import evaluate_baselines, reuse_from_summary
 
         say("baselines: prefilter, ILC, non-repeating trajectories ...", not quiet)
         summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
@@ -280,7 +280,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print()
         print(format_robustness(summary["robustness"]))
     if "baselines" in summary:
-        from ddpc_codegen.experiments.baselines import format_baselines
+        from ddpc_codegen.experiments.baselines_eval import format_baselines
 
         print()
         print(format_baselines(summary["baselines"]))

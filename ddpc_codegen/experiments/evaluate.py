@@ -15,7 +15,7 @@ import numpy as np
 from ddpc_codegen.design.adaptation import AdaptiveProblem
 from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.design.result import SteeringResult
+from ddpc_codegen.design.solve_result import SteeringResult
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.experiments.pipeline import SteeringSetup
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation

@@ -10,7 +10,7 @@ from pymavlink import mavutil
 
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.channels import ChannelSpec
-from ddpc_codegen.logs.frames import ANGLE_FIELDS
+from ddpc_codegen.logs.fields import ANGLE_FIELDS
 
 __all__ = ["mavlink_unit", "with_mavlink_units", "heartbeat_mode", "PX4_MAIN_MODES", "ARDUPILOT_OFFBOARD_MODES"]
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.logs.frames import unwrap_angle
+from ddpc_codegen.logs.fields import unwrap_angle
 from ddpc_codegen.logs.notes import Notes, fmt_t
 
 __all__ = ["Series", "clean_series"]

@@ -37,7 +37,7 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.channels import ChannelSpec, resolve_channels
 from ddpc_codegen.logs.dataset import assemble, channel_summary, file_meta
-from ddpc_codegen.logs.frames import ANGLE_FIELDS, derive_field
+from ddpc_codegen.logs.fields import ANGLE_FIELDS, derive_field
 from ddpc_codegen.logs.grid import check_rule
 from ddpc_codegen.logs.intervals import intersect_windows, state_windows
 from ddpc_codegen.logs.notes import Notes, fmt_t

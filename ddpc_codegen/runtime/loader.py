@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.result import SteeringResult, stack_window
+from ddpc_codegen.design.solve_result import SteeringResult, stack_window
 from ddpc_codegen.errors import DataError, ManifestError
 from ddpc_codegen.runtime.manifest import check_files, read_manifest, sha256_file
 

@@ -6,7 +6,7 @@ The companion-side controller it drives is :mod:`ddpc_codegen.robot.controller` 
 from ddpc_codegen.sim.loop import Excitation, TickContext, simulate
 from ddpc_codegen.sim.params import FlightControllerGains, PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import PogoXPlant
-from ddpc_codegen.sim.result import SimResult
+from ddpc_codegen.sim.run_result import SimResult
 from ddpc_codegen.sim.scenarios import FlyingScenario, HoppingScenario, get_scenario
 from ddpc_codegen.sim.stepper import Push, Stepper
 

@@ -31,7 +31,7 @@ from ddpc_codegen.robot.state import AttitudeTarget, MeasuredState
 from ddpc_codegen.robot.frames import euler_from_quat
 from ddpc_codegen.sim.params import PogoXParams, SensorNoise
 from ddpc_codegen.sim.plant import STANCE
-from ddpc_codegen.sim.result import SimResult
+from ddpc_codegen.sim.run_result import SimResult
 from ddpc_codegen.sim.scenarios import FlyingScenario, Scenario, get_scenario
 from ddpc_codegen.sim.stepper import Push, Stepper
 

@@ -21,7 +21,7 @@ __all__ = ["compute_metrics", "rmse", "hop_apexes", "RunLogs"]
 
 
 class RunLogs(Protocol):
-    """What the metrics read of a run (:class:`ddpc_codegen.sim.result.SimResult` has it all;
+    """What the metrics read of a run (:class:`ddpc_codegen.sim.run_result.SimResult` has it all;
     a protocol, so that the result imports the metrics and not the other way round).
     Shapes as in SimResult: N ticks, p outputs."""
 

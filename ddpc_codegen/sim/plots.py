@@ -16,7 +16,7 @@ from ddpc_codegen.design.phases import GROUND
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from ddpc_codegen.sim.result import SimResult
+    from ddpc_codegen.sim.run_result import SimResult
 
 __all__ = ["plot_result", "plot_xz", "plot_tracking", "save_figure"]
 

@@ -112,7 +112,7 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
     veh_err = open(work / f"{name}_vehicle.log", "w")
     try:
         veh = subprocess.Popen(
-            _py() + ["ddpc_codegen.testbed.cli", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
+            _py() + ["ddpc_codegen.testbed.vehicle_cli", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
                      "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
                      "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle") + list(vehicle_args),
             env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)

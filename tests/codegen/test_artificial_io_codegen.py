@@ -15,7 +15,7 @@ from ddpc_codegen import (CodegenError, DataError, IODataset, ManifestError, Ste
                           fit_predictor, generate, load_solver)
 from ddpc_codegen.codegen import OnlineCompletion
 from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.result import BOUND_TOL
+from ddpc_codegen.design.solve_result import BOUND_TOL
 from ddpc_codegen.experiments.pipeline import default_config
 
 pytestmark = pytest.mark.compiler

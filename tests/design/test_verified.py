@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from support.lti import random_lti
 from ddpc_codegen import ConfigError, DataError, IODataset, SteeringConfig, SteeringProblem, fit_predictor
-from ddpc_codegen.design.result import BOUND_TOL
+from ddpc_codegen.design.solve_result import BOUND_TOL
 
 TI, TF, M, P = 6, 10, 2, 2
 BOUNDS = dict(u_min=[-1.5, -1.2], u_max=[1.5, 1.2], y_min=[-6.0, -6.0], y_max=[6.0, 6.0], du_max=[0.6, 0.8])

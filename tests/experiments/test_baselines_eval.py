@@ -8,7 +8,7 @@ import types
 import numpy as np
 import pytest
 
-from ddpc_codegen.experiments.baselines import (
+from ddpc_codegen.experiments.baselines_eval import (
     METHODS,
     ApexSchedule,
     ScheduledHoppingScenario,
@@ -123,7 +123,7 @@ def test_controller_feed_forward_baseline():
     """The controller's own velocity feed-forward removes the flying loop's lag but not its offset
     (measured when written, 15 s on the ellipse: RMSE z 95.9 -> 58.8 mm, mean error -58 mm), and
     hopping's controller already has it (the column repeats passthrough)."""
-    from ddpc_codegen.experiments.baselines import _controller_ff_metric, controller_ff_scenario
+    from ddpc_codegen.experiments.baselines_eval import _controller_ff_metric, controller_ff_scenario
 
     c = conditions("flying")["ellipse (periodic)"]
     sc = controller_ff_scenario(c["scenario"])

@@ -28,7 +28,7 @@ def test_controller_toml_overrides_the_model(tmp_path):
 
 def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
     from firmware_bridge.bridge import BridgeConfig
-    from ddpc_codegen.testbed.cli import vehicle_main
+    from ddpc_codegen.testbed.vehicle_cli import vehicle_main
     from ddpc_codegen.testbed.vehicle import VehicleConfig
 
     with pytest.raises(ValueError, match="frame must be 'start' or 'world'; got 'body'"):

@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from ddpc_codegen.testbed.cli import build_vehicle_parser
+from ddpc_codegen.testbed.vehicle_cli import build_vehicle_parser
 from firmware_bridge.cli import build_bridge_parser
 from firmware_bridge.realtime import main as rtcheck_main
 from firmware_bridge.realtime import kernel_preemption, measure_wakeup_latency, setup_realtime

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.logs.frames import derive_field
+from ddpc_codegen.logs.fields import derive_field
 from ddpc_codegen.robot.frames import quat_from_euler_array
 from ddpc_codegen.logs.resample import (
     Notes,

@@ -37,7 +37,7 @@ def _env() -> dict:
 
 
 class Procs:
-    """Spawns bridge (``firmware_bridge.cli``) and vehicle (``ddpc_codegen.testbed.cli``) processes; kills whatever is left at teardown."""
+    """Spawns bridge (``firmware_bridge.cli``) and vehicle (``ddpc_codegen.testbed.vehicle_cli``) processes; kills whatever is left at teardown."""
 
     def __init__(self, tmp: Path) -> None:
         self.tmp = tmp
@@ -45,7 +45,7 @@ class Procs:
 
     def spawn(self, *args: str, name: str = "proc") -> subprocess.Popen:
         out = open(self.tmp / f"{name}.out", "w")
-        module = "ddpc_codegen.testbed.cli" if args[:1] == ("vehicle",) else "firmware_bridge.cli"
+        module = "ddpc_codegen.testbed.vehicle_cli" if args[:1] == ("vehicle",) else "firmware_bridge.cli"
         p = subprocess.Popen([sys.executable, "-m", module, *args], env=_env(), stdout=out,
                              stderr=subprocess.STDOUT, cwd=str(self.tmp))
         p._log = self.tmp / f"{name}.out"  # type: ignore[attr-defined]

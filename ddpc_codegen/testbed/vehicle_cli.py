@@ -1,5 +1,5 @@
 """Console entry point ``ddpc-vehicle``: the PogoX simulator behind a PX4- or ArduCopter-like MAVLink
-endpoint (``python -m ddpc_codegen.testbed.cli ...`` without the console script)."""
+endpoint (``python -m ddpc_codegen.testbed.vehicle_cli ...`` without the console script)."""
 
 from __future__ import annotations
 
