@@ -28,9 +28,10 @@ import numpy as np
 from ddpc_codegen.design.adaptation import adapter
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.experiments.baselines_eval import BaselineHook, fit_scenario_prefilter
+from ddpc_codegen.experiments.baselines_eval import fit_scenario_prefilter
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.pipeline import ROOT, build_setup, default_config
+from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.adapt_qp import SampleWindow, steady_state_gain
 from ddpc_codegen.runtime.adaptation import solve_g
 from ddpc_codegen.runtime.baselines import PrefilterPolicy
@@ -79,7 +80,7 @@ def _rmse_after(res, t0: float, span: float) -> float | None:
 def _prefilter_run(setup, c: dict, params: PogoXParams, seed: int):
     pol = PrefilterPolicy(fit_scenario_prefilter(setup))
     pol.reset()
-    return simulate("flying", DURATION, params=params, seed=seed, reference_hook=BaselineHook(pol, "flying"),
+    return simulate("flying", DURATION, params=params, seed=seed, reference_hook=PolicyHook(pol, "flying"),
                     pushes=c["pushes"], changes=c["changes"])
 
 

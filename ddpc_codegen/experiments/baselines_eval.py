@@ -36,14 +36,15 @@ from ddpc_codegen.design.phases import GROUND
 from ddpc_codegen.design.hopping_data import split_hopping
 from ddpc_codegen.experiments.pipeline import ROOT, SteeringSetup
 from ddpc_codegen.experiments.evaluate import RunResult, offset_step, run, scenario_metrics
+from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.robot.hop_targets import ApexSchedule, ScheduledHoppingController
 from ddpc_codegen.robot.trajectory import RandomSmoothTrajectory
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
-from ddpc_codegen.sim import FlyingScenario, PogoXParams, Push, SimResult, TickContext, simulate
+from ddpc_codegen.sim import FlyingScenario, PogoXParams, Push, SimResult, simulate
 from ddpc_codegen.sim.metrics import hop_apexes
 from ddpc_codegen.sim.scenarios import HoppingScenario
 
-__all__ = ["ApexSchedule", "BaselineHook", "ScheduledHoppingScenario", "fit_scenario_prefilter", "learn_ilc", "ILCResult",
+__all__ = ["ApexSchedule", "ScheduledHoppingScenario", "fit_scenario_prefilter", "learn_ilc", "ILCResult",
            "conditions", "evaluate_baselines", "reuse_from_summary", "format_baselines", "METHODS", "SMOOTH_HZ",
            "ILC_ITERATIONS", "SIMPLE", "controller_ff_scenario"]
 
@@ -90,41 +91,10 @@ def conditions(scenario: str) -> dict[str, dict[str, Any]]:
     }
 
 
-# ----------------------------------------------------------------------------- hook
-class BaselineHook:
-    """A baseline policy as the simulator's ``reference_hook``.
-
-    Flying: every tick, y_des = the desired outputs over the policy's horizon. Hopping: the ground
-    phase keeps r_nom (as the steering does); a feed-forward policy with the "liftoff" clock is
-    reset at every liftoff and not applied before the first one (the release arc).
-    """
-
-    def __init__(self, policy: Any, scenario: str) -> None:
-        self.policy = policy
-        self.scenario = scenario
-        self._was_ground = False
-        self._lifted = False
-
-    def __call__(self, ctx: TickContext) -> np.ndarray | None:
-        pol = self.policy
-        if self.scenario == "hopping":
-            if ctx.phase == GROUND:
-                self._was_ground = True
-                pol.observe(ctx.r_nom, ctx.y)
-                return None
-            if self._was_ground:
-                self._was_ground, self._lifted = False, True
-                if getattr(pol, "clock", None) == "liftoff":
-                    pol.reset()
-            if getattr(pol, "clock", None) == "liftoff" and not self._lifted:
-                return None
-        return pol.decide(ctx.y, ctx.r_nom, ctx.desired_ahead(pol.horizon)).u
-
-
 def _policy_run(policy: Any, sc: Any, duration: float, params: PogoXParams, pushes, seed: int,
                 noise: bool = False) -> SimResult:
     policy.reset()
-    return simulate(sc, duration, params=params, seed=seed, reference_hook=BaselineHook(policy, sc.name),
+    return simulate(sc, duration, params=params, seed=seed, reference_hook=PolicyHook(policy, sc.name),
                     pushes=pushes, noise=noise or None)
 
 

@@ -1,5 +1,5 @@
-"""Closed-loop evaluation on the simulator: the steering hook (the shared per-tick policy as the
-simulator's ``reference_hook``), one run with or without steering, its metrics, and the
+"""Closed-loop evaluation on the simulator: one run with or without steering (the shared per-tick
+policy driven by :class:`~ddpc_codegen.experiments.policy_hook.PolicyHook`), its metrics, and the
 held-out prediction check. Setups (data -> predictor -> solver) come from :mod:`.pipeline`.
 """
 
@@ -18,19 +18,20 @@ from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.solve_result import SteeringResult
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.experiments.pipeline import SteeringSetup
+from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
-from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
+from ddpc_codegen.runtime.hopping import HoppingWindow
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
-from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, TickContext, simulate
+from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, simulate
 from ddpc_codegen.sim.scenarios import HoppingScenario, Scenario
 from ddpc_codegen.stats import limit_share, percentiles, step_rms
 
-__all__ = ["InterpretedSolver", "SteeringHook", "RunResult", "run", "scenario_metrics", "offset_step",
+__all__ = ["InterpretedSolver", "RunResult", "run", "scenario_metrics", "offset_step",
            "prediction_check"]
 
 
-# ----------------------------------------------------------------------------- solvers and hook
+# ----------------------------------------------------------------------------- solvers
 class InterpretedSolver:
     """A SteeringProblem behind the generated solver's API (``solve(u_ini, y_ini, y_des, u_nom)``).
 
@@ -46,49 +47,6 @@ class InterpretedSolver:
 
     def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
         return self.problem.solve(u_ini, y_ini, y_des, u_nom, solver=self.method)
-
-
-class SteeringHook:
-    """The shared per-tick policy as the simulator's ``reference_hook``.
-
-    Flying (:class:`SteeringPolicy`): y_des over the horizon is ``ctx.desired_ahead(Tf)`` (z of the
-    ellipse, the pitch of the horizontal PD with its current correction held); u_nom is y_des with
-    row 0 = r_nom. Hopping (:class:`~ddpc_codegen.runtime.hopping.HoppingSteering`, the same
-    implementation the bridge runs): ground ticks unsteered, aerial windows with the ground part
-    filled, the desired arc continued ballistically.
-
-    Counts (``counts``): ticks, ground, no_window:<reason>, filled (hopping).
-    """
-
-    def __init__(self, steerer: ReferenceSteerer, scenario: str, *, window: HoppingWindow | None = None,
-                 g_eff: float | None = None, dt: float = 0.005, adaptation: OnlineAdaptation | None = None) -> None:
-        self.steerer = steerer
-        # the simulator never loses a sample
-        self.policy = SteeringPolicy(steerer, max_gap_fill=0, adaptation=adaptation)
-        self.scenario = scenario
-        self.window = window
-        self.hopping = HoppingSteering(self.policy, window, g_eff, dt) if scenario == "hopping" else None
-        self._counts: dict[str, int] = {}
-        self.solver_us: list[float] = []  # the solver's own timer (C for a generated solver)
-
-    @property
-    def counts(self) -> dict[str, int]:
-        return self.hopping.counts if self.hopping is not None else self._counts
-
-    def __call__(self, ctx: TickContext) -> np.ndarray | None:
-        pol = self.policy
-        if self.hopping is None:
-            self._counts["ticks"] = self._counts.get("ticks", 0) + 1
-            out = pol.decide(ctx.y, ctx.r_nom, ctx.desired_ahead(pol.t_f))
-        else:
-            n = pol.t_f
-            u, out = self.hopping.decide(int(ctx.phase), ctx.y, ctx.r_nom, ctx.desired_ahead(n),
-                                         ctx.phases_ahead(n))
-            if out is None:
-                return None
-        if out.result is not None and np.isfinite(out.result.solve_time) and out.result.solve_time > 0:
-            self.solver_us.append(out.result.solve_time * 1e6)
-        return out.u
 
 
 # ----------------------------------------------------------------------------- runs
@@ -215,9 +173,11 @@ def run(
         window = None
         if scenario == "hopping":
             window = HoppingWindow(_completer(setup, solver, completion), cfg.t_ini, **setup.art_spec.window_settings())
-        hook = SteeringHook(steerer, scenario, window=window,
-                            g_eff=_g_eff(params) if scenario == "hopping" else None, dt=cfg.dt,
-                            adaptation=OnlineAdaptation(solver, seed=seed) if adapt else None)
+        # the simulator never loses a sample: no gap filling
+        policy = SteeringPolicy(steerer, max_gap_fill=0,
+                                adaptation=OnlineAdaptation(solver, seed=seed) if adapt else None)
+        hook = PolicyHook(policy, scenario, window=window, g_eff=_g_eff(params) if scenario == "hopping" else None,
+                          dt=cfg.dt)
     t0 = time.perf_counter()
     res = simulate(sim_scenario, duration, params=params, seed=seed, reference_hook=hook, noise=noise,
                    pushes=pushes, progress=progress, changes=changes)

@@ -24,13 +24,44 @@ u is what enters the history, so the predictor sees exactly what the loop did.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, SteerOutcome
 
-__all__ = ["SteeringPolicy", "nominal_horizon"]
+__all__ = ["Policy", "SteeringPolicy", "nominal_horizon"]
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What every loop (the simulator's hook, the MAVLink bridge) drives, once per tick: the steering
+    (:class:`SteeringPolicy`) and the baselines (passthrough, prefilter, feed-forward:
+    :mod:`ddpc_codegen.runtime.baselines`). Hopping wraps a :class:`SteeringPolicy` in
+    :class:`~ddpc_codegen.runtime.hopping.HoppingSteering` (ground-phase windows), which drives these methods."""
+
+    @property
+    def horizon(self) -> int:
+        """Desired outputs :meth:`decide` needs ahead: ticks k..k+horizon-1."""
+        ...
+
+    def decide(self, y: np.ndarray, r_nom: np.ndarray, y_des: np.ndarray) -> SteerOutcome:
+        """This tick's reference from the measured outputs y (p,), the nominal reference r_nom (m,) and
+        the desired outputs y_des (horizon, p)."""
+        ...
+
+    def observe(self, u_applied: np.ndarray, y: np.ndarray) -> None:
+        """A tick the policy did not decide (hopping's ground phase, a blend): u_applied (m,), y (p,)."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the history (a new run, a re-engagement, a liftoff for a liftoff-clocked table)."""
+        ...
+
+    def summary(self) -> dict:
+        """Counts for the report (JSON-serialisable)."""
+        ...
 
 
 def nominal_horizon(y_des: np.ndarray, r_nom: np.ndarray) -> np.ndarray:
@@ -72,6 +103,11 @@ class SteeringPolicy:
 
     @property
     def t_f(self) -> int:
+        return self.steerer.t_f
+
+    @property
+    def horizon(self) -> int:
+        """Desired outputs needed ahead (:class:`Policy`): the steering horizon Tf."""
         return self.steerer.t_f
 
     def reset(self) -> None:

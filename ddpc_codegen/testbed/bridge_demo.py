@@ -156,18 +156,14 @@ def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
 def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)) -> dict:
     """Baseline and steered flights in-process (simulate + ReferenceSteerer, the same solver)."""
     from ddpc_codegen import ReferenceSteerer, load_solver
+    from ddpc_codegen.experiments.policy_hook import PolicyHook
     from ddpc_codegen.runtime.policy import SteeringPolicy
     from ddpc_codegen.sim import simulate
 
     solver = load_solver(solver_dir)
     st = ReferenceSteerer.for_solver(solver, max_step=np.asarray(max_step, float))
-    policy = SteeringPolicy(st)
-
-    def hook(ctx):
-        return policy.decide(ctx.y, ctx.r_nom, ctx.desired_ahead(policy.t_f)).u
-
     res = {}
-    for name, h in (("baseline", None), ("steered", hook)):
+    for name, h in (("baseline", None), ("steered", PolicyHook(SteeringPolicy(st), "flying"))):
         r = simulate("flying", duration, seed=seed, noise=True, reference_hook=h)
         settle = r.scenario_obj.settle_time
         sel = r.t >= settle

@@ -203,8 +203,10 @@ def in_process(solver_dir: Path, duration: float, seed: int, noise: bool) -> dic
     """Baseline and steered hopping in-process (simulate + the simulator's steering hook), the same
     generated solver and artificial-IO operator as over the link."""
     from ddpc_codegen import ReferenceSteerer, load_solver
-    from ddpc_codegen.experiments.evaluate import SteeringHook, scenario_metrics
+    from ddpc_codegen.experiments.evaluate import scenario_metrics
+    from ddpc_codegen.experiments.policy_hook import PolicyHook
     from ddpc_codegen.robot.profile import load_profile
+    from ddpc_codegen.runtime.policy import SteeringPolicy
     from ddpc_codegen.sim import simulate
 
     from firmware_bridge.hopping_loop import hopping_window
@@ -212,7 +214,8 @@ def in_process(solver_dir: Path, duration: float, seed: int, noise: bool) -> dic
     solver = load_solver(solver_dir)
     st = ReferenceSteerer.for_solver(solver)
     cc = load_profile("pogox_hopping").controller
-    hook = SteeringHook(st, "hopping", window=hopping_window(solver, st.t_ini), g_eff=cc.g_eff, dt=cc.dt)
+    hook = PolicyHook(SteeringPolicy(st, max_gap_fill=0), "hopping", window=hopping_window(solver, st.t_ini),
+                      g_eff=cc.g_eff, dt=cc.dt)
     out = {}
     for name, h in (("baseline", None), ("steered", hook)):
         out[name] = scenario_metrics(simulate("hopping", duration, seed=seed, noise=noise or None, reference_hook=h))

@@ -10,7 +10,9 @@ import pytest
 from ddpc_codegen.cli.main import build_parser
 from ddpc_codegen.experiments.demo import format_robustness, format_table, summary_block
 from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect
-from ddpc_codegen.experiments.evaluate import InterpretedSolver, SteeringHook, run
+from ddpc_codegen.experiments.evaluate import InterpretedSolver, run
+from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.sim import simulate
 
 pytestmark = pytest.mark.compiler  # slow comes from tests/durations.json (the tests that fly flying_setup)
@@ -77,7 +79,7 @@ class _Recorder:
 
 def test_hook_pairs_u_and_y_like_the_logged_data():
     rec = _Recorder()
-    res = simulate("flying", 0.3, reference_hook=SteeringHook(rec, "flying"), seed=0, noise=True)
+    res = simulate("flying", 0.3, reference_hook=PolicyHook(SteeringPolicy(rec, max_gap_fill=0), "flying"), seed=0, noise=True)
     # At tick k, once decided, the policy pushes (u[k], y[k]): the pairing of the dataset's Hankel columns.
     assert len(rec.pairs) == res.n and rec.steps == res.n
     for k in (0, 17, res.n - 1):

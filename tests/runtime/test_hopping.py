@@ -8,8 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 
 from ddpc_codegen.design.phases import GROUND
-from ddpc_codegen.experiments.evaluate import SteeringHook
+from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow, _History
+from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import SteerOutcome
 from ddpc_codegen.sim import simulate
 
@@ -66,7 +67,7 @@ class _CheckingWindow(HoppingWindow):
 
 def test_history_is_the_simulators_log_and_ground_ticks_pass_r_nom():
     win = _CheckingWindow(_Spy(), t_ini=4)
-    hook = SteeringHook(_Steerer(), "hopping", window=win, g_eff=9.0, dt=0.005)
+    hook = PolicyHook(SteeringPolicy(_Steerer(), max_gap_fill=0), "hopping", window=win, g_eff=9.0, dt=0.005)
 
     def tick(ctx):
         win.ctx = ctx

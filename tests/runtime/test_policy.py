@@ -84,3 +84,32 @@ def test_bad_ramp_and_decay_are_refused():
         SteeringPolicy(st, ramp_ticks=-1)
     with pytest.raises(ValueError, match=r"fallback_decay must be in \[0, 1\)"):
         SteeringPolicy(st, fallback_decay=1.0)
+
+
+def test_every_policy_class_is_a_policy_with_the_protocols_signatures():
+    import inspect
+
+    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
+    from ddpc_codegen.runtime.policy import Policy
+
+    steering, _ = _policy()
+    pols = [PassthroughPolicy(), PrefilterPolicy(PrefilterModel((0.5, 1.0), (0.0, 0.0), (2, 0), 0.005)),
+            FeedforwardPolicy(np.zeros((3, 2))), steering]
+    for pol in pols:
+        assert isinstance(pol, Policy), type(pol).__name__
+        for name in ("decide", "observe", "reset", "summary"):
+            want = list(inspect.signature(getattr(Policy, name)).parameters)[1:]
+            assert list(inspect.signature(getattr(pol, name)).parameters) == want, (type(pol).__name__, name)
+        assert isinstance(pol.horizon, int) and pol.horizon >= 1
+        out = pol.decide(np.zeros(2), np.array([1.0, 0.1]), np.zeros((pol.horizon, 2)))
+        assert out.u.shape == (2,) and isinstance(pol.summary(), dict)
+    assert [p.horizon for p in pols] == [1, 3, 1, 4]  # the steering needs its Tf ahead
+
+    class NoHorizon:
+        def decide(self, y, r_nom, y_des): ...
+        def observe(self, u_applied, y): ...
+        def reset(self): ...
+        def summary(self): ...
+
+    assert not isinstance(NoHorizon(), Policy)
