@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.stats import percentiles
 
 from firmware_bridge.bridge_config import FaultInjectingSolver
@@ -118,10 +119,9 @@ class Reporting:
         # In lock-step the vehicle's clock is the one that matters: wall-clock gaps only say the
         # machine was busy, not that a tick of the (paused) vehicle went without a setpoint.
         gaps = gap_statistics(np.asarray(self._send_stamps if c.lockstep else self._send_times), self.period)
-        eng = v["event"] & v["active"] & (np.nan_to_num(v["t_traj"], nan=-1.0) >= c.settle)
-        ez = v["y"][eng, 0] - v["y_des"][eng, 0] if n else np.zeros(0)
-        ezt = v["truth_position"][eng, 2] - v["y_des"][eng, 0] if n else np.zeros(0)
-        ezt = ezt[np.isfinite(ezt)]
+        # the engaged event ticks after the settle time, scored as every other run is
+        fm = flight_metrics(v["t_traj"], v["y"], v["y_des"], settle=c.settle, active=v["event"] & v["active"],
+                            z_truth=v["truth_position"][:, 2])
         out = {
             "mode": c.mode, "autopilot": self.profile.name, "stop_reason": self.stop_reason, "ticks": n,
             "setpoints_sent": len(self._send_times), "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
@@ -132,9 +132,8 @@ class Reporting:
             "grid_skipped": self.clock.skipped, "telemetry": self._telemetry_summary(),
             "arming": {"attempts": self.arming.attempts, "refusals": self.arming.refusals[-5:]},
             "vehicle": None if self.vehicle is None else asdict(self.vehicle),
-            "rmse_z_measured": float(np.sqrt(np.mean(ez ** 2))) if ez.size else None,
-            "rmse_samples": int(ez.size),
-            "rmse_z_truth": float(np.sqrt(np.mean(ezt ** 2))) if ezt.size else None, "truth_samples": self.truth.seq,
+            "rmse_z_measured": fm["rmse"][0], "rmse_samples": fm["ticks"],
+            "rmse_z_truth": fm["rmse_z_truth"], "truth_samples": self.truth.seq,
             **self.counts,
             "link": {**dict(self.link.stats), "foreign_systems": sorted(self.link.foreign_systems)},
             "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),

@@ -19,13 +19,14 @@ from ddpc_codegen.design.solve_result import SteeringResult
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.experiments.pipeline import SteeringSetup
 from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
 from ddpc_codegen.runtime.hopping import HoppingWindow
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, simulate
 from ddpc_codegen.sim.scenarios import HoppingScenario, Scenario
-from ddpc_codegen.stats import limit_share, percentiles, step_rms
+from ddpc_codegen.stats import percentiles
 
 __all__ = ["InterpretedSolver", "RunResult", "run", "scenario_metrics", "offset_step",
            "prediction_check"]
@@ -75,15 +76,17 @@ def scenario_metrics(res: SimResult) -> dict[str, Any]:
     m = res.metrics()
     out: dict[str, Any] = {"crashed": bool(res.crashed), "duration": m["duration"]}
     if res.scenario == "flying":
-        out.update(rmse_z=m["rmse_z"], rmse_pitch=m["rmse_pitch"], rmse_x=m.get("rmse_x", float("nan")),
-                   mean_z_error=m["mean_z_error"])
-        scored = res.t >= getattr(res.scenario_obj, "settle_time", 0.0)
+        f = flight_metrics(res.t, res.y_true, res.y_des, settle=float(getattr(res.scenario_obj, "settle_time", 0.0)),
+                           u=res.u, r_nom=res.r_nom, thrust=res.setpoint_thrust, empty=float("nan"))
+        out.update(rmse_z=f["rmse"][0], rmse_pitch=f["rmse"][1], rmse_x=m.get("rmse_x", float("nan")),
+                   mean_z_error=f["mean_error"][0])
     else:
         settle = int(getattr(res.scenario_obj, "settle_hops", 0))
         t_scored = res.touchdowns[settle] if len(res.touchdowns) > settle else np.inf
-        scored = (res.phase != GROUND) & (res.t >= t_scored)
-    out["offset_step_rms"] = step_rms(res.u - res.r_nom, scored)
-    out["thrust_limit_share"] = limit_share(res.setpoint_thrust, 0.0, 1.0, scored)
+        f = flight_metrics(res.t, res.y_true, res.y_des, settle=t_scored, active=res.phase != GROUND, u=res.u,
+                           r_nom=res.r_nom, thrust=res.setpoint_thrust, empty=float("nan"))
+    out["offset_step_rms"] = f["offset_step_rms"]
+    out["thrust_limit_share"] = f["thrust_limit_share"]
     if res.scenario == "flying":
         return out
     ap = np.asarray(m["apex_errors"][settle:], dtype=float)

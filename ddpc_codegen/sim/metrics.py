@@ -5,7 +5,9 @@ RMSE of x against the ellipse.
 Hopping (after the first ``settle_hops`` hops): per-hop apex height error, per-hop average
 horizontal velocity error (touchdown to touchdown), RMSE of z / roll / pitch over the aerial
 phase, stance durations, bottom-outs.
-All errors are realized - desired, in metres / radians / m/s.
+All errors are realized - desired, in metres / radians / m/s. The per-output figures come from
+:func:`ddpc_codegen.flight_metrics.flight_metrics`, the scoring every other path (the bridge, its tick
+logs) uses.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.flight_metrics import flight_metrics, rms
 
 __all__ = ["compute_metrics", "rmse", "hop_apexes", "RunLogs"]
 
@@ -48,8 +51,8 @@ class RunLogs(Protocol):
 
 
 def rmse(e: np.ndarray) -> float:
-    e = np.asarray(e, dtype=float)
-    return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
+    """RMS of ``e`` (any shape); NaN without a value (:func:`ddpc_codegen.flight_metrics.rms`)."""
+    return rms(e, math.nan)
 
 
 def hop_apexes(res: RunLogs) -> tuple[np.ndarray, np.ndarray]:
@@ -96,14 +99,13 @@ def compute_metrics(res: RunLogs) -> dict[str, Any]:
     if res.scenario == "flying":
         settle = float(getattr(res.scenario_obj, "settle_time", 0.0))
         sel = res.t >= settle
-        ez = res.y_true[sel, 0] - res.y_des[sel, 0]
-        ep = res.y_true[sel, 1] - res.y_des[sel, 1]
+        f = flight_metrics(res.t, res.y_true, res.y_des, settle=settle, empty=math.nan)
         out.update(
-            rmse_z=rmse(ez),
-            mean_z_error=float(np.mean(ez)) if ez.size else math.nan,
-            max_abs_z_error=float(np.max(np.abs(ez))) if ez.size else math.nan,
-            rmse_pitch=rmse(ep),
-            rmse_pitch_deg=math.degrees(rmse(ep)),
+            rmse_z=f["rmse"][0],
+            mean_z_error=f["mean_error"][0],
+            max_abs_z_error=f["max_abs_error"][0],
+            rmse_pitch=f["rmse"][1],
+            rmse_pitch_deg=math.degrees(f["rmse"][1]),
         )
         if "x_des" in res.extras:
             ex = res.state[sel, 0] - res.extras["x_des"][sel]
@@ -132,8 +134,7 @@ def compute_metrics(res: RunLogs) -> dict[str, Any]:
     ap = apex_err[settle_hops:]
     ve = vel_err[settle_hops:]
     t_from = ta[settle_hops] if len(ta) > settle_hops else (res.t[-1] if res.n else 0.0)
-    aerial = (res.phase != GROUND) & (res.t >= t_from)
-    e = res.y_true[aerial] - res.y_des[aerial]
+    f = flight_metrics(res.t, res.y_true, res.y_des, settle=t_from, active=res.phase != GROUND, empty=math.nan)
     out.update(
         n_hops=int(len(td)),
         n_hops_scored=int(len(ap)),
@@ -145,10 +146,10 @@ def compute_metrics(res: RunLogs) -> dict[str, Any]:
         velocity_target=[float(v) for v in cfg.target_velocity],
         velocity_error_mean_signed=[float(v) for v in (np.mean(ve, axis=0) if len(ve) else [math.nan, math.nan])],
         velocity_error_rmse=rmse(ve[:, 0]) if len(ve) else math.nan,
-        rmse_z_aerial=rmse(e[:, 0]),
-        mean_z_error_aerial=float(np.mean(e[:, 0])) if e.size else math.nan,
-        rmse_roll_aerial=rmse(e[:, 1]),
-        rmse_pitch_aerial=rmse(e[:, 2]),
+        rmse_z_aerial=f["rmse"][0],
+        mean_z_error_aerial=f["mean_error"][0],
+        rmse_roll_aerial=f["rmse"][1],
+        rmse_pitch_aerial=f["rmse"][2],
         stance_time_mean=float(np.mean(stance)) if stance else math.nan,
         n_bottom_outs=int(res.n_bottom_outs),
     )

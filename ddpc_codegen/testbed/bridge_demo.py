@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.stats import percentiles
 from firmware_bridge.realtime import kernel_preemption
 
@@ -141,15 +142,15 @@ def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
     tl = load_ticklog(ticks_path).ticks
     with np.load(truth_path) as z:
         tt, st = z["t"], z["state"]
-    sel = tl["active"] & (np.nan_to_num(tl["t_traj"], nan=-1.0) >= settle)
-    tv = tl["t_vehicle"][sel]
     # The bridge ticks on its own clock: a tick's vehicle time falls between the truth log's
     # samples (1 kHz physics, logged per 5 ms tick), so the truth is interpolated there.
+    tv = tl["t_vehicle"]
     ok = (tv >= tt[0]) & (tv <= tt[-1])
-    e_true = np.interp(tv[ok], tt, st[:, 2]) - tl["y_des"][sel][ok, 0]
-    e_meas = tl["y"][sel, 0] - tl["y_des"][sel, 0]
-    r = lambda e: float(np.sqrt(np.mean(e * e))) if e.size else math.nan  # noqa: E731
-    return {"rmse_z": r(e_true), "rmse_z_telemetry": r(e_meas), "samples": int(ok.sum()),
+    z_truth = np.full(tv.shape, np.nan)
+    z_truth[ok] = np.interp(tv[ok], tt, st[:, 2])
+    f = flight_metrics(tl["t_traj"], tl["y"], tl["y_des"], settle=settle, active=tl["active"], z_truth=z_truth,
+                       empty=math.nan)
+    return {"rmse_z": f["rmse_z_truth"], "rmse_z_telemetry": f["rmse"][0], "samples": f["truth_ticks"],
             "flown_s": float(np.nanmax(tl["t_traj"])) if np.isfinite(tl["t_traj"]).any() else 0.0}
 
 
@@ -165,10 +166,10 @@ def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)
     res = {}
     for name, h in (("baseline", None), ("steered", PolicyHook(SteeringPolicy(st), "flying"))):
         r = simulate("flying", duration, seed=seed, noise=True, reference_hook=h)
-        settle = r.scenario_obj.settle_time
-        sel = r.t >= settle
-        res[name] = {"rmse_z": r.metrics()["rmse_z"],
-                     "rmse_z_telemetry": float(np.sqrt(np.mean((r.y[sel, 0] - r.y_des[sel, 0]) ** 2)))}
+        # scored as over the link (truth_rmse): the telemetry y and the true height
+        f = flight_metrics(r.t, r.y, r.y_des, settle=r.scenario_obj.settle_time, z_truth=r.y_true[:, 0],
+                           empty=math.nan)
+        res[name] = {"rmse_z": f["rmse_z_truth"], "rmse_z_telemetry": f["rmse"][0]}
     res["steering"] = st.summary()
     return res
 

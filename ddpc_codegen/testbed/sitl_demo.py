@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, STEPS_DURATION, fly_condition, write_steps_trajectory
 from firmware_bridge.ticklog import REASONS, load_ticklog
@@ -118,21 +119,12 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     (``max_ref_step``: the trajectory's own steps included) and of its correction u - r_nom
     (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved)."""
     t = load_ticklog(log_path).ticks
-    on = t["active"].astype(bool) & (np.nan_to_num(t["t_traj"], nan=-1.0) >= settle)
-    ez = t["y"][on, 0] - t["y_des"][on, 0]
-    dthr = np.diff(t["sp_thrust"][on])
-    du = np.abs(np.diff(t["u"][on, 0]))
-    doff = np.abs(np.diff(t["u"][on, 0] - t["r_nom"][on, 0]))
-    steered = t["reason"][on] == _STEERED
-    zt = t["truth_position"][on, 2] if "truth_position" in t else np.zeros(0)
-    ok = np.isfinite(zt)
-    ezt, est = zt[ok] - t["y_des"][on, 0][ok], t["y"][on, 0][ok] - zt[ok]
-    rms = lambda e: float(np.sqrt(np.mean(e ** 2))) if e.size else None  # noqa: E731
-    return {"rmse_z": rms(ez), "rmse_z_truth": rms(ezt), "estimator_rms": rms(est),
-            "engaged_fraction": float(steered.mean()) if steered.size else None,
-            "thrust_step_rms": rms(dthr), "max_ref_step": float(du.max()) if du.size else None,
-            "max_offset_step": float(doff.max()) if doff.size else None,
-            "ticks": int(on.sum())}
+    f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=t["active"], u=t["u"], r_nom=t["r_nom"],
+                       thrust=t["sp_thrust"], z_truth=t["truth_position"][:, 2] if "truth_position" in t else None,
+                       steered=t["reason"] == _STEERED)
+    return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
+            "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
+            "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"]}
 
 
 def fit_prefilter_from_log(collect: Path, out: Path) -> Path:

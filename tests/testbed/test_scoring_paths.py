@@ -1,0 +1,62 @@
+"""One run, scored in-process (scenario_metrics on the SimResult) and over-the-link style from its tick
+log (sitl_demo.flight_figures, bridge_demo.truth_rmse): the same numbers, because one function scores both."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.design.baselines import PrefilterModel
+from ddpc_codegen.experiments.evaluate import scenario_metrics
+from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.runtime.baselines import PrefilterPolicy
+from ddpc_codegen.sim import FlyingScenario, simulate
+from ddpc_codegen.testbed.bridge_demo import truth_rmse
+from ddpc_codegen.testbed.sitl_demo import flight_figures
+from firmware_bridge.ticklog import TickRecorder, reason_code
+
+
+@pytest.fixture(scope="module")
+def scored(tmp_path_factory):
+    """A 5 s noisy flying run steered by a prefilter (a moving offset), its tick log and truth log."""
+    pol = PrefilterPolicy(PrefilterModel((1.0, 1.0), (0.0, 0.0), (20, 0), 0.005))
+    res = simulate("flying", 5.0, reference_hook=PolicyHook(pol, "flying"), seed=4, noise=True)
+    rec = TickRecorder(2, 2, capacity=res.n)
+    steered = np.arange(res.n) % 3 != 0  # a known engaged fraction
+    for k in range(res.n):
+        i = rec.new_row()
+        a = rec.arrays
+        a["t_traj"][i] = a["t_vehicle"][i] = res.t[k]
+        a["y"][i], a["y_des"][i], a["u"][i], a["r_nom"][i] = res.y[k], res.y_des[k], res.u[k], res.r_nom[k]
+        a["sp_thrust"][i] = res.setpoint_thrust[k]
+        a["truth_position"][i, 2] = res.y_true[k, 0]
+        a["reason"][i] = reason_code("steered" if steered[k] else "prefilter")
+        a["active"][i] = a["event"][i] = True
+    tmp = tmp_path_factory.mktemp("scoring")
+    log = rec.to_log(dt=res.dt, input_names=("z_ref", "pitch_ref"), output_names=("z", "pitch")).save(tmp / "run.npz")
+    np.savez(tmp / "truth.npz", t=res.t, state=res.state)
+    return res, log, tmp / "truth.npz", steered
+
+
+def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
+    res, log, truth, steered = scored
+    settle = FlyingScenario().settle_time
+    sm = scenario_metrics(res)
+    ff = flight_figures(log, settle=settle)
+    tr = truth_rmse(log, truth, settle=settle)
+    np.testing.assert_array_equal(res.y_true[:, 0], res.state[:, 2])  # the truth log's z is the scored z
+    # Exactly equal: the same arrays through the same function.
+    assert ff["rmse_z_truth"] == tr["rmse_z"] == sm["rmse_z"] == res.metrics()["rmse_z"]
+    assert ff["rmse_z"] == tr["rmse_z_telemetry"]
+    # And each figure is its definition (independent numpy on the SimResult).
+    on = res.t >= settle
+    assert ff["ticks"] == tr["samples"] == int(on.sum())
+    assert sm["rmse_z"] == pytest.approx(np.sqrt(np.mean((res.y_true[on, 0] - res.y_des[on, 0]) ** 2)), rel=1e-12)
+    assert ff["rmse_z"] == pytest.approx(np.sqrt(np.mean((res.y[on, 0] - res.y_des[on, 0]) ** 2)), rel=1e-12)
+    assert ff["rmse_z"] != sm["rmse_z"]  # noisy telemetry against the truth: two different figures
+    assert ff["estimator_rms"] == pytest.approx(np.sqrt(np.mean((res.y[on, 0] - res.y_true[on, 0]) ** 2)), rel=1e-12)
+    off = res.u[on, 0] - res.r_nom[on, 0]
+    assert ff["max_offset_step"] == pytest.approx(np.abs(np.diff(off)).max(), rel=1e-12) and ff["max_offset_step"] > 0
+    assert ff["max_ref_step"] == pytest.approx(np.abs(np.diff(res.u[on, 0])).max(), rel=1e-12)
+    assert ff["thrust_step_rms"] == pytest.approx(np.sqrt(np.mean(np.diff(res.setpoint_thrust[on]) ** 2)), rel=1e-12)
+    assert ff["engaged_fraction"] == pytest.approx(steered[on].mean(), rel=1e-12)
