@@ -16,7 +16,10 @@ can add against the robot's envelope (``span``: the range of each reference, :cl
 table of 1e6 or a prefilter whose offset / gain leaves the envelope never flies.
 
 Both fly the flying scenario only (the hopping baselines run in-process: their clock is the
-liftoff, which a hopping bridge would have to reset per hop).
+liftoff, which a hopping bridge would have to reset per hop). ``passthrough`` is
+:class:`~ddpc_codegen.runtime.baselines.PassthroughPolicy` (u = r_nom, no file), flying or hopping, so
+every mode but collect reaches the loop through the same :class:`~ddpc_codegen.runtime.policy.Policy`
+methods (steer: :mod:`firmware_bridge.steering_setup`, hopping steer: :mod:`firmware_bridge.hopping_loop`).
 """
 
 from __future__ import annotations
@@ -24,11 +27,12 @@ from __future__ import annotations
 import numpy as np
 
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PrefilterPolicy
+from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
+from ddpc_codegen.runtime.policy import Policy
 
 __all__ = ["BASELINE_MODES", "load_feedforward", "load_prefilter", "baseline_policy", "feedforward_row"]
 
-BASELINE_MODES = ("prefilter", "feedforward")
+BASELINE_MODES = ("passthrough", "prefilter", "feedforward")
 
 
 def load_feedforward(path: str, rate_hz: float, m: int, span: np.ndarray | None = None) -> FeedforwardPolicy:
@@ -82,14 +86,18 @@ def load_prefilter(path: str, rate_hz: float, m: int, span: np.ndarray | None = 
     return pol
 
 
-def baseline_policy(mode: str, path: str, rate_hz: float, m: int, hopping: bool,
-                    span: np.ndarray | None = None) -> tuple[object, np.ndarray]:
+def baseline_policy(mode: str, path: str | None, rate_hz: float, m: int, hopping: bool,
+                    span: np.ndarray | None = None) -> tuple[Policy, np.ndarray]:
     """(policy, ahead): the baseline of ``mode`` and the trajectory-time offsets [s] of the desired
-    outputs its ``decide`` needs (0 .. horizon - 1 ticks ahead). ``span``: as :func:`load_feedforward`."""
+    outputs its ``decide`` needs (0 .. horizon - 1 ticks ahead). ``path``: the file of a prefilter or
+    feed-forward mode (passthrough: none). ``span``: as :func:`load_feedforward`."""
+    if mode == "passthrough":  # the controller alone, flying or hopping
+        pol: Policy = PassthroughPolicy()
+        return pol, np.arange(pol.horizon) / rate_hz
     if hopping:
         raise ValueError(f"{mode} mode flies the flying scenario (the hopping baselines run in-process)")
     if mode == "prefilter":
-        pol: object = load_prefilter(path, rate_hz, m, span)
+        pol = load_prefilter(path, rate_hz, m, span)
     elif mode == "feedforward":
         pol = load_feedforward(path, rate_hz, m, span)
     else:

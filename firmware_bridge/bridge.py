@@ -116,7 +116,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
             self._setup_solver(solver)
         elif c.mode in BASELINE_MODES:  # a baseline behind the steering's interface
             lo, hi = c.reference_bounds()
-            self.policy, self._ahead = baseline_policy(c.mode, getattr(c, c.mode), c.rate_hz, self.m, self.hopping, hi - lo)
+            self.policy, self._ahead = baseline_policy(c.mode, getattr(c, c.mode, None), c.rate_hz, self.m, self.hopping,
+                                                       hi - lo)
         self.gate = make_gate(c, c.mode, self.period, self.solver)  # the last gate on every applied reference
         if self.hopping:
             window = hopping_window(self.solver, self.steerer.t_ini) if self.steerer is not None else None
@@ -416,9 +417,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
                 self.policy.seek(feedforward_row(t_traj, self.period))
             out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
             ref.update(u=out.u, reason=out.reason)
-        elif self.cfg.mode == "collect":
+        else:  # collect
             ref["exc"] = self._excitation() if self.hop is None else self.hop.excitation(self._excitation())
             ref.update(u=r_nom + ref["exc"], reason="collect")
-        else:
-            ref["reason"] = "passthrough"
         return ref

@@ -32,6 +32,7 @@ from ddpc_codegen.experiments.baselines_eval import fit_scenario_prefilter
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.pipeline import ROOT, build_setup, default_config
 from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.flight_metrics import rms
 from ddpc_codegen.runtime.adapt_qp import SampleWindow, steady_state_gain
 from ddpc_codegen.runtime.adaptation import solve_g
 from ddpc_codegen.runtime.baselines import PrefilterPolicy
@@ -73,8 +74,7 @@ def _rmse_after(res, t0: float, span: float) -> float | None:
         return None
     t = res.t
     w = (t >= t0) & (t < t0 + span)
-    e = res.y_true[w, 0] - res.extras["z_des"][w]
-    return float(np.sqrt(np.mean(e * e)))
+    return rms(res.y_true[w, 0] - res.extras["z_des"][w], float("nan"))
 
 
 def _prefilter_run(setup, c: dict, params: PogoXParams, seed: int):

@@ -169,3 +169,29 @@ def test_mutated_feedforward_tables_are_refused_or_finite(tmp_path, key, value, 
         return
     assert pol.delta.ndim == 2 and pol.delta.shape[1] == 2 and np.all(np.isfinite(pol.delta))
     assert np.all(np.abs(pol.delta) <= SPAN) and pol.dt == 0.005
+
+
+@pytest.mark.parametrize("hopping", [False, True])
+def test_every_baseline_mode_is_a_policy_and_only_passthrough_hops(tmp_path, hopping):
+    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy
+    from ddpc_codegen.runtime.policy import Policy
+    from firmware_bridge.baseline_modes import BASELINE_MODES, baseline_policy
+
+    files = {"passthrough": None,
+             "prefilter": str(PrefilterModel((1.0, 1.0), (0.0, 0.0), (3, 0), 0.005).save(tmp_path / "pf.json")),
+             "feedforward": str(FeedforwardPolicy(np.zeros((4, 2))).save(tmp_path / "ff.npz"))}
+    assert set(BASELINE_MODES) == set(files)
+    for mode in BASELINE_MODES:
+        if hopping and mode != "passthrough":
+            with pytest.raises(ValueError, match=rf"^{mode} mode flies the flying scenario \(the hopping baselines "
+                                                 r"run in-process\)$"):
+                baseline_policy(mode, files[mode], 200.0, 2, hopping)
+            continue
+        pol, ahead = baseline_policy(mode, files[mode], 200.0, 2, hopping)
+        assert isinstance(pol, Policy) and ahead.tolist() == (np.arange(pol.horizon) / 200.0).tolist()
+    pt, ahead = baseline_policy("passthrough", None, 200.0, 3, hopping)
+    assert isinstance(pt, PassthroughPolicy) and ahead.tolist() == [0.0]
+    with pytest.raises(ValueError, match=r"^not a baseline mode: 'steer' \(one of \('passthrough', 'prefilter', "
+                                         r"'feedforward'\)\)$"):
+        baseline_policy("steer", None, 200.0, 2, False)
