@@ -25,16 +25,18 @@ $(LIBS_STAMP): ddpc_codegen/codegen/libs.py | $(STAMP)
 # Lint first (seconds), then every test tier (markers: e2e, realtime, compiler, sitl, slow; select
 # one with `$(PY) -m pytest -m compiler`) in two phases: what tolerates a second process runs on
 # TEST_WORKERS pytest-xdist workers, a test file per worker (module fixtures built once); the tiers
-# that measure wall-clock time (realtime, sitl) then run alone. Both phases run (unless interrupted)
-# and the target fails if either fails, or if neither ran a test (PYTEST_ARGS may narrow both);
-# solvers are built once for both (DDPC_TEST_CACHE, tests/support/solver_cache.py).
+# that measure wall-clock time then run: the realtime tier alone, then the SITL tier on two workers
+# (a SITL test waits on a real-time autopilot; tests/sitl/conftest.py groups them). Every phase runs
+# (unless interrupted) and the target fails if one fails, or if none ran a test (PYTEST_ARGS may
+# narrow them); solvers are built once for all (DDPC_TEST_CACHE, tests/support/solver_cache.py).
 TEST_WORKERS ?= logical
 SERIAL_TIERS := realtime or sitl
 PHASE_RC = r=$$?; [ $$r -eq 2 ] && exit 2; [ $$r -eq 5 ] || { ran=1; [ $$r -eq 0 ] || rc=$$r; }
 test: install lint
 	@export DDPC_TEST_CACHE=$$(mktemp -d); rc=0; ran=0; \
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not ($(SERIAL_TIERS))" $(PYTEST_ARGS); $(PHASE_RC); \
-	$(PY) -m pytest -q -m "$(SERIAL_TIERS)" $(PYTEST_ARGS); $(PHASE_RC); \
+	$(PY) -m pytest -q -m "realtime and not sitl" $(PYTEST_ARGS); $(PHASE_RC); \
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m sitl $(PYTEST_ARGS); $(PHASE_RC); \
 	rm -rf $$DDPC_TEST_CACHE; [ $$ran -eq 1 ] || rc=5; exit $$rc
 
 # Re-measure every test serially into tests/durations.json (sets the `slow` marker; see tests/conftest.py).

@@ -229,8 +229,7 @@ class Supervisor:
             # (same clock and frame), the reference rate-limited from where it stood relative to the
             # measured outputs at the last fresh tick: a frozen vehicle gets its last fresh setpoint
             # again (no thrust kick from the tracking error it had), a moved one the same offset.
-            if self.steerer is not None:
-                self.policy.reset()
+            self._reset_steering()  # hopping: its (u, y, phase) history too
             if c.blend_rates and self.approach is None:
                 off = 0.0 if self._ref_offset is None else self._ref_offset
                 self.blend.start(self.ctrl.outputs(state) + off)

@@ -1,0 +1,20 @@
+"""The SITL tier runs on two pytest-xdist workers (``make test``: ``--dist loadgroup``): each test waits on a
+real-time autopilot most of its wall time, so two at once halve the tier's wall time while the CPU stays
+free enough for the bridge's 200 Hz loop (three at once made the climb-rate flight fall back under load).
+The groups balance the measured durations (tests/durations.json): the two longest tests apart."""
+
+from __future__ import annotations
+
+import pytest
+
+# ~330 s each on this 2-core machine: the PX4 flight + ArduCopter's climb-rate mode | everything else
+_GROUP_A = ("test_sitl_flight.py::test_from_the_ground_to_steered_flight[px4]",
+            "test_sitl_climb_rate.py::test_ardupilot_climb_rate_mode_collect_and_steer")
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's loadgroup reads the markers
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if "tests/sitl/" in item.nodeid:
+            group = "sitl-a" if item.nodeid.endswith(_GROUP_A) else "sitl-b"
+            item.add_marker(pytest.mark.xdist_group(group))
