@@ -46,7 +46,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
     n_z, n_g1, n_th = problem.n_z, max(1, problem.n_g), problem.n_theta
     n_o, n_wu = qp.Lm.shape[0], qp.Rm.shape[1]
     qp_words = 2 * (n_z * n_z + 2 * n_g1 * n_z + 2 * n_z * n_th + n_g1 * n_th) + n_o * (lay.r + n_wu + 2 * n_z)
-    ws_words = 2 * w * w + 2 * q * lay.r + s.window * w + w + nu * nu + qp_words + n_z * n_z
+    ws_words = 2 * w * w + 2 * q * lay.r + s.window * w + w + nu * nu + qp_words + n_z * n_z + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
@@ -58,6 +58,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
             "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
             "y_rows": ", ".join(map(str, qp.y_rows.tolist())) or "0",
             "check_gain": int(qp.S0 is not None), "max_gain_change": _c(min(qp.max_gain_change, 1e300)),
+            "offset": int(s.offset), "max_offset": ", ".join(_c(min(v, 1e300)) for v in ad.max_offset),
             "p_data": problem.config.p, "t_ini_data": problem.config.t_ini,
             "win_idx": ", ".join(map(str, lay.row_order().tolist())),
             "nz2": n_z * n_z, "ngz": n_g1 * n_z, "nzth": n_z * n_th, "ngth": n_g1 * n_th,
@@ -103,9 +104,11 @@ def cdef_text(name: str) -> str:
     return f"""
 typedef struct {{ const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM; }} {name}_qpdata;
 typedef struct {{ int updates; int skipped; int resolves; int accepted; int swaps; int clipped; int rejected[7];
-                 double error_current; double error_candidate; double excitation; }} {name}_adapt_counts;
+                 double error_current; double error_candidate; double excitation;
+                 int offset_swaps; int offset_clipped; int offset_rejected; double offset_norm; }} {name}_adapt_counts;
 typedef struct {{ double R[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...]; double x[...];
-                 double Rx[...]; {name}_qpdata qd[2]; int head; int n_ring; int pending; int spare;
+                 double Rx[...]; {name}_qpdata qd[2]; double yoff[...]; int head; int n_ring; int pending; int spare;
+                 int off_pending; int off_spare;
                  {name}_adapt_counts counts; ...; }}
         {name}_adapt_workspace;
 int {name}_adapt_init({name}_adapt_workspace *ws);

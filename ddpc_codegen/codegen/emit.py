@@ -112,13 +112,19 @@ def adapt_context(name: str, adaptive: bool) -> dict:
     """The placeholders of solver.{h,c} and qp_daqp.c that differ in an adaptive solver; without adaptation
     they render exactly the non-adaptive text (the plain build stays byte for byte)."""
     if not adaptive:
-        return {"ws_adapt": "", "qpdata_decl": "", "init_qd": "", "qd_shipped": "",
+        return {"ws_adapt": "", "qpdata_decl": "", "init_qd": "", "qd_shipped": "", "theta_shift": "",
                 "reset_body": f"{{ (void){name}_init(ws); }}", "sym_A_G_CM": f"{name}_A_G_CM", "sym_K": f"{name}_K",
                 "sym_P": f"{name}_P", "sym_A_G": f"{name}_A_G",
                 "bounds_call": f"call_casadi({name}_bounds_map, theta, ws->lg, ws->ug);",
                 "q_call": f"call_casadi({name}_param_map_q, theta, ws->q, 0);"}
     return {
-        "ws_adapt": f"\n  const {name}_qpdata *qd; /* the QP data in use: shipped, or a verified online rebuild */",
+        "ws_adapt": (f"\n  const {name}_qpdata *qd; /* the QP data in use: shipped, or a verified online rebuild */"
+                     "\n  const double *y_offset; /* the output offset in use (data units, NY; NULL: none), set by "
+                     f"{name}_adapt_swap */\n  double theta_s[{name.upper()}_NTHETA]; /* theta aimed at y_des - y_offset */"),
+        "theta_shift": ("\n  if (ws->y_offset) { /* ||Gy z + b - y_des||^2 = ||Gy z - (y_des - b)||^2: shift y_des, "
+                        "the QP stays */\n    int k;\n    memcpy(ws->theta_s, theta, sizeof(ws->theta_s));\n"
+                        "    for (k = 0; k < N_Y; ++k) ws->theta_s[N_W + k] -= ws->y_offset[k];\n"
+                        "    theta = ws->theta_s;\n  }"),
         "qpdata_decl": ("\n\n/* The QP data online adaptation rebuilds (layouts as in <name>_data.h); a workspace reads them "
                         "through\n * its qd pointer, which <name>_adapt_swap moves between ticks. */\ntypedef struct {\n"
                         "  const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM;\n"
@@ -127,7 +133,9 @@ def adapt_context(name: str, adaptive: bool) -> dict:
         "qd_shipped": (f"\n\nstatic const {name}_qpdata {name}_qd_shipped = {{{name}_P, {name}_A_G, {name}_A_G_CM, "
                        f"{name}_K, {name}_F_Q_CM,\n                                             {name}_F_G_CM}};"),
         "reset_body": (f"{{\n  const {name}_qpdata *qd = ws->qd; /* a failed tick keeps the swapped-in data */\n"
-                       f"  (void){name}_init(ws);\n  ws->qd = qd;\n  if ({name}_qp_init(ws) != 0) ws->ready = 0;\n}}"),
+                       "  const double *y_offset = ws->y_offset; /* ... and the output offset */\n"
+                       f"  (void){name}_init(ws);\n  ws->qd = qd;\n  ws->y_offset = y_offset;\n"
+                       f"  if ({name}_qp_init(ws) != 0) ws->ready = 0;\n}}"),
         "sym_A_G_CM": "ws->qd->A_G_CM", "sym_K": "ws->qd->K", "sym_P": "ws->qd->P", "sym_A_G": "ws->qd->A_G",
         "bounds_call": (f"matvec(ws->qd->F_G_CM, theta, N_G, N_THETA, {name}_LG0, ws->lg);\n"
                         f"  matvec(ws->qd->F_G_CM, theta, N_G, N_THETA, {name}_UG0, ws->ug);"),

@@ -95,9 +95,10 @@ _FLOAT_KEYS = {"forgetting": (0.0, 1.0, True), "dither": (0.0, np.inf, False), "
 _INT_KEYS = ("period_ticks", "window")
 
 
-def adapt_settings(table: dict | None, src: str = "config") -> AdaptSettings:
-    """The ``[adapt]`` table (enabled, forgetting, period_ticks, dither, window, max_change,
-    min_excitation) -> :class:`AdaptSettings`; None or {} gives the defaults (disabled).
+def adapt_settings(table: dict | None, src: str = "config", p: int | None = None) -> AdaptSettings:
+    """The ``[adapt]`` table (enabled, forgetting, period_ticks, dither, window, max_change, min_excitation,
+    max_gain_change, offset, max_offset) -> :class:`AdaptSettings`; None or {} gives the defaults (disabled).
+    ``p``: the number of outputs (checks the length of a ``max_offset`` list).
 
     Raises:
         ConfigError: unknown key or a value out of range (the message names both).
@@ -107,8 +108,11 @@ def adapt_settings(table: dict | None, src: str = "config") -> AdaptSettings:
     unknown = sorted(set(table) - known)
     if unknown:
         raise ConfigError(f"{src}: [adapt] unknown key(s) {unknown}; allowed: {sorted(known)}")
-    if "enabled" in table and not isinstance(table["enabled"], bool):
-        raise ConfigError(f"{src}: [adapt] enabled must be true or false; got {table['enabled']!r}")
+    for key in ("enabled", "offset"):
+        if key in table and not isinstance(table[key], bool):
+            raise ConfigError(f"{src}: [adapt] {key} must be true or false; got {table[key]!r}")
+    if "max_offset" in table:
+        table["max_offset"] = _max_offset_entry(table["max_offset"], src, p)
     for key, (lo, hi, lo_open) in _FLOAT_KEYS.items():
         if key in table:
             v = table[key]
@@ -123,6 +127,17 @@ def adapt_settings(table: dict | None, src: str = "config") -> AdaptSettings:
         if key in table and (not isinstance(table[key], int) or isinstance(table[key], bool) or table[key] < 1):
             raise ConfigError(f"{src}: [adapt] {key} must be an integer >= 1; got {table[key]!r}")
     return AdaptSettings(**table)
+
+
+def _max_offset_entry(v, src: str, p: int | None) -> float | tuple[float, ...]:
+    """[adapt] max_offset: a number > 0 (every output; inf: no bound) or a list of them, one per output."""
+    vals = v if isinstance(v, list) else [v]
+    num = all(isinstance(x, (int, float)) and not isinstance(x, bool) and not np.isnan(x) and x > 0 for x in vals)
+    if not num or (isinstance(v, list) and (not v or (p is not None and len(v) != p))):
+        per = f"{p} of them" if p is not None else "one per output"
+        raise ConfigError(f"{src}: [adapt] max_offset must be a number > 0 or a list of {per} (output units); "
+                          f"got {v!r}")
+    return tuple(float(x) for x in v) if isinstance(v, list) else float(v)
 
 
 def _predictor_maps(predictor: Predictor, layout: AdaptLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,12 +209,21 @@ def qp_model(problem, max_gain_change: float = np.inf) -> QPModel:
 
 
 def adapter(problem, settings: AdaptSettings) -> Adapter:
-    """The interpreted online update of a steering problem's predictor (its fit statistic, scale, options)."""
+    """The interpreted online update of a steering problem's predictor (its fit statistic, scale, options).
+
+    Raises:
+        ConfigError: ``offset`` with finite output bounds (the offset would have to shift them too).
+    """
     pr = problem.predictor
     R, lay = fit_statistic(pr)
     o = pr.options
+    qp = qp_model(problem, settings.max_gain_change)
+    if settings.offset and qp.y_rows.size:
+        raise ConfigError("[adapt] offset = true cannot be combined with finite output bounds ([bounds] y_min / "
+                          "y_max): the estimated output offset would shift them as well; drop the output bounds or "
+                          "set offset = false")
     return Adapter(lay, R, np.asarray(o["channel_scale"], float), settings, slack_weight=float(o["slack_weight"]),
-                   ridge=float(o["ridge"]), rcond=float(o["rcond"]), qp=qp_model(problem, settings.max_gain_change))
+                   ridge=float(o["ridge"]), rcond=float(o["rcond"]), qp=qp)
 
 
 class AdaptiveProblem:
@@ -220,10 +244,18 @@ class AdaptiveProblem:
         self._window = SampleWindow(lay.depth, lay.m, lay.p, lay.t_ini != problem.predictor.t_ini)
 
     def solve(self, u_ini, y_ini, y_des, u_nom=None):
-        """One tick on the current QP data (SteeringProblem.solve)."""
+        """One tick on the current QP data (SteeringProblem.solve), aimed at y_des - the output offset."""
+        off = self.adapter.offset
+        if np.any(off != 0.0) and np.size(y_des) == off.size:  # a y_des of the wrong size: the problem's error
+            y_des = np.asarray(y_des, dtype=float) - off.reshape(np.shape(y_des))
         return self.problem.solve(u_ini, y_ini, y_des, u_nom, solver=self.method)
 
     def solve_theta(self, theta, **kw):
+        """Like :meth:`solve` from a stacked theta (its y_des entries shifted by the output offset)."""
+        off = self.adapter.offset
+        if np.any(off != 0.0) and np.shape(theta) == (self.problem.n_theta,):
+            theta = np.array(theta, dtype=float)
+            theta[self.problem.n_w : self.problem.n_w + off.size] -= off
         return self.problem.solve_theta(theta, **{"solver": self.method, **kw})
 
     def reset(self) -> None:
@@ -247,6 +279,10 @@ class AdaptiveProblem:
 
     def adapt_counts(self) -> dict:
         return dict(self.adapter.counts)
+
+    def adapt_offset(self) -> np.ndarray:
+        """The output offset in use (p Tf,), data units, time-major."""
+        return self.adapter.offset.copy()
 
 
 def installed(problem, data: QPData):

@@ -39,7 +39,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
                       "denoise_online", "refit_residual"),
     "data": ("dataset", "max_output_noise"),
     "adapt": ("enabled", "forgetting", "period_ticks", "dither", "max_change", "window", "min_excitation",
-              "max_gain_change"),
+              "max_gain_change", "offset", "max_offset"),
 }
 # Sizes a steering problem can have (a 10 s preview at 200 Hz; a Gram matrix of 8000^2 doubles = 512 MB).
 MAX_HORIZON = 2000
@@ -242,7 +242,7 @@ class SteeringConfig:
 
         if not isinstance(self.adapt, (dict, AdaptSettings, type(None))):
             raise _err(src, "[adapt]", f"must be a table; got {self.adapt!r}")
-        set_("adapt", self.adapt if isinstance(self.adapt, AdaptSettings) else adapt_settings(self.adapt, src))
+        set_("adapt", self.adapt if isinstance(self.adapt, AdaptSettings) else adapt_settings(self.adapt, src, self.p))
 
     def _check_sizes(self) -> None:
         """Upper limits, checked before any matrix is formed: the Hankel has (m+p)(Tini+Tf) rows and its

@@ -7,7 +7,7 @@ import numpy as np
 
 from ddpc_codegen.errors import ManifestError
 from ddpc_codegen.runtime.adapt_qp import SampleWindow
-from ddpc_codegen.runtime.adaptation import REJECTIONS, AdaptSettings
+from ddpc_codegen.runtime.adaptation import OFFSET_COUNTS, REJECTIONS, AdaptSettings
 
 __all__ = ["GeneratedAdaptation"]
 
@@ -59,4 +59,13 @@ class GeneratedAdaptation:
         c = self._ws.counts
         out = {k: int(getattr(c, k)) for k in _COUNTS}
         out.update({f"rejected_{r}": int(c.rejected[i + 1]) for i, r in enumerate(REJECTIONS)})
+        out.update({k: int(getattr(c, k)) for k in OFFSET_COUNTS}, offset_norm=float(c.offset_norm))
         return out
+
+    def offset(self) -> np.ndarray:
+        """The output offset in use (p Tf,), data units, time-major (zeros before the first offset swap)."""
+        n = self._solver.p * self._solver.t_f
+        if self._ws.counts.offset_swaps == 0:
+            return np.zeros(n)
+        half = 1 - self._ws.off_spare  # the swap flipped off_spare away from the half in use
+        return np.array([self._ws.yoff[half * n + i] for i in range(n)])

@@ -9,7 +9,8 @@ generated solver built with ``[adapt] enabled`` or the interpreted
 
 Guards for closed-loop data: only steered ticks (engaged, fresh, not a fallback) update; any other tick
 breaks the window (the next column needs depth steered ticks in a row). Every ``period_ticks`` updates G
-is re-solved, verified and, if accepted, swapped in before the next tick.
+is re-solved, verified and, if accepted, swapped in before the next tick; with ``[adapt] offset`` the output
+offset staged by every re-solve (accepted or not) is swapped in too.
 """
 
 from __future__ import annotations
@@ -34,11 +35,13 @@ def adapt_code(last: str) -> int:
 
 @dataclass(frozen=True)
 class AdaptEvent:
-    """One re-solve: the tick, its verdict ("accepted" or the rejection reason), whether it was swapped in."""
+    """One re-solve: the tick, its verdict ("accepted" or the rejection reason), whether G was swapped in, and
+    the norm of the output offset in use after it (data units; 0 without ``[adapt] offset``)."""
 
     tick: int
     verdict: str
     swapped: bool
+    offset_norm: float = 0.0
 
 
 @dataclass
@@ -71,6 +74,7 @@ class OnlineAdaptation:
         self._since = 0  # updates since the last re-solve
         self._tick = 0
         self.last: str = ""  # what the last tick did: "update", "warmup", "skip", or a re-solve verdict
+        self.offset_norm = 0.0  # norm of the output offset in use (data units), read back after each swap
 
     def perturb(self, u: np.ndarray, steered: bool) -> np.ndarray:
         """u plus the dither on a steered tick (bounded by ``dither`` per channel), else u itself."""
@@ -95,13 +99,15 @@ class OnlineAdaptation:
         if self._since >= self.period_ticks:
             self._since = 0
             verdict = self.solver.adapt_resolve()
-            swapped = verdict == "accepted" and bool(self.solver.adapt_swap())
-            self.events.append(AdaptEvent(self._tick - 1, verdict, swapped))
+            swapped = bool(self.solver.adapt_swap())  # always: a refused G may still come with a new offset
+            self.offset_norm = float(self.solver.adapt_counts().get("offset_norm", 0.0))
+            self.events.append(AdaptEvent(self._tick - 1, verdict, swapped, self.offset_norm))
             self.last = verdict
         return self.last
 
     def summary(self) -> dict:
-        """The solver's counters and the re-solves (tick, verdict, swapped)."""
+        """The solver's counters and the re-solves (tick, verdict, G swapped, offset norm after it)."""
         return {"counts": dict(self.solver.adapt_counts()), "period_ticks": self.period_ticks,
                 "dither": self.dither.tolist(),
-                "events": [[e.tick, e.verdict, e.swapped] for e in self.events]}
+                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm] for e in self.events]}
+

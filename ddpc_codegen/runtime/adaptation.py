@@ -15,10 +15,18 @@ error than the current G's on that window. Rejections are counted by reason. The
 becomes current on :meth:`Adapter.swap` (between control ticks).
 
 Everything is on the scaled fit domain (channels divided by ``scale``); G is (q_y + q_s, r).
+
+Output offset (``[adapt] offset``, the offset-free MPC answer to a change the predictor has no term for, such as
+a payload or battery sag): closed-loop data explain such a change's constant offset only by distorting G's gains,
+which the gain check refuses. Instead each re-solve stages b (p Tf,), the mean residual y_f - Gy z of the recent
+window in data units, against the G that is current after the swap (the candidate when it was accepted, else
+the current one: offset and G always belong together), clipped per output to ``max_offset``. The steering then
+aims at y_des - b (||Gy z + b - y_des||^2 = ||Gy z - (y_des - b)||^2: the QP data do not change).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,12 +36,15 @@ from ddpc_codegen.runtime.adapt_qp import QPData, QPModel
 from ddpc_codegen.runtime.fit_layout import FitLayout
 
 __all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "extra_rows", "solve_g",
-           "excitation_ratio", "REJECTIONS"]
+           "excitation_ratio", "REJECTIONS", "OFFSET_COUNTS"]
 
 # Reasons a candidate G is rejected (the C code's codes 1..6, in this order). Checked in the order rank, nonfinite,
 # gain, (QP data) nonfinite, hessian, excitation, prediction -- numpy and C alike.
 REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction", "gain")
 
+
+# The output offset's counters (besides offset_norm, the norm of the offset in use, data units).
+OFFSET_COUNTS = ("offset_swaps", "offset_clipped", "offset_rejected")
 
 AdaptLayout = FitLayout  # the online update's name for the fit's layout
 
@@ -52,6 +63,10 @@ class AdaptSettings:
         constant reference, p x m) against the shipped one. Closed-loop data explain an offset the fit has no
         term for (a payload, battery sag) by distorting the gains, e.g. height through the pitch reference;
         the tracking loop's steady-state gains are set by its structure, so a large change is refused.
+    offset: estimate and apply the predictor's output offset b (see the module docstring); off by default (for the
+        incremental form, which is offset-free by construction, it is rarely useful).
+    max_offset: the largest |b| per output (output units; one number for every output or one per output); a
+        larger estimate is clipped to it and counted (``offset_clipped``).
     """
 
     enabled: bool = False
@@ -62,6 +77,8 @@ class AdaptSettings:
     max_change: float = 0.2
     min_excitation: float = 1e-3
     max_gain_change: float = 0.25
+    offset: bool = False
+    max_offset: float | tuple[float, ...] = math.inf
 
 
 def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None:
@@ -150,7 +167,8 @@ class Adapter:
     R0: the shipped data-only R factor (k <= width rows); scale (m+p,): the fit's channel scale;
     slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.runtime.adapt_qp.QPModel`
     or None (then no QP data are rebuilt and the Hessian is not checked). ``qp_data``: the QP data of the
-    current G (None until the first swap: the shipped data are in use).
+    current G (None until the first swap: the shipped data are in use). ``offset`` (p Tf,): the output offset in
+    use (data units, time-major; zeros until the first offset swap), ``pending_offset`` the staged one.
     """
 
     layout: AdaptLayout
@@ -186,8 +204,16 @@ class Adapter:
         self.pending: np.ndarray | None = None
         self.pending_qp: QPData | None = None
         self.qp_data: QPData | None = None
+        self.max_offset = _max_offset(s.max_offset, self.layout.p)
+        lay = self.layout
+        # fit-domain output residual (q_y,) -> data units (p Tf,): the data-unit predictor's map of G's Yf rows
+        self.offset_map = (self.qp.Lm[: self.qp.n_y, : lay.q_y] if self.qp is not None
+                           else np.diag(np.tile(self.scale[lay.m :], lay.t_f)))
+        self.offset = np.zeros(self.offset_map.shape[0])
+        self.pending_offset: np.ndarray | None = None
         self.counts = {"updates": 0, "skipped": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
-                       **{f"rejected_{k}": 0 for k in REJECTIONS}}
+                       **{f"rejected_{k}": 0 for k in REJECTIONS},
+                       **{k: 0 for k in OFFSET_COUNTS}, "offset_norm": 0.0}
 
     def push(self, window: np.ndarray) -> bool:
         """One new Hankel column from a time-major window (depth, m+p) in data units: R and the ring updated.
@@ -211,14 +237,42 @@ class Adapter:
     def resolve(self) -> str:
         """Re-solve G from R and verify it: "accepted" (pending until :meth:`swap`) or the rejection reason."""
         self.counts["resolves"] += 1
-        self.pending, self.pending_qp = None, None  # a new re-solve replaces any candidate not yet swapped in
+        # a new re-solve replaces any candidate not yet swapped in
+        self.pending, self.pending_qp, self.pending_offset = None, None, None
         G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
         reason = self._verify(G)
         if reason is None:
             self.counts["accepted"] += 1
-            return "accepted"
-        self.counts[f"rejected_{reason}"] += 1
-        return reason
+        else:
+            self.counts[f"rejected_{reason}"] += 1
+        if self.settings.offset:  # whatever the verdict: against the G current after the swap
+            self._stage_offset(self.G if self.pending is None else self.pending)
+        return reason or "accepted"
+
+    def offset_of(self, G: np.ndarray) -> np.ndarray | None:
+        """The mean residual y_f - Gy z (p Tf,) of the recent window under the fit-domain G, in data units
+        (time-major); None while the window is empty."""
+        cols = self.recent()
+        if cols.shape[0] == 0:
+            return None
+        r, q_y = self.layout.r, self.layout.q_y
+        e = (cols[:, r : r + q_y] - cols[:, :r] @ G[:q_y].T).mean(axis=0)
+        return self.offset_map @ e
+
+    def _stage_offset(self, G: np.ndarray) -> None:
+        """Stage the offset of G: refused (counted) when not finite, clipped per output to max_offset (counted)."""
+        with np.errstate(all="ignore"):
+            b = self.offset_of(G)
+        if b is None:
+            return
+        if not np.all(np.isfinite(b)):
+            self.counts["offset_rejected"] += 1
+            return
+        lim = np.tile(self.max_offset, self.layout.t_f)
+        if np.any(np.abs(b) > lim):
+            b = np.clip(b, -lim, lim)
+            self.counts["offset_clipped"] += 1
+        self.pending_offset = b
 
     def _verify(self, G: np.ndarray | None) -> str | None:
         if G is None:
@@ -242,11 +296,28 @@ class Adapter:
         return None
 
     def swap(self) -> bool:
-        """Make the verified candidate current (call between ticks); False when there is none."""
-        if self.pending is None:
-            return False
-        self.G, self.pending = self.pending, None
-        if self.pending_qp is not None:
-            self.qp_data, self.pending_qp = self.pending_qp, None
-        self.counts["swaps"] += 1
-        return True
+        """Make the verified candidate G and the staged offset current (call between ticks); True when a G was
+        swapped in (an offset alone is counted in ``offset_swaps``)."""
+        swapped = self.pending is not None
+        if swapped:
+            self.G, self.pending = self.pending, None
+            if self.pending_qp is not None:
+                self.qp_data, self.pending_qp = self.pending_qp, None
+            self.counts["swaps"] += 1
+        if self.pending_offset is not None:
+            self.offset, self.pending_offset = self.pending_offset, None
+            self.counts["offset_swaps"] += 1
+            self.counts["offset_norm"] = float(np.linalg.norm(self.offset))
+        return swapped
+
+
+def _max_offset(value, p: int) -> np.ndarray:
+    """[adapt] max_offset as (p,) bounds > 0 (one number for every output, or one per output)."""
+    try:
+        bad = isinstance(value, bool) or any(isinstance(x, bool) for x in np.ravel(np.asarray(value, dtype=object)))
+        v = np.array([np.nan]) if bad else np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        v = np.array([np.nan])
+    if v.ndim > 1 or (v.ndim == 1 and v.size != p) or np.any(np.isnan(v)) or np.any(v <= 0):
+        raise DataError(f"[adapt] max_offset must be one number > 0 or {p} of them (one per output); got {value!r}")
+    return np.broadcast_to(v, (p,)).astype(float)

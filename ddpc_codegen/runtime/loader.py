@@ -153,8 +153,13 @@ class GeneratedSolver:
         return self._adapt().swap()
 
     def adapt_counts(self) -> dict:
-        """updates, skipped, resolves, accepted, swaps, clipped and rejected_<reason> counters."""
+        """updates, skipped, resolves, accepted, swaps, clipped, rejected_<reason>, offset_swaps, offset_clipped,
+        offset_rejected counters and offset_norm (the norm of the output offset in use)."""
         return self._adapt().counts()
+
+    def adapt_offset(self) -> np.ndarray:
+        """The output offset b (p Tf,) the solver aims past (y_des - b), data units, time-major."""
+        return self._adapt().offset()
 
     def theta(self, u_ini, y_ini, y_des, u_nom=None) -> np.ndarray:
         """Stack and validate the parameters (same layout as SteeringProblem.theta)."""

@@ -135,7 +135,7 @@ def test_adapt_settings_defaults_and_values():
 
 @pytest.mark.parametrize("table, message", [
     ({"forget": 0.9}, r"^c.toml: \[adapt\] unknown key\(s\) \['forget'\]; allowed: \['dither', 'enabled', "
-                      r"'forgetting', 'max_change', 'max_gain_change', 'min_excitation', 'period_ticks', 'window'\]$"),
+                      r"'forgetting', 'max_change', 'max_gain_change', 'max_offset', 'min_excitation', 'offset', 'period_ticks', 'window'\]$"),
     ({"max_gain_change": -1.0}, r"^c.toml: \[adapt\] max_gain_change must be > 0; got -1.0$"),
     ({"max_gain_change": float("nan")}, r"^c.toml: \[adapt\] max_gain_change must be > 0; got nan$"),
     ({"forgetting": 0.0}, r"^c.toml: \[adapt\] forgetting must be in \(0, 1\]; got 0.0$"),

@@ -1,0 +1,126 @@
+"""The generated output-offset update (``[adapt] offset``) equals the numpy reference (runtime/adaptation.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.codegen.adapt import compile_alone
+from ddpc_codegen.design.adaptation import AdaptiveProblem
+from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.fit import fit_incremental
+from ddpc_codegen.design.predictor import fit_predictor
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.runtime.adaptation import OFFSET_COUNTS, REJECTIONS, AdaptSettings
+from support.lti import random_lti
+
+pytestmark = pytest.mark.compiler
+
+
+def _problem(form: str, knots=None) -> SteeringProblem:
+    sys_ = random_lti(4, 2, 2, 0)
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal((400, 2)) * [0.3, 2.0]
+    y, _ = sys_.simulate(u, np.zeros(4))
+    ds = IODataset(u, y + 1e-3 * rng.standard_normal(y.shape), 0.01)
+    pred = fit_incremental(ds, 5, 6, "lsq", ridge=1e-5) if form == "incremental" else \
+        fit_predictor(ds, 4, 6, "pem", ridge=1e-5)
+    cfg = SteeringConfig(t_ini=pred.t_ini, t_f=6, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode="offset",
+                         lambda_sigma=50.0, knots=knots, du_max=[0.05, 0.5], predictor={"method": pred.method})
+    return SteeringProblem(pred, cfg)
+
+
+def _arr(ffi, ptr, n):
+    return np.frombuffer(ffi.buffer(ptr, 8 * n), dtype=np.float64).copy()
+
+
+def _close(got, want, tol=1e-9):
+    return got.shape == want.shape and np.abs(got - want).max() <= tol * max(1.0, np.abs(want).max())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("form, knots, gain", [("absolute", None, 0.0), ("incremental", [0, 2, 5], np.inf)])
+def test_generated_offset_equals_the_numpy_reference(form, knots, gain, tmp_path):
+    """Windows from a changed system with a constant output disturbance: at every re-solve C and numpy stage the
+    same offset (clipped alike on the second output), swap it in whatever the verdict on G (gain 0: every G
+    refused), count alike, and steer alike after each swap and after a reset (1e-9)."""
+    prob = _problem(form, knots)
+    st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
+                       max_gain_change=gain, offset=True, max_offset=(1.0, 0.02))
+    name = f"off_{form[:3]}"
+    ffi, lib = compile_alone(prob, st, tmp_path, name)
+    twin = AdaptiveProblem(prob, st, solver="fast")
+    ref = twin.adapter
+    fn = {k: getattr(lib, f"{name}_{k}") for k in ("adapt_init", "adapt_push", "adapt_resolve", "adapt_swap", "init",
+                                                   "solve", "reset")}
+    ws, sws = ffi.new(f"{name}_adapt_workspace *"), ffi.new(f"{name}_workspace *")
+    assert fn["adapt_init"](ws) == 0 and fn["init"](sws) == 0
+    lay, n_y = ref.layout, prob.predictor.Gy_w.shape[0]
+    rng = np.random.default_rng(1)
+    u = rng.standard_normal((400, 2)) * [0.3, 2.0]
+    y, _ = random_lti(4, 2, 2, 7).simulate(u, np.zeros(4))
+    y = y + [0.4, -0.1]  # a constant disturbance (a payload): an offset the fit has no term for
+    sig = np.hstack([np.diff(u, axis=0), np.diff(y, axis=0)]) if form == "incremental" else np.hstack([u, y])
+    thetas = rng.standard_normal((8, prob.n_theta)) * 0.05
+    out = np.empty(prob.n_u)
+    verdicts, answers = [], 0
+    for k in range(300):
+        win = np.ascontiguousarray(sig[k : k + lay.depth])
+        assert fn["adapt_push"](ws, ffi.from_buffer("double[]", win)) == int(ref.push(win))
+        if k % 40 != 39:
+            continue
+        res, verdict = fn["adapt_resolve"](ws), ref.resolve()
+        verdicts.append(verdict)
+        assert res == (0 if verdict == "accepted" else 1 + REJECTIONS.index(verdict))
+        assert ws.off_pending == (ref.pending_offset is not None)
+        staged = _arr(ffi, ws.yoff, 2 * n_y)[ws.off_spare * n_y : (ws.off_spare + 1) * n_y]
+        assert _close(staged, ref.pending_offset), np.abs(staged - ref.pending_offset).max()
+        assert fn["adapt_swap"](ws, sws) == int(twin.adapt_swap())
+        if ref.counts["offset_swaps"]:  # the half the swap flipped away from is the one in use
+            used = _arr(ffi, ws.yoff, 2 * n_y)[(1 - ws.off_spare) * n_y : (2 - ws.off_spare) * n_y]
+            assert _close(used, ref.offset)
+        for th in thetas:  # the steering after the swap aims at y_des - b in both
+            for again in (False, True):
+                if again:
+                    fn["reset"](sws)  # a reset (a failed tick) keeps the offset in use
+                st_c = fn["solve"](sws, ffi.from_buffer("double[]", th), ffi.from_buffer("double[]", out), ffi.NULL)
+                r = twin.solve_theta(th)
+                assert (st_c == 0) == (r.status == "solved"), (st_c, r.status)
+                if st_c == 0:
+                    answers += 1
+                    assert _close(out, r.u.reshape(-1)), np.abs(out - r.u.reshape(-1)).max()
+    c = ws.counts
+    assert {k: getattr(c, k) for k in OFFSET_COUNTS} == {k: ref.counts[k] for k in OFFSET_COUNTS}
+    assert abs(c.offset_norm - ref.counts["offset_norm"]) <= 1e-9 * max(1.0, ref.counts["offset_norm"])
+    assert ref.counts["offset_swaps"] == len(verdicts) and ref.counts["offset_clipped"] > 0
+    assert answers > 0 and np.abs(ref.offset).max() > 0.01  # the offsets and the steering were exercised
+    if gain == 0.0:
+        assert set(verdicts) == {"gain"} and ref.counts["swaps"] == 0  # offsets alone
+    else:
+        assert ref.counts["swaps"] > 0  # the offset after a G swap is the new G's
+
+
+def test_plain_adaptive_build_without_offset_never_shifts(tmp_path):
+    """offset = false: the C stages no offset and steers as the twin without one after its swaps."""
+    prob = _problem("absolute")
+    st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
+                       max_gain_change=np.inf)
+    ffi, lib = compile_alone(prob, st, tmp_path, "off_none")
+    twin = AdaptiveProblem(prob, st, solver="fast")
+    ws, sws = ffi.new("off_none_adapt_workspace *"), ffi.new("off_none_workspace *")
+    assert lib.off_none_adapt_init(ws) == 0 and lib.off_none_init(sws) == 0
+    rng = np.random.default_rng(3)
+    th, out = rng.standard_normal(prob.n_theta) * 0.05, np.empty(prob.n_u)
+    for _ in range(3):
+        for _ in range(45):
+            win = np.ascontiguousarray(rng.standard_normal((10, 4)) + 0.5)  # an offset the fit has no term for
+            lib.off_none_adapt_push(ws, ffi.from_buffer("double[]", win))
+            twin.adapter.push(win)
+        lib.off_none_adapt_resolve(ws)
+        twin.adapt_resolve()
+        lib.off_none_adapt_swap(ws, sws)
+        twin.adapt_swap()
+        assert ws.off_pending == 0 and ws.counts.offset_swaps == 0 and not np.any(twin.adapt_offset())
+        assert lib.off_none_solve(sws, ffi.from_buffer("double[]", th), ffi.from_buffer("double[]", out), ffi.NULL) == 0
+        assert _close(out, twin.solve_theta(th).u.reshape(-1))
