@@ -4,6 +4,9 @@ nothing is imported from here).
 - ``slow`` is set from ``tests/durations.json`` (:mod:`support.durations`): a test is slow when it, or a
   non-session fixture it uses, was measured at >= 10 s. ``--record-durations`` re-measures what runs.
 - Under pytest-xdist the test files are handed out longest first (recorded totals).
+- C compiles go through :mod:`support.cc_cache` (``CC`` for the session, its subprocesses included): the
+  library sources every generated folder carries are compiled once per run, not once per solver.
+  ``DDPC_TEST_CC_CACHE=0`` compiles everything afresh.
 """
 
 from __future__ import annotations
@@ -24,7 +27,9 @@ from support.durations import (
     heaviest_files_first,
     is_slow,
 )
+from support.cc_cache import install as install_cc_cache
 from support.lti import random_lti
+from support.solver_cache import cache_root
 
 _FIXTURE_PROP = "ddpc_fixture_setup"
 
@@ -33,6 +38,19 @@ _FIXTURE_PROP = "ddpc_fixture_setup"
 def lti_factory():
     """``random_lti(n, m, p, seed, radius=0.9, feedthrough=False)``."""
     return random_lti
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _compile_cache(tmp_path_factory):
+    """``CC`` = the object-reusing wrapper for the whole session (objects shared like the solver cache)."""
+    if os.environ.get("DDPC_TEST_CC_CACHE", "1") == "0":
+        yield
+        return
+    settings = install_cc_cache(cache_root(tmp_path_factory.getbasetemp()) / "cc", dict(os.environ))
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in settings.items():
+            mp.setenv(k, v)
+        yield
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -3,7 +3,8 @@ pytest-xdist worker and by both phases of ``make test``.
 
 The artifact lives in ``<root>/<key>/`` where ``key`` hashes what the artifact is made of: the caller's
 recipe (config text, data digest, seeds ...), the source of ``ddpc_codegen`` and ``firmware_bridge``
-(so any code change rebuilds), the Python version and the C compiler named by ``CC``. A file lock
+(so any code change rebuilds), the Python version and the C compiler named by ``CC`` (the real one behind
+the test session's compile cache, :mod:`cc_cache`). A file lock
 serialises builders of one key; a ``.complete`` marker, written last, says the folder is whole (a
 builder that died half way leaves none, and the next one starts the folder afresh).
 
@@ -44,7 +45,7 @@ def code_digest() -> str:
 def cache_key(recipe: dict) -> str:
     """24 hex digits naming the artifact made by ``recipe`` (JSON-serialisable) with this code and toolchain."""
     blob = json.dumps({"recipe": recipe, "code": code_digest(), "python": sys.version,
-                       "cc": os.environ.get("CC", "")}, sort_keys=True, default=str)
+                       "cc": os.environ.get("DDPC_CC_REAL") or os.environ.get("CC", "")}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 

@@ -1,0 +1,99 @@
+"""The test run's compile cache (tests/support/cc_cache.py): an identical compile step reuses its object,
+any change the compiler would see (header, macro, flag, compiler) compiles again, failures are not stored."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from support.cc_cache import compile_step, install
+
+CC = shutil.which("cc") or shutil.which("gcc")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler")
+
+
+@pytest.mark.parametrize("args, want", [
+    (["-O3", "-Ia/b", "-c", "x.c", "-o", "x.o"], ("x.c", "x.o", ["-O3", "-Ia/b", "-c"])),
+    (["-c", "-o", "o/x.o", "-I", "inc.c", "s/x.c"], ("s/x.c", "o/x.o", ["-c", "-I", "inc.c"])),
+    (["x.o", "y.o", "-shared", "-o", "m.so"], None),                   # a link step
+    (["-c", "x.c", "y.c"], None),                                      # two sources, no -o
+    (["-MD", "-MF", "x.d", "-c", "x.c", "-o", "x.o"], None),           # CMake's dependency files
+    (["-E", "-c", "x.c", "-o", "x.i"], None),
+    (["@args.rsp", "-c", "x.c", "-o", "x.o"], None),
+])
+def test_only_plain_compile_steps_are_cacheable(args, want):
+    assert compile_step(args) == want
+
+
+def _fake_compiler(tmp: Path) -> tuple[Path, Path]:
+    """A compiler that logs each real compile (not the preprocessing) to a file, then runs cc."""
+    log = tmp / "compiles.log"
+    exe = tmp / "logcc"
+    exe.write_text(f'#!/bin/sh\ncase " $* " in *" -E "*) ;; *) echo "$*" >> "{log}";; esac\nexec "{CC}" "$@"\n')
+    exe.chmod(0o755)
+    return exe, log
+
+
+def _program(folder: Path, value: str, extra: str = "") -> Path:
+    """A folder with main.c printing VALUE from a header in its own include directory."""
+    (folder / "inc").mkdir(parents=True)
+    (folder / "inc" / "v.h").write_text(f"#define VALUE {value}\n")
+    (folder / "main.c").write_text('#include <stdio.h>\n#include "v.h"\n'
+                                   f'int main(void) {{ {extra} printf("%d\\n", VALUE); return 0; }}\n')
+    return folder
+
+
+def _build_and_run(env: dict, folder: Path, *flags: str) -> tuple[subprocess.CompletedProcess, str | None]:
+    """Compile main.c through the wrapper, link it with the real compiler, run it: (compile, output)."""
+    comp = subprocess.run([env["CC"], *flags, "-I", str(folder / "inc"), "-c", str(folder / "main.c"),
+                           "-o", str(folder / "main.o")], env=env, capture_output=True, text=True)
+    if comp.returncode != 0:
+        return comp, None
+    subprocess.run([CC, str(folder / "main.o"), "-o", str(folder / "main")], check=True)
+    return comp, subprocess.run([str(folder / "main")], capture_output=True, text=True, check=True).stdout.strip()
+
+
+@needs_cc
+@pytest.mark.compiler
+def test_identical_steps_reuse_the_object_and_changes_compile_again(tmp_path):
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
+    n_compiles = lambda: len(log.read_text().splitlines()) if log.exists() else 0  # noqa: E731
+
+    assert _build_and_run(env, _program(tmp_path / "a", "41"))[1] == "41" and n_compiles() == 1
+    # another folder (other -I path, other object path), the same content: reused, and it runs
+    assert _build_and_run(env, _program(tmp_path / "b", "41"))[1] == "41" and n_compiles() == 1
+    # what the compiler sees changed: a header, a macro, a flag
+    assert _build_and_run(env, _program(tmp_path / "c", "42"))[1] == "42" and n_compiles() == 2
+    assert _build_and_run(env, _program(tmp_path / "d", "VALUE2"), "-DVALUE2=7")[1] == "7" and n_compiles() == 3
+    assert _build_and_run(env, _program(tmp_path / "e", "41"), "-O1")[1] == "41" and n_compiles() == 4
+
+
+@needs_cc
+@pytest.mark.compiler
+def test_warnings_are_replayed_and_failures_are_not_stored(tmp_path):
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
+    warn = "int unused_var;"
+    first, _ = _build_and_run(env, _program(tmp_path / "a", "1", warn), "-Wall")
+    again, out = _build_and_run(env, _program(tmp_path / "b", "1", warn), "-Wall")
+    assert "unused_var" in first.stderr and again.stderr == first.stderr and out == "1"
+    assert len(log.read_text().splitlines()) == 1
+    for name in ("c", "d"):  # a compile error: reported each time, never stored
+        bad, out = _build_and_run(env, _program(tmp_path / name, "1", "syntax error here"))
+        assert bad.returncode != 0 and "error" in bad.stderr and out is None
+    assert len(log.read_text().splitlines()) == 3
+    assert sorted(p.suffix for p in (tmp_path / "cache" / "objects").iterdir()) == [".err", ".o"]
+
+
+def test_the_wrapper_runs_without_site_packages(tmp_path):
+    """The wrapper starts Python with -S (fast): the module must need the standard library only."""
+    src = Path(__file__).parent / "support" / "cc_cache.py"
+    r = subprocess.run([sys.executable, "-S", "-c", f"import runpy; runpy.run_path({str(src)!r}, run_name='x')"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
