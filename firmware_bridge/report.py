@@ -76,6 +76,7 @@ class Reporting:
         A["gap"][i] = gap
         A["gate"][i] = gate
         A["adapt"][i] = ref.get("adapt", 0)
+        A["adapt_offset"][i] = ref.get("adapt_offset", math.nan)
         A["phase"][i] = self.ctrl.phase
         if self.hop is not None and self.hop.backdate:
             # A touchdown confirmed late: the samples already on the ground before it are ground samples.

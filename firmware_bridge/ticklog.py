@@ -117,6 +117,7 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "gap": (0, bool),           # event tick whose stamp is not one period after the previous one
         "gate": (0, np.int8),       # the last gate's actions on this tick (gate.GATE_FLAGS bits; 1: a stall)
         "adapt": (0, np.int8),      # online update (--adapt): runtime.adapt_loop.ADAPT_CODES (0: none this tick)
+        "adapt_offset": (0, float),  # --adapt: norm of the output offset in use (data units; nan: no adaptation)
         "phase": (0, np.int8),      # phase label (design.phases: 0 flying; hopping 1 descent, 2 ground, 3 ascent)
         "contact": (0, np.int8),    # hopping: the robot's contact flag as received (-1: none yet / not read)
         # The simulator's truth (ArduPilot SITL SIM_STATE, :mod:`.truth`; nan without it): never used for control

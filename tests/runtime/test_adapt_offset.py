@@ -1,0 +1,186 @@
+"""The online output offset (``[adapt] offset``) in numpy: against the predictor's own data-unit matrices, clipped,
+staged whatever the verdict on G, applied by the interpreted twin, recorded by the loop; exact errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from ddpc_codegen.design.adaptation import AdaptiveProblem, adapt_settings, adapter
+from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.fit import fit_incremental
+from ddpc_codegen.design.predictor import fit_predictor
+from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.errors import ConfigError, DataError
+from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
+from ddpc_codegen.runtime.adaptation import AdaptSettings
+from support.lti import random_lti
+
+T_F = 4
+
+
+def _problem(form: str = "absolute", bounds: dict | None = None) -> SteeringProblem:
+    sys_ = random_lti(3, 2, 2, 4)
+    rng = np.random.default_rng(4)
+    u = rng.standard_normal((400, 2))
+    y, _ = sys_.simulate(u, np.zeros(3))
+    ds = IODataset(u, y + 1e-3 * rng.standard_normal(y.shape), 0.01)
+    pred = fit_incremental(ds, 4, T_F, "lsq", ridge=1e-6) if form == "incremental" else \
+        fit_predictor(ds, 3, T_F, "lsq", ridge=1e-6)
+    cfg = SteeringConfig(t_ini=pred.t_ini, t_f=T_F, m=2, p=2, Q=[10.0, 1.0], R=[1.0, 1.0], R_mode="offset",
+                         predictor={"method": "lsq"}, **(bounds or {}))
+    return SteeringProblem(pred, cfg)
+
+
+PROBLEMS = {form: _problem(form) for form in ("absolute", "incremental")}
+
+
+def _signal(seed: int, d: np.ndarray, T: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """(u, y) of another system with the constant output disturbance d: an offset the fit has no term for."""
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((T, 2))
+    y, _ = random_lti(3, 2, 2, seed % 50 + 10).simulate(u, np.zeros(3))
+    return u, y + d
+
+
+def _reference_offset(prob: SteeringProblem, u: np.ndarray, y: np.ndarray, k: int) -> np.ndarray:
+    """Mean of y_f - [Gy_w Gy_u] [u_ini; y_ini; u_f] (data units) over the last k windows, from the predictor's own
+    data-unit matrices (not the update's scaled ring)."""
+    pr = prob.predictor
+    ti, tf = pr.t_ini, pr.t_f
+    res = []
+    for j in range(u.shape[0] - ti - tf + 1)[-k:]:
+        z = np.concatenate([u[j : j + ti].ravel(), y[j : j + ti].ravel(), u[j + ti : j + ti + tf].ravel()])
+        res.append(y[j + ti : j + ti + tf].ravel() - np.hstack([pr.Gy_w, pr.Gy_u]) @ z)
+    return np.mean(res, axis=0)
+
+
+def _feed(twin: AdaptiveProblem, u: np.ndarray, y: np.ndarray) -> None:
+    for uk, yk in zip(u, y):
+        twin.adapt_push(uk, yk)
+
+
+@given(form=st.sampled_from(sorted(PROBLEMS)), seed=st.integers(0, 10**6),
+       d=st.lists(st.floats(-2.0, 2.0), min_size=2, max_size=2), window=st.integers(40, 90))
+@settings(max_examples=12, deadline=None)
+def test_the_staged_offset_is_the_mean_residual_of_the_recent_window_in_data_units(form, seed, d, window):
+    prob = PROBLEMS[form]
+    # every G refused (the gain check, or for the incremental form, which has none, the excitation check)
+    st_ = AdaptSettings(enabled=True, window=window, offset=True, max_gain_change=0.0, min_excitation=1.0)
+    twin = AdaptiveProblem(prob, st_)
+    u, y = _signal(seed, np.array(d))
+    _feed(twin, u, y)
+    assert twin.adapt_resolve() in ("gain", "excitation")  # the offset is staged whatever the verdict on G
+    want = _reference_offset(prob, u, y, window)
+    got = twin.adapter.pending_offset
+    assert np.abs(got - want).max() <= 1e-9 * max(1.0, np.abs(want).max())
+    assert not twin.adapt_swap() and np.array_equal(twin.adapt_offset(), got)  # no G swapped; the offset in use
+    assert twin.adapt_counts()["offset_swaps"] == 1
+    assert twin.adapt_counts()["offset_norm"] == pytest.approx(np.linalg.norm(got), rel=1e-12)
+
+
+def test_after_a_g_swap_the_offset_in_use_is_the_new_gs():
+    prob = PROBLEMS["absolute"]
+    twin = AdaptiveProblem(prob, AdaptSettings(enabled=True, window=60, offset=True, forgetting=0.95, max_change=1.0,
+                                               min_excitation=1e-6, max_gain_change=1e6))
+    u, y = _signal(3, np.array([0.3, -0.2]), T=300)
+    _feed(twin, u, y)
+    assert twin.adapt_resolve() == "accepted"
+    G_new = twin.adapter.pending
+    assert twin.adapt_swap()
+    np.testing.assert_array_equal(twin.adapter.G, G_new)
+    np.testing.assert_allclose(twin.adapt_offset(), twin.adapter.offset_of(G_new), rtol=0, atol=1e-12)
+    assert np.abs(twin.adapt_offset() - _reference_offset(prob, u, y, 60)).max() > 1e-3  # not the shipped G's
+
+
+@pytest.mark.parametrize("max_offset, clipped", [(0.05, [0.05, 0.05]), ((10.0, 0.01), [None, 0.01]),
+                                                 (10.0, [None, None])])
+def test_the_offset_is_clipped_per_output_and_counted(max_offset, clipped):
+    prob = PROBLEMS["absolute"]
+    st_ = AdaptSettings(enabled=True, window=50, offset=True, max_gain_change=0.0, max_offset=max_offset)
+    twin = AdaptiveProblem(prob, st_)
+    u, y = _signal(1, np.array([1.0, -1.0]))
+    _feed(twin, u, y)
+    twin.adapt_resolve()
+    raw = _reference_offset(prob, u, y, 50).reshape(T_F, 2)
+    got = twin.adapter.pending_offset.reshape(T_F, 2)
+    for j, lim in enumerate(clipped):
+        want = raw[:, j] if lim is None else np.clip(raw[:, j], -lim, lim)
+        np.testing.assert_allclose(got[:, j], want, rtol=0, atol=1e-9)
+    assert twin.adapt_counts()["offset_clipped"] == int(any(c is not None for c in clipped))
+    assert np.abs(raw).min() > 0.05  # every entry was beyond the tight bounds
+
+
+def test_the_twin_steers_toward_y_des_minus_the_offset():
+    prob = PROBLEMS["absolute"]
+    twin = AdaptiveProblem(prob, AdaptSettings(enabled=True, window=50, offset=True, max_gain_change=0.0))
+    u, y = _signal(2, np.array([0.5, 0.1]))
+    _feed(twin, u, y)
+    twin.adapt_resolve()
+    twin.adapt_swap()
+    b = twin.adapt_offset().reshape(T_F, 2)
+    rng = np.random.default_rng(0)
+    u_ini, y_ini, y_des = rng.standard_normal((3, 2)), rng.standard_normal((3, 2)), rng.standard_normal((T_F, 2))
+    u_nom = rng.standard_normal((T_F, 2))
+    got = twin.solve(u_ini, y_ini, y_des, u_nom)
+    want = prob.solve(u_ini, y_ini, y_des - b, u_nom, solver="fast")  # no G swapped: the shipped QP
+    np.testing.assert_allclose(got.u, want.u, rtol=0, atol=1e-12)
+    th = prob.theta(u_ini, y_ini, y_des, u_nom)
+    np.testing.assert_allclose(twin.solve_theta(th).u, want.u, rtol=0, atol=1e-12)
+    assert np.abs(got.u - prob.solve(u_ini, y_ini, y_des, u_nom, solver="fast").u).max() > 1e-3
+
+
+def test_without_offset_nothing_is_staged_and_the_loop_records_the_norm():
+    prob = PROBLEMS["absolute"]
+    u, y = _signal(5, np.array([0.5, 0.1]), T=200)
+    norms = {}
+    for on in (False, True):
+        twin = AdaptiveProblem(prob, AdaptSettings(enabled=True, window=50, offset=on, max_gain_change=0.0,
+                                                   period_ticks=60))
+        loop = OnlineAdaptation(twin)
+        for uk, yk in zip(u, y):
+            loop.tick(uk, yk, True)
+        ev = loop.summary()["events"]
+        assert len(ev) == 3 and all(e[1] == "gain" and not e[2] for e in ev)
+        norms[on] = [e[3] for e in ev]
+        assert loop.offset_norm == norms[on][-1] == twin.adapt_counts()["offset_norm"]
+        assert twin.adapt_counts()["offset_swaps"] == (3 if on else 0)
+    assert norms[False] == [0.0] * 3 and min(norms[True]) > 0.1
+
+
+def test_offset_with_output_bounds_is_refused():
+    prob = _problem(bounds={"y_min": [-1.0, -np.inf], "y_max": [1.0, np.inf]})
+    with pytest.raises(ConfigError, match=r"^\[adapt\] offset = true cannot be combined with finite output bounds "
+                                          r"\(\[bounds\] y_min / y_max\): the estimated output offset would shift "
+                                          r"them as well; drop the output bounds or set offset = false$"):
+        adapter(prob, AdaptSettings(enabled=True, offset=True))
+    adapter(prob, AdaptSettings(enabled=True))  # without the offset the bounded problem adapts
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, [0.1, 0.2, 0.3], "x", True, [0.1, float("nan")]])
+def test_a_bad_max_offset_is_refused_by_the_update(value):
+    with pytest.raises(DataError, match=r"^\[adapt\] max_offset must be one number > 0 or 2 of them \(one per "
+                                        rf"output\); got {__import__('re').escape(repr(value))}$"):
+        adapter(PROBLEMS["absolute"], AdaptSettings(enabled=True, offset=True, max_offset=value))
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"offset": 1}, r"^c.toml: \[adapt\] offset must be true or false; got 1$"),
+    ({"max_offset": 0}, r"^c.toml: \[adapt\] max_offset must be a number > 0 or a list of 2 of them \(output "
+                        r"units\); got 0$"),
+    ({"max_offset": [0.1]}, r"^c.toml: \[adapt\] max_offset must be a number > 0 or a list of 2 of them \(output "
+                            r"units\); got \[0.1\]$"),
+    ({"max_offset": [0.1, True]}, r"^c.toml: \[adapt\] max_offset must be a number > 0 or a list of 2 of them "
+                                  r"\(output units\); got \[0.1, True\]$"),
+])
+def test_adapt_table_errors_for_the_offset_keys(table, message):
+    with pytest.raises(ConfigError, match=message):
+        adapt_settings(table, "c.toml", p=2)
+
+
+def test_adapt_table_accepts_the_offset_keys():
+    assert adapt_settings({"offset": True, "max_offset": [0.1, 2]}, "c.toml", p=2) == AdaptSettings(
+        offset=True, max_offset=(0.1, 2.0))
+    assert adapt_settings({"max_offset": float("inf")}).max_offset == float("inf")
