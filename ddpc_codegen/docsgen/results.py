@@ -85,7 +85,8 @@ def _demo_section(summary: dict) -> str:
     parts += [f"![{Path(f).stem}](figures/{f})\n" for f in figures]
     defs = meta.get("definitions", {})
     if defs:
-        parts += ["### Definitions\n", "\n".join(f"- **{k}**: {v}" for k, v in defs.items()) + "\n"]
+        parts += ["### Definitions\n", "Every flight figure comes from one function, `ddpc_codegen.flight_metrics`, "
+                  "in-process and from a tick log alike.\n", "\n".join(f"- **{k}**: {v}" for k, v in defs.items()) + "\n"]
     return "\n".join(parts)
 
 
