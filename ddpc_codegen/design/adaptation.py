@@ -131,13 +131,14 @@ def adapt_settings(table: dict | None, src: str = "config", p: int | None = None
 
 def _max_offset_entry(v, src: str, p: int | None) -> float | tuple[float, ...]:
     """[adapt] max_offset: a number > 0 (every output; inf: no bound) or a list of them, one per output."""
-    vals = v if isinstance(v, list) else [v]
+    seq = isinstance(v, (list, tuple))
+    vals = list(v) if seq else [v]
     num = all(isinstance(x, (int, float)) and not isinstance(x, bool) and not np.isnan(x) and x > 0 for x in vals)
-    if not num or (isinstance(v, list) and (not v or (p is not None and len(v) != p))):
+    if not num or (seq and (not v or (p is not None and len(v) != p))):
         per = f"{p} of them" if p is not None else "one per output"
         raise ConfigError(f"{src}: [adapt] max_offset must be a number > 0 or a list of {per} (output units); "
                           f"got {v!r}")
-    return tuple(float(x) for x in v) if isinstance(v, list) else float(v)
+    return tuple(float(x) for x in v) if seq else float(v)
 
 
 def _predictor_maps(predictor: Predictor, layout: AdaptLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,5 +1,7 @@
 """Timing of the generated online predictor update (issue 30): the rank-one update per tick and the
-re-solve of G, rebuild of the QP data (Hessian, linear-term map, output rows, gain) and verification, in C, at the benchmark's flying and hopping sizes.
+re-solve of G, rebuild of the QP data (Hessian, linear-term map, output rows, gain) and verification, in C, at the
+benchmark's flying and hopping sizes; and the output offset's share of a re-solve (``[adapt] offset``: the mean
+residual of the recent window, the same re-solves timed in a build without it).
 
 The problems are the benchmark's (``bench.build_problem``) refitted with a relative ridge of 1e-6 (the
 update re-solves G by a triangular solve, which needs a full-rank R11: the configs' ridge gives it).
@@ -34,45 +36,57 @@ def _ridge_problem(size: str) -> SteeringProblem:
     return SteeringProblem(pred, c)
 
 
-def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 5) -> dict:
-    """Median / max microseconds of ``<name>_adapt_push`` and milliseconds of ``<name>_adapt_resolve``."""
+def _resolve_times(prob: SteeringProblem, st: AdaptSettings, name: str, wins: np.ndarray, n_resolves: int,
+                   tmp: str) -> tuple[np.ndarray, np.ndarray]:
+    """(seconds per ``<name>_adapt_push``, seconds per ``<name>_adapt_resolve``) of a fresh build."""
+    ffi, lib = compile_alone(prob, st, tmp, name)
+    ws = ffi.new(f"{name}_adapt_workspace *")
+    if getattr(lib, f"{name}_adapt_init")(ws) != 0:
+        raise RuntimeError("the benchmark's R factor is rank deficient")
+    push, resolve = getattr(lib, f"{name}_adapt_push"), getattr(lib, f"{name}_adapt_resolve")
+    t_push = np.empty(wins.shape[0])
+    for k in range(wins.shape[0]):
+        buf = ffi.from_buffer("double[]", wins[k])
+        t0 = time.perf_counter()
+        push(ws, buf)
+        t_push[k] = time.perf_counter() - t0
+    t_res = np.empty(n_resolves)
+    for k in range(n_resolves):
+        t0 = time.perf_counter()
+        resolve(ws)
+        t_res[k] = time.perf_counter() - t0
+    return t_push, t_res
+
+
+def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9) -> dict:
+    """Median / max microseconds of ``<name>_adapt_push``, milliseconds of ``<name>_adapt_resolve`` (with the output
+    offset on), and the offset's share: the median re-solve with it minus the median of a build without it."""
     prob = _ridge_problem(size)
-    st = AdaptSettings(enabled=True)
-    name = f"bench_adapt_{size}"
+    st = AdaptSettings(enabled=True, offset=True)
+    lay = fit_layout(prob.predictor)
+    rng = np.random.default_rng(0)
+    wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05
     with tempfile.TemporaryDirectory() as tmp:
-        ffi, lib = compile_alone(prob, st, tmp, name)
-        ws = ffi.new(f"{name}_adapt_workspace *")
-        if getattr(lib, f"{name}_adapt_init")(ws) != 0:
-            raise RuntimeError("the benchmark's R factor is rank deficient")
-        lay = fit_layout(prob.predictor)
-        rng = np.random.default_rng(0)
-        wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05
-        push, resolve = getattr(lib, f"{name}_adapt_push"), getattr(lib, f"{name}_adapt_resolve")
-        t_push = np.empty(n_updates)
-        for k in range(n_updates):
-            buf = ffi.from_buffer("double[]", wins[k])
-            t0 = time.perf_counter()
-            push(ws, buf)
-            t_push[k] = time.perf_counter() - t0
-        t_res = np.empty(n_resolves)
-        for k in range(n_resolves):
-            t0 = time.perf_counter()
-            resolve(ws)
-            t_res[k] = time.perf_counter() - t0
+        t_push, t_res = _resolve_times(prob, st, f"bench_adapt_{size}", wins, n_resolves, tmp)
+    with tempfile.TemporaryDirectory() as tmp:  # the same windows and re-solves without the offset
+        _, t_plain = _resolve_times(prob, AdaptSettings(enabled=True), f"bench_adapt_{size}_plain", wins, n_resolves,
+                                    tmp)
     return {"size": size, "width": lay.width, "window": st.window,
             "update_us_median": round(float(np.median(t_push)) * 1e6, 2),
             "update_us_p99": round(float(np.percentile(t_push, 99)) * 1e6, 2),
             "resolve_ms_median": round(float(np.median(t_res)) * 1e3, 3),
             "resolve_ms_max": round(float(np.max(t_res)) * 1e3, 3),
+            "offset_ms_median": round(float(np.median(t_res) - np.median(t_plain)) * 1e3, 3),
             "targets": {"update_us": TARGET_UPDATE_US, "resolve_ms": TARGET_RESOLVE_MS}}
 
 
 def adapt_lines(rows: list[dict]) -> list[str]:
     """Table lines of :func:`adapt_timing` results."""
-    out = ["online update (C): size  width  update us (median/p99)  re-solve+rebuild+verify ms (median/max)"]
+    out = ["online update (C): size  width  update us (median/p99)  re-solve+rebuild+verify+offset ms (median/max)"
+           "  of it the offset ms"]
     for r in rows:
         out.append(f"  {r['size']:<8} {r['width']:>5}  {r['update_us_median']:>8.2f} / {r['update_us_p99']:<8.2f}"
-                   f"  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:.3f}")
+                   f"  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:<8.3f}  {r.get('offset_ms_median', 0.0):.3f}")
     return out
 
 
