@@ -90,27 +90,31 @@ def _prefilter_run(setup, c: dict, params: PogoXParams, seed: int):
 def prediction_evidence(setup, res, settings, t0: float, split: float) -> dict[str, float]:
     """Out-of-sample check of what adaptation would learn: the predictor updated (the shipped R, the config's
     forgetting) on the closed-loop columns of ``res`` in [t0, split) against the shipped one, both predicting
-    the columns of [split, end) (sum of squared scaled output errors), and both steady-state gains (outputs per
-    constant reference, p x m: what the ``gain`` verification compares)."""
+    the columns of [split, end) (sum of squared scaled output errors), the shipped one plus the output offset
+    of [t0, split) (its mean residual: what ``[adapt] offset`` adds) on the same columns, and both steady-state gains
+    (outputs per constant reference, p x m: what the ``gain`` verification compares)."""
     ad = adapter(setup.problem, settings)
     lay = ad.layout
     sw = SampleWindow(lay.depth, lay.m, lay.p, lay.t_ini != setup.problem.predictor.t_ini)
-    test = []
+    train, test = [], []
     for k, tk in enumerate(res.t):
         w = sw.push(res.u[k], res.y[k])
         if w is None or tk < t0:
             continue
         if tk < split:
             ad.push(w)
+            train.append(lay.column(w, ad.scale))
         else:
             test.append(lay.column(w, ad.scale))
     G1, _ = solve_g(ad.R, lay, ad.slack_weight, ad.ridge, ad.rcond)
-    C = np.array(test)
-    err = lambda G: float(np.sum((C[:, : lay.r] @ G[: lay.q_y].T - C[:, lay.r : lay.r + lay.q_y]) ** 2))  # noqa: E731
+    C, T = np.array(test), np.array(train)
+    resid = lambda X, G: X[:, lay.r : lay.r + lay.q_y] - X[:, : lay.r] @ G[: lay.q_y].T  # noqa: E731
+    err = lambda G, b=0.0: float(np.sum((resid(C, G) - b) ** 2))  # noqa: E731
     c = setup.problem.config
     gain = lambda G: steady_state_gain(ad.qp.data_predictor(G), c.m, c.p, c.t_ini, c.t_f)  # noqa: E731
     S0, S1 = gain(ad.G), gain(G1)
-    return {"shipped": err(ad.G), "adapted": err(G1), "fit_s": [t0, split], "test_s": [split, float(res.t[-1])],
+    return {"shipped": err(ad.G), "adapted": err(G1), "shipped_offset": err(ad.G, resid(T, ad.G).mean(axis=0)),
+            "fit_s": [t0, split], "test_s": [split, float(res.t[-1])],
             "gain_shipped": None if S0 is None else S0.tolist(), "gain_adapted": None if S1 is None else S1.tolist()}
 
 
