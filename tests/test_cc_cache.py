@@ -88,7 +88,61 @@ def test_warnings_are_replayed_and_failures_are_not_stored(tmp_path):
         bad, out = _build_and_run(env, _program(tmp_path / name, "1", "syntax error here"))
         assert bad.returncode != 0 and "error" in bad.stderr and out is None
     assert len(log.read_text().splitlines()) == 3
-    assert sorted(p.suffix for p in (tmp_path / "cache" / "objects").iterdir()) == [".err", ".o"]
+    assert len([p for p in (tmp_path / "cache" / "objects").iterdir() if not p.name.startswith(".")]) == 1
+
+
+_LIB = """#include "../{name}_lib_names.h" /* ddpc-codegen: per-solver symbol names */
+static int twice(int x) {{ return 2 * x; }}
+int lib_scale = 3;
+int lib_apply(int x) {{ return lib_scale * twice(x) + 1; }}
+"""
+
+
+def _renamed_library(folder: Path, name: str) -> Path:
+    """A library source renamed per solver as codegen/libs.py does (names header included first)."""
+    (folder / "src").mkdir(parents=True)
+    (folder / f"{name}_lib_names.h").write_text(
+        f"#ifndef {name.upper()}_LIB_NAMES_H\n#define {name.upper()}_LIB_NAMES_H\n"
+        f"#define lib_apply {name}_lib_apply\n#define lib_scale {name}_lib_scale\n#endif\n")
+    (folder / "src" / "lib.c").write_text(_LIB.format(name=name))
+    return folder / "src" / "lib.c"
+
+
+def _section(obj: Path, section: str, tmp: Path) -> bytes:
+    out = tmp / f"{obj.stem}{section}.bin"
+    subprocess.run(["objcopy", "-O", "binary", f"--only-section={section}", str(obj), str(out)], check=True)
+    return out.read_bytes()
+
+
+@needs_cc
+@pytest.mark.compiler
+@pytest.mark.skipif(shutil.which("objcopy") is None or shutil.which("nm") is None, reason="no binutils")
+def test_a_library_renamed_for_another_solver_is_the_stored_object_with_its_symbols_renamed(tmp_path):
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
+    flags = ["-O2", "-fPIC", "-c"]
+    for name in ("alpha", "beta"):
+        src = _renamed_library(tmp_path / name, name)
+        subprocess.run([env["CC"], *flags, str(src), "-o", str(tmp_path / f"{name}.o")], env=env, check=True)
+    assert len(log.read_text().splitlines()) == 1  # beta reused alpha's compile
+    # the independent reference: beta compiled directly
+    subprocess.run([CC, *flags, str(tmp_path / "beta" / "src" / "lib.c"), "-o", str(tmp_path / "direct.o")], check=True)
+    nm = lambda o: subprocess.run(["nm", str(o)], capture_output=True, text=True, check=True).stdout  # noqa: E731
+    assert "beta_lib_apply" in nm(tmp_path / "beta.o") and "alpha" not in nm(tmp_path / "beta.o")
+    assert nm(tmp_path / "beta.o") == nm(tmp_path / "direct.o")
+    for section in (".text", ".data"):
+        assert _section(tmp_path / "beta.o", section, tmp_path) == _section(tmp_path / "direct.o", section, tmp_path)
+    # and it links and runs under the new names
+    (tmp_path / "main.c").write_text('#include <stdio.h>\nint beta_lib_apply(int);\nextern int beta_lib_scale;\n'
+                                     'int main(void) { beta_lib_scale = 5; printf("%d\\n", beta_lib_apply(4)); }\n')
+    subprocess.run([CC, str(tmp_path / "main.c"), str(tmp_path / "beta.o"), "-o", str(tmp_path / "prog")], check=True)
+    assert subprocess.run([str(tmp_path / "prog")], capture_output=True, text=True).stdout.strip() == "41"
+    # a renaming with another set of names is another key
+    other = _renamed_library(tmp_path / "gamma", "gamma")
+    hdr = tmp_path / "gamma" / "gamma_lib_names.h"
+    hdr.write_text(hdr.read_text().replace("#define lib_scale gamma_lib_scale\n", ""))
+    subprocess.run([env["CC"], *flags, str(other), "-o", str(tmp_path / "gamma.o")], env=env, check=True)
+    assert len(log.read_text().splitlines()) == 2 and "gamma_lib_apply" in nm(tmp_path / "gamma.o")
 
 
 def test_the_wrapper_runs_without_site_packages(tmp_path):

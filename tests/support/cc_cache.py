@@ -3,9 +3,9 @@ were seen before reuses that object file instead of compiling again.
 
 Why: every generated solver folder carries the DAQP (and OSQP) library sources and compiles them with
 the same flags; in a test run that builds dozens of solvers, recompiling identical library code is most
-of the compile time (e.g. ~4.5 s of a flying DAQP solver's ~6 s). The wrapper is ``CC`` for the test
-session (:func:`install`; the cffi builds, ``make`` and CMake read it), so the code under test runs
-unchanged: only *how* an identical object file is obtained changes.
+of the compile time (e.g. ~4.5 s of a flying DAQP solver's ~6 s; ~400 s of a ``make test``). The wrapper
+is ``CC`` for the test session (:func:`install`; the cffi builds, ``make`` and CMake read it), so the code
+under test runs unchanged: only *how* an identical object file is obtained changes.
 
 What makes two compile steps identical (the key): the real compiler (path, size, mtime), every argument
 except the output path, the source path and ``-I`` directories (generated folders live in fresh temporary
@@ -13,7 +13,14 @@ directories), and the source as preprocessed with those arguments (``-E -P``: he
 included, so an edited header or ``-D`` is a different key). A hit copies the object file and replays
 the compiler's messages; anything other than a plain ``-c one.c -o one.o`` step (linking, dependency
 files, ``-E``, response files ...) runs the real compiler untouched. Failed compiles are never stored.
-Debug information in a reused object names the first folder it was compiled in (harmless in tests).
+
+Per-solver symbol names: each library source of a generated folder first includes
+``<name>_<lib>_names.h`` (``#define daqp_solve <name>_daqp_solve`` ..., see ``codegen/libs.py``), so the
+same library differs between solvers in its global names only. Such a step is keyed on the source
+preprocessed *without* the renaming (the header's include guard predefined) plus the list of renamed
+names; a hit from another solver is the stored object with its symbols renamed to this solver's by
+``objcopy --redefine-syms`` (the machine code is the compiler's either way: names are not code).
+Debug information in a reused object still names the first solver and folder (harmless in tests).
 
 Run as a script (``python -S cc_cache.py <compiler args>``): the real compiler is ``$DDPC_CC_REAL``,
 the object store ``$DDPC_CC_CACHE``.
@@ -22,7 +29,9 @@ the object store ``$DDPC_CC_CACHE``.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -32,6 +41,9 @@ import tempfile
 from pathlib import Path
 
 SOURCE_SUFFIXES = (".c",)
+_NAMES_INCLUDE = re.compile(r'#include "([^"]+_names\.h)" /\* ddpc-codegen: per-solver symbol names \*/')
+_GUARD = re.compile(r"^#ifndef (\w+)$", re.M)
+_RENAME = re.compile(r"^#define (\w+) (\w+)$", re.M)
 # a step with any of these is not a plain "compile one source to one object" step: run it as asked
 _PASS_PREFIXES = ("-M", "@", "-E", "-S", "-x", "-save-temps", "-fdump", "-###", "-v", "--version")
 
@@ -62,46 +74,83 @@ def _without_include_dirs(args: list[str]) -> list[str]:
     return out
 
 
-def step_key(real: list[str], src: str, rest: list[str]) -> str | None:
-    """The content key of compiling ``src`` with ``rest`` (see the module docstring); None if the
-    source does not preprocess (the real compile then reports why)."""
-    pre = subprocess.run([*real, *[a for a in rest if a != "-c"], "-E", "-P", src], capture_output=True)
+def renaming(src: str) -> tuple[str, dict[str, str]] | None:
+    """(include guard, {library name: this solver's name}) of the per-solver names header that ``src``
+    includes on its first line, or None (not a renamed library source)."""
+    with open(src, errors="replace") as f:
+        m = _NAMES_INCLUDE.match(f.readline())
+    if m is None:
+        return None
+    header = Path(src).parent / m.group(1)
+    try:
+        text = header.read_text()
+    except OSError:
+        return None
+    guard = _GUARD.search(text)
+    return (guard.group(1), dict(_RENAME.findall(text))) if guard else None
+
+
+def step_key(real: list[str], src: str, rest: list[str], names: tuple[str, dict[str, str]] | None = None,
+             ) -> str | None:
+    """The content key of compiling ``src`` with ``rest`` (see the module docstring); ``names``: the
+    source's renaming (keyed on the source without it). None if the source does not preprocess (the
+    real compile then reports why)."""
+    unrenamed = [f"-D{names[0]}"] if names else []
+    pre = subprocess.run([*real, *[a for a in rest if a != "-c"], *unrenamed, "-E", "-P", src], capture_output=True)
     if pre.returncode != 0:
         return None
     exe = shutil.which(real[0]) or real[0]
     st = os.stat(exe)
     h = hashlib.sha256()
-    for part in (os.path.realpath(exe), str(st.st_size), str(st.st_mtime_ns), *real[1:], *_without_include_dirs(rest)):
+    for part in (os.path.realpath(exe), str(st.st_size), str(st.st_mtime_ns), *real[1:], *_without_include_dirs(rest),
+                 json.dumps(sorted(names[1]) if names else None)):
         h.update(part.encode() + b"\0")
     h.update(pre.stdout)
     return h.hexdigest()
 
 
-def _store(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (concurrent workers may store the same key)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
+def _renamed_copy(cached: Path, was: dict[str, str], now: dict[str, str], obj: str) -> bool:
+    """``cached`` (compiled with the names ``was``) written to ``obj`` with the names ``now``."""
+    if was == now:
+        shutil.copyfile(cached, obj)
+        return True
+    objcopy = shutil.which(os.environ.get("OBJCOPY", "objcopy"))
+    if objcopy is None or set(was) != set(now):
+        return False
+    with tempfile.NamedTemporaryFile("w", suffix=".syms") as syms:
+        syms.write("".join(f"{was[k]} {now[k]}\n" for k in sorted(now)))
+        syms.flush()
+        return subprocess.run([objcopy, f"--redefine-syms={syms.name}", str(cached), obj]).returncode == 0
+
+
+def _store(entry: Path, obj: bytes, names: dict[str, str], messages: bytes) -> None:
+    """Write a cache entry (a folder) atomically, first writer wins (xdist workers may race on a key)."""
+    entry.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=entry.parent, prefix=".tmp-"))
+    (tmp / "obj.o").write_bytes(obj)
+    (tmp / "names.json").write_text(json.dumps(names))
+    (tmp / "messages").write_bytes(messages)
+    try:
+        os.rename(tmp, entry)
+    except OSError:  # another process stored this key meanwhile: same content but for the names
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def run(args: list[str], real: list[str], cache: Path | None) -> int:
     """Compile as ``real args`` would, through the object store ``cache`` when the step is cacheable."""
     step = compile_step(args) if cache is not None else None
-    key = step_key(real, step[0], step[2]) if step else None
+    names = renaming(step[0]) if step else None
+    key = step_key(real, step[0], step[2], names) if step else None
     if key is None:
         return subprocess.run([*real, *args]).returncode
-    obj, msgs = cache / f"{key}.o", cache / f"{key}.err"
-    if obj.exists() and msgs.exists():
-        shutil.copyfile(obj, step[1])
-        sys.stderr.buffer.write(msgs.read_bytes())
+    entry, now = cache / key, names[1] if names else {}
+    if entry.is_dir() and _renamed_copy(entry / "obj.o", json.loads((entry / "names.json").read_text()), now, step[1]):
+        sys.stderr.buffer.write((entry / "messages").read_bytes())
         return 0
     res = subprocess.run([*real, *args], stderr=subprocess.PIPE)
     sys.stderr.buffer.write(res.stderr)
     if res.returncode == 0 and os.path.exists(step[1]):
-        cache.mkdir(parents=True, exist_ok=True)
-        _store(obj, Path(step[1]).read_bytes())
-        _store(msgs, res.stderr)  # written last: its presence says the object is whole
+        _store(entry, Path(step[1]).read_bytes(), now, res.stderr)
     return res.returncode
 
 
