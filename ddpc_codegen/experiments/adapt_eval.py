@@ -5,7 +5,9 @@ Conditions (flying, the change at ``t_change``): ``nominal`` (none), ``mass`` (a
 +0.4 kg), ``thrust`` (battery sag: thrust per command x0.85, rotor drag alike), ``push`` (a sustained push
 down, 12 N for 3 s). Metric: the RMS of true height minus desired height within 10 s of the change
 (``nominal``: over the same window), in metres. The adapted run uses the config's ``[adapt]`` settings on
-its own instance of the generated solver. ``evidence``: how well the predictor adapted on the static run's
+its own instance of the generated solver. ``offset_only``: the ablation, the same settings with every G refused
+(``max_gain_change`` 1e-9: only the output offset adapts; the interpreted twin, equal to the C to 1e-9).
+``evidence``: how well the predictor adapted on the static run's
 closed-loop data predicts the following seconds compared with the shipped one (out of sample), and the steady-
 state gains of both: the record of why an update was refused (``gain``: the fit explains the change's offset by
 distorting the gains) or swapped in.
@@ -130,6 +132,9 @@ def evaluate_adaptation(config: SteeringConfig | str | Path | None = None, *, da
     with tempfile.TemporaryDirectory() as tmp:
         setup = build_setup("flying", config=cfg, raw=raw, generate_dir=tmp, save_data=False)
         params = PogoXParams()
+        # the ablation (G never swapped) needs the offset on; its own settings, the interpreted twin
+        ablation = dataclasses.replace(setup, config=cfg.replace(adapt={**settings, "max_gain_change": 1e-9})) \
+            if cfg.adapt.offset else None
         out: dict[str, Any] = {"scenario": "flying", "metric": "rmse_z_true within window_s of the change [m]",
                                "t_change_s": T_CHANGE, "window_s": WINDOW_S, "duration_s": DURATION,
                                "adapt": dataclasses.asdict(cfg.adapt), "conditions": {}}
@@ -142,6 +147,8 @@ def evaluate_adaptation(config: SteeringConfig | str | Path | None = None, *, da
             pre = _prefilter_run(setup, c, params, seed)
             row = {"what": c["what"], "static": _rmse_after(static.sim, T_CHANGE, WINDOW_S),
                    "adapted": _rmse_after(adapted.sim, T_CHANGE, WINDOW_S),
+                   "offset_only": (_rmse_after(run(ablation, "flying", DURATION, adapt=True, interpreted=True,
+                                                   **kw).sim, T_CHANGE, WINDOW_S) if ablation else None),
                    "prefilter": _rmse_after(pre, T_CHANGE, WINDOW_S),
                    "adapted_crashed": adapted.sim.crashed, "adaptation": adapted.steering["adaptation"]["counts"],
                    "swaps_at_s": [round(e[0] * setup.config.dt, 3) for e in adapted.steering["adaptation"]["events"]
@@ -153,8 +160,9 @@ def evaluate_adaptation(config: SteeringConfig | str | Path | None = None, *, da
                 row["adapted_over_static"] = row["adapted"] / row["static"]
             out["conditions"][name] = row
             f = lambda v: "crashed" if v is None else f"{v * 1e3:.2f} mm"  # noqa: E731
-            log(f"[adapt] {name}: static {f(row['static'])}, adapted {f(row['adapted'])}, prefilter "
-                f"{f(row['prefilter'])}; swaps {row['adaptation']['swaps']}")
+            log(f"[adapt] {name}: static {f(row['static'])}, adapted {f(row['adapted'])}, offset only "
+                f"{f(row['offset_only'])}, prefilter {f(row['prefilter'])}; swaps {row['adaptation']['swaps']}, "
+                f"offset swaps {row['adaptation']['offset_swaps']}")
     return out
 
 
