@@ -46,7 +46,6 @@ _EXPORTS: dict[str, str] = {
     "SteerOutcome": "ddpc_codegen.runtime.steerer",
     "Policy": "ddpc_codegen.runtime.policy",
     "SteeringPolicy": "ddpc_codegen.runtime.policy",
-    "flight_metrics": "ddpc_codegen.flight_metrics",
     "DDPCError": "ddpc_codegen.errors",
     "DataError": "ddpc_codegen.errors",
     "ExcitationError": "ddpc_codegen.errors",
