@@ -174,18 +174,23 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
 
 def _adaptation_section(a: dict) -> str:
     """``ddpc-codegen adapt-eval``'s figures: static vs adapted steering vs the prefilter per condition."""
-    rows = ["| condition | change | static | adapted | prefilter | adapted / static | swaps | refused by the gain check |",
-            "|---|---|---|---|---|---|---|---|"]
+    rows = ["| condition | change | static | adapted | offset only | prefilter | static / adapted | G swaps | "
+            "refused by the gain check | offset swaps |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, c in a.get("conditions", {}).items():
         ad = c.get("adaptation", {})
         adapted = "vehicle lost" if c.get("adapted_crashed") else _mm(c.get("adapted"))
-        ratio = c.get("adapted_over_static")
-        rows.append(f"| {name} | {c.get('what', '')} | {_mm(c.get('static'))} | {adapted} | {_mm(c.get('prefilter'))} | "
-                    f"{'--' if ratio is None else f'{ratio:.2f}'} | {ad.get('swaps', '--')} | {ad.get('rejected_gain', '--')} |")
+        st, adv = c.get("static"), c.get("adapted")
+        gain = f"{st / adv:.2f}" if st and adv and not c.get("adapted_crashed") else "--"
+        rows.append(f"| {name} | {c.get('what', '')} | {_mm(st)} | {adapted} | {_mm(c.get('offset_only'))} | "
+                    f"{_mm(c.get('prefilter'))} | {gain} | {ad.get('swaps', '--')} | {ad.get('rejected_gain', '--')} | "
+                    f"{ad.get('offset_swaps', '--')} |")
     s = a.get("adapt", {})
     return (f"{a.get('scenario', '?')} scenario, {a.get('duration_s', '?')} s, the change at t = {a.get('t_change_s', '?')} s; "
             f"true-height RMSE [mm] within {a.get('window_s', '?')} s of it. Settings: "
-            + ", ".join(f"{k} {v}" for k, v in s.items() if k != "enabled") + ".\n\n" + "\n".join(rows) + "\n")
+            + ", ".join(f"{k} {v}" for k, v in s.items() if k != "enabled")
+            + ". Adapted: the predictor's G re-solved and its output offset estimated online; offset only: the same with "
+            "every G refused (the offset carries the adaptation: closed-loop data explain a change's offset by "
+            "distorting G's gains, which the gain check refuses).\n\n" + "\n".join(rows) + "\n")
 
 
 def results_page(reports: dict[str, dict]) -> str:
