@@ -159,11 +159,11 @@ def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
             in table.splitlines())
     assert "- px4 wind: no wind parameter" in table
     adaptation = {"scenario": "flying", "duration_s": 25.0, "t_change_s": 10.0, "window_s": 10.0, "adapt": {"forgetting": 0.999},
-                  "conditions": {"mass": {"what": "+0.4 kg", "static": 0.0134, "adapted": 0.0137, "prefilter": 0.104,
-                                          "adapted_crashed": False, "adapted_over_static": 1.02,
-                                          "adaptation": {"swaps": 10, "rejected_gain": 14}}}}
+                  "conditions": {"mass": {"what": "+0.4 kg", "static": 0.0134, "adapted": 0.0067, "offset_only": 0.0061,
+                                          "prefilter": 0.104, "adapted_crashed": False, "adapted_over_static": 0.5,
+                                          "adaptation": {"swaps": 10, "rejected_gain": 14, "offset_swaps": 24}}}}
     page = results.results_page({"summary.json": {**SUMMARY, "adaptation": adaptation}})
-    assert "| mass | +0.4 kg | 13.4 | 13.7 | 104.0 | 1.02 | 10 | 14 |" in page
+    assert "| mass | +0.4 kg | 13.4 | 6.7 | 6.1 | 104.0 | 2.00 | 10 | 14 | 24 |" in page
     assert "Not measured yet -- run `make adapt-eval`" in results.results_page({"summary.json": SUMMARY})
 
 
