@@ -58,8 +58,9 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
         With z_truth: ``rmse_z_truth`` (z_truth - y_des z), ``estimator_rms`` (y z - z_truth), ``truth_ticks``.
         With u and r_nom: ``offset_step_rms`` (per reference, :func:`~ddpc_codegen.stats.step_rms` of u - r_nom
         over pairs of scored ticks), ``max_offset_step`` and ``max_ref_step`` (reference 0: largest
-        |change| of u - r_nom and of u between consecutive scored ticks).
-        With thrust: ``thrust_step_rms`` (between consecutive scored ticks), ``thrust_limit_share``
+        |change| of u - r_nom and of u from one tick to the next, over every pair of adjacent ticks after
+        ``settle`` whether active or not: a fallback's or a stall's hand-over counts, a hole never spans two ticks).
+        With thrust: ``thrust_step_rms`` (over the same adjacent pairs), ``thrust_limit_share``
         (:func:`~ddpc_codegen.stats.limit_share` at 0 and 1; None without a tick). With steered: ``engaged_fraction``.
     """
     y = np.asarray(y, dtype=float)
@@ -79,14 +80,15 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
         ok = np.isfinite(zt)
         out.update(rmse_z_truth=rms(zt[ok] - y_des[on, 0][ok], empty), estimator_rms=rms(y[on, 0][ok] - zt[ok], empty),
                    truth_ticks=int(ok.sum()))
+    flown = scored_ticks(t, settle)  # every tick of the trajectory, engaged or not: what the vehicle was sent
     if u is not None and r_nom is not None:
         u, r_nom = np.asarray(u, dtype=float), np.asarray(r_nom, dtype=float)
         out["offset_step_rms"] = step_rms(u - r_nom, on)
-        out["max_offset_step"] = _max_abs_step(u[on, 0] - r_nom[on, 0], empty)
-        out["max_ref_step"] = _max_abs_step(u[on, 0], empty)
+        out["max_offset_step"] = _max_abs_step(u[:, 0] - r_nom[:, 0], flown, empty)
+        out["max_ref_step"] = _max_abs_step(u[:, 0], flown, empty)
     if thrust is not None:
         thr = np.asarray(thrust, dtype=float)
-        out["thrust_step_rms"] = rms(np.diff(thr[on]), empty)
+        out["thrust_step_rms"] = rms(_adjacent_steps(thr, flown), empty)
         out["thrust_limit_share"] = limit_share(thr, 0.0, 1.0, on)  # None without a tick, as every caller reported it
     if steered is not None:
         s = np.asarray(steered, dtype=bool)[on]
@@ -94,6 +96,13 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
     return out
 
 
-def _max_abs_step(x: np.ndarray, empty: Any) -> Any:
-    d = np.abs(np.diff(x))
+def _adjacent_steps(x: np.ndarray, win: np.ndarray) -> np.ndarray:
+    """x[k+1] - x[k] for the adjacent ticks k, k+1 both in ``win`` with finite values (never across a gap)."""
+    x = np.asarray(x, dtype=float).ravel()
+    pair = win[:-1] & win[1:] & np.isfinite(x[:-1]) & np.isfinite(x[1:])
+    return (x[1:] - x[:-1])[pair]
+
+
+def _max_abs_step(x: np.ndarray, win: np.ndarray, empty: Any) -> Any:
+    d = np.abs(_adjacent_steps(x, win))
     return float(d.max()) if d.size else empty

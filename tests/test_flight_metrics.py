@@ -22,11 +22,12 @@ def _reference(t, y, y_des, settle, active, u, r_nom, thrust, z_truth, steered):
     tr = [k for k in idx if math.isfinite(z_truth[k])]
     out["rmse_z_truth"] = r([z_truth[k] - y_des[k, 0] for k in tr])
     out["estimator_rms"] = r([y[k, 0] - z_truth[k] for k in tr])
-    cons = list(zip(idx[:-1], idx[1:]))  # consecutive scored ticks
+    flown = [k for k in range(len(t)) if not math.isnan(t[k]) and t[k] >= settle]  # engaged or not
+    adj = [k for k in flown if k + 1 in flown]  # adjacent ticks k, k+1 of the flight: never across a gap
     off = u[:, 0] - r_nom[:, 0]
-    out["max_offset_step"] = max((abs(off[b] - off[a]) for a, b in cons), default=None)
-    out["max_ref_step"] = max((abs(u[b, 0] - u[a, 0]) for a, b in cons), default=None)
-    out["thrust_step_rms"] = r([thrust[b] - thrust[a] for a, b in cons])
+    out["max_offset_step"] = max((abs(off[k + 1] - off[k]) for k in adj), default=None)
+    out["max_ref_step"] = max((abs(u[k + 1, 0] - u[k, 0]) for k in adj), default=None)
+    out["thrust_step_rms"] = r([thrust[k + 1] - thrust[k] for k in adj])
     pairs = [k for k in idx if k + 1 in idx]  # adjacent ticks, both scored
     out["offset_step_rms"] = [r([(u[k + 1, j] - r_nom[k + 1, j]) - (u[k, j] - r_nom[k, j]) for k in pairs])
                               for j in range(u.shape[1])]
@@ -65,6 +66,12 @@ def test_no_scored_tick_gives_the_empty_value_and_bad_shapes_are_refused():
     assert f["rmse"] == [None, None] and f["ticks"] == 0 and f["rmse_z_truth"] is None
     assert f["max_offset_step"] is None and f["thrust_step_rms"] is None and f["engaged_fraction"] is None
     assert f["thrust_limit_share"] is None and f["offset_step_rms"] == [None]
+    # Steps are between adjacent ticks: an inactive tick (a fallback, a stall) counts; the step over an
+    # inactive run is not taken as one tick's step (before: 0.5 from tick 1 to tick 4).
+    t2, u2 = np.array([0.0, 0.005, 0.01, 0.015, 0.02]), np.array([[0.0], [0.005], [0.2], [0.4], [0.505]])
+    g = flight_metrics(t2, np.zeros((5, 1)), np.zeros((5, 1)), active=np.array([True, True, False, False, True]),
+                       u=u2, r_nom=np.zeros((5, 1)))
+    assert g["max_ref_step"] == pytest.approx(0.2) and g["ticks"] == 3
     nan = flight_metrics(t, y, y, settle=2.0, empty=math.nan)
     assert all(math.isnan(v) for v in nan["rmse"] + nan["mean_error"] + nan["max_abs_error"])
     assert rms([]) is None and math.isnan(rms(np.zeros((0, 2)), math.nan)) and rms([3.0, -3.0]) == 3.0
