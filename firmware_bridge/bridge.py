@@ -56,6 +56,7 @@ import math
 import signal
 import sys
 import time
+from collections.abc import Sized
 
 import numpy as np
 
@@ -212,8 +213,10 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
         self._init_safety()
 
     # ------------------------------------------------------------------ main loop
-    def run(self, install_signals: bool = True) -> dict:
-        """Connect, configure, run the tick loop until stopped; write the log; return the summary."""
+    def run(self, install_signals: bool = True, interrupted: Sized = ()) -> dict:
+        """Connect, configure, run the tick loop until stopped; write the log; return the summary.
+        ``interrupted``: the signals that arrived while the bridge was set up, a list the caller's handler
+        fills (non-empty: stop before the first tick)."""
         c = self.cfg
         if install_signals:
             signal.signal(signal.SIGINT, self.stop)
@@ -223,6 +226,8 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
         if c.rt_priority or c.cpus:
             self._event(f"scheduling: {self.scheduling}")
         self._init_run_state()
+        if len(interrupted):
+            self.stop()
         next_hb = 0.0
         gc_was = gc.isenabled()
         try:

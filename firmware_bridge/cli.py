@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
 
 from firmware_bridge.cli_args import (
@@ -287,13 +288,18 @@ def bridge_main(argv: list[str] | None = None) -> int:
     from firmware_bridge.link import LinkError
     from firmware_bridge.preflight import PreflightError
 
+    # An interrupt while the bridge is being set up (the link may already be open) is an interrupt before
+    # the first tick: remembered here, handed to the bridge, which then writes its empty log and exits 6.
+    early: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, _frame: early.append(signum))
     try:
         bridge = Bridge(bridge_config_from_args(args))
     except (ValueError, DDPCError, OSError, LinkError) as e:
         print(f"ddpc-bridge: error: {e}", file=sys.stderr)
         return 2
     try:
-        summary = bridge.run()
+        summary = bridge.run(interrupted=early)  # read after run() has its own handlers
     except NoVehicleError as e:
         print(f"ddpc-bridge: {e}", file=sys.stderr)
         return 3
