@@ -96,6 +96,12 @@ def _bench_section(bench: dict) -> str:
     meta = bench.get("meta", {})
     text = f"{meta.get('ticks', '?')} ticks per size on {meta.get('machine', '?')}, {meta.get('date', '?')}.\n"
     text += "\n```\n" + _table(bench) + "\n```\n"
+    if bench.get("adapt"):
+        from ddpc_codegen.experiments.bench_adapt import adapt_lines  # the lines make bench prints
+
+        text += ("\nOnline adaptation in the generated C (`[adapt]`): the rank-one update per tick and the verified "
+                 "re-solve (G, QP data, fast-path gain, output offset):\n\n```\n"
+                 + "\n".join(adapt_lines(list(bench["adapt"].values()))) + "\n```\n")
     p = bench.get("predictor_1e6")
     if p:
         text += (f"\nPredictor fit on 10^6 samples (m = p = 2, Tini 20, Tf 15): lsq {p['lsq_seconds']:.1f} s, "

@@ -1,5 +1,6 @@
 """ddpc-bridge --adapt: online predictor updates from steered ticks only, every update and re-solve in the
-tick log's ``adapt`` column and the summary (over real UDP sockets with the simulated vehicle)."""
+tick log's ``adapt`` column and the summary, the norm of the output offset in use in ``adapt_offset`` (over
+real UDP sockets with the simulated vehicle)."""
 
 from __future__ import annotations
 
@@ -15,14 +16,15 @@ from support.bridge_helpers import ROOT, free_port, read_json
 
 @pytest.fixture(scope="module")
 def adaptive_solver(tmp_path_factory) -> Path:
-    """The bridge's flying solver recipe with [adapt] enabled (a re-solve every 100 updates)."""
+    """The bridge's flying solver recipe with [adapt] enabled and the output offset on (a re-solve every 100)."""
     from ddpc_codegen import SteeringConfig, SteeringProblem, fit_predictor, generate
     from ddpc_codegen.sim import simulate
 
     ds = simulate("flying", 30.0, excitation=True, seed=11, noise=True).to_dataset()
     cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml").replace(
         predictor={"method": "lsq", "ridge": 1e-4},
-        adapt={"enabled": True, "forgetting": 0.9999, "period_ticks": 100, "window": 100, "dither": 0.002})
+        adapt={"enabled": True, "forgetting": 0.9999, "period_ticks": 100, "window": 100, "dither": 0.002,
+               "offset": True, "max_offset": [0.1, 0.05]})
     pred = fit_predictor(ds, cfg.t_ini, cfg.t_f, method="lsq", ridge=1e-4)
     return generate(SteeringProblem(pred, cfg), tmp_path_factory.mktemp("adapt") / "flying", name="bridge_adapt")
 
@@ -39,7 +41,7 @@ def test_adapt_needs_a_solver_generated_with_adaptation(flying_solver):
 
 
 @pytest.mark.slow
-def test_steered_ticks_update_and_the_tick_log_records_every_update_and_verdict(procs, tmp_path, adaptive_solver):
+def test_steered_ticks_update_and_the_tick_log_records_every_update_verdict_and_offset(procs, tmp_path, adaptive_solver):
     port = free_port()
     veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--lockstep-timeout", "0.3", name="veh")
     br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--offboard", "--mode", "steer",
@@ -58,3 +60,12 @@ def test_steered_ticks_update_and_the_tick_log_records_every_update_and_verdict(
     assert s["counts"]["updates"] == int(updates.sum()) > 200
     assert s["counts"]["resolves"] == int(verdicts.sum()) == len(s["events"]) >= 2
     assert s["counts"]["swaps"] == int((code == ADAPT_CODES.index("accepted")).sum())
+    # the offset in use: one per re-solve, as the events record it, unchanged between re-solves
+    off = t["adapt_offset"]
+    assert np.all(np.isfinite(off[steered])) and np.isnan(off).any()  # nan: ticks the steering did not decide
+    resolves = np.nonzero(verdicts)[0]
+    assert s["counts"]["offset_swaps"] == len(resolves)
+    np.testing.assert_array_equal(off[resolves], [e[3] for e in s["events"]])
+    assert s["events"][-1][3] == s["counts"]["offset_norm"] > 0.0
+    rows = np.nonzero(steered)[0]
+    assert set(rows[1:][np.diff(off[rows]) != 0].tolist()) <= set(resolves.tolist())
