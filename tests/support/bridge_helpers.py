@@ -110,7 +110,7 @@ class FakeVehicle(threading.Thread):
         self.armed = True
         self.arm_refusals = 0  # refuse this many ARM commands (TEMPORARILY_REJECTED) before accepting; -1: always
         self.commands: list[int] = []  # COMMAND_LONG ids received
-        self.armed_hb_at: float | None = None  # when the first heartbeat saying "armed" went out (monotonic)
+        self.armed_hb_at: float | None = None  # just before the first heartbeat saying "armed" went out (monotonic)
         self.sent = {"attitude": 0, "position": 0}
 
     def run(self) -> None:
@@ -139,12 +139,13 @@ class FakeVehicle(threading.Thread):
                     self.link.send(mav.command_ack_encode(msg.command, self._answer(msg)))
             if self.heartbeat and now >= hb_next:
                 hb_next = now + 0.5
+                t_hb = time.monotonic()  # before the send: an answer to it can only be received after this
                 self.link.send_heartbeat(mavlink.MAV_TYPE_QUADROTOR, 12,
                                          MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
                                          | (MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0),
                                          px4_custom_mode(6), mavlink.MAV_STATE_ACTIVE)
                 if self.armed and self.armed_hb_at is None:
-                    self.armed_hb_at = time.monotonic()
+                    self.armed_hb_at = t_hb
             if self.telemetry:
                 self._send_telemetry(mav, q_level)
             for f in list(self.extra):
