@@ -163,6 +163,14 @@ def sitl_conditions_and_truth(autopilot: str) -> dict:
         except SitlError as e:
             refused = str(e)
         conn = sitl.connect(timeout=30)
+        # make sitl-adapt's mid-flight change: over the SITL's second link while the first one is held
+        from ddpc_codegen.testbed.sitl_adapt import second_link, send_params
+
+        spec, link2 = CONDITIONS[autopilot]["heavy"], second_link(sitl).connect(timeout=10)
+        try:
+            second = [send_params(link2, spec[0]), send_params(link2, spec[1])]
+        finally:
+            link2.close()
         msg_name, msg_id = TRUTH_MESSAGES[autopilot]
         conn.mav.command_long_send(conn.target_system, conn.target_component, 511, 0, msg_id, 20000, 0, 0, 0, 0, 0)
         truth = SimTruth()
@@ -175,4 +183,4 @@ def sitl_conditions_and_truth(autopilot: str) -> dict:
                     truth.capture_ground()
         conn.close()
     return {"echoed": echoed, "refused": refused, "truth_samples": truth.seq, "source": truth.source,
-            "truth_position": truth.position.tolist()}
+            "truth_position": truth.position.tolist(), "second_link_s": [t1 - t0 for t0, t1 in second]}

@@ -91,6 +91,7 @@ def test_unseen_changes_are_sitl_parameters_and_the_truth_arrives(autopilot):
     assert res["truth_samples"] >= 20 and res["source"] == {"px4": "HIL_STATE_QUATERNION", "ardupilot": "SIM_STATE"}[
         autopilot]
     assert np.all(np.abs(res["truth_position"]) < 0.5)  # standing on the ground where it was captured
+    assert all(0.0 <= dt < 2.0 for dt in res["second_link_s"])  # set and echoed over the second link (sitl-adapt)
 
 
 def test_the_pipeline_refuses_unknown_conditions_before_starting_a_sitl(tmp_path):
