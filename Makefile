@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo clean
+.PHONY: install test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -88,6 +88,13 @@ sitl-demo: install
 fuzz: install
 	DDPC_FUZZ_EXAMPLES=10000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
 		tests/firmware_bridge/test_baseline_modes.py tests/robot/test_profile.py tests/robot/test_trajectory_files_fuzz.py
+
+# Online adaptation on the PX4 and ArduCopter SITLs: a motor's thrust loss and a heavier vehicle applied mid-flight
+# (by the harness, over a second MAVLink link), static vs adapted steering (ddpc-bridge --adapt) vs the prefilter;
+# adds `adaptation` to reports/sitl.json.
+sitl-adapt: install
+	$(PY) -m ddpc_codegen.testbed.sitl_adapt
+	$(RENDER)
 
 # Online predictor updates in-process: a vehicle change mid-flight, adapted vs static vs prefilter.
 adapt-eval: install

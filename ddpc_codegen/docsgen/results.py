@@ -100,7 +100,8 @@ def _bench_section(bench: dict) -> str:
         from ddpc_codegen.experiments.bench_adapt import adapt_lines  # the lines make bench prints
 
         text += ("\nOnline adaptation in the generated C (`[adapt]`): the rank-one update per tick and the verified "
-                 "re-solve (G, QP data, fast-path gain, output offset):\n\n```\n"
+                 "re-solve (G, QP data, fast-path gain, output offset); the aarch64 line: the same calls in a C "
+                 "program cross-compiled for aarch64 under qemu-user, with its native build as the reference:\n\n```\n"
                  + "\n".join(adapt_lines(list(bench["adapt"].values()))) + "\n```\n")
     p = bench.get("predictor_1e6")
     if p:
@@ -119,6 +120,8 @@ def _sitl_section(sitl: dict) -> str:
 
     if not sitl:
         return "`make sitl-demo` found no SITL (set `DDPC_PX4_SITL` / `DDPC_ARDUPILOT_SITL`).\n"
+    adaptation = sitl.get("adaptation")  # make sitl-adapt's key; every other key is an autopilot
+    sitl = {k: v for k, v in sitl.items() if k != "adaptation"}
     aps = list(sitl)
     row = lambda label, f: f"| {label} | " + " | ".join(f(sitl[a]) for a in aps) + " |"  # noqa: E731
     ratio = lambda r: f" ({r['baseline'] / r['steered']:.0f}x)" if r["baseline"] and r["steered"] else ""  # noqa: E731
@@ -141,7 +144,38 @@ def _sitl_section(sitl: dict) -> str:
     conditions = [(a, n, c) for a in aps for n, c in (sitl[a].get("conditions") or {}).items()]
     if conditions:
         text += "\n" + _conditions_table(conditions)
+    text += "\n### Online adaptation, change applied mid-flight (`make sitl-adapt`)\n\n"
+    text += _sitl_adaptation_table(adaptation) if adaptation else (
+        "Not measured yet -- run `make sitl-adapt` (it adds `adaptation` to `reports/sitl.json` and rewrites this page).\n")
     return text
+
+
+def _sitl_adaptation_table(a: dict) -> str:
+    """``make sitl-adapt``: per autopilot and condition, true-height RMSE in the window after the mid-flight change
+    (static / adapted / prefilter, mean of the rounds), static / adapted, the nominal part before it, the estimator's
+    error, the adapted flights' counters (columns folded in, re-solves accepted / rejected by reason) and the loop's
+    missed ticks (a re-solve runs inside a tick)."""
+    head = ("| autopilot | condition | static | adapted | prefilter | static / adapted | before: static / adapted / "
+            "prefilter | EKF after: static / adapted | estimator error | updates | swaps accepted | rejected | "
+            "missed ticks: static / adapted |")
+    lines = [f"The change at trajectory time {a.get('t_change_s', '?')} s (set by the harness over a second MAVLink link "
+             f"while the bridge flies), true-height RMSE [mm] in the {a.get('window_s', '?')} s after it; before: from "
+             f"{a.get('settle_s', '?')} s to the change; mean of {a.get('rounds', '?')} round(s).\n", head,
+             "|" + "---|" * (head.count("|") - 1)]
+    for ap, res in (a.get("autopilots") or {}).items():
+        for name, c in (res.get("conditions") or {}).items():
+            get = lambda m, w, k="rmse_z_truth": _mm(((c.get(m) or {}).get(w) or {}).get(k))  # noqa: E731
+            ratio = (c.get("static_over_adapted") or {}).get("after")
+            ad = (c.get("adapted") or {}).get("adapt") or {}
+            rej = ", ".join(f"{k} {v}" for k, v in (ad.get("rejected") or {}).items()) or "0"
+            lines.append(f"| {ap} | {name} | {get('static', 'after')} | {get('adapted', 'after')} | "
+                         f"{get('prefilter', 'after')} | {'--' if ratio is None else f'{ratio:.2f}'} | "
+                         f"{get('static', 'before')} / {get('adapted', 'before')} / {get('prefilter', 'before')} | "
+                         f"{get('static', 'after', 'rmse_z')} / {get('adapted', 'after', 'rmse_z')} | "
+                         f"{get('static', 'after', 'estimator_rms')} | {ad.get('updates', '--')} | "
+                         f"{ad.get('accepted', '--')} | {rej} | {(c.get('static') or {}).get('missed_ticks', '--')} / "
+                         f"{(c.get('adapted') or {}).get('missed_ticks', '--')} |")
+    return "\n".join(lines) + "\n"
 
 
 _METHODS = ("passthrough", "ctrl_ff", "prefilter", "ilc", "steered")
