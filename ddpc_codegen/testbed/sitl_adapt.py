@@ -36,7 +36,8 @@ from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
 from ddpc_codegen.runtime.adaptation import REJECTIONS
 from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
-from ddpc_codegen.testbed.sitl_demo import COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log, fly
+from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log, fly,
+                                            update_report)
 from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["CHANGE_S", "WINDOW_S", "DURATION_S", "SETTLE_S", "METHODS", "ADAPT_CONDITIONS", "second_link", "send_params",
@@ -203,14 +204,7 @@ def _add_counts(total: dict, counts: dict) -> None:
 
 def merge_report(path: Path, adaptation: dict) -> dict:
     """Load ``path`` (a JSON object; {} if absent), replace only its ``adaptation`` key, write it back; the result."""
-    path = Path(path)
-    report = json.loads(path.read_text()) if path.is_file() else {}
-    if not isinstance(report, dict):
-        raise ValueError(f"{path}: expected a JSON object, got {type(report).__name__}")
-    report["adaptation"] = adaptation
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=2) + "\n")
-    return report
+    return update_report(path, {"adaptation": adaptation})
 
 
 def _fly_one(sitl: Sitl, autopilot: str, cond: str, method: str, r: int, out: Path, steps: Path, solver: Path,

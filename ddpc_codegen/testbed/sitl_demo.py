@@ -302,9 +302,21 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"[sitl-demo] {ap}: FAILED: {e}", flush=True)
     for ap, res in report.items():
         print_result(ap, res)
-    Path(a.out).mkdir(parents=True, exist_ok=True)
-    (Path(a.out) / "sitl.json").write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
+    update_report(Path(a.out) / "sitl.json", report)
     return 0 if report and not failed else 1
+
+
+def update_report(path: Path, updates: dict) -> dict:
+    """Replace the top-level keys ``updates`` names in the JSON object at ``path`` (created if absent), keep the
+    others (``make sitl-demo`` writes the autopilots, ``make sitl-adapt`` the adaptation); the result."""
+    path = Path(path)
+    report = json.loads(path.read_text()) if path.is_file() else {}
+    if not isinstance(report, dict):
+        raise ValueError(f"{path}: expected a JSON object, got {type(report).__name__}")
+    report.update(updates)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
+    return report
 
 
 def print_result(ap: str, res: dict) -> None:
