@@ -269,8 +269,11 @@ class AdaptiveProblem:
     def adapt_clear(self) -> None:
         self._window.clear()
 
-    def adapt_resolve(self) -> str:
-        return self.adapter.resolve()
+    def adapt_snapshot(self) -> None:
+        self.adapter.snapshot()
+
+    def adapt_resolve(self, snapshot: bool = True) -> str:
+        return self.adapter.resolve(snapshot)
 
     def adapt_swap(self) -> bool:
         if not self.adapter.swap():

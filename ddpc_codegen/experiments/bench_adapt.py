@@ -45,13 +45,14 @@ def _ridge_problem(size: str) -> SteeringProblem:
 
 def _resolve_times(prob: SteeringProblem, st: AdaptSettings, name: str, wins: np.ndarray, n_resolves: int,
                    tmp: str) -> tuple[np.ndarray, np.ndarray, int]:
-    """(seconds per ``<name>_adapt_push``, seconds per ``<name>_adapt_resolve``, the last re-solve's verdict) of a
-    fresh build."""
+    """(seconds per ``<name>_adapt_push``, seconds per ``<name>_adapt_snapshot`` + ``_resolve``, the last
+    re-solve's verdict) of a fresh build."""
     ffi, lib = compile_alone(prob, st, tmp, name)
     ws = ffi.new(f"{name}_adapt_workspace *")
     if getattr(lib, f"{name}_adapt_init")(ws) != 0:
         raise RuntimeError("the benchmark's R factor is rank deficient")
     push, resolve = getattr(lib, f"{name}_adapt_push"), getattr(lib, f"{name}_adapt_resolve")
+    snapshot = getattr(lib, f"{name}_adapt_snapshot")
     t_push = np.empty(wins.shape[0])
     for k in range(wins.shape[0]):
         buf = ffi.from_buffer("double[]", wins[k])
@@ -62,6 +63,7 @@ def _resolve_times(prob: SteeringProblem, st: AdaptSettings, name: str, wins: np
     verdict = -1
     for k in range(n_resolves):
         t0 = time.perf_counter()
+        snapshot(ws)  # timed with it: the synchronous re-solve
         verdict = resolve(ws)
         t_res[k] = time.perf_counter() - t0
     return t_push, t_res, verdict

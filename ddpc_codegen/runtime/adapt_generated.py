@@ -25,7 +25,7 @@ class GeneratedAdaptation:
             raise ManifestError(f"{solver.folder}: the binary has an online update but manifest.json records no "
                                 "fit_statistic / adapt entry (edited?); regenerate the solver")
         self._solver, self._ffi, self._lib, name = solver, solver._ffi, solver._lib, solver.name
-        self._fn = {f: getattr(self._lib, f"{name}_adapt_{f}") for f in ("init", "push", "resolve", "swap")}
+        self._fn = {f: getattr(self._lib, f"{name}_adapt_{f}") for f in ("init", "push", "snapshot", "resolve", "swap")}
         self.settings = AdaptSettings(**st)
         self._ws = self._ffi.new(f"{name}_adapt_workspace *")
         if self._fn["init"](self._ws) != 0:
@@ -47,7 +47,16 @@ class GeneratedAdaptation:
     def clear(self) -> None:
         self._window.clear()
 
-    def resolve(self) -> str:
+    def snapshot(self) -> None:
+        """Copy R and the recent columns for the next re-solve (in the tick)."""
+        self._fn["snapshot"](self._ws)
+
+    def resolve(self, snapshot: bool = True) -> str:
+        """Re-solve, rebuild and verify: "accepted" or the rejection reason. ``snapshot=False``: from the last
+        :meth:`snapshot`, safe in another thread while :meth:`push` and the solver run (cffi releases the GIL
+        for the C call; see the contract in ``<name>_adapt.h``)."""
+        if snapshot:
+            self._fn["snapshot"](self._ws)
         code = self._fn["resolve"](self._ws)
         return "accepted" if code == 0 else REJECTIONS[code - 1]
 

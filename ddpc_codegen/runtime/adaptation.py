@@ -14,6 +14,10 @@ Hessian and the rest of the rebuilt QP data (when a QP model is given), the rece
 error than the current G's on that window. Rejections are counted by reason. The candidate only
 becomes current on :meth:`Adapter.swap` (between control ticks).
 
+A re-solve reads a snapshot (:meth:`Adapter.snapshot`: R and the recent columns as of one tick), so it may run
+while later columns are pushed (the C code's threaded schedule); ``resolve()`` takes the snapshot itself
+(synchronous), ``resolve(snapshot=False)`` re-solves from the last one.
+
 Everything is on the scaled fit domain (channels divided by ``scale``); G is (q_y + q_s, r).
 
 Output offset (``[adapt] offset``, the offset-free MPC answer to a change the predictor has no term for, such as
@@ -196,6 +200,7 @@ class Adapter:
         self.ring = np.zeros((s.window, w))
         self.n_ring = 0
         self.head = 0
+        self.snapshot()  # a re-solve before any snapshot sees the shipped R and an empty window
         G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
         if G is None:
             raise DataError("the shipped R factor is rank deficient: the predictor cannot be re-solved from it "
@@ -234,12 +239,21 @@ class Adapter:
         k, n = self.n_ring, self.settings.window
         return np.roll(self.ring, -self.head, axis=0)[n - k :] if k else self.ring[:0]
 
-    def resolve(self) -> str:
-        """Re-solve G from R and verify it: "accepted" (pending until :meth:`swap`) or the rejection reason."""
+    def snapshot(self) -> None:
+        """Copy what a re-solve reads and :meth:`push` writes: R (width, width) and the recent columns
+        (n_ring, width), oldest first."""
+        self._R_snap = self.R.copy()
+        self._recent_snap = self.recent().copy()
+
+    def resolve(self, snapshot: bool = True) -> str:
+        """Re-solve G from R and verify it: "accepted" (pending until :meth:`swap`) or the rejection reason.
+        ``snapshot``: take the snapshot first (synchronous); False: from the last :meth:`snapshot`."""
+        if snapshot:
+            self.snapshot()
         self.counts["resolves"] += 1
         # a new re-solve replaces any candidate not yet swapped in
         self.pending, self.pending_qp, self.pending_offset = None, None, None
-        G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
+        G, _ = solve_g(self._R_snap, self.layout, self.slack_weight, self.ridge, self.rcond)
         reason = self._verify(G)
         if reason is None:
             self.counts["accepted"] += 1
@@ -250,9 +264,9 @@ class Adapter:
         return reason or "accepted"
 
     def offset_of(self, G: np.ndarray) -> np.ndarray | None:
-        """The mean residual y_f - Gy z (p Tf,) of the recent window under the fit-domain G, in data units
-        (time-major); None while the window is empty."""
-        cols = self.recent()
+        """The mean residual y_f - Gy z (p Tf,) of the snapshot's recent window under the fit-domain G, in data
+        units (time-major); None while the window is empty."""
+        cols = self._recent_snap
         if cols.shape[0] == 0:
             return None
         r, q_y = self.layout.r, self.layout.q_y
@@ -287,7 +301,7 @@ class Adapter:
         data = self.qp.rebuild(G) if self.qp is not None else None
         if isinstance(data, str):
             return data
-        cols = self.recent()
+        cols = self._recent_snap
         if excitation_ratio(cols, self.layout) < self.settings.min_excitation:
             return "excitation"
         if not _prediction_error(G, cols, self.layout) < _prediction_error(self.G, cols, self.layout):

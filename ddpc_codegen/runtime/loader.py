@@ -144,9 +144,14 @@ class GeneratedSolver:
         """Forget the partial window (a tick that must not update broke the sequence)."""
         self._adapt().clear()
 
-    def adapt_resolve(self) -> str:
-        """Re-solve G, rebuild the QP data and verify both: "accepted" or the rejection reason."""
-        return self._adapt().resolve()
+    def adapt_snapshot(self) -> None:
+        """Copy what a re-solve reads (R, the recent columns) for :meth:`adapt_resolve` ``(False)``."""
+        self._adapt().snapshot()
+
+    def adapt_resolve(self, snapshot: bool = True) -> str:
+        """Re-solve G, rebuild the QP data and verify both: "accepted" or the rejection reason. ``snapshot``:
+        take the snapshot first; False: from the last :meth:`adapt_snapshot` (may run in another thread)."""
+        return self._adapt().resolve(snapshot)
 
     def adapt_swap(self) -> bool:
         """Make a verified candidate current (between ticks); False when none is pending."""

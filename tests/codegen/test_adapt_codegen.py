@@ -93,6 +93,7 @@ def test_generated_update_equals_the_numpy_reference(form, knots, bounded, gain,
         assert c_ok == int(ref.push(win))
         if k % 40 != 39:
             continue
+        getattr(lib, f"{name}_adapt_snapshot")(ws)  # the synchronous re-solve: snapshot, resolve, swap
         res = getattr(lib, f"{name}_adapt_resolve")(ws)
         verdict = ref.resolve()
         verdicts.append(verdict)

@@ -52,8 +52,8 @@ def test_generated_offset_equals_the_numpy_reference(form, knots, gain, tmp_path
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     twin = AdaptiveProblem(prob, st, solver="fast")
     ref = twin.adapter
-    fn = {k: getattr(lib, f"{name}_{k}") for k in ("adapt_init", "adapt_push", "adapt_resolve", "adapt_swap", "init",
-                                                   "solve", "reset")}
+    fn = {k: getattr(lib, f"{name}_{k}") for k in ("adapt_init", "adapt_push", "adapt_snapshot", "adapt_resolve",
+                                                   "adapt_swap", "init", "solve", "reset")}
     ws, sws = ffi.new(f"{name}_adapt_workspace *"), ffi.new(f"{name}_workspace *")
     assert fn["adapt_init"](ws) == 0 and fn["init"](sws) == 0
     lay, n_y = ref.layout, prob.predictor.Gy_w.shape[0]
@@ -70,6 +70,7 @@ def test_generated_offset_equals_the_numpy_reference(form, knots, gain, tmp_path
         assert fn["adapt_push"](ws, ffi.from_buffer("double[]", win)) == int(ref.push(win))
         if k % 40 != 39:
             continue
+        fn["adapt_snapshot"](ws)
         res, verdict = fn["adapt_resolve"](ws), ref.resolve()
         verdicts.append(verdict)
         assert res == (0 if verdict == "accepted" else 1 + REJECTIONS.index(verdict))
@@ -117,6 +118,7 @@ def test_plain_adaptive_build_without_offset_never_shifts(tmp_path):
             win = np.ascontiguousarray(rng.standard_normal((10, 4)) + 0.5)  # an offset the fit has no term for
             lib.off_none_adapt_push(ws, ffi.from_buffer("double[]", win))
             twin.adapter.push(win)
+        lib.off_none_adapt_snapshot(ws)
         lib.off_none_adapt_resolve(ws)
         twin.adapt_resolve()
         lib.off_none_adapt_swap(ws, sws)
