@@ -416,6 +416,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
             if self.policy.adaptation is not None:
                 ref["adapt"] = adapt_code(self.policy.adaptation.last)
                 ref["adapt_offset"] = self.policy.adaptation.offset_norm
+                ref["adapt_snap"] = self.policy.adaptation.last_snap
             if out.reason == "step_too_large" and out.result is not None:  # clamped to the guard by the gate
                 ref["candidate"] = np.asarray(out.result.u[0], dtype=float)
         elif self.cfg.mode in BASELINE_MODES:

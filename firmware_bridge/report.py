@@ -77,6 +77,7 @@ class Reporting:
         A["gate"][i] = gate
         A["adapt"][i] = ref.get("adapt", 0)
         A["adapt_offset"][i] = ref.get("adapt_offset", math.nan)
+        A["adapt_snap"][i] = ref.get("adapt_snap", 0)
         A["phase"][i] = self.ctrl.phase
         if self.hop is not None and self.hop.backdate:
             # A touchdown confirmed late: the samples already on the ground before it are ground samples.

@@ -49,7 +49,8 @@ class SteeringSetup:
         if c.adapt:
             if getattr(solver, "adaptation", None) is None:
                 raise ValueError(f"--adapt needs a solver generated with [adapt] enabled; {c.solver} has no online update")
-            adaptation = OnlineAdaptation(solver, seed=c.seed)
+            # the re-solve (tens of ms at flight sizes) runs in a worker thread, never inside a 5 ms tick
+            adaptation = OnlineAdaptation(solver, seed=c.seed, background=True)
         self.policy = SteeringPolicy(self.steerer, max_gap_fill=c.max_gap_fill, adaptation=adaptation)
         lo, hi = solver_input_bounds(solver)
         if self.hopping:  # the nominal hop: from the leg's rest length up to the apex target

@@ -118,6 +118,8 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "gate": (0, np.int8),       # the last gate's actions on this tick (gate.GATE_FLAGS bits; 1: a stall)
         "adapt": (0, np.int8),      # online update (--adapt): runtime.adapt_loop.ADAPT_CODES (0: none this tick)
         "adapt_offset": (0, float),  # --adapt: norm of the output offset in use (data units; nan: no adaptation)
+        "adapt_snap": (0, np.int8),  # --adapt: 1 a re-solve's snapshot taken (its verdict lands, in ``adapt``, on a
+                                     # later tick, with the swap), 2 a re-solve period skipped (one still ran)
         "phase": (0, np.int8),      # phase label (design.phases: 0 flying; hopping 1 descent, 2 ground, 3 ascent)
         "contact": (0, np.int8),    # hopping: the robot's contact flag as received (-1: none yet / not read)
         # The simulator's truth (ArduPilot SITL SIM_STATE, :mod:`.truth`; nan without it): never used for control

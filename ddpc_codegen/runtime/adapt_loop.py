@@ -11,17 +11,33 @@ Guards for closed-loop data: only steered ticks (engaged, fresh, not a fallback)
 breaks the window (the next column needs depth steered ticks in a row). Every ``period_ticks`` updates G
 is re-solved, verified and, if accepted, swapped in before the next tick; with ``[adapt] offset`` the output
 offset staged by every re-solve (accepted or not) is swapped in too.
+
+``background=True`` (the bridge): a re-solve takes tens of ms at flight sizes, far more than a 5 ms tick, so
+the tick only takes the snapshot (``adapt_snapshot()``) and a worker thread runs ``adapt_resolve(False)``
+(C: cffi releases the GIL for the call) while later ticks keep pushing and solving. The first update tick
+after it returned swaps (a verdict lands only on an update tick, as in the synchronous schedule: after a
+reset, once the window has refilled). One re-solve at a time: a period that comes while one runs is counted
+(``busy``), not queued. :meth:`OnlineAdaptation.close` (called by :meth:`~OnlineAdaptation.summary`) joins a
+running re-solve and discards its result (counted, never swapped).
 """
 
 from __future__ import annotations
 
+import math
+import os
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ddpc_codegen.runtime.adaptation import REJECTIONS
 
-__all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "adapt_code"]
+__all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "adapt_code", "SNAP_TAKEN", "SNAP_BUSY"]
+
+# What a tick did about the background re-solve (the tick log's ``adapt_snap``): 0 nothing, 1 a snapshot was
+# taken and handed to the worker, 2 a re-solve period came while one still ran (counted, skipped).
+SNAP_TAKEN, SNAP_BUSY = 1, 2
 
 # What a tick did, as the bridge's tick log stores it: 0 nothing (no update: not steered, or no adaptation),
 # then the window filling, a column folded in, a re-solve swapped in, and each rejection of a re-solve.
@@ -35,13 +51,18 @@ def adapt_code(last: str) -> int:
 
 @dataclass(frozen=True)
 class AdaptEvent:
-    """One re-solve: the tick, its verdict ("accepted" or the rejection reason), whether G was swapped in, and
-    the norm of the output offset in use after it (data units; 0 without ``[adapt] offset``)."""
+    """One re-solve: the tick its verdict landed (and the swap was made; -1: discarded by
+    :meth:`OnlineAdaptation.close`), its verdict ("accepted" or the rejection reason), whether G was swapped in,
+    the norm of the output offset in use after it (data units; 0 without ``[adapt] offset``), the tick of the
+    snapshot it read (the same tick when synchronous) and, in the background, its wall time in the worker [ms].
+    Ticks count :meth:`OnlineAdaptation.tick` calls from 0."""
 
     tick: int
     verdict: str
     swapped: bool
     offset_norm: float = 0.0
+    snapshot_tick: int = -1
+    resolve_ms: float = math.nan
 
 
 @dataclass
@@ -53,6 +74,8 @@ class OnlineAdaptation:
         period_ticks: updates between re-solves (default: the solver's ``[adapt] period_ticks``).
         dither: amplitude of a +-dither added to steered references while adapting (their units, (m,) or a
             scalar; default: the solver's ``[adapt] dither``); 0 = none. Seeded, so runs repeat.
+        background: re-solve in a worker thread from a snapshot taken in the tick (see the module docstring);
+            False: snapshot, re-solve and swap within the tick (deterministic: the simulator, the tests).
     """
 
     solver: object
@@ -60,6 +83,7 @@ class OnlineAdaptation:
     dither: float | np.ndarray | None = None
     seed: int = 0
     events: list = field(default_factory=list)
+    background: bool = False
 
     def __post_init__(self) -> None:
         st = self.solver.adapt_settings
@@ -75,6 +99,11 @@ class OnlineAdaptation:
         self._tick = 0
         self.last: str = ""  # what the last tick did: "update", "warmup", "skip", or a re-solve verdict
         self.offset_norm = 0.0  # norm of the output offset in use (data units), read back after each swap
+        self.last_snap = 0  # this tick and the background re-solve: 0, SNAP_TAKEN or SNAP_BUSY
+        self.busy = 0  # re-solve periods skipped because one still ran
+        self.discarded = 0  # re-solves joined and dropped by close()
+        self._pool: ThreadPoolExecutor | None = None
+        self._running: tuple[Future, int] | None = None  # the re-solve in the worker and its snapshot tick
 
     def perturb(self, u: np.ndarray, steered: bool) -> np.ndarray:
         """u plus the dither on a steered tick (bounded by ``dither`` per channel), else u itself."""
@@ -87,6 +116,7 @@ class OnlineAdaptation:
         update. Returns what happened: "update", "warmup" (window filling), "skip" (not an update tick), or
         the verdict of a re-solve ("accepted" and swapped, or the rejection reason)."""
         self._tick += 1
+        self.last_snap = 0
         if not steered:
             self.solver.adapt_clear()
             self.last = "skip"
@@ -96,18 +126,69 @@ class OnlineAdaptation:
             return self.last
         self._since += 1
         self.last = "update"
+        if self._running is not None and self._running[0].done():  # landed: swap before this tick's snapshot
+            fut, snap = self._running
+            self._running = None
+            self._land(*fut.result(), snap)
         if self._since >= self.period_ticks:
             self._since = 0
-            verdict = self.solver.adapt_resolve()
-            swapped = bool(self.solver.adapt_swap())  # always: a refused G may still come with a new offset
-            self.offset_norm = float(self.solver.adapt_counts().get("offset_norm", 0.0))
-            self.events.append(AdaptEvent(self._tick - 1, verdict, swapped, self.offset_norm))
-            self.last = verdict
+            if not self.background:
+                self._land(self.solver.adapt_resolve(), math.nan, self._tick - 1)
+            elif self._running is not None:
+                self.busy += 1
+                self.last_snap = SNAP_BUSY
+            else:
+                self.solver.adapt_snapshot()
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(1, "adapt-resolve", initializer=_not_realtime)
+                self._running = (self._pool.submit(_timed_resolve, self.solver), self._tick - 1)
+                self.last_snap = SNAP_TAKEN
         return self.last
 
+    def _land(self, verdict: str, ms: float, snapshot_tick: int) -> None:
+        """A re-solve's verdict on this tick: swap (always: a refused G may still come with a new offset)."""
+        swapped = bool(self.solver.adapt_swap())
+        self.offset_norm = float(self.solver.adapt_counts().get("offset_norm", 0.0))
+        self.events.append(AdaptEvent(self._tick - 1, verdict, swapped, self.offset_norm, snapshot_tick, ms))
+        self.last = verdict
+
+    def close(self) -> None:
+        """Join a running re-solve and drop its result (recorded as an event with tick -1, never swapped: no
+        tick follows to swap it in) and stop the worker. Idempotent; a later re-solve starts a new worker."""
+        if self._running is not None:
+            fut, snap = self._running
+            self._running = None
+            self.discarded += 1
+            verdict, ms = fut.result()
+            self.events.append(AdaptEvent(-1, verdict, False, self.offset_norm, snap, ms))
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
     def summary(self) -> dict:
-        """The solver's counters and the re-solves (tick, verdict, G swapped, offset norm after it)."""
+        """The solver's counters and the re-solves (tick of the verdict / swap, verdict, G swapped, offset norm
+        after it, tick of the snapshot, re-solve wall time [ms]); joins a running re-solve first (:meth:`close`)."""
+        self.close()
         return {"counts": dict(self.solver.adapt_counts()), "period_ticks": self.period_ticks,
-                "dither": self.dither.tolist(),
-                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm] for e in self.events]}
+                "dither": self.dither.tolist(), "background": self.background, "busy": self.busy,
+                "discarded": self.discarded,
+                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm, e.snapshot_tick, e.resolve_ms]
+                           for e in self.events]}
+
+
+def _timed_resolve(solver) -> tuple[str, float]:
+    """(verdict, wall time [ms]) of a re-solve from the last snapshot (in the worker thread)."""
+    t0 = time.perf_counter()
+    verdict = solver.adapt_resolve(False)
+    return verdict, (time.perf_counter() - t0) * 1e3
+
+
+def _not_realtime() -> None:
+    """The worker thread leaves a real-time policy it inherited (``--rt-priority``: SCHED_FIFO never time-slices,
+    so a re-solve on the tick's CPU would hold the tick off until it ends)."""
+    if hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) != os.SCHED_OTHER:
+        try:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except OSError:
+            pass  # stays real-time: the tick may then wait for the re-solve (visible in the loop gaps)
 

@@ -198,3 +198,143 @@ def test_adaptation_needs_the_daqp_backend(tmp_path):
                                            r"into its generated workspace\)$"):
         generate(_problem("absolute"), tmp_path / "o", name="adosqp", backend="osqp", compile=False,
                  adapt=AdaptSettings(enabled=True))
+
+
+# ---- the re-solve off the tick path: snapshot, later pushes, re-solve, later pushes, swap (issue 30 follow-up)
+_SPLIT = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
+                       max_gain_change=1e3, offset=True, max_offset=(1.0, 0.02))
+
+
+@pytest.fixture(scope="module")
+def split_build(tmp_path_factory):
+    """An unbounded absolute-form problem with the output offset, built once; its windows from a changed system."""
+    prob = _problem("absolute")
+    ffi, lib = compile_alone(prob, _SPLIT, tmp_path_factory.mktemp("split"), "ad_split")
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal((700, 2)) * [0.3, 2.0]
+    y, _ = random_lti(4, 2, 2, 7).simulate(u, np.zeros(4))
+    return prob, ffi, lib, np.hstack([u, y + [0.3, -0.05]])
+
+
+def test_resolve_from_an_earlier_snapshot_equals_the_numpy_reference(split_build):
+    """Hypothesis draws the schedule: pushes, a snapshot, more pushes (the ticks a background re-solve spans), the
+    re-solve from the snapshot, more pushes, the swap. Verdicts, candidate G, staged offset, G and the offset in
+    use after the swap, R and every counter of C and numpy agree to 1e-9; the re-solve saw the snapshot, not the
+    later columns (a re-solve of the current state differs once columns came in between)."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as hs
+
+    prob, ffi, lib, sig = split_build
+    fn = {k: getattr(lib, f"ad_split_adapt_{k}") for k in ("init", "push", "snapshot", "resolve", "swap")}
+    rounds = hs.lists(hs.tuples(hs.integers(0, 45), hs.integers(0, 30), hs.integers(0, 8)), min_size=1, max_size=4)
+
+    @settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(rounds)
+    def check(schedule):
+        twin = AdaptiveProblem(prob, _SPLIT, solver="fast")
+        ref, lay = twin.adapter, twin.adapter.layout
+        q, n_y = lay.q_y + lay.q_s, prob.predictor.Gy_w.shape[0]
+        ws, sws = ffi.new("ad_split_adapt_workspace *"), ffi.new("ad_split_workspace *")
+        assert fn["init"](ws) == 0 and lib.ad_split_init(sws) == 0
+        k = 0
+
+        def push(n):
+            nonlocal k
+            for _ in range(n):
+                win = np.ascontiguousarray(sig[k % 600 : k % 600 + lay.depth])
+                assert fn["push"](ws, ffi.from_buffer("double[]", win)) == int(ref.push(win))
+                k += 1
+
+        for before, between, after in schedule:
+            push(before)
+            fn["snapshot"](ws)
+            ref.snapshot()
+            push(between)
+            res, verdict = fn["resolve"](ws), ref.resolve(snapshot=False)
+            assert res == (0 if verdict == "accepted" else 1 + REJECTIONS.index(verdict))
+            if verdict == "accepted":
+                assert _close(_arr(ffi, ws.Gc, q * lay.r).reshape(q, lay.r), ref.pending)
+            if ref.pending_offset is not None:
+                staged = _arr(ffi, ws.yoff, 2 * n_y)[ws.off_spare * n_y : (ws.off_spare + 1) * n_y]
+                assert _close(staged, ref.pending_offset)
+            push(after)
+            assert fn["swap"](ws, sws) == int(twin.adapt_swap())
+            assert _close(_arr(ffi, ws.G, q * lay.r).reshape(q, lay.r), ref.G)
+            if ref.counts["offset_swaps"]:
+                assert _close(_arr(ffi, ws.yoff, 2 * n_y)[(1 - ws.off_spare) * n_y : (2 - ws.off_spare) * n_y],
+                              ref.offset)
+        w = lay.width
+        assert _close(_arr(ffi, ws.R, w * w).reshape(w, w), ref.R)
+        c = ws.counts
+        assert {k: getattr(c, k) for k in ("updates", "skipped", "resolves", "accepted", "swaps", "clipped",
+                                           "offset_swaps", "offset_clipped", "offset_rejected")} == \
+            {k: ref.counts[k] for k in ("updates", "skipped", "resolves", "accepted", "swaps", "clipped",
+                                        "offset_swaps", "offset_clipped", "offset_rejected")}
+        assert [c.rejected[i + 1] for i in range(len(REJECTIONS))] == [ref.counts[f"rejected_{r}"] for r in REJECTIONS]
+
+    check()
+    # the snapshot matters: 30 columns after it, the re-solve of the snapshot and of the current state differ
+    ref = AdaptiveProblem(prob, _SPLIT, solver="fast").adapter
+    for j in range(60):
+        ref.push(sig[j : j + ref.layout.depth])
+    ref.snapshot()
+    for j in range(60, 90):
+        ref.push(sig[j : j + ref.layout.depth])
+    ref.resolve(snapshot=False)
+    old = ref.pending_offset
+    ref.resolve()
+    assert not _close(old, ref.pending_offset)
+
+
+def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_pushes(tmp_path):
+    """A bigger build (a re-solve of some ms): one re-solve in a worker thread while the main thread keeps pushing
+    windows. Pushes complete during the C call (cffi released the GIL), and the result equals the numpy twin's
+    re-solve of the snapshot taken before those pushes (1e-9)."""
+    import threading
+    import time
+
+    ds = _dataset(2, 1200)
+    pred = fit_predictor(ds, 10, 30, "pem", ridge=1e-5)
+    cfg = SteeringConfig(t_ini=10, t_f=30, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode="offset", lambda_sigma=50.0,
+                         predictor={"method": "pem"})
+    prob = SteeringProblem(pred, cfg)
+    st = dataclasses.replace(_SPLIT, window=100)
+    ffi, lib = compile_alone(prob, st, tmp_path, "ad_gil")
+    ref = adapter(prob, st)
+    ws = ffi.new("ad_gil_adapt_workspace *")
+    assert lib.ad_gil_adapt_init(ws) == 0
+    u = np.random.default_rng(9).standard_normal((2000, 2)) * [0.3, 2.0]
+    y, _ = random_lti(4, 2, 2, 7).simulate(u, np.zeros(4))
+    sig, d = np.hstack([u, y]), ref.layout.depth
+    wins = [np.ascontiguousarray(sig[j : j + d]) for j in range(1900)]
+    for j in range(150):
+        lib.ad_gil_adapt_push(ws, ffi.from_buffer("double[]", wins[j]))
+        ref.push(wins[j])
+    lib.ad_gil_adapt_snapshot(ws)
+    ref.snapshot()
+    span, out = [], {}
+
+    def work():
+        span.append(time.perf_counter())
+        out["code"] = lib.ad_gil_adapt_resolve(ws)
+        span.append(time.perf_counter())
+
+    th = threading.Thread(target=work)
+    stamps, j = [], 150
+    th.start()
+    while th.is_alive() and j < len(wins):
+        lib.ad_gil_adapt_push(ws, ffi.from_buffer("double[]", wins[j]))
+        ref.push(wins[j])
+        stamps.append(time.perf_counter())
+        j += 1
+    th.join()
+    inside = sum(span[0] < t < span[1] for t in stamps)
+    assert inside >= 3, (inside, j - 150, (span[1] - span[0]) * 1e3)
+    verdict = ref.resolve(snapshot=False)
+    assert out["code"] == (0 if verdict == "accepted" else 1 + REJECTIONS.index(verdict))
+    lay = ref.layout
+    q = lay.q_y + lay.q_s
+    if verdict == "accepted":
+        assert _close(_arr(ffi, ws.Gc, q * lay.r).reshape(q, lay.r), ref.pending)
+    assert ws.counts.updates == ref.counts["updates"] == j
+    assert _close(_arr(ffi, ws.R, lay.width ** 2).reshape(lay.width, lay.width), ref.R)

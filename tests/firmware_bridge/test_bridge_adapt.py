@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
+from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES, SNAP_BUSY, SNAP_TAKEN
 from firmware_bridge.ticklog import REASONS, load_ticklog
 from support.bridge_helpers import ROOT, free_port, read_json
 
@@ -54,18 +54,31 @@ def test_steered_ticks_update_and_the_tick_log_records_every_update_verdict_and_
     t = load_ticklog(tmp_path / "a.npz").ticks
     code = t["adapt"]
     steered = t["reason"] == REASONS.index("steered")
-    assert np.all(code[~steered] == 0)  # only steered ticks ever update
-    updates = np.isin(code, [ADAPT_CODES.index(k) for k in ADAPT_CODES[2:]])  # a column folded in (+ re-solve)
+    assert np.all(code[~steered] == 0) and np.all(t["adapt_snap"][~steered] == 0)  # only steered ticks update
+    updates = np.isin(code, [ADAPT_CODES.index(k) for k in ADAPT_CODES[2:]])  # a column folded in (+ verdict)
     verdicts = code >= ADAPT_CODES.index("accepted")
     assert s["counts"]["updates"] == int(updates.sum()) > 200
-    assert s["counts"]["resolves"] == int(verdicts.sum()) == len(s["events"]) >= 2
+    # the re-solves ran in the worker: each from a snapshot taken on one tick, its verdict and swap on a later one
+    # (the first update tick after it returned); one at a time; one still running at the stop joined and dropped
+    assert s["background"] and s["counts"]["resolves"] == len(s["events"]) == int(verdicts.sum()) + s["discarded"] >= 2
+    snaps, busy = np.nonzero(t["adapt_snap"] == SNAP_TAKEN)[0], int(np.sum(t["adapt_snap"] == SNAP_BUSY))
+    resolves = np.nonzero(verdicts)[0]
+    assert len(snaps) == s["counts"]["resolves"] and busy == s["busy"]
+    assert np.all(snaps[: len(resolves)] < resolves) and np.all(resolves[:-1] < snaps[1 : len(resolves)])
+    landed = [e for e in s["events"] if e[0] >= 0]
+    assert [e[1] for e in landed] == [ADAPT_CODES[c] for c in code[resolves]]
+    assert all(e[4] < e[0] for e in landed) and all(e[5] > 0 for e in s["events"])
     assert s["counts"]["swaps"] == int((code == ADAPT_CODES.index("accepted")).sum())
+    # no tick carried a re-solve: the ticks that took a snapshot or landed a verdict took no longer than the others
+    tick_us = t["compute_us"][steered]
+    busy_us = t["compute_us"][np.concatenate([snaps, resolves])]
+    assert np.median(busy_us) < np.median(tick_us) + 0.5e3 * np.median([e[5] for e in s["events"]]), \
+        (np.median(busy_us), np.median(tick_us), [e[5] for e in s["events"]])
     # the offset in use: one per re-solve, as the events record it, unchanged between re-solves
     off = t["adapt_offset"]
     assert np.all(np.isfinite(off[steered])) and np.isnan(off).any()  # nan: ticks the steering did not decide
-    resolves = np.nonzero(verdicts)[0]
     assert s["counts"]["offset_swaps"] == len(resolves)
-    np.testing.assert_array_equal(off[resolves], [e[3] for e in s["events"]])
-    assert s["events"][-1][3] == s["counts"]["offset_norm"] > 0.0
+    np.testing.assert_array_equal(off[resolves], [e[3] for e in landed])
+    assert landed[-1][3] == s["counts"]["offset_norm"] > 0.0
     rows = np.nonzero(steered)[0]
     assert set(rows[1:][np.diff(off[rows]) != 0].tolist()) <= set(resolves.tolist())

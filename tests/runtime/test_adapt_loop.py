@@ -76,3 +76,90 @@ def test_dither_is_bounded_applied_only_on_steered_ticks_and_logged_through_the_
 def test_bad_loop_settings_are_refused(bad, message):
     with pytest.raises(ValueError, match=message):
         OnlineAdaptation(_twin(), **bad)
+
+
+class _GatedSolver:
+    """The adaptation API with a re-solve that waits for the test (a background re-solve of known length)."""
+
+    def __init__(self, period: int = 3) -> None:
+        import threading
+
+        self.adapt_settings = AdaptSettings(enabled=True, period_ticks=period)
+        self.gate, self.calls, self.snapshots, self.swaps = threading.Event(), [], 0, 0
+        self.in_call = threading.Event()
+
+    def adapt_push(self, u, y) -> bool:
+        return True
+
+    def adapt_clear(self) -> None:
+        pass
+
+    def adapt_snapshot(self) -> None:
+        self.snapshots += 1
+
+    def adapt_resolve(self, snapshot: bool = True) -> str:
+        self.calls.append(snapshot)
+        self.in_call.set()
+        assert self.gate.wait(5.0)
+        return "prediction" if len(self.calls) % 2 else "accepted"
+
+    def adapt_swap(self) -> bool:
+        self.swaps += 1
+        return len(self.calls) % 2 == 0
+
+    def adapt_counts(self) -> dict:
+        return {"resolves": len(self.calls), "offset_norm": 0.0}
+
+
+def test_background_resolve_runs_off_the_tick_lands_on_the_first_update_tick_after_it_and_is_never_queued():
+    from ddpc_codegen.runtime.adapt_loop import SNAP_BUSY, SNAP_TAKEN
+
+    s = _GatedSolver(period=3)
+    ad = OnlineAdaptation(s, background=True)
+    z = np.zeros(1)
+    assert [ad.tick(z, z, True) for _ in range(2)] == ["update"] * 2
+    assert ad.tick(z, z, True) == "update" and ad.last_snap == SNAP_TAKEN and s.snapshots == 1
+    assert s.in_call.wait(5.0) and s.calls == [False]  # from the snapshot, in the worker, while the ticks go on
+    out = [(ad.tick(z, z, True), ad.last_snap) for _ in range(3)]
+    assert out == [("update", 0), ("update", 0), ("update", SNAP_BUSY)] and ad.busy == 1 and s.swaps == 0
+    s.gate.set()
+    ad._running[0].result(5.0)
+    assert ad.tick(z, z, False) == "skip" and s.swaps == 0  # a verdict lands only on an update tick
+    assert ad.tick(z, z, True) == "prediction" and s.swaps == 1
+    e = ad.events[0]
+    assert (e.tick, e.verdict, e.swapped, e.snapshot_tick) == (7, "prediction", False, 2) and e.resolve_ms >= 0
+    for _ in range(2):  # the next period takes a new snapshot (the worker is free again)
+        ad.tick(z, z, True)
+    assert ad.last_snap == SNAP_TAKEN and s.snapshots == 2
+    summary = ad.summary()  # joins the running re-solve and drops it: no tick follows to swap it in
+    assert summary["discarded"] == 1 and summary["busy"] == 1 and summary["background"] is True
+    assert summary["events"][-1][:3] == [-1, "accepted", False] and summary["events"][-1][4] == 9
+    assert s.swaps == 1 and ad._pool is None
+
+
+def test_background_schedule_on_the_twin_equals_its_snapshot_semantics():
+    """The twin in the background (a real worker thread): every re-solve read the snapshot of its tick, so a
+    synchronous replay (snapshot at that tick, pushes, re-solve from it, swap at the landing tick) gives the same
+    verdicts, swaps and final G."""
+    import time
+
+    bg, ref = _twin(period_ticks=15, window=8, min_excitation=0.0), _twin(period_ticks=15, window=8, min_excitation=0.0)
+    rng = np.random.default_rng(4)
+    us, ys = rng.standard_normal((160, 1)), rng.standard_normal((160, 1))
+    ad = OnlineAdaptation(bg, background=True)
+    for u, y in zip(us, ys):
+        ad.tick(u, y, True)
+        time.sleep(0.001 if ad._running is None else 0.004)  # let a re-solve finish within a few ticks
+    ad.close()
+    landed = [e for e in ad.events if e.tick >= 0]
+    assert len(landed) >= 3 and all(e.snapshot_tick < e.tick for e in landed)
+    snaps, lands = {e.snapshot_tick: e for e in landed}, {e.tick: e for e in landed}
+    verdicts = []
+    for k, (u, y) in enumerate(zip(us, ys)):
+        if k in lands:
+            verdicts.append((ref.adapt_resolve(False), ref.adapt_swap()))
+        ref.adapt_push(u, y)
+        if k in snaps:
+            ref.adapt_snapshot()
+    assert verdicts == [(e.verdict, e.swapped) for e in landed]
+    np.testing.assert_array_equal(ref.adapter.G, bg.adapter.G)
