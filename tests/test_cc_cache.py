@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from support.cc_cache import compile_step, install
+from support.cc_cache import compile_step, dependency_flags, install
 
 CC = shutil.which("cc") or shutil.which("gcc")
 needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler")
@@ -22,7 +22,7 @@ needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler")
     (["-c", "-o", "o/x.o", "-I", "inc.c", "s/x.c"], ("s/x.c", "o/x.o", ["-c", "-I", "inc.c"])),
     (["x.o", "y.o", "-shared", "-o", "m.so"], None),                   # a link step
     (["-c", "x.c", "y.c"], None),                                      # two sources, no -o
-    (["-MD", "-MF", "x.d", "-c", "x.c", "-o", "x.o"], None),           # CMake's dependency files
+    (["-MD", "-MF", "x.d", "-c", "x.c", "-o", "x.o"], None),           # dependency flags: see below
     (["-E", "-c", "x.c", "-o", "x.i"], None),
     (["@args.rsp", "-c", "x.c", "-o", "x.o"], None),
 ])
@@ -30,11 +30,24 @@ def test_only_plain_compile_steps_are_cacheable(args, want):
     assert compile_step(args) == want
 
 
+@pytest.mark.parametrize("args, want", [
+    (["-O3", "-c", "x.c", "-o", "x.o"], (["-O3", "-c", "x.c", "-o", "x.o"], [])),
+    (["-MD", "-MT", "x.o", "-MF", "x.o.d", "-o", "x.o", "-c", "x.c"],  # CMake's
+     (["-o", "x.o", "-c", "x.c"], ["-MD", "-MT", "x.o", "-MF", "x.o.d"])),
+    (["-MMD", "-MP", "-MF", "x.d", "-c", "x.c", "-o", "x.o"], (["-c", "x.c", "-o", "x.o"], ["-MMD", "-MP", "-MF", "x.d"])),
+    (["-MD", "-c", "x.c", "-o", "x.o"], None),                          # depfile named after -o: run as asked
+    (["-M", "x.c"], None), (["-MG", "-MD", "-MF", "x.d", "-c", "x.c", "-o", "x.o"], None),
+])
+def test_dependency_flags_are_split_off_only_with_a_named_depfile(args, want):
+    assert dependency_flags(args) == want
+
+
 def _fake_compiler(tmp: Path) -> tuple[Path, Path]:
     """A compiler that logs each real compile (not the preprocessing) to a file, then runs cc."""
     log = tmp / "compiles.log"
     exe = tmp / "logcc"
-    exe.write_text(f'#!/bin/sh\ncase " $* " in *" -E "*) ;; *) echo "$*" >> "{log}";; esac\nexec "{CC}" "$@"\n')
+    exe.write_text(f'#!/bin/sh\ncase " $* " in *" -E "*|*" -M "*) ;; *) echo "$*" >> "{log}";; esac\n'
+                   f'exec "{CC}" "$@"\n')
     exe.chmod(0o755)
     return exe, log
 
@@ -72,6 +85,25 @@ def test_identical_steps_reuse_the_object_and_changes_compile_again(tmp_path):
     assert _build_and_run(env, _program(tmp_path / "c", "42"))[1] == "42" and n_compiles() == 2
     assert _build_and_run(env, _program(tmp_path / "d", "VALUE2"), "-DVALUE2=7")[1] == "7" and n_compiles() == 3
     assert _build_and_run(env, _program(tmp_path / "e", "41"), "-O1")[1] == "41" and n_compiles() == 4
+
+
+@needs_cc
+@pytest.mark.compiler
+def test_a_step_writing_a_dependency_file_reuses_the_object_and_still_writes_the_file(tmp_path):
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
+    deps = []
+    for name in ("a", "b"):
+        folder = _program(tmp_path / name, "41")
+        dep = folder / "main.o.d"
+        comp, out = _build_and_run(env, folder, "-MD", "-MT", "main.o", "-MF", str(dep))
+        assert comp.returncode == 0 and out == "41", comp.stderr
+        deps.append(dep.read_text())
+    assert len(log.read_text().splitlines()) == 1  # the second object is the first one's
+    # each file names its own folder's sources, as the compiler itself writes it
+    for name, text in zip("ab", deps):
+        assert text.startswith("main.o:") and str(tmp_path / name / "main.c") in text
+        assert str(tmp_path / name / "inc" / "v.h") in text
 
 
 @needs_cc

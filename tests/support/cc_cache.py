@@ -12,7 +12,9 @@ except the output path, the source path and ``-I`` directories (generated folder
 directories), and the source as preprocessed with those arguments (``-E -P``: headers and macros
 included, so an edited header or ``-D`` is a different key). A hit copies the object file and replays
 the compiler's messages; anything other than a plain ``-c one.c -o one.o`` step (linking, dependency
-files, ``-E``, response files ...) runs the real compiler untouched. Failed compiles are never stored.
+files without a named ``-MF``, ``-E``, response files ...) runs the real compiler untouched; a step that also
+writes a make dependency file (CMake's ``-MD -MT t -MF f``) reuses the object and writes the file with the
+preprocessor alone (``-M``). Failed compiles are never stored.
 
 Per-solver symbol names: each library source of a generated folder first includes
 ``<name>_<lib>_names.h`` (``#define daqp_solve <name>_daqp_solve`` ..., see ``codegen/libs.py``), so the
@@ -46,6 +48,35 @@ _GUARD = re.compile(r"^#ifndef (\w+)$", re.M)
 _RENAME = re.compile(r"^#define (\w+) (\w+)$", re.M)
 # a step with any of these is not a plain "compile one source to one object" step: run it as asked
 _PASS_PREFIXES = ("-M", "@", "-E", "-S", "-x", "-save-temps", "-fdump", "-###", "-v", "--version")
+
+
+def dependency_flags(args: list[str]) -> tuple[list[str], list[str]] | None:
+    """(the arguments without them, the make-dependency flags) of a compile step that writes its dependency
+    file as a side effect with a named ``-MF`` (CMake's ``-MD -MT t -MF f``); ([], ...) untouched when it has
+    none; None when it has other ``-M`` flags (not cacheable)."""
+    rest, dep, i = [], [], 0
+    while i < len(args):
+        a = args[i]
+        if a in ("-MD", "-MMD", "-MP"):
+            dep.append(a)
+        elif a in ("-MT", "-MF", "-MQ") and i + 1 < len(args):
+            dep += [a, args[i + 1]]
+            i += 1
+        elif a.startswith("-M"):
+            return None
+        else:
+            rest.append(a)
+        i += 1
+    if dep and ("-MF" not in dep or not {"-MD", "-MMD"} & set(dep)):
+        return None
+    return rest, dep
+
+
+def write_dependencies(real: list[str], src: str, rest: list[str], dep: list[str]) -> bool:
+    """The dependency file a ``-MD``/``-MMD`` compile would have written, from the preprocessor alone
+    (``-M``/``-MM``: no code generated) -- what a reused object's build still needs."""
+    only = ["-M" if a == "-MD" else "-MM" if a == "-MMD" else a for a in dep]
+    return subprocess.run([*real, *[a for a in rest if a != "-c"], *only, src]).returncode == 0
 
 
 def compile_step(args: list[str]) -> tuple[str, str, list[str]] | None:
@@ -138,13 +169,16 @@ def _store(entry: Path, obj: bytes, names: dict[str, str], messages: bytes) -> N
 
 def run(args: list[str], real: list[str], cache: Path | None) -> int:
     """Compile as ``real args`` would, through the object store ``cache`` when the step is cacheable."""
-    step = compile_step(args) if cache is not None else None
+    split = dependency_flags(args) if cache is not None else None
+    plain, dep = split if split else (args, [])
+    step = compile_step(plain) if split is not None else None
     names = renaming(step[0]) if step else None
     key = step_key(real, step[0], step[2], names) if step else None
     if key is None:
         return subprocess.run([*real, *args]).returncode
     entry, now = cache / key, names[1] if names else {}
-    if entry.is_dir() and _renamed_copy(entry / "obj.o", json.loads((entry / "names.json").read_text()), now, step[1]):
+    if (entry.is_dir() and _renamed_copy(entry / "obj.o", json.loads((entry / "names.json").read_text()), now, step[1])
+            and (not dep or write_dependencies(real, step[0], step[2], dep))):
         sys.stderr.buffer.write((entry / "messages").read_bytes())
         return 0
     res = subprocess.run([*real, *args], stderr=subprocess.PIPE)
