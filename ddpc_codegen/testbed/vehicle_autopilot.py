@@ -6,7 +6,8 @@
   GUID_OPTIONS bit 3 is set).
 * COMMAND_LONG: COMPONENT_ARM_DISARM, DO_SET_MODE, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE
   (HEARTBEAT), each answered with a COMMAND_ACK; PARAM_REQUEST_READ / PARAM_SET for
-  COM_OF_LOSS_T (PX4) and GUID_OPTIONS (ArduPilot).
+  COM_OF_LOSS_T and MPC_THR_HOVER (PX4), GUID_OPTIONS, MOT_THST_HOVER and GUID_TIMEOUT (ArduPilot; the hover
+  thrusts are the true ones, read-only).
 * SET_ATTITUDE_TARGET (quaternion FRD -> NED + thrust) goes to the flight controller while armed in
   OFFBOARD. OFFBOARD is refused unless setpoints are arriving; if they stop for COM_OF_LOSS_T
   seconds the vehicle leaves OFFBOARD for its failsafe (HOLD or LAND), as PX4 does.
@@ -307,9 +308,13 @@ class AutopilotEmulator:
         return R.MAV_RESULT_UNSUPPORTED
 
     def _params(self) -> dict[str, tuple[float, int]]:
+        # What the bridge reads before its first tick, as the real autopilots answer it (a well-tuned
+        # autopilot's hover thrust is the true one); an unanswered read costs the bridge its 3 s wait.
+        hover = (self.body.mass * self.body.g / self.body.max_thrust, mavlink.MAV_PARAM_TYPE_REAL32)
         if self.ardu is not None:
-            return {"GUID_OPTIONS": (float(self.guid_options), mavlink.MAV_PARAM_TYPE_INT32)}
-        return {"COM_OF_LOSS_T": (self.com_of_loss_t, mavlink.MAV_PARAM_TYPE_REAL32)}
+            return {"GUID_OPTIONS": (float(self.guid_options), mavlink.MAV_PARAM_TYPE_INT32),
+                    "MOT_THST_HOVER": hover, "GUID_TIMEOUT": (3.0, mavlink.MAV_PARAM_TYPE_REAL32)}
+        return {"COM_OF_LOSS_T": (self.com_of_loss_t, mavlink.MAV_PARAM_TYPE_REAL32), "MPC_THR_HOVER": hover}
 
     def _on_param(self, msg) -> None:
         if not self._for_me(msg):

@@ -71,6 +71,8 @@ def test_flight_over_the_link_runs_the_whole_protocol(flights):
         ev = [e for _, e in s["events"]]
         assert any("requesting OFFBOARD after" in e for e in ev)
         assert any("exit: requesting AUTO.LOITER" in e for e in ev)   # handed back to HOLD at the end
+        # every parameter the bridge reads was answered (the simulated PX4's true hover thrust: PogoX ~0.8)
+        assert not any("not answered" in e for e in ev) and 0.5 < s["vehicle"]["hover_thrust"] < 1.0
     assert steer["steering"]["steered"] > 0.9 * (FLIGHT / 0.005)
 
 
@@ -114,6 +116,7 @@ def test_ardupilot_profile_guided_nogps_with_both_thrust_semantics(procs, tmp_pa
         ev = " | ".join(e for _, e in s["events"])
         assert f"GUID_OPTIONS={opt}: thrust field is a {'climb rate' if opt == 0 else 'thrust'}" in ev
         assert "requesting GUIDED_NOGPS" in ev and "engaged (GUIDED_NOGPS" in ev and "requesting BRAKE" in ev
+        assert "not answered" not in ev and 0.5 < s["vehicle"]["hover_thrust"] < 1.0  # MOT_THST_HOVER read
         assert s["stop_reason"].startswith("duration") and s["activations"] == 1
         log = load_ticklog(tmp_path / f"ap{opt}.npz")
         assert log.metadata["thrust_field"] == ("climb_rate" if opt == 0 else "thrust")
