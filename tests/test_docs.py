@@ -152,7 +152,8 @@ def test_results_page_and_readme_block_render_the_summary(tmp_path):
 def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
     cond = {"rmse_z": {"passthrough": 0.07, "ctrl_ff": 0.05, "prefilter": 0.016, "ilc": None, "steered": 0.008},
             "rmse_z_truth": {"passthrough": 0.07, "ctrl_ff": 0.054, "prefilter": 0.0168, "ilc": None, "steered": 0.0084},
-            "estimator_rms": 0.0056, "thrust_step_rms": {"passthrough": 0.0002, "steered": 0.0005},
+            "estimator_rms": {"passthrough": 0.009, "steered": 0.0056},
+            "thrust_step_rms": {"passthrough": 0.0002, "steered": 0.0005},
             "max_ref_step": {"steered": 0.006}, "fallbacks": {"steered": 0.0}}
     table = results._conditions_table([("ardupilot", "steps", cond), ("px4", "wind", {"skipped": "no wind parameter"})])
     assert ("| ardupilot | steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | 8.0 | 5.6 | 2.00x | 1.50x | 6.0 | 2.5x | 0 |"

@@ -16,6 +16,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ddpc_codegen.testbed.sitl_conditions import steered_estimator_rms
+
 ROOT = Path(__file__).resolve().parents[2]
 BEGIN = "<!-- results:begin (written by make demo: python -m ddpc_codegen.docsgen.results) -->"
 END = "<!-- results:end -->"
@@ -187,7 +189,7 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
     largest tick-to-tick step of the applied height reference in the steered flights (fallbacks included;
     the config's rate bound ``du_max`` is the limit), the thrust steps against passthrough's and the fallbacks."""
     head = ("| autopilot | condition | " + " | ".join(m.replace("_", " ") for m in _METHODS)
-            + " | EKF steered | estimator error | best simple / steered | steered / estimator "
+            + " | EKF steered | estimator error (steered flights) | best simple / steered | steered / estimator "
             "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks |")
     lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds:\n",
              head, "|" + "---|" * (head.count("|") - 1)]
@@ -195,7 +197,7 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
         if "skipped" in c:
             lines.append(f"| {ap} | {name} | " + " | ".join(["--"] * (len(_METHODS) + 7)) + " |")
             continue
-        vt, est = c["rmse_z_truth"], c.get("estimator_rms")
+        vt, est = c["rmse_z_truth"], steered_estimator_rms(c)
         simple = [vt.get(m) for m in ("ctrl_ff", "prefilter", "ilc") if vt.get(m) is not None]
         st = vt.get("steered")
         best = f"{min(simple) / st:.2f}x" if st and simple else "--"

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "METHODS", "STEPS_DURATION", "write_steps_trajectory", "fly_condition", "summarize_rounds"]
+__all__ = ["CONDITIONS", "METHODS", "STEPS_DURATION", "write_steps_trajectory", "fly_condition", "summarize_rounds",
+           "steered_estimator_rms"]
 
 # Trajectory seconds each flight of the steps file flies (four height steps, at 4, 8, 12, 16 s).
 STEPS_DURATION = 20.0
@@ -130,7 +131,8 @@ def fly_condition(sitl, autopilot: str, name: str, out: Path, trajectory: Path, 
 def summarize_rounds(per_round: list[dict]) -> dict:
     """Per key (rmse_z, rmse_z_truth, thrust_step_rms, max_ref_step, max_offset_step) and method: the mean over the
     rounds (None where any round has none); ``ilc`` None (the path does not repeat); the estimator's
-    error averaged over every flight; the rounds themselves."""
+    error per method (RMS over the rounds: the steered figure is the one of the steered flights, which the
+    target compares against); the rounds themselves."""
     out: dict = {}
     for key in ("rmse_z", "rmse_z_truth", "thrust_step_rms", "max_ref_step", "max_offset_step", "fallbacks"):
         out[key] = {}
@@ -139,10 +141,21 @@ def summarize_rounds(per_round: list[dict]) -> dict:
             out[key][method] = None if any(v is None for v in vals) else float(np.mean(vals))
         if key in ("rmse_z", "rmse_z_truth"):
             out[key]["ilc"] = None
-    est = [r[m]["estimator_rms"] for r in per_round for m in METHODS if r[m]["estimator_rms"] is not None]
-    out["estimator_rms"] = float(np.sqrt(np.mean(np.square(est)))) if est else None
+    out["estimator_rms"] = {m: rms_of([r[m]["estimator_rms"] for r in per_round]) for m in METHODS}
     out["rounds"] = per_round
     return out
+
+
+def rms_of(values: list) -> float | None:
+    """RMS of the figures (each an RMS over one flight), None if any flight has none."""
+    return None if not values or any(v is None for v in values) else float(np.sqrt(np.mean(np.square(values))))
+
+
+def steered_estimator_rms(c: dict) -> float | None:
+    """The estimator's error in the steered flights of a condition (reports before it was per method: the
+    figure over every flight)."""
+    est = c.get("estimator_rms")
+    return est.get("steered") if isinstance(est, dict) else est
 
 
 def _mm(v) -> str:

@@ -12,7 +12,8 @@ import pytest
 
 from ddpc_codegen.robot.trajectory_files import load_trajectory
 from ddpc_codegen.testbed import sitl as h
-from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, METHODS, summarize_rounds, write_steps_trajectory
+from ddpc_codegen.testbed.sitl_conditions import (CONDITIONS, METHODS, steered_estimator_rms, summarize_rounds,
+                                                  write_steps_trajectory)
 from ddpc_codegen.testbed.sitl_demo import format_condition, main
 
 
@@ -45,7 +46,13 @@ def test_rounds_are_averaged_per_method_and_ilc_is_none_off_the_ellipse():
     assert s["rmse_z"] == {"passthrough": pytest.approx(0.11), "ctrl_ff": pytest.approx(0.07),
                            "prefilter": pytest.approx(0.045), "steered": pytest.approx(0.015), "ilc": None}
     assert s["rmse_z_truth"]["steered"] == pytest.approx(0.016) and s["rmse_z_truth"]["ilc"] is None
-    assert s["estimator_rms"] == pytest.approx(math.sqrt((4 * 0.01**2 + 4 * 0.02**2) / 8))
+    # the estimator's error per method, in that method's own flights (the target compares like with like)
+    assert s["estimator_rms"] == {m: pytest.approx(math.sqrt((0.01**2 + 0.02**2) / 2)) for m in METHODS}
+    r2["ctrl_ff"]["estimator_rms"] = None
+    assert summarize_rounds([r1, r2])["estimator_rms"]["ctrl_ff"] is None
+    r1["steered"]["estimator_rms"] = 0.03
+    assert steered_estimator_rms(summarize_rounds([r1, r2])) == pytest.approx(math.sqrt((0.03**2 + 0.02**2) / 2))
+    assert steered_estimator_rms({"estimator_rms": 0.007}) == 0.007  # a report from before: one figure
     assert s["rounds"] == [r1, r2]
     r2["steered"]["rmse_z_truth"] = None  # a flight without truth: no mean for that method
     assert summarize_rounds([r1, r2])["rmse_z_truth"]["steered"] is None
@@ -54,13 +61,13 @@ def test_rounds_are_averaged_per_method_and_ilc_is_none_off_the_ellipse():
 def test_condition_lines_state_the_target_on_the_true_height():
     c = {"rmse_z": {"passthrough": 0.1, "ctrl_ff": 0.05, "prefilter": 0.04, "ilc": None, "steered": 0.01},
          "rmse_z_truth": {"passthrough": 0.1, "ctrl_ff": 0.05, "prefilter": 0.04, "ilc": None, "steered": 0.016},
-         "estimator_rms": 0.008, "max_ref_step": {"steered": 0.3}, "max_offset_step": {"steered": 0.005},
+         "estimator_rms": {"steered": 0.008}, "max_ref_step": {"steered": 0.3}, "max_offset_step": {"steered": 0.005},
          "thrust_step_rms": {"passthrough": 0.002, "steered": 0.003}}
     assert format_condition("px4", "heavy", c).splitlines() == [
         "[sitl-demo] px4 heavy EKF height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 10.0 mm",
         "[sitl-demo] px4 heavy true height rmse: passthrough 100.0, ctrl ff 50.0, prefilter 40.0, ilc -, steered 16.0 mm",
-        "[sitl-demo] px4 heavy target >= 2x the best simple method (2.50x); estimator error 8.0 mm (steered 2.00x of "
-        "it); largest reference step 300.0 mm per tick (of the correction u - r_nom 5.0); thrust step 1.5x "
+        "[sitl-demo] px4 heavy target >= 2x the best simple method (2.50x); estimator error in the steered flights 8.0 mm "
+        "(steered 2.00x of it); largest reference step 300.0 mm per tick (of the correction u - r_nom 5.0); thrust step 1.5x "
         "passthrough's"]
     assert format_condition("px4", "wind", {"skipped": CONDITIONS["px4"]["wind"]}) == (
         "[sitl-demo] px4 wind: PX4 SIH in this build has no wind parameter (no SIH_WIND_*): not flown")
