@@ -104,6 +104,15 @@ class OnlineAdaptation:
         self.discarded = 0  # re-solves joined and dropped by close()
         self._pool: ThreadPoolExecutor | None = None
         self._running: tuple[Future, int] | None = None  # the re-solve in the worker and its snapshot tick
+        if self.background:  # start the worker now, off the tick path (a thread start in a tick costs ~3 ms)
+            self._worker().submit(int).result()
+
+    def _worker(self) -> ThreadPoolExecutor:
+        """The one worker thread (started on first use; created before the bridge turns real-time, it keeps the
+        default policy and affinity)."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, "adapt-resolve", initializer=_not_realtime)
+        return self._pool
 
     def perturb(self, u: np.ndarray, steered: bool) -> np.ndarray:
         """u plus the dither on a steered tick (bounded by ``dither`` per channel), else u itself."""
@@ -139,9 +148,7 @@ class OnlineAdaptation:
                 self.last_snap = SNAP_BUSY
             else:
                 self.solver.adapt_snapshot()
-                if self._pool is None:
-                    self._pool = ThreadPoolExecutor(1, "adapt-resolve", initializer=_not_realtime)
-                self._running = (self._pool.submit(_timed_resolve, self.solver), self._tick - 1)
+                self._running = (self._worker().submit(_timed_resolve, self.solver), self._tick - 1)
                 self.last_snap = SNAP_TAKEN
         return self.last
 
