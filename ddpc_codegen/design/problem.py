@@ -181,10 +181,13 @@ class SteeringProblem:
         self.q0 = np.array(q0, dtype=float).reshape(-1)
         self.lg0 = np.array(l0, dtype=float).reshape(-1)
         self.ug0 = np.array(u0, dtype=float).reshape(-1)
-        qs, ls, _ = self.param_map.map(self.n_theta)(np.eye(self.n_theta))
-        self.F_q = np.array(qs, dtype=float).reshape(self.n_z, self.n_theta) - self.q0[:, None]
+        # Slopes in theta from unit steps; F_g from g0 itself (the bounds may be infinite: inf - inf).
+        slopes = ca.Function("theta_slopes", [theta], [q_expr, -g0 if self.n_g else ca.SX(0, 1)])
+        (qs, gs), (q_0, g_0) = (slopes.map(self.n_theta)(np.eye(self.n_theta)), slopes(np.zeros(self.n_theta)))
+        self.F_q = np.array(qs, dtype=float).reshape(self.n_z, self.n_theta) - np.array(q_0, dtype=float)
         # l_g = lg0 + F_g theta, same for u_g
-        self.F_g = np.array(ls, dtype=float).reshape(self.n_g, self.n_theta) - self.lg0[:, None]
+        self.F_g = (np.array(gs, dtype=float).reshape(self.n_g, self.n_theta)
+                    - np.array(g_0, dtype=float).reshape(self.n_g, 1))
 
     def _slopes_in_u(self, affine: ca.Function) -> tuple[np.ndarray, np.ndarray]:
         """(P (n_z, n_z), A_g (n_g, n_z)): the constant slopes in z of the gradient and of g, from unit steps

@@ -140,6 +140,26 @@ def test_qp_matrices_are_constant_and_vectors_affine(plant):
     assert prob.n_theta == (M + P) * TI + P * TF + M * TF
 
 
+@pytest.mark.parametrize("bounds", [dict(y_min=[-6.0, -np.inf], y_max=[np.inf, 6.0]),   # one-sided rows
+                                    dict(y_min=[-np.inf] * P, y_max=[np.inf] * P, du_max=[np.inf, 0.8])])
+def test_the_qp_data_are_the_cost_and_bounds_evaluated_with_one_sided_and_missing_bounds(plant, bounds):
+    """P, q and the bound maps against the cost and constraints evaluated directly: a quadratic
+    J(z) = J(0) + q'z + z'Pz/2 exactly, and l_g, u_g (+-inf where a side is unbounded) at random theta."""
+    _, ds = plant
+    prob = SteeringProblem(fit_predictor(ds, TI, TF, "pem"), _cfg(R_du=[2.0, 1.0], **bounds))
+    assert np.all(np.isfinite(prob.F_q)) and np.all(np.isfinite(prob.F_g)) and np.all(np.isfinite(prob.P))
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        th, z = rng.standard_normal(prob.n_theta), rng.standard_normal(prob.n_z)
+        j = lambda v: float(prob._cost_fn(v, th))  # noqa: E731
+        q = prob.qp_vectors(th)[0]
+        assert j(z) - j(np.zeros(prob.n_z)) == pytest.approx(q @ z + 0.5 * z @ prob.P @ z, rel=1e-9, abs=1e-9)
+        _, l_g, u_g = (np.array(v).ravel() for v in prob.param_map(th))
+        _, ln, un = prob.qp_vectors(th)
+        np.testing.assert_allclose(ln[prob.n_z :], l_g, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(un[prob.n_z :], u_g, rtol=1e-12, atol=1e-9)
+
+
 @pytest.mark.parametrize("extra", [{}, {"R_du": [2.0, 1.0]}])
 def test_deepc_matches_condensed_on_exact_data(plant, extra):
     sys_, full = plant
