@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.signal import max_len_seq
 
 from ddpc_codegen.errors import DataError
 
@@ -350,6 +349,10 @@ def prbs(
         order = max(7, min(24, int(np.ceil(np.log2(n_bits + 1)))))
     if not 3 <= int(order) <= 24:
         raise DataError(f"prbs order must be in 3..24; got {order}")
+    # Imported here: scipy.signal costs ~0.6 s at start-up, and the bridge reads and writes datasets
+    # through this module without ever making a PRBS.
+    from scipy.signal import max_len_seq
+
     amp = np.broadcast_to(np.asarray(amplitude, dtype=float), (channels,))
     rng = np.random.default_rng(seed)
     out = np.empty((n_samples, channels))
