@@ -26,7 +26,8 @@ $(LIBS_STAMP): ddpc_codegen/codegen/libs.py | $(STAMP)
 # one with `$(PY) -m pytest -m compiler`) in two phases: what tolerates a second process runs on
 # TEST_WORKERS pytest-xdist workers, a test file per worker (module fixtures built once); the tiers
 # that measure wall-clock time then run without it: the realtime tier on three workers (its flights wait on
-# the wall clock: a real-time bridge + simulated vehicle pair needs about a quarter of a core), then the SITL tier on two
+# the wall clock: a real-time bridge + simulated vehicle pair needs about a quarter of a core; the tests of one
+# module fixture stay together, tests/conftest.py), then the SITL tier on two
 # (a SITL test waits on a real-time autopilot; tests/sitl/conftest.py groups them). Every phase runs
 # (unless interrupted) and the target fails if one fails, or if none ran a test (PYTEST_ARGS may
 # narrow them); solvers are built once for all (DDPC_TEST_CACHE, tests/support/solver_cache.py).
@@ -38,7 +39,7 @@ PHASE_RC = r=$$?; [ $$r -eq 2 ] && exit 2; [ $$r -eq 5 ] || { ran=1; [ $$r -eq 0
 test: install lint
 	@export DDPC_TEST_CACHE=$$(mktemp -d); rc=0; ran=0; \
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not ($(SERIAL_TIERS))" $(PYTEST_ARGS); $(PHASE_RC); \
-	$(PY) -m pytest -q -n 3 --dist loadfile -m "realtime and not sitl" $(PYTEST_ARGS); $(PHASE_RC); \
+	$(PY) -m pytest -q -n 3 --dist loadgroup -m "realtime and not sitl" $(PYTEST_ARGS); $(PHASE_RC); \
 	$(PY) -m pytest -q -n 2 --dist loadgroup -m sitl $(PYTEST_ARGS); $(PHASE_RC); \
 	rm -rf $$DDPC_TEST_CACHE; [ $$ran -eq 1 ] || rc=5; exit $$rc
 

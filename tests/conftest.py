@@ -76,8 +76,21 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if is_slow(it, d):
             it.add_marker(pytest.mark.slow)
             it._slow_from_durations = True  # type: ignore[attr-defined]
+    group_module_fixture_users(items)
     if os.environ.get("PYTEST_XDIST_WORKER"):
         items[:] = heaviest_files_first(items, d)
+
+
+def group_module_fixture_users(items: list[pytest.Item]) -> None:
+    """The realtime tier runs on several workers (``--dist loadgroup``): the tests of one module fixture (one
+    set of flights) share an ``xdist_group`` so the flights are flown once; every other realtime test goes to
+    whichever worker is free."""
+    for it in items:
+        if it.get_closest_marker("realtime") is None or it.get_closest_marker("sitl") is not None:
+            continue
+        keys = sorted(k for k, scope in fixture_keys(it) if scope in ("module", "class", "package"))
+        if keys and it.get_closest_marker("xdist_group") is None:
+            it.add_marker(pytest.mark.xdist_group(keys[0]))
 
 
 def serial_tier(item: pytest.Item) -> bool:
