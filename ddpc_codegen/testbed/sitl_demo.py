@@ -223,6 +223,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
     res.update({
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
         "rmse_z_truth": {"baseline": fb["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
+        "estimator_rms": {"baseline": fb["estimator_rms"], "steered": fs["estimator_rms"]},
         "engaged_fraction": fs["engaged_fraction"],
         "thrust_step_rms": {"baseline": fb["thrust_step_rms"], "steered": fs["thrust_step_rms"]},
         "rate_hz": steer["rate_hz"], "latency_us": steer["latency_us"], "fallbacks": steer["fallbacks"],
