@@ -39,7 +39,6 @@ def _close(got, want, tol=1e-9):
     return got.shape == want.shape and np.abs(got - want).max() <= tol * max(1.0, np.abs(want).max())
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("form, knots, gain", [("absolute", None, 0.0), ("incremental", [0, 2, 5], np.inf)])
 def test_generated_offset_equals_the_numpy_reference(form, knots, gain, tmp_path):
     """Windows from a changed system with a constant output disturbance: at every re-solve C and numpy stage the

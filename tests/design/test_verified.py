@@ -61,7 +61,6 @@ _tick = st.one_of(
 )
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["fast", "exact", "osqp"])
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(ticks=st.lists(_tick, min_size=2, max_size=6))
@@ -147,7 +146,6 @@ def test_unknown_solver_is_refused_before_anything_else(setup):
 _weights = st.sampled_from([0.0, 1e-12, 1e-6, 0.1, 1e3])
 
 
-@pytest.mark.slow
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(r=st.tuples(_weights, _weights), r_du=st.tuples(_weights, _weights),
        mode=st.sampled_from(["absolute", "offset", "increment"]), seed=st.integers(0, 10**6))
