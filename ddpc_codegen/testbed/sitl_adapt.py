@@ -25,7 +25,6 @@ import json
 import sys
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +33,10 @@ import numpy as np
 from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
 from ddpc_codegen.runtime.adaptation import REJECTIONS
-from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl, missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl, missing_reason
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
 from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log, fly,
-                                            update_report)
+                                            fly_autopilots, update_report)
 from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["CHANGE_S", "WINDOW_S", "DURATION_S", "SETTLE_S", "METHODS", "ADAPT_CONDITIONS", "second_link", "send_params",
@@ -345,18 +344,10 @@ def main(argv: list[str] | None = None) -> int:
             continue
         flights = a.rounds * len(conds) * len(methods)
         print(f"[sitl-adapt] {ap}: collect -> codegen with [adapt] -> {flights} flights (~60 s each) ...", flush=True)
-        jobs[ap] = ({"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_adapt_{ap}"), "rounds": a.rounds,
+        jobs[ap] = ("ddpc_codegen.testbed.sitl_adapt:run_adapt",
+                    {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_adapt_{ap}"), "rounds": a.rounds,
                      "conditions": conds, "methods": methods}, 900 + 150 * flights)
-    results, failed = {}, []
-    with ThreadPoolExecutor(max_workers=max(1, len(jobs))) as pool:
-        futures = {ap: pool.submit(run_isolated, "ddpc_codegen.testbed.sitl_adapt:run_adapt", kw, timeout=t)
-                   for ap, (kw, t) in jobs.items()}
-        for ap, fut in futures.items():
-            try:
-                results[ap] = fut.result()
-            except Exception as e:  # one autopilot's failure must not discard the other's flights
-                failed.append(ap)
-                print(f"[sitl-adapt] {ap}: FAILED: {e}", flush=True)
+    results, failed = fly_autopilots(jobs, "sitl-adapt")
     if results:
         adaptation = {"t_change_s": CHANGE_S, "window_s": WINDOW_S, "settle_s": SETTLE_S, "duration_s": DURATION_S,
                       "rounds": a.rounds, "metric": "RMS of true height - desired height [m] in [t_change, "

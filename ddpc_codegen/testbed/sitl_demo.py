@@ -281,7 +281,6 @@ def main(argv: list[str] | None = None) -> int:
     conds = [] if a.conditions.strip() == "none" else [c.strip() for c in a.conditions.split(",") if c.strip()]
     if a.rounds < 1:
         p.error(f"--rounds must be >= 1; got {a.rounds}")
-    report: dict = {}
     jobs = {}
     for ap in a.autopilot or ["px4", "ardupilot"]:
         why = missing_reason(ap)
@@ -295,16 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         jobs[ap] = ("ddpc_codegen.testbed.sitl_demo:run_pipeline",
                     {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}"), "conditions": conds,
                      "rounds": a.rounds, "steps_s": a.steps_s}, 900 + 120 * flights)
-    # The autopilots fly at once, each SITL and its bridges in a private network namespace.
-    with ThreadPoolExecutor(max_workers=max(1, len(jobs))) as pool:
-        futures = {ap: pool.submit(run_isolated, fn, kw, timeout=t) for ap, (fn, kw, t) in jobs.items()}
-        failed = []
-        for ap, fut in futures.items():
-            try:
-                report[ap] = fut.result()
-            except Exception as e:  # one autopilot's failure must not discard the other's flights
-                failed.append(ap)
-                print(f"[sitl-demo] {ap}: FAILED: {e}", flush=True)
+    report, failed = fly_autopilots(jobs, "sitl-demo")
     for ap, res in report.items():
         print_result(ap, res)
     update_report(Path(a.out) / "sitl.json", report)
@@ -327,6 +317,22 @@ def rescore(out: Path) -> int:
         print_result(ap, res)
     update_report(out / "sitl.json", report)
     return 0
+
+
+def fly_autopilots(jobs: dict[str, tuple[str, dict, float]], tag: str) -> tuple[dict, list[str]]:
+    """Run each autopilot's job ``(module:function, kwargs, timeout [s])`` at once, each SITL and its bridges in
+    a private network namespace (:func:`run_isolated`); (results per autopilot, the autopilots that failed:
+    one failure never discards the other's flights)."""
+    results, failed = {}, []
+    with ThreadPoolExecutor(max_workers=max(1, len(jobs))) as pool:
+        futures = {ap: pool.submit(run_isolated, fn, kw, timeout=t) for ap, (fn, kw, t) in jobs.items()}
+        for ap, fut in futures.items():
+            try:
+                results[ap] = fut.result()
+            except Exception as e:
+                failed.append(ap)
+                print(f"[{tag}] {ap}: FAILED: {e}", flush=True)
+    return results, failed
 
 
 def update_report(path: Path, updates: dict) -> dict:
