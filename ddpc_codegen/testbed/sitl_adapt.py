@@ -33,10 +33,10 @@ import numpy as np
 from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
 from ddpc_codegen.runtime.adaptation import REJECTIONS
-from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl, missing_reason
+from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
 from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log, fly,
-                                            fly_autopilots, update_report)
+                                            available_autopilots, comma_list, fly_autopilots, update_report)
 from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["CHANGE_S", "WINDOW_S", "DURATION_S", "SETTLE_S", "METHODS", "ADAPT_CONDITIONS", "second_link", "send_params",
@@ -332,16 +332,11 @@ def main(argv: list[str] | None = None) -> int:
         merge_report(Path(a.out) / "sitl.json", adaptation)
         print(format_adaptation(adaptation), flush=True)
         return 0
-    conds = [c.strip() for c in a.conditions.split(",") if c.strip()]
-    methods = [m.strip() for m in a.methods.split(",") if m.strip()]
+    conds, methods = comma_list(a.conditions), comma_list(a.methods)
     if a.rounds < 1 or set(methods) - set(METHODS) or set(conds) - set(ADAPT_CONDITIONS):
         p.error(f"--rounds >= 1, methods from {METHODS}, conditions from {ADAPT_CONDITIONS}")
     jobs = {}
-    for ap in a.autopilot or ["px4", "ardupilot"]:
-        why = missing_reason(ap)
-        if why:
-            print(f"[sitl-adapt] {ap}: skipped: {why}", flush=True)
-            continue
+    for ap in available_autopilots(a.autopilot, "sitl-adapt"):
         flights = a.rounds * len(conds) * len(methods)
         print(f"[sitl-adapt] {ap}: collect -> codegen with [adapt] -> {flights} flights (~60 s each) ...", flush=True)
         jobs[ap] = ("ddpc_codegen.testbed.sitl_adapt:run_adapt",

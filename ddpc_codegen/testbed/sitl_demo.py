@@ -278,15 +278,11 @@ def main(argv: list[str] | None = None) -> int:
         if a.write_steps:
             print(write_steps_trajectory(a.write_steps))
         return 0
-    conds = [] if a.conditions.strip() == "none" else [c.strip() for c in a.conditions.split(",") if c.strip()]
+    conds = [] if a.conditions.strip() == "none" else comma_list(a.conditions)
     if a.rounds < 1:
         p.error(f"--rounds must be >= 1; got {a.rounds}")
     jobs = {}
-    for ap in a.autopilot or ["px4", "ardupilot"]:
-        why = missing_reason(ap)
-        if why:
-            print(f"[sitl-demo] {ap}: skipped: {why}", flush=True)
-            continue
+    for ap in available_autopilots(a.autopilot, "sitl-demo"):
         flights = sum(not isinstance(CONDITIONS[ap].get(c), str) for c in conds) * a.rounds * 4
         print(f"[sitl-demo] {ap}: ground -> baseline -> collect -> codegen -> steer -> prefilter, ctrl ff, ilc"
               f"{f' -> {len(conds)} condition(s) x {a.rounds} round(s): {flights} more flights' if conds else ''} "
@@ -317,6 +313,23 @@ def rescore(out: Path) -> int:
         print_result(ap, res)
     update_report(out / "sitl.json", report)
     return 0
+
+
+def comma_list(text: str) -> list[str]:
+    """The non-empty, stripped items of a command line's comma list."""
+    return [c.strip() for c in text.split(",") if c.strip()]
+
+
+def available_autopilots(requested: list[str] | None, tag: str) -> list[str]:
+    """The requested autopilots (default: both) whose SITL is found; each one missing is said and skipped."""
+    found = []
+    for ap in requested or ["px4", "ardupilot"]:
+        why = missing_reason(ap)
+        if why:
+            print(f"[{tag}] {ap}: skipped: {why}", flush=True)
+        else:
+            found.append(ap)
+    return found
 
 
 def fly_autopilots(jobs: dict[str, tuple[str, dict, float]], tag: str) -> tuple[dict, list[str]]:
