@@ -271,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
                         "condition from its rounds) and print them")
     a = p.parse_args(argv)
     if a.rescore:
+        if not (Path(a.out) / "sitl.json").is_file():
+            p.error(f"--rescore: {Path(a.out) / 'sitl.json'} not found (make sitl-demo writes it)")
         return rescore(Path(a.out))
     if a.fit_prefilter or a.write_steps:
         if a.fit_prefilter:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from ddpc_codegen.testbed.sitl_demo import available_autopilots, comma_list
+import pytest
+
+from ddpc_codegen.testbed.sitl_demo import available_autopilots, comma_list, main
 
 
 def test_comma_lists_drop_blanks_and_spaces():
@@ -16,3 +18,9 @@ def test_a_missing_sitl_is_said_and_skipped(monkeypatch, tmp_path, capsys):
     out = capsys.readouterr().out.splitlines()
     assert [ln.split(":")[0] for ln in out] == ["[sitl-x] px4", "[sitl-x] ardupilot", "[sitl-x] px4"]
     assert all(": skipped: " in ln for ln in out)
+
+
+def test_rescore_without_a_run_names_the_missing_report(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--rescore", "--out", str(tmp_path)])
+    assert e.value.code == 2 and f"{tmp_path / 'sitl.json'} not found" in capsys.readouterr().err
