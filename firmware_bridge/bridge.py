@@ -136,6 +136,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
         self._exc = None
         if c.mode == "collect":
             self._exc_amp = np.broadcast_to(np.asarray(c.excitation, dtype=float), (self.m,)).copy()
+            self.prepare_excitation()
         self._stop = False
         self.stop_reason = ""
         self.events: list[tuple[float, str]] = []

@@ -25,14 +25,24 @@ _TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
 class SetpointShaping:
     """What goes out each tick, after the controller: excitation, clamps, the message."""
 
-    def _excitation(self) -> np.ndarray:
+    _EXC_BLOCK = 12000  # samples of PRBS made at once (60 s at 200 Hz)
+
+    def _excitation_block(self, index: int) -> np.ndarray:
+        """Block ``index`` of the collect flight's PRBS, (block, m). The first is made before the tick loop
+        starts (:meth:`prepare_excitation`): making it imports scipy.signal (~1 s), a stall on a tick."""
         from ddpc_codegen.design.data import prbs
 
-        block = 12000
-        j = self._k_exc % block
-        if self._exc is None or j == 0:
-            seed = self.cfg.seed * 1009 + self._k_exc // block
-            self._exc = prbs(block, self.m, amplitude=self._exc_amp, min_hold=self.cfg.excitation_hold, seed=seed)
+        return prbs(self._EXC_BLOCK, self.m, amplitude=self._exc_amp, min_hold=self.cfg.excitation_hold,
+                    seed=self.cfg.seed * 1009 + index)
+
+    def prepare_excitation(self) -> None:
+        """Make the first PRBS block now (collect mode), off the tick path."""
+        self._exc = self._excitation_block(0)
+
+    def _excitation(self) -> np.ndarray:
+        j = self._k_exc % self._EXC_BLOCK
+        if self._exc is None or (j == 0 and self._k_exc > 0):
+            self._exc = self._excitation_block(self._k_exc // self._EXC_BLOCK)
         self._k_exc += 1
         return self._exc[j]
 

@@ -9,6 +9,7 @@ one timestamp OSQP's generator writes is normalised away.
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -65,11 +66,10 @@ def _sparse_dm(a: np.ndarray) -> ca.DM:
 
 def c_float(x: float) -> str:
     """A C double literal that round-trips exactly (shortest repr), INFINITY for infinities."""
-    if np.isposinf(x):
-        return "INFINITY"
-    if np.isneginf(x):
-        return "-INFINITY"
-    r = repr(float(x))
+    x = float(x)
+    if math.isinf(x):
+        return "INFINITY" if x > 0 else "-INFINITY"
+    r = repr(x)
     return r if ("." in r or "e" in r or "n" in r) else r + ".0"
 
 
@@ -77,7 +77,8 @@ def _values(a: np.ndarray) -> str:
     flat = np.ascontiguousarray(a, dtype=float).reshape(-1)
     if flat.size == 0:
         flat = np.zeros(1)  # C has no empty arrays; sized 1 and never read
-    return ",\n  ".join(", ".join(c_float(v) for v in flat[i : i + 6]) for i in range(0, flat.size, 6))
+    vals = [c_float(v) for v in flat.tolist()]  # Python floats: numpy scalars format ~5x slower
+    return ",\n  ".join(", ".join(vals[i : i + 6]) for i in range(0, len(vals), 6))
 
 
 def data_arrays(problem: SteeringProblem, adaptive: bool = False) -> dict[str, tuple[np.ndarray, str]]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.interpolate import CubicSpline, make_interp_spline
 
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.series import Series
@@ -44,6 +43,9 @@ def resample_series(s: Series, grid_us: np.ndarray) -> np.ndarray:
         )
     if s.rule == "hold":
         return x[np.searchsorted(t, grid_us, side="right") - 1]
+    # imported here: scipy.interpolate costs ~0.4 s, which every ddpc-codegen command would pay at start-up
+    from scipy.interpolate import CubicSpline, make_interp_spline
+
     # only the samples bracketing the grid: the fit never reaches across a gap
     lo = max(int(np.searchsorted(t, grid_us[0], side="right")) - 1, 0)
     hi = min(int(np.searchsorted(t, grid_us[-1], side="left")) + 1, t.size)

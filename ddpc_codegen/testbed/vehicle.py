@@ -36,7 +36,7 @@ import numpy as np
 from ddpc_codegen.robot.state import MeasuredState
 from ddpc_codegen.robot.frames import quat_from_euler
 from ddpc_codegen.sim.params import PogoXParams
-from ddpc_codegen.sim.plant import STANCE
+from ddpc_codegen.sim.plant import STANCE, event_root_finder
 from ddpc_codegen.sim.scenarios import get_scenario
 from ddpc_codegen.sim.stepper import Stepper
 
@@ -91,6 +91,8 @@ class SimVehicle:
         self.h = p.physics_dt
         self.nsub = p.substeps
         sc = get_scenario(c.scenario)
+        if c.scenario == "hopping":
+            event_root_finder()  # its import now, not at the first touchdown of the real-time loop
         self.start_position = np.array(sc.initial_position(p), dtype=float)
         self.start_position[:2] += np.asarray(c.start_offset, dtype=float)
         self.stepper = Stepper(p, self.start_position, quaternion=quat_from_euler(0.0, 0.0, float(c.start_yaw)),

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import dlsim
 
 __all__ = ["LTI", "random_lti"]
 
@@ -25,6 +24,8 @@ class LTI:
 
     def simulate(self, u: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact response to u (T, m) from x0 (n,): (y (T, p), x[T] (n,))."""
+        from scipy.signal import dlsim  # here: scipy.signal costs ~1.5 s, every pytest process loads this module
+
         u = np.asarray(u, dtype=float)
         _, y, x = dlsim((self.A, self.B, self.C, self.D, 1.0), u, x0=np.asarray(x0, dtype=float))
         y = np.asarray(y).reshape(u.shape[0], self.C.shape[0])
