@@ -130,14 +130,14 @@ def test_streaming_memory_does_not_grow_with_samples():
     import tracemalloc
 
     peaks = []
-    # 5 and 20 blocks of 4096 columns: a fit that held the whole Hankel (140 rows x 8 B per column) would
-    # grow by ~67 MB between the two, far past the 4 MB allowed, so the smaller sizes still discriminate
-    for T in (20_000, 80_000):
+    # 5 and 20 blocks of 2048 columns: a fit that held the whole Hankel (140 rows x 8 B per column) would
+    # grow by ~34 MB between the two, far past the 4 MB allowed
+    for T in (10_000, 40_000):
         u = prbs(T, 2, amplitude=1.0, min_hold=2, seed=1)
         y = np.cumsum(u, axis=0) * 0.01
         ds = IODataset(u, y, 0.005)
         tracemalloc.start()
-        fit_predictor(ds, 20, 15, "pem", block_columns=4096)
+        fit_predictor(ds, 20, 15, "pem", block_columns=2048)
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
     assert peaks[1] < peaks[0] + 4e6  # 4x the samples, < 4 MB more peak
