@@ -27,7 +27,7 @@ __all__ = ["DeePCProblem"]
 class DeePCProblem:
     """DeePC QP from a dataset and a steering config (same weights, modes and bounds).
 
-    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du)
+    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du, + R_ddu)
     + lambda_g ||g||^2 + lambda_sigma ||sigma||^2 (every term without a 1/2; the QP form
     1/2 x'Px carries the factor 2 on all of them). g (N,) has one entry per Hankel column.
     """
@@ -52,7 +52,8 @@ class DeePCProblem:
         D = np.eye(nu) - np.eye(nu, k=-m)
         Ru = D.T @ Rb @ D if c.R_mode == "increment" else Rb
         Rdu = np.kron(np.eye(Tf), c.R_du)
-        Ru = Ru + D.T @ Rdu @ D
+        Rddu = np.kron(np.eye(Tf), c.R_ddu)
+        Ru = Ru + D.T @ Rdu @ D + (D @ D).T @ Rddu @ (D @ D)
         P = sp.block_diag([2 * self.lambda_g * sp.eye(N), 2 * Ru, 2 * Qb, 2 * c.lambda_sigma * sp.eye(ns)], format="csc")
         I = sp.eye
         Z = lambda a, b: sp.csc_matrix((a, b))  # noqa: E731
@@ -67,7 +68,7 @@ class DeePCProblem:
                         [Z(nu, N), sp.csc_matrix(D), Z(nu, ny), Z(nu, ns)]], format="csc")
         self._A = sp.vstack([Aeq, Abox], format="csc")
         self._P = sp.triu(P, format="csc")
-        self._Qb, self._Rb, self._D, self._Rdu = Qb, Rb, D, Rdu
+        self._Qb, self._Rb, self._D, self._Rdu, self._Rddu = Qb, Rb, D, Rdu, Rddu
         self._solver = None
 
     def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
@@ -90,6 +91,10 @@ class DeePCProblem:
             q[N : N + nu] = -2 * self._D.T @ self._Rb @ d0
         if np.any(c.R_du):
             q[N : N + nu] += -2 * self._D.T @ self._Rdu @ d0
+        if np.any(c.R_ddu):  # D D u - dd0 = second differences, the first against u_ini[-1] and u_ini[-2]
+            dd0 = self._D @ d0
+            dd0[:m] += ui[-m:] - ui[-2 * m : -m]
+            q[N : N + nu] += -2 * (self._D @ self._D).T @ self._Rddu @ dd0
         beq = np.concatenate([ui, yi, np.zeros(nu), np.zeros(ny)])
         n_eq = beq.size
         du = np.tile(c.du_max, Tf)

@@ -125,6 +125,11 @@ class SteeringProblem:
         J = J + ca.mtimes([ru.T, Rb, ru])
         if np.any(c.R_du):
             J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
+        if np.any(c.R_ddu):
+            # Second differences, the first against the last applied increment u_ini[-1] - u_ini[-2].
+            du_prev = u_ini[m * (Ti - 1) :] - u_ini[m * (Ti - 2) : m * (Ti - 1)]
+            ddu = ca.mtimes(ca.DM(D), du_expr) - ca.vertcat(du_prev, ca.DM.zeros(self.n_u - m))
+            J = J + ca.mtimes([ddu.T, ca.DM(np.kron(np.eye(Tf), c.R_ddu)), ddu])
         return J, y, du_expr, D
 
     def _general_constraints(self, y: ca.SX, du_expr: ca.SX, D: np.ndarray) -> tuple[ca.SX, list, list]:
@@ -225,6 +230,7 @@ class SteeringProblem:
             raise ConfigError(
                 f"{c.source}: [cost] R = {np.diag(c.R).tolist()} (R_mode {c.R_mode!r}"
                 + (f", R_du = {np.diag(c.R_du).tolist()}" if np.any(c.R_du) else "")
+                + (f", R_ddu = {np.diag(c.R_ddu).tolist()}" if np.any(c.R_ddu) else "")
                 + f") leaves the steering QP not strictly convex: the condensed Hessian has eigenvalues "
                 f"{ev[0]:.3g} .. {ev[-1]:.3g} (condition number {cond:.3g} > {P_COND_MAX:.3g}); give every input "
                 "a positive R (or R_du), or raise it relative to Q"

@@ -242,12 +242,15 @@ class GeneratedSolver:
 
 
 def _check_weights(folder: Path, man: dict) -> None:
-    """``weights`` in manifest.json: Q (p, p), R and R_du (m, m) finite, lambda_sigma a number >= 0."""
+    """``weights`` in manifest.json: Q (p, p), R, R_du and R_ddu (m, m; absent in artifacts made before it existed)
+    finite, lambda_sigma a number >= 0."""
     w, d = man.get("weights"), man["dims"]
     if not isinstance(w, dict):
         raise ManifestError(f"{folder}: manifest.json 'weights' must be an object with Q, R, R_du, lambda_sigma; "
                             f"got {w!r}")
-    for key, n in (("Q", d["p"]), ("R", d["m"]), ("R_du", d["m"])):
+    for key, n in (("Q", d["p"]), ("R", d["m"]), ("R_du", d["m"]), ("R_ddu", d["m"])):
+        if key == "R_ddu" and key not in w:
+            continue
         try:
             a = np.asarray(w.get(key), dtype=float)
         except (TypeError, ValueError):

@@ -49,6 +49,11 @@ def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_
     c = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_du = [0.5, 0.0]"))
     assert a.digest == b.digest != c.digest
     assert c.to_dict()["R_du"] == [[0.5, 0.0], [0.0, 0.0]]
+    d = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_ddu = [0.0, 2.0]"))
+    assert np.array_equal(a.R_ddu, np.zeros((2, 2))) and "R_ddu" not in a.to_dict()
+    assert d.to_dict()["R_ddu"] == [[0.0, 0.0], [0.0, 2.0]] and d.digest not in (a.digest, c.digest)
+    with pytest.raises(ConfigError, match=r"\[cost\] R_ddu needs t_ini >= 2 .* t_ini is 1"):
+        _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_ddu = [1.0, 1.0]").replace("t_ini = 4", "t_ini = 1"))
 
 
 def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
@@ -95,6 +100,7 @@ def test_digest_ignores_codegen_but_not_weights(tmp_path):
         (('outputs = ["c"]', "outputs = []"), "[signals] outputs must be a non-empty list"),
         (("[cost]", "[costs]"), "'costs' is not a known top-level key"),
         (("Q = [1.0]", "Q = [1.0]\nR_du = [1.0]"), "[cost] R_du must have 2 entries"),
+        (("Q = [1.0]", "Q = [1.0]\nR_ddu = [1.0, -1.0]"), "[cost] R_ddu"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nt_a = 0'), "[artificial_io] t_a must be an integer >= 1; got 0"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nmin_ascent = 2.5'), "[artificial_io] min_ascent must be an integer >= 1; got 2.5"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nnoise_level = -1e-3'), "[artificial_io] noise_level must be a number >= 0"),

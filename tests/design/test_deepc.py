@@ -23,8 +23,9 @@ def plant():
     return sys_, IODataset(u, y, 0.01)
 
 
-def _cfg(lambda_sigma, mode="offset"):
+def _cfg(lambda_sigma, mode="offset", R_ddu=None):
     return SteeringConfig(t_ini=TI, t_f=TF, m=M, p=P, Q=[[10.0, 1.0], [1.0, 4.0]], R=[0.5, 0.2], R_du=[0.3, 0.0],
+                          R_ddu=R_ddu,
                           R_mode=mode, lambda_sigma=lambda_sigma, u_min=[-0.6, -0.5], u_max=[0.6, 0.5],
                           y_min=[-0.8, -1.0], y_max=[0.8, 1.0], du_max=[0.3, 0.25])
 
@@ -40,9 +41,11 @@ def _cvxpy_deepc(ds, c, lambda_g, u_ini, y_ini, y_des, u_nom):
     g = cp.Variable(Hu.shape[1])
     u, y, s = cp.Variable((TF, M)), cp.Variable((TF, P)), cp.Variable((TI, P))
     du = u - cp.vstack([u_ini[-1:], u[:-1]])
+    ddu = du - cp.vstack([u_ini[-1:] - u_ini[-2:-1], du[:-1]])
     offset = {"absolute": u, "offset": u - u_nom, "increment": du}[c.R_mode]
     cost = (sum(cp.quad_form(y[k] - y_des[k], c.Q) for k in range(TF))
-            + sum(cp.quad_form(offset[k], c.R) + cp.quad_form(du[k], c.R_du) for k in range(TF))
+            + sum(cp.quad_form(offset[k], c.R) + cp.quad_form(du[k], c.R_du) + cp.quad_form(ddu[k], c.R_ddu)
+                  for k in range(TF))
             + lambda_g * cp.sum_squares(g) + c.lambda_sigma * cp.sum_squares(s))
     # time-major stacking: Up @ g is u_ini.reshape(-1), i.e. row-major flattening of (TI, M)
     cons = [Up @ g == u_ini.reshape(-1), Yp @ g == cp.reshape(y_ini - s, (TI * P,), order="C"),
@@ -56,13 +59,12 @@ def _cvxpy_deepc(ds, c, lambda_g, u_ini, y_ini, y_des, u_nom):
     return u.value, y.value
 
 
-@pytest.mark.parametrize("lambda_g", [1e-2, 1.0])
-@pytest.mark.parametrize("lambda_sigma", [1e3, 1e6])
-def test_deepc_equals_cvxpy_clarabel_with_active_bounds(plant, lambda_g, lambda_sigma):
+def _agrees_with_cvxpy(plant, c, lambda_g: float, seed: int) -> tuple[int, int]:
+    """DeePCProblem against the cvxpy model on 3 draws (y_des beyond the y bounds); (draws with an active
+    u bound, with an active y bound)."""
     sys_, ds = plant
-    c = _cfg(lambda_sigma)
     deepc = DeePCProblem(ds, c, lambda_g=lambda_g)
-    rng = np.random.default_rng(int(lambda_g * 10 + np.log10(lambda_sigma)))
+    rng = np.random.default_rng(seed)
     active_u = active_y = 0
     for k in range(3):
         u_ini = rng.uniform(-0.3, 0.3, (TI, M))
@@ -76,7 +78,19 @@ def test_deepc_equals_cvxpy_clarabel_with_active_bounds(plant, lambda_g, lambda_
         assert np.abs(r.y_pred - y_ref).max() <= 1e-6
         active_u += np.any(np.isclose(np.abs(r.u), c.u_max, atol=1e-8))
         active_y += np.any(np.isclose(np.abs(r.y_pred), c.y_max, atol=1e-8))
+    return active_u, active_y
+
+
+@pytest.mark.parametrize("lambda_g", [1e-2, 1.0])
+@pytest.mark.parametrize("lambda_sigma", [1e3, 1e6])
+def test_deepc_equals_cvxpy_clarabel_with_active_bounds(plant, lambda_g, lambda_sigma):
+    active_u, active_y = _agrees_with_cvxpy(plant, _cfg(lambda_sigma), lambda_g, int(lambda_g * 10 + np.log10(lambda_sigma)))
     assert active_u and active_y  # input and output bounds were both active
+
+
+def test_deepc_with_a_second_difference_penalty_equals_cvxpy(plant):
+    """R_ddu written out for cvxpy (Δ²u from u_ini's last two samples on) against DeePCProblem's matrices."""
+    _agrees_with_cvxpy(plant, _cfg(1e3, R_ddu=[2.0, 0.4]), 1e-2, 3)
 
 
 def test_deepc_failed_status_gives_nan_never_a_guess(plant):

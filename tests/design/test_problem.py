@@ -45,6 +45,10 @@ def _solve_direct(prob: SteeringProblem, u_ini, y_ini, y_des, u_nom):
     J += ca.mtimes([ru.T, np.kron(np.eye(TF), c.R), ru])
     du = ca.mtimes(D, u) - d0
     J += ca.mtimes([du.T, np.kron(np.eye(TF), c.R_du), du])
+    # second differences written out: u_k - 2 u_(k-1) + u_(k-2), the earlier ones from u_ini
+    ext = ca.vertcat(np.ravel(u_ini)[-2 * M :], u)
+    ddu = ext[2 * M :] - 2 * ext[M:-M] + ext[: -2 * M]
+    J += ca.mtimes([ddu.T, np.kron(np.eye(TF), c.R_ddu), ddu])
     g = ca.vertcat(y - pr.Gy_w @ w - ca.mtimes(pr.Gy_u, u), s - pr.Gs_w @ w - ca.mtimes(pr.Gs_u, u),
                    u, y, ca.mtimes(D, u) - d0)
     lb = np.r_[np.zeros(ny + ns), np.tile(c.u_min, TF), np.tile(c.y_min, TF), -np.tile(c.du_max, TF)]
@@ -71,6 +75,28 @@ def test_condensed_equals_direct_ddpc_flying(plant, mode):
         Az = prob.A @ res.u.ravel()  # [I; A_g] z
         n_active += bool(np.any(np.isclose(Az, l, atol=1e-8) | np.isclose(Az, ub, atol=1e-8)))
     assert 5 <= n_active < 20  # both active and inactive bound draws were exercised
+
+
+@pytest.mark.parametrize("mode, extra", [("offset", {}), ("increment", {"R_du": [1.0, 0.0]}),
+                                         ("absolute", {"knots": [0, 2, 5, TF - 1]})])
+def test_second_difference_penalty_equals_direct_and_smooths(plant, mode, extra):
+    """R_ddu adds ||u_k - 2 u_(k-1) + u_(k-2)||^2 (the first two against u_ini): equal to the uncondensed QP
+    written out, and (knots included) the penalized bending is smaller than without it (an optimum trades the
+    rest of the cost for it, it never buys more bending)."""
+    sys_, ds = plant
+    pred = fit_predictor(ds, TI, TF, "pem")
+    prob = SteeringProblem(pred, _cfg(mode, R_ddu=[5.0, 2.0], **extra))
+    plain = SteeringProblem(pred, _cfg(mode, **extra))
+    rng = np.random.default_rng(23)
+    for k in range(8):
+        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
+        res = prob.solve(*args, solver="exact")
+        assert res.ok
+        if "knots" not in extra:
+            assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    args = _params(sys_, np.random.default_rng(2), scale=0.1)
+    bend = lambda r: np.sum(np.diff(np.vstack([args[0][-2:], r.u]), 2, axis=0) ** 2 * [5.0, 2.0])  # noqa: E731
+    assert bend(prob.solve(*args, solver="exact")) < 0.95 * bend(plain.solve(*args, solver="exact"))
 
 
 @pytest.mark.parametrize("mode", ["offset", "absolute"])
