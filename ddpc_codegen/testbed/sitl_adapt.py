@@ -282,10 +282,15 @@ def run_adapt(autopilot: str, out_dir: str, rounds: int = 2, conditions: list[st
                           f"{_mm(a['rmse_z_truth'])} mm, EKF {_mm(a['rmse_z'])} mm, change at "
                           f"{figs[m]['change'].get('sent_s')} s ({time.monotonic() - t0:.0f} s)", flush=True)
                 per[cond].append(figs)
-    manifest = json.loads((solver / "manifest.json").read_text()) if (solver / "manifest.json").is_file() else {}
-    return {"config": CONFIGS[autopilot], "adapt": (manifest.get("config") or {}).get("adapt"),
+    return {"config": CONFIGS[autopilot], "adapt": adapt_settings(solver),
             "conditions": {c: {**summarize(per[c]), "params": _params(autopilot, c)} for c in conditions},
             "wall_s": round(time.monotonic() - t0, 1)}
+
+
+def adapt_settings(solver: Path) -> dict | None:
+    """The ``[adapt]`` settings the generated solver in ``solver`` was built with (its manifest's ``adapt``), or None."""
+    path = Path(solver) / "manifest.json"
+    return json.loads(path.read_text()).get("adapt") if path.is_file() else None
 
 
 def _params(autopilot: str, cond: str) -> dict:

@@ -168,3 +168,11 @@ def test_the_results_table_and_the_printed_lines():
 def test_the_sitl_section_does_not_take_adaptation_for_an_autopilot():
     page = _sitl_section({"adaptation": _adaptation()})
     assert "| adaptation |" not in page and "| px4 | heavy | 30.0 |" in page
+
+
+def test_the_report_names_the_adapt_settings_the_solver_was_built_with(tmp_path):
+    from ddpc_codegen.testbed.sitl_adapt import adapt_settings
+
+    assert adapt_settings(tmp_path) is None  # no solver there
+    (tmp_path / "manifest.json").write_text(json.dumps({"adapt": {"enabled": True, "dither": 0.0}, "config_hash": "x"}))
+    assert adapt_settings(tmp_path) == {"enabled": True, "dither": 0.0}
