@@ -10,7 +10,7 @@ import scipy.sparse as sp
 from ddpc_codegen.design.problem import SteeringProblem
 
 RHO_CANDIDATES = tuple(float(r) for r in 10.0 ** np.arange(-2.0, 2.01, 0.5))
-# Tried first, then outwards: the shipped configs' winners are 3.2 and 10, and an early good score prunes the rest.
+# Tried first, then outwards: the benchmark problems' winners are 3.2 and 10, and an early good score prunes the rest.
 FIRST_TRIED = 10.0 ** 0.5
 
 
