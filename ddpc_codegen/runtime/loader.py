@@ -248,8 +248,9 @@ def _check_weights(folder: Path, man: dict) -> None:
     if not isinstance(w, dict):
         raise ManifestError(f"{folder}: manifest.json 'weights' must be an object with Q, R, R_du, lambda_sigma; "
                             f"got {w!r}")
-    for key, n in (("Q", d["p"]), ("R", d["m"]), ("R_du", d["m"]), ("R_ddu", d["m"])):
-        if key == "R_ddu" and key not in w:
+    # (key, size, required): R_ddu is absent from artifacts generated before it existed
+    for key, n, required in (("Q", d["p"], True), ("R", d["m"], True), ("R_du", d["m"], True), ("R_ddu", d["m"], False)):
+        if not required and key not in w:
             continue
         try:
             a = np.asarray(w.get(key), dtype=float)
