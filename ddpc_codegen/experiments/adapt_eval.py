@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -34,6 +33,7 @@ from ddpc_codegen.experiments.baselines_eval import fit_scenario_prefilter
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.pipeline import ROOT, build_setup, default_config
 from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.experiments.report_file import update_report
 from ddpc_codegen.flight_metrics import rms
 from ddpc_codegen.runtime.adapt_qp import SampleWindow, steady_state_gain
 from ddpc_codegen.runtime.adaptation import solve_g
@@ -178,10 +178,7 @@ def _add_args(ap: argparse.ArgumentParser) -> None:
 def _cmd(args: argparse.Namespace) -> int:
     res = evaluate_adaptation(args.config, seed=args.seed, quiet=args.quiet)
     path = Path(args.out) / "summary.json"
-    summary = json.loads(path.read_text()) if path.exists() else {}
-    summary["adaptation"] = res
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary, indent=2) + "\n")
+    update_report(path, {"adaptation": res})
     print(f"wrote {path} ['adaptation']")
     return 0
 

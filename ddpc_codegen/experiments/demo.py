@@ -27,10 +27,11 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DDPCError
 from ddpc_codegen.experiments.demo_figures import demo_figures
 from ddpc_codegen.experiments.evaluate import RunResult, offset_step, prediction_check, run
+from ddpc_codegen.experiments.report_file import update_report
 from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, default_config, say
 from ddpc_codegen.sim import PogoXParams, Push
 
-__all__ = ["run_demo", "write_summary", "format_table", "summary_block", "main", "register", "DURATIONS", "ROBUSTNESS"]
+__all__ = ["run_demo", "format_table", "summary_block", "main", "register", "DURATIONS", "ROBUSTNESS"]
 
 DURATIONS = {"flying": 30.0, "hopping": 20.0}  # evaluation runs [s] (flying: 3 s settle + 2.7 laps)
 
@@ -203,29 +204,12 @@ def run_demo(
                                                   interpreted=interpreted, quiet=quiet, out_dir=out / "baselines")
     wall = time.perf_counter() - t0
     summary["meta"] = _meta(interpreted, wall)
-    write_summary(out / "summary.json", summary)
+    update_report(out / "summary.json", summary)
     if figures:
         summary["meta"]["figures"] = [str(Path(f).relative_to(ROOT)) if Path(f).is_relative_to(ROOT) else f
                                       for f in demo_figures(out, runs, noisy)]
-        write_summary(out / "summary.json", summary)
+        update_report(out / "summary.json", summary)
     return summary
-
-
-# Sections of summary.json that other make targets measure (make adapt-eval): a demo run keeps them.
-OTHER_TARGETS_KEYS = ("adaptation",)
-
-
-def write_summary(path: Path, summary: dict[str, Any]) -> None:
-    """Write the demo's ``summary`` to ``path``, keeping the sections of :data:`OTHER_TARGETS_KEYS` that a file
-    already there holds (the demo does not measure them; dropping them would lose another target's figures)."""
-    kept = {}
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text())
-        except json.JSONDecodeError:
-            old = {}
-        kept = {k: old[k] for k in OTHER_TARGETS_KEYS if isinstance(old, dict) and k in old and k not in summary}
-    path.write_text(json.dumps({**summary, **kept}, indent=2) + "\n")
 
 
 def _robustness(setups: dict[str, SteeringSetup], scenarios: tuple[str, ...], durations: dict[str, float],

@@ -36,7 +36,8 @@ from ddpc_codegen.runtime.adaptation import REJECTIONS
 from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
 from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log, fly,
-                                            available_autopilots, comma_list, fly_autopilots, update_report)
+                                            available_autopilots, comma_list, fly_autopilots)
+from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["CHANGE_S", "WINDOW_S", "DURATION_S", "SETTLE_S", "METHODS", "ADAPT_CONDITIONS", "second_link", "send_params",
@@ -203,7 +204,7 @@ def _add_counts(total: dict, counts: dict) -> None:
 
 def merge_report(path: Path, adaptation: dict) -> dict:
     """Load ``path`` (a JSON object; {} if absent), replace only its ``adaptation`` key, write it back; the result."""
-    return update_report(path, {"adaptation": adaptation})
+    return update_report(path, {"adaptation": adaptation}, default=nan_as_null)
 
 
 def _fly_one(sitl: Sitl, autopilot: str, cond: str, method: str, r: int, out: Path, steps: Path, solver: Path,

@@ -19,13 +19,13 @@ from __future__ import annotations
 import argparse
 from concurrent.futures import ThreadPoolExecutor
 import json
-import math
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 
+from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_conditions import (CONDITIONS, STEPS_DURATION, fly_condition, steered_estimator_rms,
@@ -295,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     report, failed = fly_autopilots(jobs, "sitl-demo")
     for ap, res in report.items():
         print_result(ap, res)
-    update_report(Path(a.out) / "sitl.json", report)
+    update_report(Path(a.out) / "sitl.json", report, default=nan_as_null)
     return 0 if report and not failed else 1
 
 
@@ -313,7 +313,7 @@ def rescore(out: Path) -> int:
         if "ellipse" in conds:
             res["baselines"], conds["ellipse"] = ellipse_figures(out / f"sitl_{ap}", ap, res["baselines"]["ilc"])
         print_result(ap, res)
-    update_report(out / "sitl.json", report)
+    update_report(out / "sitl.json", report, default=nan_as_null)
     return 0
 
 
@@ -348,19 +348,6 @@ def fly_autopilots(jobs: dict[str, tuple[str, dict, float]], tag: str) -> tuple[
                 failed.append(ap)
                 print(f"[{tag}] {ap}: FAILED: {e}", flush=True)
     return results, failed
-
-
-def update_report(path: Path, updates: dict) -> dict:
-    """Replace the top-level keys ``updates`` names in the JSON object at ``path`` (created if absent), keep the
-    others (``make sitl-demo`` writes the autopilots, ``make sitl-adapt`` the adaptation); the result."""
-    path = Path(path)
-    report = json.loads(path.read_text()) if path.is_file() else {}
-    if not isinstance(report, dict):
-        raise ValueError(f"{path}: expected a JSON object, got {type(report).__name__}")
-    report.update(updates)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=2, default=_nan_none) + "\n")
-    return report
 
 
 def print_result(ap: str, res: dict) -> None:
@@ -430,12 +417,6 @@ def format_baselines(ap: str, b: dict) -> str:
     lines.append(f"[sitl-demo] {ap}: ilc within 10 % of its best at iteration {il['iterations_to_settle']} "
                  f"of {il['iterations_run']}")
     return "\n".join(lines)
-
-
-def _nan_none(o):
-    if isinstance(o, float) and math.isnan(o):
-        return None
-    return str(o)
 
 
 if __name__ == "__main__":

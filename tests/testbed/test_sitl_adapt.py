@@ -142,7 +142,7 @@ def test_merge_report_replaces_only_the_adaptation_key(tmp_path):
     with pytest.raises(ValueError, match="expected a JSON object"):
         merge_report(path, {})
     # make sitl-demo's write replaces the autopilots and keeps the adaptation
-    from ddpc_codegen.testbed.sitl_demo import update_report
+    from ddpc_codegen.experiments.report_file import update_report
 
     path.write_text(json.dumps({"px4": {"rate_hz": 200.0}, "adaptation": {"new": 2}}))
     update_report(path, {"px4": {"rate_hz": 199.0}, "ardupilot": {}})
