@@ -46,7 +46,7 @@ def fit_layout(predictor: Predictor) -> AdaptLayout:
 
 
 def fit_statistic(predictor: Predictor) -> tuple[np.ndarray, AdaptLayout]:
-    """(R (width, width) upper triangular, its layout): the data-only R factor of the scaled Hankel data
+    """(R (width, width) upper triangular with a nonnegative diagonal, its layout): the data-only R factor of the scaled Hankel data
     the predictor was fitted on (rows beyond the number of columns are zero).
 
     Raises:
@@ -62,6 +62,7 @@ def fit_statistic(predictor: Predictor) -> tuple[np.ndarray, AdaptLayout]:
         raise DataError(f"the predictor's R factor has shape {R.shape}; its layout needs ({w}, {w}) at most")
     full = np.zeros((w, w))
     full[: R.shape[0]] = np.triu(R)
+    full *= np.where(np.diag(full) < 0.0, -1.0, 1.0)[:, None]  # the canonical factor (the C update keeps this form)
     return full, layout
 
 
