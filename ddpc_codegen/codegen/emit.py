@@ -156,7 +156,7 @@ def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -
         "blocked": int(blocked), "n_u_ws": problem.n_u if blocked else 1,
         "knots_note": (f"the references at {len(c.knots)} knots (samples {', '.join(map(str, c.knots))}), linear "
                        "in between" if blocked else "the steered references over the horizon, time-major"),
-        "knots_c": ", ".join(map(str, c.knots)) if blocked else "0",
+        **_knot_tables(c.knots if blocked else None, c.t_f),
         "n_theta": problem.n_theta,
         "n_g": n_g, "n_g1": max(1, n_g), "n_c": n_z + n_g, "n_w": problem.n_w, "n_y": c.p * c.t_f,
         "n_sigma": c.p * c.t_ini, "n_bounds": 3 * c.m + 2 * c.p + 1,
@@ -175,6 +175,21 @@ def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -
     return ctx
 
 
+def _knot_tables(knots, t_f: int) -> dict:
+    """Per tick k of the horizon: the segment j with knots[j] <= k <= knots[j+1] and the weight
+    a = (k - knots[j]) / (knots[j+1] - knots[j]) of its right knot -- tables instead of a division per tick (the
+    same doubles: Python's int / int is the IEEE quotient C computes, printed round-trip)."""
+    if knots is None:
+        return {"seg_c": "0", "wgt_c": "0.0"}
+    seg, wgt, j = [], [], 0
+    for k in range(t_f):
+        if k > knots[j + 1]:
+            j += 1
+        seg.append(j)
+        wgt.append(repr((k - knots[j]) / (knots[j + 1] - knots[j])))
+    return {"seg_c": ", ".join(map(str, seg)), "wgt_c": ", ".join(wgt)}
+
+
 def _param_maps(problem: SteeringProblem, name: str, out_dir: Path) -> dict:
     """CasADi-generated C of q(theta) and the general-row bounds (l_g, u_g)(theta); returns work sizes."""
     # The maps are affine in theta; dense MX products of their Jacobians keep the C small and quick to
@@ -182,7 +197,11 @@ def _param_maps(problem: SteeringProblem, name: str, out_dir: Path) -> dict:
     th = ca.MX.sym("theta", problem.n_theta)
     lin = ca.Function(f"{name}_param_map_q", [th], [ca.mtimes(_sparse_dm(problem.F_q), th) + ca.DM(problem.q0)],
                       ["theta"], ["q"])
-    ft = ca.mtimes(_sparse_dm(problem.F_g), th) if problem.n_g else ca.MX(0, 1)
+    # only the entries of theta the rows read (a rate row reads the last applied input): the product then
+    # loops over those columns, not all n_theta, on every tick
+    used = np.flatnonzero(np.any(problem.F_g != 0.0, axis=0)).tolist() if problem.n_g else []
+    ft = (ca.mtimes(_sparse_dm(problem.F_g[:, used]), th[used]) if used
+          else ca.MX(problem.n_g, 1) if problem.n_g else ca.MX(0, 1))
     bnd = ca.Function(f"{name}_bounds_map", [th], [ft + ca.DM(problem.lg0), ft + ca.DM(problem.ug0)],
                       ["theta"], ["l_g", "u_g"])
     cg = ca.CodeGenerator(f"{name}_param_map.c", {"with_header": True, "with_export": False})

@@ -21,7 +21,9 @@ from ddpc_codegen.codegen.standalone import relocated_copy, tool
 pytestmark = pytest.mark.compiler
 
 LIBC_LIBM = {"calloc", "malloc", "free", "memcpy", "memmove", "memset", "sqrt", "fmax", "fabs", "clock_gettime",
-             "printf", "__stack_chk_fail", "__memcpy_chk", "__memset_chk", "_GLOBAL_OFFSET_TABLE_"}
+             "printf", "__stack_chk_fail", "__memcpy_chk", "__memset_chk", "_GLOBAL_OFFSET_TABLE_",
+             # libgcc's CPU detection behind the AVX2 clones (x86-64 Linux, GCC): linked by every gcc/g++ driver
+             "__cpu_indicator_init", "__cpu_model"}
 
 
 def _make(folder: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
