@@ -154,10 +154,12 @@ def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
             "rmse_z_truth": {"passthrough": 0.07, "ctrl_ff": 0.054, "prefilter": 0.0168, "ilc": None, "steered": 0.0084},
             "estimator_rms": {"passthrough": 0.009, "steered": 0.0056},
             "thrust_step_rms": {"passthrough": 0.0002, "steered": 0.0005},
-            "max_ref_step": {"steered": 0.006}, "fallbacks": {"steered": 0.0}}
+            "max_ref_step": {"steered": 0.006}, "fallbacks": {"steered": 0.0}, "solve_us_p99": {"steered": 612.0}}
     table = results._conditions_table([("ardupilot", "steps", cond), ("px4", "wind", {"skipped": "no wind parameter"})])
-    assert ("| ardupilot | steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | 8.0 | 5.6 | 2.00x | 1.50x | 6.0 | 2.5x | 0 |"
+    assert ("| ardupilot | steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | 8.0 | 5.6 | 2.00x | 1.50x | 6.0 | 2.5x | 0 | 0.61 |"
             in table.splitlines())
+    del cond["solve_us_p99"]  # a report from before the figure
+    assert "| 2.5x | 0 | -- |" in results._conditions_table([("ardupilot", "steps", cond)])
     assert "- px4 wind: no wind parameter" in table
     adaptation = {"scenario": "flying", "duration_s": 25.0, "t_change_s": 10.0, "window_s": 10.0, "adapt": {"forgetting": 0.999},
                   "conditions": {"mass": {"what": "+0.4 kg", "static": 0.0134, "adapted": 0.0067, "offset_only": 0.0061,

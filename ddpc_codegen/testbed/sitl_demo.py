@@ -24,6 +24,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from ddpc_codegen.flight_metrics import flight_metrics
@@ -122,9 +123,12 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=t["active"], u=t["u"], r_nom=t["r_nom"],
                        thrust=t["sp_thrust"], z_truth=t["truth_position"][:, 2] if "truth_position" in t else None,
                        steered=t["reason"] == _STEERED)
+    solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
     return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
             "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
-            "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"]}
+            "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"],
+            # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved
+            "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None}
 
 
 def fit_prefilter_from_log(collect: Path, out: Path) -> Path:
@@ -248,7 +252,8 @@ def ellipse_figures(out: Path, autopilot: str, ilc: dict) -> tuple[dict, dict]:
     ellipse = {k: baselines[k] for k in ("rmse_z", "rmse_z_truth", "thrust_step_rms")}
     ellipse.update(estimator_rms={m: v["estimator_rms"] for m, v in f.items()},
                    max_ref_step={m: v["max_ref_step"] for m, v in f.items()},
-                   max_offset_step={m: v["max_offset_step"] for m, v in f.items()})
+                   max_offset_step={m: v["max_offset_step"] for m, v in f.items()},
+                   solve_us_p99={m: v["solve_us_p99"] for m, v in f.items()})
     return baselines, ellipse
 
 
@@ -309,12 +314,25 @@ def rescore(out: Path) -> int:
         conds = res["conditions"]
         for name, c in conds.items():
             if name != "ellipse" and "rounds" in c:
-                conds[name] = {**c, **summarize_rounds(c["rounds"])}
+                conds[name] = {**c, **summarize_rounds(rescored_rounds(out / f"sitl_{ap}", ap, name, c["rounds"]))}
         if "ellipse" in conds:
             res["baselines"], conds["ellipse"] = ellipse_figures(out / f"sitl_{ap}", ap, res["baselines"]["ilc"])
         print_result(ap, res)
     update_report(out / "sitl.json", report, default=nan_as_null)
     return 0
+
+
+def rescored_rounds(folder: Path, autopilot: str, name: str, rounds: list[dict]) -> list[dict]:
+    """The rounds of condition ``name`` with each flight's figures computed again from its tick log
+    (``<autopilot>_<name>_<method>_r<k>.npz`` in ``folder``; a flight without its log keeps its stored figures)."""
+    out = []
+    for k, figs in enumerate(rounds):
+        new = {}
+        for method, f in figs.items():
+            log = folder / f"{autopilot}_{name}_{method}_r{k}.npz"
+            new[method] = {**f, **flight_figures(log)} if log.exists() else f
+        out.append(new)
+    return out
 
 
 def comma_list(text: str) -> list[str]:
@@ -391,9 +409,11 @@ def format_condition(ap: str, name: str, c: dict) -> str:
         thr = c.get("thrust_step_rms") or {}
         thr_txt = (f"; thrust step {thr['steered'] / thr['passthrough']:.1f}x passthrough's"
                    if thr.get("steered") and thr.get("passthrough") else "")
+        solve = (c.get("solve_us_p99") or {}).get("steered")
+        solve_txt = f"; solve p99 in flight {solve / 1e3:.2f} ms (<= 1 ms)" if solve is not None else ""
         lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest reference step "
                      f"{mm((c.get('max_ref_step') or {}).get('steered'))} mm per tick (of the correction u - r_nom "
-                     f"{mm((c.get('max_offset_step') or {}).get('steered'))}){thr_txt}")
+                     f"{mm((c.get('max_offset_step') or {}).get('steered'))}){thr_txt}{solve_txt}")
     return "\n".join(lines)
 
 

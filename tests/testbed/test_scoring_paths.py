@@ -31,6 +31,7 @@ def scored(tmp_path_factory):
         a["sp_thrust"][i] = res.setpoint_thrust[k]
         a["truth_position"][i, 2] = res.y_true[k, 0]
         a["reason"][i] = reason_code("steered" if steered[k] else "prefilter")
+        a["solve_us"][i] = 10.0 + k % 100 if steered[k] else np.nan  # the solver's call, on the steered ticks
         a["active"][i] = a["event"][i] = True
     tmp = tmp_path_factory.mktemp("scoring")
     log = rec.to_log(dt=res.dt, input_names=("z_ref", "pitch_ref"), output_names=("z", "pitch")).save(tmp / "run.npz")
@@ -60,3 +61,5 @@ def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
     assert ff["max_ref_step"] == pytest.approx(np.abs(np.diff(res.u[on, 0])).max(), rel=1e-12)
     assert ff["thrust_step_rms"] == pytest.approx(np.sqrt(np.mean(np.diff(res.setpoint_thrust[on]) ** 2)), rel=1e-12)
     assert ff["engaged_fraction"] == pytest.approx(steered[on].mean(), rel=1e-12)
+    solved = (10.0 + np.arange(res.n) % 100)[steered]  # every solver call of the flight, warm-up included
+    assert ff["solve_us_p99"] == pytest.approx(np.percentile(solved, 99), rel=1e-12)
