@@ -103,7 +103,7 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
 def adapt_lines(rows: list[dict]) -> list[str]:
     """Table lines of :func:`adapt_timing` results."""
     out = ["online update (C): size  width  update us (median/p99)  re-solve+rebuild+verify+offset ms (median/max)"
-           "  of it the offset ms"]
+           "  of it the offset ms (a difference of two medians: ~0, the offset reuses the prediction check's residuals)"]
     for r in rows:
         out.append(f"  {r['size']:<8} {r['width']:>5}  {r['update_us_median']:>8.2f} / {r['update_us_p99']:<8.2f}"
                    f"  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:<8.3f}  {r.get('offset_ms_median', 0.0):.3f}")
