@@ -116,7 +116,7 @@ def test_attribute_docs_reads_grouped_and_continued_entries():
 # ----------------------------------------------------------------------------- C API reference
 def test_c_api_page_lists_every_function_of_the_header_templates():
     page = c_api_page()
-    for template in ("solver.h.in", "artio.h.in"):
+    for template in ("solver.h.in", "artio.h.in", "adapt.h.in"):
         text = (TEMPLATES / template).read_text()
         names = set(re.findall(r"^\S.*?\$\{name\}(_\w+)\(", text, re.M))
         assert names, template

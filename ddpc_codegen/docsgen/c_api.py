@@ -1,8 +1,8 @@
 """The generated C API reference, read from the header templates the code generator renders.
 
-Each public header template (``solver.h.in``; ``artio.h.in`` for hopping artifacts) gives a table
-of its macros and functions with the comments written beside them, and the header itself with the
-solver's name left as ``<name>``: the page shows what every generated folder's header declares.
+Each public header template (``solver.h.in``; ``artio.h.in`` for hopping artifacts, ``adapt.h.in`` for adaptive
+ones) gives a table of its macros and functions with the comments written beside them, and the header itself
+with the solver's name left as ``<name>``: the page shows what every generated folder's header declares.
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ TEMPLATES = Path(__file__).resolve().parents[1] / "codegen" / "templates"
 # header template -> what it is
 HEADERS = {"solver.h.in": "`<name>_solver.h`: the steering solver (every artifact)",
            "artio.h.in": "`<name>_artio.h`: the artificial ground-phase IO (hopping artifacts; "
-                         "included by `<name>_solver.h`)"}
+                         "included by `<name>_solver.h`)",
+           "adapt.h.in": "`<name>_adapt.h`: online predictor updates (artifacts generated with `[adapt]`)"}
 
 
 def _names(text: str) -> str:
