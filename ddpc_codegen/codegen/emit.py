@@ -156,7 +156,7 @@ def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -
         "blocked": int(blocked), "n_u_ws": problem.n_u if blocked else 1,
         "knots_note": (f"the references at {len(c.knots)} knots (samples {', '.join(map(str, c.knots))}), linear "
                        "in between" if blocked else "the steered references over the horizon, time-major"),
-        **_knot_tables(c.knots if blocked else None, c.t_f),
+        **_knot_tables(problem.B, c.m),
         "n_theta": problem.n_theta,
         "n_g": n_g, "n_g1": max(1, n_g), "n_c": n_z + n_g, "n_w": problem.n_w, "n_y": c.p * c.t_f,
         "n_sigma": c.p * c.t_ini, "n_bounds": 3 * c.m + 2 * c.p + 1,
@@ -175,19 +175,19 @@ def context(problem: SteeringProblem, name: str, backend: str, settings: dict) -
     return ctx
 
 
-def _knot_tables(knots, t_f: int) -> dict:
-    """Per tick k of the horizon: the segment j with knots[j] <= k <= knots[j+1] and the weight
-    a = (k - knots[j]) / (knots[j+1] - knots[j]) of its right knot -- tables instead of a division per tick (the
-    same doubles: Python's int / int is the IEEE quotient C computes, printed round-trip)."""
-    if knots is None:
+def _knot_tables(B: np.ndarray | None, m: int) -> dict:
+    """Read off the knot basis B (m Tf x m n_knots, :func:`ddpc_codegen.design.blocking.knot_basis`): per tick k
+    of the horizon the segment j and the weight a of its right knot, u_k = (1 - a) z_j + a z_{j+1} -- tables
+    for the C instead of a division per tick, the very doubles B holds (printed round-trip)."""
+    if B is None:
         return {"seg_c": "0", "wgt_c": "0.0"}
-    seg, wgt, j = [], [], 0
-    for k in range(t_f):
-        if k > knots[j + 1]:
-            j += 1
-        seg.append(j)
-        wgt.append(repr((k - knots[j]) / (knots[j + 1] - knots[j])))
-    return {"seg_c": ", ".join(map(str, seg)), "wgt_c": ", ".join(wgt)}
+    n_knots = B.shape[1] // m
+    seg, wgt = [], []
+    for k in range(B.shape[0] // m):
+        j = min(int(np.flatnonzero(B[k * m])[0]) // m, n_knots - 2)  # a knot itself: a = 0, the last one a = 1
+        seg.append(str(j))
+        wgt.append(repr(float(B[k * m, (j + 1) * m])))
+    return {"seg_c": ", ".join(seg), "wgt_c": ", ".join(wgt)}
 
 
 def _param_maps(problem: SteeringProblem, name: str, out_dir: Path) -> dict:
