@@ -54,6 +54,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
             "w2": w * w, "qr": q * lay.r, "ring": s.window * w, "nu2": nu * nu, "n_urows": nu,
             "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": _c(ad.slack_weight), "ridge": _c(ad.ridge),
             "rcond": _c(ad.rcond), "max_change": _c(s.max_change), "min_excitation": _c(s.min_excitation),
+            "min_improvement": _c(s.min_improvement),
             "n_z": n_z, "n_g": problem.n_g, "n_g1": n_g1, "n_theta": n_th, "n_w": problem.n_w, "n_y": qp.n_y,
             "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
             "y_rows": ", ".join(map(str, qp.y_rows.tolist())) or "0",

@@ -92,13 +92,14 @@ def ship_fit_statistic(predictor: Predictor, out_dir: Path, name: str,
 
 
 _FLOAT_KEYS = {"forgetting": (0.0, 1.0, True), "dither": (0.0, np.inf, False), "max_change": (0.0, np.inf, True),
-               "min_excitation": (0.0, 1.0, False), "max_gain_change": (0.0, np.inf, True)}
+               "min_excitation": (0.0, 1.0, False), "min_improvement": (0.0, 1.0, False),
+               "max_gain_change": (0.0, np.inf, True)}
 _INT_KEYS = ("period_ticks", "window")
 
 
 def adapt_settings(table: dict | None, src: str = "config", p: int | None = None) -> AdaptSettings:
     """The ``[adapt]`` table (enabled, forgetting, period_ticks, dither, window, max_change, min_excitation,
-    max_gain_change, offset, max_offset) -> :class:`AdaptSettings`; None or {} gives the defaults (disabled).
+    min_improvement, max_gain_change, offset, max_offset) -> :class:`AdaptSettings`; None or {} gives the defaults (disabled).
     ``p``: the number of outputs (checks the length of a ``max_offset`` list).
 
     Raises:

@@ -39,7 +39,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
                       "denoise_online", "refit_residual"),
     "data": ("dataset", "max_output_noise"),
     "adapt": ("enabled", "forgetting", "period_ticks", "dither", "max_change", "window", "min_excitation",
-              "max_gain_change", "offset", "max_offset"),
+              "min_improvement", "max_gain_change", "offset", "max_offset"),
 }
 # Sizes a steering problem can have (a 10 s preview at 200 Hz; a Gram matrix of 8000^2 doubles = 512 MB).
 MAX_HORIZON = 2000

@@ -69,6 +69,7 @@ class GeneratedAdaptation:
         out = {k: int(getattr(c, k)) for k in _COUNTS}
         out.update({f"rejected_{r}": int(c.rejected[i + 1]) for i, r in enumerate(REJECTIONS)})
         out.update({k: int(getattr(c, k)) for k in OFFSET_COUNTS}, offset_norm=float(c.offset_norm))
+        out.update({k: float(getattr(c, k)) for k in ("error_current", "error_candidate")})  # the last error check
         return out
 
     def offset(self) -> np.ndarray:

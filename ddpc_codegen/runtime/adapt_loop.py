@@ -54,7 +54,9 @@ class AdaptEvent:
     """One re-solve: the tick its verdict landed (and the swap was made; -1: discarded by
     :meth:`OnlineAdaptation.close`), its verdict ("accepted" or the rejection reason), whether G was swapped in,
     the norm of the output offset in use after it (data units; 0 without ``[adapt] offset``), the tick of the
-    snapshot it read (the same tick when synchronous) and, in the background, its wall time in the worker [ms].
+    snapshot it read (the same tick when synchronous), in the background its wall time in the worker [ms], and
+    for a verdict of the error check ("accepted", "prediction") the candidate's prediction error on the recent
+    window over the current G's (``[adapt] min_improvement`` asks it to be below 1 - min_improvement).
     Ticks count :meth:`OnlineAdaptation.tick` calls from 0."""
 
     tick: int
@@ -63,6 +65,7 @@ class AdaptEvent:
     offset_norm: float = 0.0
     snapshot_tick: int = -1
     resolve_ms: float = math.nan
+    error_ratio: float = math.nan
 
 
 @dataclass
@@ -155,8 +158,10 @@ class OnlineAdaptation:
     def _land(self, verdict: str, ms: float, snapshot_tick: int) -> None:
         """A re-solve's verdict on this tick: swap (always: a refused G may still come with a new offset)."""
         swapped = bool(self.solver.adapt_swap())
-        self.offset_norm = float(self.solver.adapt_counts().get("offset_norm", 0.0))
-        self.events.append(AdaptEvent(self._tick - 1, verdict, swapped, self.offset_norm, snapshot_tick, ms))
+        counts = self.solver.adapt_counts()
+        self.offset_norm = float(counts.get("offset_norm", 0.0))
+        self.events.append(AdaptEvent(self._tick - 1, verdict, swapped, self.offset_norm, snapshot_tick, ms,
+                                      _error_ratio(verdict, counts)))
         self.last = verdict
 
     def close(self) -> None:
@@ -167,20 +172,29 @@ class OnlineAdaptation:
             self._running = None
             self.discarded += 1
             verdict, ms = fut.result()
-            self.events.append(AdaptEvent(-1, verdict, False, self.offset_norm, snap, ms))
+            self.events.append(AdaptEvent(-1, verdict, False, self.offset_norm, snap, ms,
+                                          _error_ratio(verdict, self.solver.adapt_counts())))
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
 
     def summary(self) -> dict:
         """The solver's counters and the re-solves (tick of the verdict / swap, verdict, G swapped, offset norm
-        after it, tick of the snapshot, re-solve wall time [ms]); joins a running re-solve first (:meth:`close`)."""
+        after it, tick of the snapshot, re-solve wall time [ms], error ratio); joins a running re-solve first (:meth:`close`)."""
         self.close()
         return {"counts": dict(self.solver.adapt_counts()), "period_ticks": self.period_ticks,
                 "dither": self.dither.tolist(), "background": self.background, "busy": self.busy,
                 "discarded": self.discarded,
-                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm, e.snapshot_tick, e.resolve_ms]
+                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm, e.snapshot_tick, e.resolve_ms, e.error_ratio]
                            for e in self.events]}
+
+
+def _error_ratio(verdict: str, counts: dict) -> float:
+    """The candidate's over the current G's recent prediction error when the verdict came from that check."""
+    cur = float(counts.get("error_current", math.nan))
+    if verdict not in ("accepted", "prediction") or not cur > 0:
+        return math.nan
+    return float(counts.get("error_candidate", math.nan)) / cur
 
 
 def _timed_resolve(solver) -> tuple[str, float]:

@@ -63,6 +63,11 @@ class AdaptSettings:
     window: recent columns kept for the verification (prediction error, excitation); >= m (Tini+Tf).
     max_change: largest ||G_new - G||_F / ||G||_F of one swap (a bigger step is scaled down to it).
     min_excitation: smallest min/max |diag| of the R factor of the recent window's scaled input rows.
+    min_improvement: the fraction by which a candidate must cut the current G's prediction error on the recent
+        window to be accepted (0: any cut). The window is in the fit, so a candidate always fits it a little
+        better; on closed-loop data such in-sample gains are noise (a few percent on both SITLs, in nominal flight
+        as after a change the incremental predictor absorbs), and the margin keeps G until the data show a change the
+        current one does not predict.
     max_gain_change: largest ||S_new - S_0||_F / ||S_0||_F of the predictor's steady-state gain S (outputs per
         constant reference, p x m) against the shipped one. Closed-loop data explain an offset the fit has no
         term for (a payload, battery sag) by distorting the gains, e.g. height through the pitch reference;
@@ -80,6 +85,7 @@ class AdaptSettings:
     window: int = 200
     max_change: float = 0.2
     min_excitation: float = 1e-3
+    min_improvement: float = 0.1
     max_gain_change: float = 0.25
     offset: bool = False
     max_offset: float | tuple[float, ...] = math.inf
@@ -218,7 +224,8 @@ class Adapter:
         self.pending_offset: np.ndarray | None = None
         self.counts = {"updates": 0, "skipped": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
                        **{f"rejected_{k}": 0 for k in REJECTIONS},
-                       **{k: 0 for k in OFFSET_COUNTS}, "offset_norm": 0.0}
+                       **{k: 0 for k in OFFSET_COUNTS}, "offset_norm": 0.0,
+                       "error_current": 0.0, "error_candidate": 0.0}  # of the last error check
 
     def push(self, window: np.ndarray) -> bool:
         """One new Hankel column from a time-major window (depth, m+p) in data units: R and the ring updated.
@@ -304,7 +311,9 @@ class Adapter:
         cols = self._recent_snap
         if excitation_ratio(cols, self.layout) < self.settings.min_excitation:
             return "excitation"
-        if not _prediction_error(G, cols, self.layout) < _prediction_error(self.G, cols, self.layout):
+        e_c, e_g = _prediction_error(G, cols, self.layout), _prediction_error(self.G, cols, self.layout)
+        self.counts["error_candidate"], self.counts["error_current"] = e_c, e_g
+        if not e_c < (1.0 - self.settings.min_improvement) * e_g:
             return "prediction"
         self.pending, self.pending_qp = G, data
         return None

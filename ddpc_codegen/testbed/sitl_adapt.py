@@ -236,12 +236,16 @@ def _fly_one(sitl: Sitl, autopilot: str, cond: str, method: str, r: int, out: Pa
 def flight_record(out: Path, autopilot: str, tag: str, change: dict) -> dict:
     """A flown flight's figures from its files (``<autopilot>_<tag>.npz`` / ``.json`` in ``out``): :func:`window_figures`
     around ``change["sent_s"]`` (:data:`CHANGE_S` without one), the fallbacks, the loop's missed ticks and largest
-    gap [ms] (a re-solve runs inside a tick), the bridge's adaptation counters, ``change``."""
+    gap [ms] (a re-solve runs inside a tick), the bridge's adaptation counters, ``change``, and ``error_ratios``:
+    each re-solve's candidate-over-current prediction error on its recent window, in flight order (what
+    ``[adapt] min_improvement`` is set against)."""
     summary = json.loads((out / f"{autopilot}_{tag}.json").read_text())
     f = window_figures(out / f"{autopilot}_{tag}.npz", change.get("sent_s") or CHANGE_S)
+    adaptation = (summary.get("steering") or {}).get("adaptation") or {}
     f.update(fallbacks=summary.get("fallbacks"), missed_ticks=summary.get("missed_ticks"),
-             max_gap_ms=summary.get("max_gap_ms"), change=change,
-             bridge_counts=((summary.get("steering") or {}).get("adaptation") or {}).get("counts"))
+             max_gap_ms=summary.get("max_gap_ms"), change=change, bridge_counts=adaptation.get("counts"),
+             error_ratios=[round(e[6], 4) for e in adaptation.get("events", [])
+                           if len(e) > 6 and e[6] is not None and np.isfinite(e[6])])
     return f
 
 

@@ -63,17 +63,21 @@ def _close(got, want, tol=1e-9):
     return got.shape == want.shape and (want.size == 0 or np.abs(got - want).max() <= tol * max(1.0, np.abs(want).max()))
 
 
-@pytest.mark.parametrize("form, knots, bounded, gain", [("absolute", None, False, 1e3), ("incremental", None, True, 1e3),
-                                                        ("absolute", [0, 2, 5], True, 1e3),
-                                                        ("absolute", None, False, 0.0)])
-def test_generated_update_equals_the_numpy_reference(form, knots, bounded, gain, tmp_path):
-    """Windows from a changed system, a re-solve every 40: R, G, the verdicts, the counters, the rebuilt QP
-    data (P, F_q, output rows, K) and the steering answers after each swap of C and numpy agree to 1e-9."""
+MARGIN = 0.2  # [adapt] min_improvement of the case with a margin: between this system's smallest and largest cut
+
+
+@pytest.mark.parametrize("form, knots, bounded, gain, margin", [
+    ("absolute", None, False, 1e3, 0.0), ("incremental", None, True, 1e3, 0.0), ("absolute", [0, 2, 5], True, 1e3, 0.0),
+    ("absolute", None, False, 0.0, 0.0), ("absolute", None, False, 1e3, MARGIN)])
+def test_generated_update_equals_the_numpy_reference(form, knots, bounded, gain, margin, tmp_path):
+    """Windows from a changed system, a re-solve every 40: R, G, the verdicts, the counters (the errors of the
+    last check too), the rebuilt QP data (P, F_q, output rows, K) and the steering answers after each swap of C
+    and numpy agree to 1e-9."""
     prob = _problem(form, knots, bounded)
     # the gain bound between the changes of this system and the swaps it needs: both verdicts occur
     st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
-                       max_gain_change=gain)
-    name = f"ad_{form[:3]}_{'k' if knots else 'n'}_{int(gain)}"
+                       max_gain_change=gain, min_improvement=margin)
+    name = f"ad_{form[:3]}_{'k' if knots else 'n'}_{int(gain)}_{int(100 * margin)}"
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     twin = AdaptiveProblem(prob, st, solver="fast")
     ref = twin.adapter
@@ -127,7 +131,11 @@ def test_generated_update_equals_the_numpy_reference(form, knots, bounded, gain,
     assert (c.updates, c.skipped, c.resolves, c.accepted, c.swaps, c.clipped) == tuple(
         ref.counts[k] for k in ("updates", "skipped", "resolves", "accepted", "swaps", "clipped"))
     assert [c.rejected[i + 1] for i in range(len(REJECTIONS))] == [ref.counts[f"rejected_{r}"] for r in REJECTIONS]
-    if gain > 0:
+    for k in ("error_current", "error_candidate"):
+        assert _close(np.array([getattr(c, k)]), np.array([ref.counts[k]])), k
+    if margin > 0:  # the margin refuses some candidates that cut the error by less, and lets a larger cut through
+        assert "prediction" in verdicts and "accepted" in verdicts and solved > 0
+    elif gain > 0:
         assert "accepted" in verdicts and solved > 0  # the changed system is learnt: at least one verified swap
         assert twin.problem is not prob and not _close(twin.problem.P, prob.P, 1e-6)  # and it changed the QP
     else:  # no steady-state gain may move: every candidate that gets that far is refused, nothing swapped

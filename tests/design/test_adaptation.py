@@ -129,13 +129,18 @@ def test_qp_model_refuses_a_candidate_whose_hessian_is_not_positive_definite():
 
 def test_adapt_settings_defaults_and_values():
     assert adapt_settings(None) == AdaptSettings()
-    s = adapt_settings({"enabled": True, "forgetting": 0.995, "period_ticks": 100, "dither": 0.01, "window": 120})
-    assert (s.enabled, s.forgetting, s.period_ticks, s.dither, s.window) == (True, 0.995, 100, 0.01, 120)
+    s = adapt_settings({"enabled": True, "forgetting": 0.995, "period_ticks": 100, "dither": 0.01, "window": 120,
+                        "min_improvement": 0.1})
+    assert (s.enabled, s.forgetting, s.period_ticks, s.dither, s.window, s.min_improvement) == \
+        (True, 0.995, 100, 0.01, 120, 0.1)
 
 
 @pytest.mark.parametrize("table, message", [
     ({"forget": 0.9}, r"^c.toml: \[adapt\] unknown key\(s\) \['forget'\]; allowed: \['dither', 'enabled', "
-                      r"'forgetting', 'max_change', 'max_gain_change', 'max_offset', 'min_excitation', 'offset', 'period_ticks', 'window'\]$"),
+                      r"'forgetting', 'max_change', 'max_gain_change', 'max_offset', 'min_excitation', 'min_improvement', "
+                      r"'offset', 'period_ticks', 'window'\]$"),
+    ({"min_improvement": 1.5}, r"^c.toml: \[adapt\] min_improvement must be in \[0, 1\]; got 1.5$"),
+    ({"min_improvement": -0.1}, r"^c.toml: \[adapt\] min_improvement must be in \[0, 1\]; got -0.1$"),
     ({"max_gain_change": -1.0}, r"^c.toml: \[adapt\] max_gain_change must be > 0; got -1.0$"),
     ({"max_gain_change": float("nan")}, r"^c.toml: \[adapt\] max_gain_change must be > 0; got nan$"),
     ({"forgetting": 0.0}, r"^c.toml: \[adapt\] forgetting must be in \(0, 1\]; got 0.0$"),

@@ -33,7 +33,7 @@ def test_adapt_section_values_and_defaults():
     (3, r"^c.toml: \[adapt\] must be a table; got 3$"),
     ({"windw": 3}, r"^c.toml: \[adapt\] windw is not a known key; allowed: \['enabled', 'forgetting', "
                    r"'period_ticks', 'dither', 'max_change', 'window', 'min_excitation', "
-                   r"'max_gain_change', 'offset', 'max_offset'\]$"),
+                   r"'min_improvement', 'max_gain_change', 'offset', 'max_offset'\]$"),
     ({"forgetting": 1.5}, r"^c.toml: \[adapt\] forgetting must be in \(0, 1\]; got 1.5$"),
     ({"max_change": 0}, r"^c.toml: \[adapt\] max_change must be > 0; got 0$"),
     ({"period_ticks": True}, r"^c.toml: \[adapt\] period_ticks must be an integer >= 1; got True$"),

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -53,6 +55,10 @@ def test_a_re_solve_every_period_updates_is_recorded_and_swapped_in():
     c = twin.adapt_counts()
     assert c["resolves"] == len(ev) == (200 - T_INI - T_F + 1) // 25
     assert c["swaps"] == sum(e[2] for e in ev) > 0 and twin.problem is not twin.shipped
+    # each verdict of the error check carries the candidate's error over the current G's (< 1 when accepted)
+    ratios = [e[6] for e in ev if e[1] == "accepted"]
+    assert ratios and all(0.0 < r < 1.0 for r in ratios)
+    assert all(math.isnan(e[6]) for e in ev if e[1] not in ("accepted", "prediction"))
 
 
 def test_dither_is_bounded_applied_only_on_steered_ticks_and_logged_through_the_policy():

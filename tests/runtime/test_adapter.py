@@ -134,6 +134,29 @@ def test_no_improvement_on_the_recent_window_is_rejected():
     assert ad.resolve() == "prediction" and ad.counts["rejected_prediction"] == 1 and not ad.swap()
 
 
+def test_min_improvement_asks_the_candidate_to_cut_the_error_by_that_fraction():
+    """The same re-solve accepted with no margin is refused once the margin exceeds its actual cut (and
+    accepted again just below it); the errors of the check are in the counts."""
+    lay = AdaptLayout(2, 1, 4, 3, "lsq")
+    u0, y0 = _data(11)
+    u1, y1 = _data(12)
+    R0 = hankel_r_factor([(u0, y0)], FitLayout(2, 1, 4, 3, "lsq"), np.ones(3))
+
+    def verdict(margin: float) -> tuple[str, dict]:
+        ad = Adapter(lay, R0, np.ones(3), AdaptSettings(forgetting=0.98, window=60, max_change=0.5,
+                                                        min_improvement=margin), ridge=1e-6)
+        for w in _windows(u1, y1, lay.depth)[:200]:
+            ad.push(w)
+        return ad.resolve(), ad.counts
+
+    v, c = verdict(0.0)
+    cut = 1.0 - c["error_candidate"] / c["error_current"]
+    assert v == "accepted" and 0.0 < cut < 1.0
+    assert verdict(cut * 0.999)[0] == "accepted"
+    v, c = verdict(min(1.0, cut * 1.001))
+    assert v == "prediction" and c["rejected_prediction"] == 1 and c["accepted"] == 0
+
+
 def _never_convex(lay: AdaptLayout) -> QPModel:
     """A QP model whose Hessian is -I whatever G is (data-unit predictor = G itself, no outputs weighted)."""
     n_o, n_f, n_th = lay.q_y, lay.m * lay.t_f, lay.r

@@ -88,13 +88,17 @@ def test_rescore_scores_every_flight_again_from_its_files(log, tmp_path):
     d.mkdir()
     for m in ("static", "adapted"):
         (d / f"px4_adapt_heavy_{m}_r0.npz").write_bytes(log.read_bytes())
-        (d / f"px4_adapt_heavy_{m}_r0.json").write_text(json.dumps({"fallbacks": 1, "missed_ticks": 7, "max_gap_ms": 70.0}))
+        events = [[400, "prediction", False, 0.0, 399, 80.0, 0.97], [600, "rank", False, 0.0, 599, 80.0, float("nan")],
+                  [800, "accepted", True, 0.0, 799, 80.0, 0.81234567]]  # the bridge summary's re-solve events
+        (d / f"px4_adapt_heavy_{m}_r0.json").write_text(json.dumps({"fallbacks": 1, "missed_ticks": 7, "max_gap_ms": 70.0,
+                                                                   "steering": {"adaptation": {"events": events}}}))
     old = {"t_change_s": 10.0, "autopilots": {"px4": {"wall_s": 1.0, "conditions": {"heavy": {
         "params": {"SIH_MASS": 1.2}, "rounds": [{m: {"change": {"sent_s": 10.0}} for m in ("static", "adapted")}]}}}}}
     new = rescore(old, tmp_path)
     c = new["autopilots"]["px4"]["conditions"]["heavy"]
     assert c["static"]["after"]["rmse_z_truth"] == pytest.approx(0.08) and c["static"]["missed_ticks"] == 7
     assert c["adapted"]["adapt"]["accepted"] == 1 and c["params"] == {"SIH_MASS": 1.2}
+    assert c["rounds"][0]["adapted"]["error_ratios"] == [0.97, 0.8123]  # the error check's verdicts, in order
     assert c["rounds"][0]["static"]["change"] == {"sent_s": 10.0} and c["static_over_adapted"]["after"] == 1.0
     assert new["t_change_s"] == 10.0 and new["autopilots"]["px4"]["wall_s"] == 1.0
     assert old["autopilots"]["px4"]["conditions"]["heavy"]["rounds"][0]["static"] == {"change": {"sent_s": 10.0}}
@@ -159,7 +163,7 @@ def _adaptation() -> dict:
 def test_the_results_table_and_the_printed_lines():
     table = _sitl_adaptation_table(_adaptation())
     row = [line for line in table.splitlines() if line.startswith("| px4 | heavy |")]
-    assert row == ["| px4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | 5.0 | 100 | 1 | "
+    assert row == ["| px4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | 5.0 / 5.0 | 100 | 1 | "
                    "gain 3 | 5 / 5 |"]
     text = format_adaptation(_adaptation())
     assert "static / adapted 1.50" in text and "1 swaps accepted" in text
