@@ -152,17 +152,27 @@ def _sitl_section(sitl: dict) -> str:
     return text
 
 
+def _cost(res: dict, name: str) -> str:
+    """``make sitl-adapt``'s change cost to the static steering (true, EKF) as table text."""
+    from ddpc_codegen.testbed.sitl_adapt import change_cost
+    return ", ".join("--" if v is None else f"{v:.2f}x" for v in change_cost(res.get("conditions") or {}, name))
+
+
 def _sitl_adaptation_table(a: dict) -> str:
     """``make sitl-adapt``: per autopilot and condition, true-height RMSE in the window after the mid-flight change
     (static / adapted / prefilter, mean of the rounds), static / adapted, the nominal part before it, the estimator's
     error in the static and the adapted flights (on PX4 SIH it differs by tens of mm from flight to flight), the adapted flights' counters (columns folded in, re-solves accepted / rejected by reason) and the loop's
     missed ticks (a re-solve runs inside a tick)."""
-    head = ("| autopilot | condition | static | adapted | prefilter | static / adapted | before: static / adapted / "
+    head = ("| autopilot | condition | static | adapted | prefilter | static / adapted | static's first "
+            f"{a.get('learn_s', '?')} s alone | static: this change / nominal (true, EKF) | before: static / adapted / "
             "prefilter | EKF after: static / adapted | estimator error after: static / adapted | updates | swaps accepted | rejected | "
             "missed ticks: static / adapted |")
     lines = [f"The change at trajectory time {a.get('t_change_s', '?')} s (set by the harness over a second MAVLink link "
              f"while the bridge flies), true-height RMSE [mm] in the {a.get('window_s', '?')} s after it; before: from "
-             f"{a.get('settle_s', '?')} s to the change; mean of {a.get('rounds', '?')} round(s).\n", head,
+             f"{a.get('settle_s', '?')} s to the change; mean of {a.get('rounds', '?')} round(s). Static's first "
+             f"{a.get('learn_s', '?')} s alone: the window's RMS if the error were zero after them, a floor for any "
+             "learner that needs data of the change (its verification window is that long). Static: this change / "
+             "nominal: what the change cost the static steering, all an adaptation can give back.\n", head,
              "|" + "---|" * (head.count("|") - 1)]
     for ap, res in (a.get("autopilots") or {}).items():
         for name, c in (res.get("conditions") or {}).items():
@@ -172,6 +182,7 @@ def _sitl_adaptation_table(a: dict) -> str:
             rej = ", ".join(f"{k} {v}" for k, v in (ad.get("rejected") or {}).items()) or "0"
             lines.append(f"| {ap} | {name} | {get('static', 'after')} | {get('adapted', 'after')} | "
                          f"{get('prefilter', 'after')} | {'--' if ratio is None else f'{ratio:.2f}'} | "
+                         f"{_mm((c.get('static') or {}).get('floor'))} | {_cost(res, name)} | "
                          f"{get('static', 'before')} / {get('adapted', 'before')} / {get('prefilter', 'before')} | "
                          f"{get('static', 'after', 'rmse_z')} / {get('adapted', 'after', 'rmse_z')} | "
                          f"{get('static', 'after', 'estimator_rms')} / {get('adapted', 'after', 'estimator_rms')} | "

@@ -40,10 +40,13 @@ from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS,
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from firmware_bridge.ticklog import load_ticklog
 
-__all__ = ["CHANGE_S", "WINDOW_S", "DURATION_S", "SETTLE_S", "METHODS", "ADAPT_CONDITIONS", "second_link", "send_params",
-           "window_figures", "adapt_tick_counts", "summarize", "merge_report", "flight_record", "rescore", "run_adapt", "format_adaptation", "main"]
+__all__ = ["CHANGE_S", "WINDOW_S", "LEARN_S", "DURATION_S", "SETTLE_S", "METHODS", "ADAPT_CONDITIONS", "second_link", "send_params",
+           "window_figures", "adapt_tick_counts", "change_cost", "summarize", "merge_report", "flight_record", "rescore", "run_adapt", "format_adaptation", "main"]
 
 CHANGE_S, WINDOW_S, SETTLE_S = 10.0, 10.0, 3.0  # trajectory time of the change, scoring window after it, settle [s]
+# The first seconds after the change, before a re-solved G can know it: the SITL configs verify a candidate on the
+# last 2 s of columns ([adapt] window 400 at 200 Hz), so until then the window still holds pre-change data.
+LEARN_S = 2.0
 DURATION_S = CHANGE_S + WINDOW_S + 2.0  # each flight's trajectory seconds (the window ends 2 s before the landing)
 METHODS = ("static", "adapted", "prefilter")
 ADAPT_CONDITIONS = ("nominal", "motor", "heavy")
@@ -147,7 +150,9 @@ def adapt_tick_counts(codes: np.ndarray, t_traj: np.ndarray, t_change: float) ->
 def window_figures(log_path: Path, t_change: float, window: float = WINDOW_S, settle: float = SETTLE_S) -> dict:
     """One flight's figures: ``before`` (nominal part, trajectory time in [settle, t_change)) and ``after``
     ([t_change, t_change + window)), each rmse_z (EKF), rmse_z_truth, estimator_rms [m], ticks, over the active
-    ticks (:func:`~ddpc_codegen.flight_metrics.flight_metrics`); ``adapt``: :func:`adapt_tick_counts`."""
+    ticks (:func:`~ddpc_codegen.flight_metrics.flight_metrics`); ``floor``: the true-height RMS of the window
+    after the change if the error were zero from :data:`LEARN_S` s after it on (:func:`_floor`); ``adapt``:
+    :func:`adapt_tick_counts`."""
     t = load_ticklog(log_path).ticks
     tt = np.nan_to_num(t["t_traj"], nan=-np.inf)
     zt = t["truth_position"][:, 2] if "truth_position" in t else None
@@ -156,8 +161,19 @@ def window_figures(log_path: Path, t_change: float, window: float = WINDOW_S, se
         f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=lo, active=t["active"] & (tt < hi), z_truth=zt)
         out[key] = {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"),
                     "estimator_rms": f.get("estimator_rms"), "ticks": f["ticks"]}
+    f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=t_change, active=t["active"] & (tt < t_change + LEARN_S),
+                       z_truth=zt)
+    out["floor"] = _floor(f.get("rmse_z_truth"), f["ticks"], out["after"]["ticks"])
     out["adapt"] = adapt_tick_counts(t["adapt"], t["t_traj"], t_change)
     return out
+
+
+def _floor(first_rms: float | None, first_ticks: int, window_ticks: int) -> float | None:
+    """The after-change window's true-height RMS if every tick after the first :data:`LEARN_S` s had no error:
+    what no learner that needs data of the change can go below [m]."""
+    if first_rms is None or not window_ticks:
+        return None
+    return float(first_rms * np.sqrt(first_ticks / window_ticks))
 
 
 def _mean(vals: list) -> float | None:
@@ -167,7 +183,8 @@ def _mean(vals: list) -> float | None:
 def summarize(per_round: list[dict[str, dict]]) -> dict[str, Any]:
     """One condition's rounds (each method -> :func:`window_figures` + ``fallbacks``) -> per method the mean over
     the rounds of each figure (``before`` / ``after`` x rmse_z, rmse_z_truth, estimator_rms; None if any round has
-    none), the adaptation counters summed, and ``static_over_adapted`` (true height, after / before the change)."""
+    none), ``floor`` (:func:`_floor`, mean of the rounds), the adaptation counters summed, and
+    ``static_over_adapted`` (true height, after / before the change)."""
     out: dict[str, Any] = {}
     for m in METHODS:
         runs = [r[m] for r in per_round if m in r]
@@ -179,6 +196,7 @@ def summarize(per_round: list[dict[str, dict]]) -> dict[str, Any]:
         fig["missed_ticks"] = sum(int(r.get("missed_ticks") or 0) for r in runs)
         fig["max_gap_ms"] = max((r["max_gap_ms"] for r in runs if r.get("max_gap_ms") is not None), default=None)
         fig["flights"] = len(runs)
+        fig["floor"] = _mean([r.get("floor") for r in runs])
         if m == "adapted":
             c: dict[str, Any] = {}
             for r in runs:
@@ -303,6 +321,20 @@ def _params(autopilot: str, cond: str) -> dict:
     return {} if spec is None or isinstance(spec, str) else spec[0]
 
 
+def change_cost(conditions: dict, name: str) -> tuple[float | None, float | None]:
+    """What a change costs the static steering: its after-window RMSE under condition ``name`` over the same
+    window of the ``nominal`` condition's flights (true height, EKF height); None without both. Adaptation can at
+    best give back what the change cost (adapted nominal flights fly like static ones)."""
+    def after(c: str, k: str) -> float | None:
+        return (((conditions.get(c) or {}).get("static") or {}).get("after") or {}).get(k)
+    return tuple(after(name, k) / after("nominal", k) if after(name, k) and after("nominal", k) else None
+                 for k in ("rmse_z_truth", "rmse_z"))
+
+
+def _x(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}x"
+
+
 def _mm(v: Any) -> str:
     return "-" if v is None else f"{1e3 * v:.1f}"
 
@@ -318,8 +350,15 @@ def format_adaptation(adaptation: dict) -> str:
             ratio = (c.get("static_over_adapted") or {}).get("after")
             ad = (c.get("adapted") or {}).get("adapt") or {}
             est = (c.get("static") or {}).get("after", {}).get("estimator_rms")
+            floor = (c.get("static") or {}).get("floor")
+            best = (c["static"]["after"]["rmse_z_truth"] / floor if floor and "static" in c
+                    and c["static"]["after"]["rmse_z_truth"] else None)
+            cost = change_cost(res.get("conditions", {}), name)
             lines.append(f"[sitl-adapt] {ap} {name}: true height rmse after the change {after} mm "
-                         f"(static / adapted {'-' if ratio is None else f'{ratio:.2f}'}); nominal part {before} mm; "
+                         f"(static / adapted {'-' if ratio is None else f'{ratio:.2f}'}; static's first {LEARN_S:g} s "
+                         f"alone {_mm(floor)} mm, so static / any learner <= {'-' if best is None else f'{best:.2f}'}; "
+                         f"static after this change / in nominal flight: true {_x(cost[0])}, EKF {_x(cost[1])}); "
+                         f"nominal part {before} mm; "
                          f"estimator {_mm(est)} mm; adapted: {ad.get('updates', '-')} updates, "
                          f"{ad.get('accepted', '-')} swaps accepted, rejected {ad.get('rejected', {})}")
     return "\n".join(lines)
@@ -338,7 +377,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="fly nothing: score the flights of <out>/sitl.json's adaptation again from their files")
     a = p.parse_args(argv)
     if a.rescore:
-        adaptation = rescore(json.loads((Path(a.out) / "sitl.json").read_text())["adaptation"], Path(a.out))
+        adaptation = {**rescore(json.loads((Path(a.out) / "sitl.json").read_text())["adaptation"], Path(a.out)),
+                      "learn_s": LEARN_S}
         merge_report(Path(a.out) / "sitl.json", adaptation)
         print(format_adaptation(adaptation), flush=True)
         return 0
@@ -355,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     results, failed = fly_autopilots(jobs, "sitl-adapt")
     if results:
         adaptation = {"t_change_s": CHANGE_S, "window_s": WINDOW_S, "settle_s": SETTLE_S, "duration_s": DURATION_S,
-                      "rounds": a.rounds, "metric": "RMS of true height - desired height [m] in [t_change, "
+                      "learn_s": LEARN_S, "rounds": a.rounds, "metric": "RMS of true height - desired height [m] in [t_change, "
                       "t_change + window_s) (after) and [settle_s, t_change) (before), mean of the rounds",
                       "autopilots": results}
         merge_report(Path(a.out) / "sitl.json", adaptation)

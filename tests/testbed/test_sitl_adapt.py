@@ -12,7 +12,8 @@ from ddpc_codegen.docsgen.results import _sitl_adaptation_table, _sitl_section
 from ddpc_codegen.flight_metrics import rms
 from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
 from ddpc_codegen.testbed.sitl import Sitl
-from ddpc_codegen.testbed.sitl_adapt import (MidFlightChange, _started, adapt_tick_counts, format_adaptation, merge_report,
+from ddpc_codegen.testbed.sitl_adapt import (MidFlightChange, _started, adapt_tick_counts, change_cost, format_adaptation,
+                                             merge_report,
                                              rescore, second_link, summarize, window_figures)
 from firmware_bridge.ticklog import TickRecorder, reason_code
 
@@ -80,6 +81,8 @@ def test_window_figures_score_before_and_after_the_change(log):
     assert b["rmse_z"] == pytest.approx(0.01) and b["rmse_z_truth"] == pytest.approx(0.02)
     assert a["rmse_z"] == pytest.approx(0.05) and a["rmse_z_truth"] == pytest.approx(0.08)
     assert a["estimator_rms"] == pytest.approx(rms([0.03]))
+    # the first LEARN_S (2 s) of the 5 s window alone, as an RMS over the whole window
+    assert f["floor"] == pytest.approx(0.08 * np.sqrt(200 / 500))
     assert f["adapt"]["accepted"] == f["adapt"]["accepted_after"] == 1 and f["adapt"]["rejected"] == {}
 
 
@@ -106,7 +109,7 @@ def test_rescore_scores_every_flight_again_from_its_files(log, tmp_path):
 
 def _flight(after: float, before: float, accepted: int = 0, rejected: dict | None = None) -> dict:
     w = lambda v: {"rmse_z": v / 2, "rmse_z_truth": v, "estimator_rms": 0.005, "ticks": 100}  # noqa: E731
-    return {"before": w(before), "after": w(after), "fallbacks": 0, "missed_ticks": 5, "max_gap_ms": 10.0 + accepted,
+    return {"before": w(before), "after": w(after), "floor": after / 3, "fallbacks": 0, "missed_ticks": 5, "max_gap_ms": 10.0 + accepted,
             "adapt": {"updates": 100, "accepted": accepted, "rejected": dict(rejected or {})}}
 
 
@@ -156,17 +159,28 @@ def test_merge_report_replaces_only_the_adaptation_key(tmp_path):
 def _adaptation() -> dict:
     s = summarize([{"static": _flight(0.03, 0.01), "adapted": _flight(0.02, 0.01, 1, {"gain": 3}),
                     "prefilter": _flight(0.05, 0.04)}])
-    return {"t_change_s": 10.0, "window_s": 10.0, "settle_s": 3.0, "rounds": 1,
-            "autopilots": {"px4": {"conditions": {"heavy": s}}}}
+    nominal = summarize([{"static": _flight(0.02, 0.01), "adapted": _flight(0.02, 0.01)}])
+    return {"t_change_s": 10.0, "window_s": 10.0, "settle_s": 3.0, "rounds": 1, "learn_s": 2.0,
+            "autopilots": {"px4": {"conditions": {"nominal": nominal, "heavy": s}}}}
 
 
 def test_the_results_table_and_the_printed_lines():
     table = _sitl_adaptation_table(_adaptation())
     row = [line for line in table.splitlines() if line.startswith("| px4 | heavy |")]
-    assert row == ["| px4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | 5.0 / 5.0 | 100 | 1 | "
-                   "gain 3 | 5 / 5 |"]
+    assert row == ["| px4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 | 1.50x, 1.50x | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | "
+                   "5.0 / 5.0 | 100 | 1 | gain 3 | 5 / 5 |"]
+    assert "static's first 2.0 s alone" in table
     text = format_adaptation(_adaptation())
     assert "static / adapted 1.50" in text and "1 swaps accepted" in text
+    # the floor of any learner (static 30 mm over a 10 mm first-2-s floor) and the change's cost to static (30 / 20)
+    assert "static / any learner <= 3.00" in text and "in nominal flight: true 1.50x, EKF 1.50x" in text
+
+
+def test_change_cost_needs_the_condition_and_the_nominal_flights():
+    s = lambda v: {"static": {"after": {"rmse_z_truth": v, "rmse_z": v and v / 2}}}  # noqa: E731
+    assert change_cost({"nominal": s(0.02), "motor": s(0.03)}, "motor") == pytest.approx((1.5, 1.5))
+    assert change_cost({"motor": s(0.03)}, "motor") == (None, None)
+    assert change_cost({"nominal": s(0.02), "motor": s(None)}, "motor") == (None, None)
 
 
 def test_the_sitl_section_does_not_take_adaptation_for_an_autopilot():
