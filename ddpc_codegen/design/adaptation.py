@@ -180,10 +180,15 @@ def qp_model(problem, max_gain_change: float = np.inf) -> QPModel:
     steady-state gain check (:func:`~ddpc_codegen.runtime.adapt_qp.steady_state_gain`; inf: none).
 
     Raises:
+        ConfigError: ``[cost] R_de`` is set (not modelled by the rebuild).
         DataError: the problem's QP has a linear term at theta = 0 (the fast-path offset would then
             depend on G; the steering QP as formed here never has one).
     """
     pr, c = problem.predictor, problem.config
+    if np.any(c.R_de):
+        raise ConfigError(f"{c.source}: [cost] R_de with [adapt]: the penalty on the change of u - y couples the "
+                          "inputs with the predicted outputs, which the online rebuild of the QP does not model; "
+                          "drop one of them")
     if np.any(problem.q0 != 0.0):
         raise DataError("the steering QP has a nonzero linear term at theta = 0; online adaptation rebuilds "
                         "the gain K only, not its offset")

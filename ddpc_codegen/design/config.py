@@ -31,7 +31,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data", "adapt"),
     "horizon": ("t_ini", "t_f", "dt", "knots"),
     "signals": ("inputs", "outputs", "input_units", "output_units"),
-    "cost": ("Q", "R", "R_mode", "R_du", "R_ddu", "lambda_sigma"),
+    "cost": ("Q", "R", "R_mode", "R_du", "R_ddu", "R_de", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
     "predictor": ("method", "form", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
@@ -111,7 +111,9 @@ class SteeringConfig:
     ``increment`` ||Δu||_R with Δu_0 = u_0 - u_ini[-1]. ``R_du`` (m, m; default 0) adds a rate
     penalty ||Δu||_R_du on top of any mode, e.g. a smooth *and* small steering offset. ``R_ddu`` (m, m;
     default 0) penalizes the second differences ||Δ²u||_R_ddu (Δ²u_0 = u_0 - 2 u_ini[-1] + u_ini[-2]): ramps
-    without kinks, which a cascaded position loop turns into thrust steps; needs t_ini >= 2.
+    without kinks, which a cascaded position loop turns into thrust steps; needs t_ini >= 2. ``R_de`` (m, m; default
+    0) penalizes the changes of the tracking error e = u_i - y_i (input i against output i; needs m <= p; the first
+    change against u_ini[-1] - y_ini[-1]): what a PD tracking loop turns into command steps.
     ``knots`` (None: every sample is free) parameterizes the references over the horizon by their
     values at these sample indices, linear in between (``design.blocking``); a count is resolved to
     indices on load.
@@ -127,6 +129,7 @@ class SteeringConfig:
     R_mode: str = "offset"
     R_du: np.ndarray | None = None
     R_ddu: np.ndarray | None = None
+    R_de: np.ndarray | None = None
     u_min: np.ndarray | None = None
     u_max: np.ndarray | None = None
     y_min: np.ndarray | None = None
@@ -161,6 +164,9 @@ class SteeringConfig:
         set_("R", _weight(self.R, m, "[cost] R", src))
         set_("R_du", np.zeros((m, m)) if self.R_du is None else _weight(self.R_du, m, "[cost] R_du", src))
         set_("R_ddu", np.zeros((m, m)) if self.R_ddu is None else _weight(self.R_ddu, m, "[cost] R_ddu", src))
+        set_("R_de", np.zeros((m, m)) if self.R_de is None else _weight(self.R_de, m, "[cost] R_de", src))
+        if np.any(self.R_de) and m > p:
+            raise _err(src, "[cost] R_de", f"pairs input i with output i and needs m <= p; m is {m}, p is {p}")
         if np.any(self.R_ddu) and self.t_ini < 2:
             raise _err(src, "[cost] R_ddu", f"needs t_ini >= 2 (the first second difference reads the last two "
                        f"applied inputs); t_ini is {self.t_ini}")
@@ -345,6 +351,7 @@ class SteeringConfig:
             R_mode=co.get("R_mode", "offset"),
             R_du=co.get("R_du"),
             R_ddu=co.get("R_ddu"),
+            R_de=co.get("R_de"),
             lambda_sigma=co.get("lambda_sigma", 1e3),
             u_min=bd.get("u_min"),
             u_max=bd.get("u_max"),
@@ -376,6 +383,7 @@ class SteeringConfig:
             # only when used: configs without a rate penalty keep their digest (and their solvers)
             **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
             **({"R_ddu": self.R_ddu.tolist()} if np.any(self.R_ddu) else {}),
+            **({"R_de": self.R_de.tolist()} if np.any(self.R_de) else {}),
             **({"knots": list(self.knots)} if self.knots is not None else {}),
             **({"artificial_io": dict(self.artificial_io)} if self.artificial_io else {}),
             **({"adapt": dataclasses.asdict(self.adapt)} if self.adapt.enabled else {}),

@@ -27,7 +27,7 @@ __all__ = ["DeePCProblem"]
 class DeePCProblem:
     """DeePC QP from a dataset and a steering config (same weights, modes and bounds).
 
-    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du, + R_ddu)
+    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du, + R_ddu, + R_de)
     + lambda_g ||g||^2 + lambda_sigma ||sigma||^2 (every term without a 1/2; the QP form
     1/2 x'Px carries the factor 2 on all of them). g (N,) has one entry per Hankel column.
     """
@@ -55,6 +55,16 @@ class DeePCProblem:
         Rddu = np.kron(np.eye(Tf), c.R_ddu)
         Ru = Ru + D.T @ Rdu @ D + (D @ D).T @ Rddu @ (D @ D)
         P = sp.block_diag([2 * self.lambda_g * sp.eye(N), 2 * Ru, 2 * Qb, 2 * c.lambda_sigma * sp.eye(ns)], format="csc")
+        # R_de: ||D (u - S y) - e0||^2 (S: output i of each step against input i) couples the u and y blocks
+        S = np.kron(np.eye(Tf), np.eye(m, p))
+        Wde = D.T @ np.kron(np.eye(Tf), c.R_de) @ D
+        if np.any(c.R_de):
+            cross = np.zeros(P.shape)
+            iu, iy = slice(N, N + nu), slice(N + nu, N + nu + ny)
+            cross[iu, iu], cross[iy, iy] = 2 * Wde, 2 * S.T @ Wde @ S
+            cross[iu, iy] = -2 * Wde @ S
+            cross[iy, iu] = cross[iu, iy].T
+            P = (P + sp.csc_matrix(cross)).tocsc()
         I = sp.eye
         Z = lambda a, b: sp.csc_matrix((a, b))  # noqa: E731
         Aeq = sp.bmat([
@@ -69,6 +79,7 @@ class DeePCProblem:
         self._A = sp.vstack([Aeq, Abox], format="csc")
         self._P = sp.triu(P, format="csc")
         self._Qb, self._Rb, self._D, self._Rdu, self._Rddu = Qb, Rb, D, Rdu, Rddu
+        self._S, self._Rde = S, np.kron(np.eye(Tf), c.R_de)
         self._solver = None
 
     def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
@@ -95,6 +106,12 @@ class DeePCProblem:
             dd0 = self._D @ d0
             dd0[:m] += ui[-m:] - ui[-2 * m : -m]
             q[N : N + nu] += -2 * (self._D @ self._D).T @ self._Rddu @ dd0
+        if np.any(c.R_de):  # D (u - S y) - e0 = changes of u - y, the first against u_ini[-1] - y_ini[-1]
+            e0 = np.zeros(nu)
+            e0[:m] = ui[-m:] - yi[-p:][:m]
+            g0 = self._D.T @ self._Rde @ e0
+            q[N : N + nu] += -2 * g0
+            q[N + nu : N + nu + ny] += 2 * self._S.T @ g0
         beq = np.concatenate([ui, yi, np.zeros(nu), np.zeros(ny)])
         n_eq = beq.size
         du = np.tile(c.du_max, Tf)

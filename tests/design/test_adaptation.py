@@ -118,6 +118,14 @@ def test_qp_model_rebuilds_the_qp_casadi_forms_for_another_g(form, method, R_mod
         assert np.abs(getattr(got, key) - want).max() <= 1e-9 * max(1.0, np.abs(want).max()), key
 
 
+def test_qp_model_refuses_the_tracking_error_rate_penalty():
+    """R_de couples u with the predicted y: the rebuild does not model it, so adaptation refuses it up front."""
+    pred = fit_predictor(_dataset(5), 4, 3, "lsq", ridge=1e-6)
+    prob = SteeringProblem(pred, _problem(pred).config.replace(R_de=[1.0, 0.0], source="c.toml"))
+    with pytest.raises(ConfigError, match=r"^c.toml: \[cost\] R_de with \[adapt\]"):
+        qp_model(prob)
+
+
 def test_qp_model_refuses_a_candidate_whose_hessian_is_not_positive_definite():
     pred = fit_predictor(_dataset(5), 4, 3, "lsq", ridge=1e-6)
     prob = _problem(pred)

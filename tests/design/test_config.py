@@ -54,6 +54,11 @@ def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_
     assert d.to_dict()["R_ddu"] == [[0.0, 0.0], [0.0, 2.0]] and d.digest not in (a.digest, c.digest)
     with pytest.raises(ConfigError, match=r"\[cost\] R_ddu needs t_ini >= 2 .* t_ini is 1"):
         _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_ddu = [1.0, 1.0]").replace("t_ini = 4", "t_ini = 1"))
+    # R_de pairs input i with output i: this config has 2 inputs and 1 output
+    with pytest.raises(ConfigError, match=r"\[cost\] R_de pairs input i with output i and needs m <= p; m is 2, p is 1"):
+        _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_de = [1.0, 0.0]"))
+    e = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_de = [0.0, 0.0]"))
+    assert np.array_equal(e.R_de, np.zeros((2, 2))) and e.digest == a.digest and "R_de" not in e.to_dict()
 
 
 def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
@@ -101,6 +106,7 @@ def test_digest_ignores_codegen_but_not_weights(tmp_path):
         (("[cost]", "[costs]"), "'costs' is not a known top-level key"),
         (("Q = [1.0]", "Q = [1.0]\nR_du = [1.0]"), "[cost] R_du must have 2 entries"),
         (("Q = [1.0]", "Q = [1.0]\nR_ddu = [1.0, -1.0]"), "[cost] R_ddu"),
+        (("Q = [1.0]", "Q = [1.0]\nR_de = [1.0, -1.0]"), "[cost] R_de"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nt_a = 0'), "[artificial_io] t_a must be an integer >= 1; got 0"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nmin_ascent = 2.5'), "[artificial_io] min_ascent must be an integer >= 1; got 2.5"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nnoise_level = -1e-3'), "[artificial_io] noise_level must be a number >= 0"),

@@ -49,6 +49,10 @@ def _solve_direct(prob: SteeringProblem, u_ini, y_ini, y_des, u_nom):
     ext = ca.vertcat(np.ravel(u_ini)[-2 * M :], u)
     ddu = ext[2 * M :] - 2 * ext[M:-M] + ext[: -2 * M]
     J += ca.mtimes([ddu.T, np.kron(np.eye(TF), c.R_ddu), ddu])
+    # changes of the tracking error e_k = u_k - y_k (input i against output i), the first from the last applied pair
+    e = ca.vertcat(np.ravel(u_ini)[-M:] - np.ravel(y_ini)[-P:][:M], u - y)  # M == P here
+    de = e[M:] - e[:-M]
+    J += ca.mtimes([de.T, np.kron(np.eye(TF), c.R_de), de])
     g = ca.vertcat(y - pr.Gy_w @ w - ca.mtimes(pr.Gy_u, u), s - pr.Gs_w @ w - ca.mtimes(pr.Gs_u, u),
                    u, y, ca.mtimes(D, u) - d0)
     lb = np.r_[np.zeros(ny + ns), np.tile(c.u_min, TF), np.tile(c.y_min, TF), -np.tile(c.du_max, TF)]
@@ -115,6 +119,27 @@ def test_rate_penalty_on_top_of_any_mode_equals_direct(plant, mode):
     args = _params(sys_, np.random.default_rng(1), scale=0.1)
     du = lambda r: np.diff(np.vstack([args[0][-1:], r.u]), axis=0)  # noqa: E731
     assert np.linalg.norm(du(prob.solve(*args, solver="exact"))) < np.linalg.norm(du(plain.solve(*args, solver="exact")))
+
+
+@pytest.mark.parametrize("mode", ["offset", "increment"])
+def test_tracking_error_rate_penalty_equals_direct_and_calms_the_error_changes(plant, mode):
+    """R_de adds ||Δ(u_i - y_i)||^2 (the first change against the last applied pair): equal to the uncondensed QP
+    written out, and the penalized changes are smaller than without it."""
+    sys_, ds = plant
+    prob = SteeringProblem(fit_predictor(ds, TI, TF, "pem"), _cfg(mode, R_de=[4.0, 1.0]))
+    plain = SteeringProblem(prob.predictor, _cfg(mode))
+    rng = np.random.default_rng(29)
+    for k in range(8):
+        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
+        res = prob.solve(*args, solver="exact")
+        assert res.ok
+        assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    args = _params(sys_, np.random.default_rng(3), scale=0.1)
+
+    def changes(r) -> float:
+        e = np.vstack([args[0][-1:] - args[1][-1:], r.u - r.y_pred])
+        return float(np.sum(np.diff(e, axis=0) ** 2 * [4.0, 1.0]))
+    assert changes(prob.solve(*args, solver="exact")) < 0.95 * changes(plain.solve(*args, solver="exact"))
 
 
 def test_fast_path_is_exact_and_kkt_holds(plant):

@@ -76,17 +76,18 @@ def test_weights_checked_against_dims(folder, tmp_path):
                                                   "got [[1.0, 0.0], [0.0, 1.0]]")
 
 
-def test_curvature_weight_checked_when_present_and_optional_in_older_manifests(folder, tmp_path):
-    def ddu_wrong(f, m):
-        m["weights"]["R_ddu"] = [[float("nan")]]
-    assert _edited(folder, tmp_path, ddu_wrong) == ("<f>: manifest.json weights.R_ddu must be a finite 1x1 matrix "
-                                                    "(dims); got [[nan]]")
+@pytest.mark.parametrize("key", ["R_ddu", "R_de"])
+def test_later_weights_checked_when_present_and_optional_in_older_manifests(folder, tmp_path, key):
+    def wrong(f, m):
+        m["weights"][key] = [[float("nan")]]
+    assert _edited(folder, tmp_path, wrong) == (f"<f>: manifest.json weights.{key} must be a finite 1x1 matrix "
+                                                "(dims); got [[nan]]")
     older = tmp_path / "older"
     shutil.copytree(folder, older)
     man = json.loads((older / "manifest.json").read_text())
-    del man["weights"]["R_ddu"]  # an artifact generated before R_ddu existed
+    del man["weights"][key]  # an artifact generated before the key existed
     (older / "manifest.json").write_text(json.dumps(man))
-    assert load_solver(older).manifest["weights"].get("R_ddu") is None
+    assert load_solver(older).manifest["weights"].get(key) is None
 
 
 def test_negative_lambda_sigma(folder, tmp_path):
