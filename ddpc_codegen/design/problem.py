@@ -135,16 +135,13 @@ class SteeringProblem:
         return J, y, du_expr, D
 
     def _tracking_rate_cost(self, u_full: ca.SX, y: ca.SX, theta: ca.SX) -> ca.SX:
-        """||Δe||^2_R_de with e = u_i - y_i (input i against output i): the change of the tracking loop's error
-        input, which a PD on it turns into thrust steps; Δe_0 against u_ini[-1] - y_ini[-1]."""
-        c = self.config
-        m, p, Ti, Tf = c.m, c.p, c.t_ini, c.t_f
-        pick = ca.DM(np.kron(np.eye(Tf), np.eye(m, p)))  # the first m outputs of each step
-        e = u_full - ca.mtimes(pick, y)
+        """||Δe||^2_R_de, e = u_i - y_i (input i against output i; Δe_0 against u_ini[-1] - y_ini[-1]): the change
+        of the tracking loop's error input, which a PD on it turns into command (thrust) steps."""
+        m, p, Ti, Tf = self.config.m, self.config.p, self.config.t_ini, self.config.t_f
+        e = u_full - ca.mtimes(ca.DM(np.kron(np.eye(Tf), np.eye(m, p))), y)  # the first m outputs of each step
         e_prev = theta[m * (Ti - 1) : m * Ti] - theta[m * Ti + p * (Ti - 1) : m * Ti + p * (Ti - 1) + m]
-        D = np.eye(m * Tf) - np.eye(m * Tf, k=-m)
-        de = ca.mtimes(ca.DM(D), e) - ca.vertcat(e_prev, ca.DM.zeros(m * (Tf - 1)))
-        return ca.mtimes([de.T, ca.DM(np.kron(np.eye(Tf), c.R_de)), de])
+        de = ca.mtimes(ca.DM(np.eye(m * Tf) - np.eye(m * Tf, k=-m)), e) - ca.vertcat(e_prev, ca.DM.zeros(m * (Tf - 1)))
+        return ca.mtimes([de.T, ca.DM(np.kron(np.eye(Tf), self.config.R_de)), de])
 
     def _general_constraints(self, y: ca.SX, du_expr: ca.SX, D: np.ndarray) -> tuple[ca.SX, list, list]:
         """Simple bounds on z (constant) and the general rows g with their bounds: predicted y and
