@@ -55,7 +55,8 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
         empty: the value of a statistic without any sample (None: JSON null; the simulator's figures use NaN).
     Returns:
         ``rmse``, ``mean_error``, ``max_abs_error``: per output, y - y_des; ``ticks``: scored ticks.
-        With z_truth: ``rmse_z_truth`` (z_truth - y_des z), ``estimator_rms`` (y z - z_truth), ``truth_ticks``.
+        With z_truth: ``rmse_z_truth`` (z_truth - y_des z), ``estimator_rms`` (y z - z_truth) and its mean
+        ``estimator_bias`` (the part no steering on the estimate can see), ``truth_ticks``.
         With u and r_nom: ``offset_step_rms`` (per reference, :func:`~ddpc_codegen.stats.step_rms` of u - r_nom
         over pairs of scored ticks), ``max_offset_step`` and ``max_ref_step`` (reference 0: largest
         |change| of u - r_nom and of u from one tick to the next, over every pair of adjacent ticks after
@@ -78,8 +79,9 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
     if z_truth is not None:
         zt = np.asarray(z_truth, dtype=float)[on]
         ok = np.isfinite(zt)
-        out.update(rmse_z_truth=rms(zt[ok] - y_des[on, 0][ok], empty), estimator_rms=rms(y[on, 0][ok] - zt[ok], empty),
-                   truth_ticks=int(ok.sum()))
+        est = y[on, 0][ok] - zt[ok]
+        out.update(rmse_z_truth=rms(zt[ok] - y_des[on, 0][ok], empty), estimator_rms=rms(est, empty),
+                   estimator_bias=float(np.mean(est)) if est.size else empty, truth_ticks=int(ok.sum()))
     flown = scored_ticks(t, settle)  # every tick of the trajectory, engaged or not: what the vehicle was sent
     if u is not None and r_nom is not None:
         u, r_nom = np.asarray(u, dtype=float), np.asarray(r_nom, dtype=float)

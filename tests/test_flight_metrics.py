@@ -22,6 +22,7 @@ def _reference(t, y, y_des, settle, active, u, r_nom, thrust, z_truth, steered):
     tr = [k for k in idx if math.isfinite(z_truth[k])]
     out["rmse_z_truth"] = r([z_truth[k] - y_des[k, 0] for k in tr])
     out["estimator_rms"] = r([y[k, 0] - z_truth[k] for k in tr])
+    out["estimator_bias"] = sum(y[k, 0] - z_truth[k] for k in tr) / len(tr) if tr else None
     flown = [k for k in range(len(t)) if not math.isnan(t[k]) and t[k] >= settle]  # engaged or not
     adj = [k for k in flown if k + 1 in flown]  # adjacent ticks k, k+1 of the flight: never across a gap
     off = u[:, 0] - r_nom[:, 0]
@@ -63,7 +64,7 @@ def test_no_scored_tick_gives_the_empty_value_and_bad_shapes_are_refused():
     y = np.ones((3, 2))
     f = flight_metrics(t, y, y, settle=2.0, u=np.ones((3, 1)), r_nom=np.ones((3, 1)), thrust=np.ones(3),
                        z_truth=np.ones(3), steered=np.ones(3, bool))
-    assert f["rmse"] == [None, None] and f["ticks"] == 0 and f["rmse_z_truth"] is None
+    assert f["rmse"] == [None, None] and f["ticks"] == 0 and f["rmse_z_truth"] is None and f["estimator_bias"] is None
     assert f["max_offset_step"] is None and f["thrust_step_rms"] is None and f["engaged_fraction"] is None
     assert f["thrust_limit_share"] is None and f["offset_step_rms"] == [None]
     # Steps are between adjacent ticks: an inactive tick (a fallback, a stall) counts; the step over an

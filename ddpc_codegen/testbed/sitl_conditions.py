@@ -144,6 +144,8 @@ def summarize_rounds(per_round: list[dict]) -> dict:
         if key in ("rmse_z", "rmse_z_truth"):
             out[key]["ilc"] = None
     out["estimator_rms"] = {m: rms_of([r[m]["estimator_rms"] for r in per_round]) for m in METHODS}
+    # its constant part per flight (RMS over the rounds): a bias of the estimate, which steering on it cannot see
+    out["estimator_bias_rms"] = {m: rms_of([r[m].get("estimator_bias") for r in per_round]) for m in METHODS}
     out["rounds"] = per_round
     return out
 

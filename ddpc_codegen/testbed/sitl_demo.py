@@ -125,6 +125,7 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
                        steered=t["reason"] == _STEERED)
     solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
     return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
+            "estimator_bias": f.get("estimator_bias"),
             "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
             "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"],
             # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved

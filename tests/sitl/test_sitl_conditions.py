@@ -54,6 +54,10 @@ def test_rounds_are_averaged_per_method_and_ilc_is_none_off_the_ellipse():
     assert steered_estimator_rms(summarize_rounds([r1, r2])) == pytest.approx(math.sqrt((0.03**2 + 0.02**2) / 2))
     assert steered_estimator_rms({"estimator_rms": 0.007}) == 0.007  # a report from before: one figure
     assert s["rounds"] == [r1, r2]
+    # the constant part of the estimator's error per flight, RMS over the rounds; None when a flight has none
+    assert s["estimator_bias_rms"]["steered"] is None  # these flights predate the figure
+    r1["steered"]["estimator_bias"], r2["steered"]["estimator_bias"] = 0.003, -0.004
+    assert summarize_rounds([r1, r2])["estimator_bias_rms"]["steered"] == pytest.approx(math.sqrt((9e-6 + 16e-6) / 2))
     r2["steered"]["rmse_z_truth"] = None  # a flight without truth: no mean for that method
     assert summarize_rounds([r1, r2])["rmse_z_truth"]["steered"] is None
 
