@@ -205,12 +205,15 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
     """Per autopilot and condition: each method's true-height RMSE (mean over the rounds), the estimator's
     own error in the steered flights (and its constant part per flight, when recorded), the steering against the best simple method (ctrl ff, prefilter, ILC) and the estimator, the
     largest tick-to-tick step of the applied height reference in the steered flights (fallbacks included;
-    the config's rate bound ``du_max`` is the limit), the thrust steps against passthrough's, the fallbacks and the
+    the config's rate bound ``du_max`` is the limit; a stall resumes from the measured height, wherever the
+    vehicle went meanwhile), the thrust steps against passthrough's, the fallbacks (with the bridge's own stalls
+    in the steered flights, when recorded) and the
     p99 of the steering's solver call in flight (the worst round's)."""
     head = ("| autopilot | condition | " + " | ".join(m.replace("_", " ") for m in _METHODS)
             + " | EKF steered | estimator error (steered flights): RMS (its constant part) | best simple / steered "
             "| steered / estimator "
-            "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks | solve p99 in flight [ms] |")
+            "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks (bridge stalls) "
+            "| solve p99 in flight [ms] |")
     lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds:\n",
              head, "|" + "---|" * (head.count("|") - 1)]
     for ap, name, c in conditions:
@@ -226,11 +229,13 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
         thr_ratio = f"{thr['steered'] / thr['passthrough']:.1f}x" if thr.get("steered") and thr.get("passthrough") else "--"
         step = (c.get("max_ref_step") or {}).get("steered")
         fb = (c.get("fallbacks") or {}).get("steered")
+        stalls = (c.get("stalls") or {}).get("steered")
         solve = (c.get("solve_us_p99") or {}).get("steered")
         lines.append(f"| {ap} | {name} | " + " | ".join(_mm(vt.get(m)) for m in _METHODS)
                      + f" | {_mm(c['rmse_z'].get('steered'))} | {_mm(est)}{_bias(c)} | {best} | {vs_est} | "
                      + f"{'--' if step is None else f'{1e3 * step:.1f}'} | {thr_ratio} | "
-                     + f"{'--' if fb is None else f'{fb:g}'} | {'--' if solve is None else f'{solve / 1e3:.2f}'} |")
+                     + f"{'--' if fb is None else f'{fb:g}'}{'' if stalls is None else f' ({stalls:g})'} | "
+                     + f"{'--' if solve is None else f'{solve / 1e3:.2f}'} |")
     skipped = [f"{ap} {name}: {c['skipped']}" for ap, name, c in conditions if "skipped" in c]
     return "\n".join(lines) + "\n" + ("".join(f"\n- {s}" for s in skipped) + "\n" if skipped else "")
 

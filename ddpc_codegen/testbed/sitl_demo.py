@@ -31,6 +31,7 @@ from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_conditions import (CONDITIONS, STEPS_DURATION, fly_condition, steered_estimator_rms,
                                                   summarize_rounds, write_steps_trajectory)
+from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
 __all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "APPROACH_TIMEOUT", "bridge_command", "fly",
@@ -48,6 +49,7 @@ COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
 # The steered flight takes its step guard from the profile ([steering] max_step: px4_sih 0.6 m, as a
 # user flying the shipped PX4 config by hand gets it).
 _STEERED = REASONS.index("steered")
+_STALE = REASONS.index("stale")
 # ILC flights after the passthrough one (iteration 0): the in-process flying ILC settles at its
 # second iteration; each flight here is a take-off, the ellipse and a landing (27-30 s of wall time).
 ILC_ITERATIONS = 3
@@ -118,18 +120,24 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     estimator's own error (RMS of EKF - true height), the steered fraction of the engaged ticks, the
     tick-to-tick thrust change (rms), the largest tick-to-tick step of the applied height reference
     (``max_ref_step``: the trajectory's own steps included) and of its correction u - r_nom
-    (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved)."""
+    (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved), and the bridge's own
+    stalls (``stalls``: ticks after a gap in its clock, each resumed from where the vehicle then was) and the
+    ticks on stale telemetry (``stale_ticks``) from the start of the trajectory: what explains a step beyond the
+    rate bound (a stall resumes relative to the measured height, and the vehicle moved meanwhile)."""
     t = load_ticklog(log_path).ticks
     f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=t["active"], u=t["u"], r_nom=t["r_nom"],
                        thrust=t["sp_thrust"], z_truth=t["truth_position"][:, 2] if "truth_position" in t else None,
                        steered=t["reason"] == _STEERED)
     solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
+    flown = np.isfinite(t["t_traj"])
     return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
             "estimator_bias": f.get("estimator_bias"),
             "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
             "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"],
             # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved
-            "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None}
+            "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None,
+            "stalls": int(np.count_nonzero(flown & (t["gate"] & GATE_FLAGS["stall"]).astype(bool))),
+            "stale_ticks": int(np.count_nonzero(flown & (t["reason"] == _STALE)))}
 
 
 def fit_prefilter_from_log(collect: Path, out: Path) -> Path:
@@ -412,6 +420,8 @@ def format_condition(ap: str, name: str, c: dict) -> str:
                    if thr.get("steered") and thr.get("passthrough") else "")
         solve = (c.get("solve_us_p99") or {}).get("steered")
         solve_txt = f"; solve p99 in flight {solve / 1e3:.2f} ms (<= 1 ms)" if solve is not None else ""
+        stalls, stale = ((c.get(k) or {}).get("steered") for k in ("stalls", "stale_ticks"))
+        solve_txt += f"; bridge stalls {stalls:g}, stale ticks {stale:g}" if stalls is not None and stale is not None else ""
         lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest reference step "
                      f"{mm((c.get('max_ref_step') or {}).get('steered'))} mm per tick (of the correction u - r_nom "
                      f"{mm((c.get('max_offset_step') or {}).get('steered'))}){thr_txt}{solve_txt}")

@@ -69,6 +69,11 @@ def test_the_solve_time_of_the_rounds_is_the_worst_flight_s():
     s = summarize_rounds([r1, r2])
     assert s["solve_us_p99"]["steered"] == 700.0  # a latency target holds in every flight, not on average
     assert s["solve_us_p99"]["passthrough"] is None  # nothing solved (or a report from before the figure)
+    assert s["stalls"]["steered"] is None  # flights from before the bridge's stalls were counted
+    r1["steered"].update(stalls=1, stale_ticks=30)
+    r2["steered"].update(stalls=0, stale_ticks=0)
+    s = summarize_rounds([r1, r2])
+    assert s["stalls"]["steered"] == 0.5 and s["stale_ticks"]["steered"] == 15.0  # mean of the rounds, as fallbacks
 
 
 def test_condition_lines_state_the_target_on_the_true_height():
@@ -82,6 +87,8 @@ def test_condition_lines_state_the_target_on_the_true_height():
         "[sitl-demo] px4 heavy target >= 2x the best simple method (2.50x); estimator error in the steered flights 8.0 mm "
         "(steered 2.00x of it); largest reference step 300.0 mm per tick (of the correction u - r_nom 5.0); thrust step 1.5x "
         "passthrough's"]
+    c.update(stalls={"steered": 2.0}, stale_ticks={"steered": 40.0})
+    assert format_condition("px4", "heavy", c).endswith("; bridge stalls 2, stale ticks 40")
     assert format_condition("px4", "wind", {"skipped": CONDITIONS["px4"]["wind"]}) == (
         "[sitl-demo] px4 wind: PX4 SIH in this build has no wind parameter (no SIH_WIND_*): not flown")
     c["ilc"] = None

@@ -13,6 +13,7 @@ from ddpc_codegen.runtime.baselines import PrefilterPolicy
 from ddpc_codegen.sim import FlyingScenario, simulate
 from ddpc_codegen.testbed.bridge_demo import truth_rmse
 from ddpc_codegen.testbed.sitl_demo import flight_figures
+from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.ticklog import TickRecorder, reason_code
 
 
@@ -22,7 +23,7 @@ def scored(tmp_path_factory):
     pol = PrefilterPolicy(PrefilterModel((1.0, 1.0), (0.0, 0.0), (20, 0), 0.005))
     res = simulate("flying", 5.0, reference_hook=PolicyHook(pol, "flying"), seed=4, noise=True)
     rec = TickRecorder(2, 2, capacity=res.n)
-    steered = np.arange(res.n) % 3 != 0  # a known engaged fraction
+    steered = (np.arange(res.n) % 3 != 0) & ~((np.arange(res.n) >= 300) & (np.arange(res.n) < 310))
     for k in range(res.n):
         i = rec.new_row()
         a = rec.arrays
@@ -30,7 +31,8 @@ def scored(tmp_path_factory):
         a["y"][i], a["y_des"][i], a["u"][i], a["r_nom"][i] = res.y[k], res.y_des[k], res.u[k], res.r_nom[k]
         a["sp_thrust"][i] = res.setpoint_thrust[k]
         a["truth_position"][i, 2] = res.y_true[k, 0]
-        a["reason"][i] = reason_code("steered" if steered[k] else "prefilter")
+        a["reason"][i] = reason_code("stale" if 300 <= k < 310 else "steered" if steered[k] else "prefilter")
+        a["gate"][i] = GATE_FLAGS["stall"] if k == 310 else 0  # one stall, resumed after 10 stale ticks
         a["solve_us"][i] = 10.0 + k % 100 if steered[k] else np.nan  # the solver's call, on the steered ticks
         a["active"][i] = a["event"][i] = True
     tmp = tmp_path_factory.mktemp("scoring")
@@ -63,3 +65,4 @@ def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
     assert ff["engaged_fraction"] == pytest.approx(steered[on].mean(), rel=1e-12)
     solved = (10.0 + np.arange(res.n) % 100)[steered]  # every solver call of the flight, warm-up included
     assert ff["solve_us_p99"] == pytest.approx(np.percentile(solved, 99), rel=1e-12)
+    assert ff["stalls"] == 1 and ff["stale_ticks"] == 10  # counted from the trajectory's start, settle or not
