@@ -35,7 +35,8 @@ from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
 from ddpc_codegen.runtime.adaptation import REJECTIONS
 from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
-from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log, fly,
+from ddpc_codegen.testbed.sitl_flight import fly
+from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log,
                                             available_autopilots, comma_list, fly_autopilots)
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from firmware_bridge.ticklog import load_ticklog
@@ -238,8 +239,9 @@ def _fly_one(sitl: Sitl, autopilot: str, cond: str, method: str, r: int, out: Pa
     if change is not None:
         change.start()
     try:
+        # one attempt: a second one would fly without the change (its watcher has seen the first start)
         fly(sitl, autopilot, mode, out, DURATION_S, solver=solver if mode == "steer" else None,
-            extra=("--trajectory", str(steps), *extra), tag=tag)
+            extra=("--trajectory", str(steps), *extra), tag=tag, attempts=1)
     finally:
         if change is not None:
             change.done.set()

@@ -24,23 +24,19 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
-from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl_flight import PROFILES, flight_figures, fly
 from ddpc_codegen.testbed.sitl_conditions import (CONDITIONS, STEPS_DURATION, fly_condition, steered_estimator_rms,
                                                   summarize_rounds, write_steps_trajectory)
-from firmware_bridge.gate import GATE_FLAGS
-from firmware_bridge.ticklog import REASONS, load_ticklog
+from firmware_bridge.ticklog import load_ticklog
 
-__all__ = ["SITL_PARAMS", "PROFILES", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "APPROACH_TIMEOUT", "bridge_command", "fly",
-           "flight_figures", "fly_ilc", "run_pipeline", "main", "format_condition"]
+__all__ = ["SITL_PARAMS", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "fly_ilc", "run_pipeline", "main", "format_condition"]
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository (ddpc_codegen/testbed/ -> .)
 # ArduCopter: SET_ATTITUDE_TARGET.thrust as a thrust (GUID_OPTIONS bit 3), as the profile assumes.
 SITL_PARAMS = {"ardupilot": {"GUID_OPTIONS": 8}, "px4": {}}
-PROFILES = {"ardupilot": "arducopter_sitl", "px4": "px4_sih"}
 # Steering configs (configs/sitl_*.toml) and collect excitation: PX4's height responds ~0.1 s late,
 # so it gets a 200 ms horizon and slower, larger PRBS bits (150 ms) to identify that response.
 CONFIGS = {"ardupilot": "sitl_ardupilot.toml", "px4": "sitl_px4.toml"}
@@ -48,50 +44,9 @@ COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
            "px4": ("--excitation", "0.15,0.03", "--excitation-hold", "30")}
 # The steered flight takes its step guard from the profile ([steering] max_step: px4_sih 0.6 m, as a
 # user flying the shipped PX4 config by hand gets it).
-_STEERED = REASONS.index("steered")
-_STALE = REASONS.index("stale")
 # ILC flights after the passthrough one (iteration 0): the in-process flying ILC settles at its
 # second iteration; each flight here is a take-off, the ellipse and a landing (27-30 s of wall time).
 ILC_ITERATIONS = 3
-# Seconds each flight waits, after the take-off ramp, for the height to hold at the trajectory's start
-# (the bridge's default is 5). Measured on PX4 SIH: its EKF height estimate once stood 0.25 m above the
-# start height for ~9 s after the ramp and then dropped 0.42 m in 0.3 s; a steered flight started on the
-# 5 s timeout fought that error (121 vs 85 mm passthrough). Baseline and steered flights are compared
-# from a settled start, so the pipeline waits longer.
-APPROACH_TIMEOUT = 20.0
-
-
-def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, timeout: float,
-                   extra: tuple[str, ...] = (), tag: str | None = None) -> list[str]:
-    """The ``ddpc-bridge`` command of one flight from the ground (arm, take off, fly ``duration`` s,
-    land); log ``<out>/<autopilot>_<tag or mode>.npz``, summary ``.json``."""
-    name = f"{autopilot}_{tag or mode}"
-    return [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
-            "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
-            "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
-            "--log", str(out / f"{name}.npz"), "--overwrite", "--summary", str(out / f"{name}.json"), "--verbose",
-            "--rt-priority", "10", "--approach-timeout", f"{APPROACH_TIMEOUT:g}",
-            "--target-system", str(getattr(sitl, "sysid", 1)), *extra]
-
-
-def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: Path | None = None,
-        timeout: float = 150.0, extra: tuple[str, ...] = (), tag: str | None = None) -> dict:
-    """One bridge flight from the ground (:func:`bridge_command`); its summary."""
-    name = f"{autopilot}_{tag or mode}"
-    cmd = bridge_command(sitl, autopilot, mode, out, duration, timeout, extra, tag)
-    if solver is not None:
-        cmd += ["--solver", str(solver)]
-    with open(out / f"{name}.out", "w") as f:
-        rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, timeout=timeout + 90, cwd=out).returncode
-    if rc != 0:
-        raise RuntimeError(f"{name}: ddpc-bridge exited {rc}:\n{(out / f'{name}.out').read_text()[-3000:]}\n"
-                           f"{autopilot} SITL console tail:\n{sitl.log_tail()}")
-    summary = json.loads((out / f"{name}.json").read_text())
-    rz, rt = summary.get("rmse_z_measured"), summary.get("rmse_z_truth")
-    print(f"[sitl-demo] {name}: flown ({duration:g} s), rmse z "
-          f"{'-' if rz is None else f'{1e3 * rz:.1f}'} mm, true {'-' if rt is None else f'{1e3 * rt:.1f}'} mm",
-          flush=True)  # progress (live through run_isolated)
-    return summary
 
 
 def ctrl_ff_profile(autopilot: str, out: Path) -> Path:
@@ -112,32 +67,6 @@ def codegen(config: Path, dataset: Path, out: Path) -> Path:
     if res.returncode != 0:
         raise RuntimeError(f"codegen failed ({res.returncode}):\n{res.stderr[-3000:]}")
     return Path(res.stdout.strip().splitlines()[-1])
-
-
-def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
-    """From a tick log, after ``settle`` s of trajectory: RMSE of z on the telemetry (EKF) and on the
-    simulator's true height (ArduPilot SIM_STATE, PX4 SIH HIL_STATE_QUATERNION; None without it), the
-    estimator's own error (RMS of EKF - true height), the steered fraction of the engaged ticks, the
-    tick-to-tick thrust change (rms), the largest tick-to-tick step of the applied height reference
-    (``max_ref_step``: the trajectory's own steps included) and of its correction u - r_nom
-    (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved), and the bridge's own
-    stalls (``stalls``: ticks after a gap in its clock, each resumed from where the vehicle then was) and the
-    ticks on stale telemetry (``stale_ticks``) from the start of the trajectory: what explains a step beyond the
-    rate bound (a stall resumes relative to the measured height, and the vehicle moved meanwhile)."""
-    t = load_ticklog(log_path).ticks
-    f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=t["active"], u=t["u"], r_nom=t["r_nom"],
-                       thrust=t["sp_thrust"], z_truth=t["truth_position"][:, 2] if "truth_position" in t else None,
-                       steered=t["reason"] == _STEERED)
-    solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
-    flown = np.isfinite(t["t_traj"])
-    return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
-            "estimator_bias": f.get("estimator_bias"),
-            "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
-            "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"],
-            # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved
-            "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None,
-            "stalls": int(np.count_nonzero(flown & (t["gate"] & GATE_FLAGS["stall"]).astype(bool))),
-            "stale_ticks": int(np.count_nonzero(flown & (t["reason"] == _STALE)))}
 
 
 def fit_prefilter_from_log(collect: Path, out: Path) -> Path:

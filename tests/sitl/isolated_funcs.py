@@ -45,7 +45,7 @@ def flight_with_autopilot_log(autopilot: str, out_dir: str, duration: float = 6.
     from pathlib import Path
 
     from ddpc_codegen.testbed.sitl import make_sitl
-    from ddpc_codegen.testbed.sitl_demo import PROFILES
+    from ddpc_codegen.testbed.sitl_flight import PROFILES
 
     out = Path(out_dir)
     sitl = make_sitl(autopilot, **({"params": {"GUID_OPTIONS": 8}} if autopilot == "ardupilot" else {}))
@@ -108,7 +108,7 @@ def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.
     from pathlib import Path
 
     from ddpc_codegen.testbed.sitl import make_sitl
-    from ddpc_codegen.testbed.sitl_demo import bridge_command
+    from ddpc_codegen.testbed.sitl_flight import bridge_command
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -47,7 +47,7 @@ def test_command_lines(tmp_path):
     assert p.env["PX4_SIM_MODEL"] == "sihsim_quadx"
     # PX4's rcS sets MAV_SYS_ID to instance + 1: every flight's bridge is told that system id.
     assert p.sysid == 2 and s.sysid == 1
-    from ddpc_codegen.testbed.sitl_demo import bridge_command
+    from ddpc_codegen.testbed.sitl_flight import bridge_command
 
     cmd = bridge_command(p, "px4", "passthrough", tmp_path, 5.0, 60.0)
     assert cmd[cmd.index("--target-system") + 1] == "2" and cmd[cmd.index("bridge") + 1] == p.url
@@ -149,7 +149,8 @@ def test_ctrl_ff_profile_is_the_autopilot_profile_with_velocity_feed_forward(tmp
     import dataclasses
 
     from ddpc_codegen.robot.profile import load_profile
-    from ddpc_codegen.testbed.sitl_demo import PROFILES, ctrl_ff_profile, format_baselines
+    from ddpc_codegen.testbed.sitl_demo import ctrl_ff_profile, format_baselines
+    from ddpc_codegen.testbed.sitl_flight import PROFILES
 
     base, ff = load_profile(PROFILES[autopilot]), load_profile(ctrl_ff_profile(autopilot, tmp_path))
     assert ff.controller.ref_velocity_gain == 1.0 and base.controller.ref_velocity_gain in (None, 0.0)

@@ -12,7 +12,7 @@ from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.baselines import PrefilterPolicy
 from ddpc_codegen.sim import FlyingScenario, simulate
 from ddpc_codegen.testbed.bridge_demo import truth_rmse
-from ddpc_codegen.testbed.sitl_demo import flight_figures
+from ddpc_codegen.testbed.sitl_flight import flight_figures
 from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.ticklog import TickRecorder, reason_code
 
