@@ -119,6 +119,9 @@ def test_a_disarmed_vehicle_left_in_offboard_gets_idle_thrust_until_it_reports_a
     port = free_port()
     veh = FakeVehicle(port, z=0.0)
     veh.armed = False
+    # armed 0.3 s after the accepted ARM: >= 60 setpoints at 200 Hz before its heartbeat can say so (without the
+    # delay, an ARM accepted just before a heartbeat left two, and the window tested nothing)
+    veh.arm_delay = 0.3
     try:
         veh.start()
         br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--arm", "--takeoff",

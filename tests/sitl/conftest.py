@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 # ~330 s each on this 2-core machine: the PX4 flight + ArduCopter's climb-rate mode | everything else
-_GROUP_A = ("test_sitl_flight.py::test_from_the_ground_to_steered_flight[px4]",
+_GROUP_A = ("test_sitl_from_the_ground.py::test_from_the_ground_to_steered_flight[px4]",
             "test_sitl_climb_rate.py::test_ardupilot_climb_rate_mode_collect_and_steer")
 
 

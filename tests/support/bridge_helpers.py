@@ -109,6 +109,8 @@ class FakeVehicle(threading.Thread):
         self.pattern = pattern
         self.armed = True
         self.arm_refusals = 0  # refuse this many ARM commands (TEMPORARILY_REJECTED) before accepting; -1: always
+        self.arm_delay = 0.0  # seconds from an accepted ARM to being armed (a real autopilot's arming checks)
+        self._arm_at: float | None = None
         self.commands: list[int] = []  # COMMAND_LONG ids received
         self.armed_hb_at: float | None = None  # just before the first heartbeat saying "armed" went out (monotonic)
         self.sent = {"attitude": 0, "position": 0}
@@ -129,6 +131,8 @@ class FakeVehicle(threading.Thread):
             if d > 0:
                 time.sleep(d)
             now = time.monotonic()
+            if self._arm_at is not None and now >= self._arm_at:
+                self.armed, self._arm_at = True, None
             for msg, rx in self.link.drain():
                 self.bridge_seen.set()
                 if msg.get_type() == "SET_ATTITUDE_TARGET":
@@ -160,7 +164,10 @@ class FakeVehicle(threading.Thread):
             if self.arm_refusals != 0:
                 self.arm_refusals -= 1 if self.arm_refusals > 0 else 0
                 return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-            self.armed = True
+            if self.arm_delay > 0:
+                self._arm_at = self._arm_at or time.monotonic() + self.arm_delay
+            else:
+                self.armed = True
         return mavlink.MAV_RESULT_ACCEPTED
 
     def _send_telemetry(self, mav, q_level) -> None:
