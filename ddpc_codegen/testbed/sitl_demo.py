@@ -4,9 +4,9 @@ ILC: repeated flights of the same ellipse, :func:`fly_ilc`), then beyond the ell
 3-D steps file and unseen changes, :mod:`.sitl_conditions`) -- and the figures (``make sitl-demo``).
 The steering config is whatever ``configs/sitl_<autopilot>.toml`` says.
 
-Each flight is one ``ddpc-bridge`` process with ``--arm --offboard --takeoff --land``: it arms the
-vehicle on the ground (retrying while the EKF initialises), takes off to the trajectory start,
-flies, lands and waits for the disarm. The solver comes from ``ddpc-codegen codegen`` on the
+Each flight is one ``ddpc-bridge`` process with ``--arm --offboard --takeoff --land``
+(:mod:`.sitl_flight`): it arms the vehicle on the ground (retrying while the EKF initialises), takes off
+to the trajectory start, flies, lands and waits for the disarm. The solver comes from ``ddpc-codegen codegen`` on the
 collect flight's tick log (subprocesses: the bridge side never imports the design stack).
 
 :func:`run_pipeline` works in the current network namespace; :func:`main` runs each available
@@ -23,7 +23,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-
 
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
