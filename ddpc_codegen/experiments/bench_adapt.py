@@ -76,8 +76,10 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
     saying why, when the tools are missing or the cross build failed its checks)."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     prob = _ridge_problem(size)
-    st = AdaptSettings(enabled=True, offset=True)
     lay = fit_layout(prob.predictor)
+    # the window the verification needs: at least one column per row of a Hankel block (excitation), 200 at least
+    window = max(200, lay.m * lay.depth)
+    st = AdaptSettings(enabled=True, offset=True, window=window)
     rng = np.random.default_rng(0)
     wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05
     with tempfile.TemporaryDirectory() as tmp:
@@ -88,8 +90,8 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
             log(f"  aarch64 online update of {size}: failed ({e})")
             arm, note = None, f"failed: {str(e).splitlines()[0][:200]}"
     with tempfile.TemporaryDirectory() as tmp:  # the same windows and re-solves without the offset
-        _, t_plain, _ = _resolve_times(prob, AdaptSettings(enabled=True), f"bench_adapt_{size}_plain", wins, n_resolves,
-                                    tmp)
+        _, t_plain, _ = _resolve_times(prob, AdaptSettings(enabled=True, window=window), f"bench_adapt_{size}_plain",
+                                       wins, n_resolves, tmp)
     return {"size": size, "width": lay.width, "window": st.window,
             "update_us_median": round(float(np.median(t_push)) * 1e6, 2),
             "update_us_p99": round(float(np.percentile(t_push, 99)) * 1e6, 2),
@@ -112,5 +114,5 @@ def adapt_lines(rows: list[dict]) -> list[str]:
 
 
 if __name__ == "__main__":
-    res = [adapt_timing(s) for s in ("flying", "hopping")]
+    res = [adapt_timing(s) for s in ("flying", "hopping", "preview")]
     print("\n".join(adapt_lines(res)))
