@@ -77,8 +77,7 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
     log = log or (lambda msg: print(msg, file=sys.stderr))
     prob = _ridge_problem(size)
     lay = fit_layout(prob.predictor)
-    # the window the verification needs: at least one column per row of a Hankel block (excitation), 200 at least
-    window = max(200, lay.m * lay.depth)
+    window = max(200, lay.min_window)  # the default window where it suffices
     st = AdaptSettings(enabled=True, offset=True, window=window)
     rng = np.random.default_rng(0)
     wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05

@@ -198,8 +198,8 @@ class Adapter:
         s = self.settings
         if not (0.0 < s.forgetting <= 1.0):
             raise DataError(f"[adapt] forgetting must be in (0, 1]; got {s.forgetting}")
-        if s.window < self.layout.m * self.layout.depth:
-            raise DataError(f"[adapt] window must be >= m (Tini+Tf) = {self.layout.m * self.layout.depth} columns "
+        if s.window < self.layout.min_window:
+            raise DataError(f"[adapt] window must be >= m (Tini+Tf) = {self.layout.min_window} columns "
                             f"(fewer cannot show excitation); got {s.window}")
         self.R = np.zeros((w, w))
         self.R[: self.R0.shape[0]] = self.R0

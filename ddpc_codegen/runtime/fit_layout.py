@@ -32,6 +32,12 @@ class FitLayout:
         return self.t_ini + self.t_f
 
     @property
+    def min_window(self) -> int:
+        """The fewest recent columns an online update's verification may use: m (Tini + Tf), one per row of the
+        input block of a Hankel column (fewer cannot show excitation)."""
+        return self.m * self.depth
+
+    @property
     def r(self) -> int:
         return (self.m + self.p) * self.t_ini + self.m * self.t_f
 

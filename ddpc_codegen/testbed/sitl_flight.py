@@ -2,12 +2,10 @@
 (:func:`bridge_command`), running it (:func:`fly`: the vehicle disarmed first, a flight that did not fly its
 duration flown again), and its figures from the tick log (:func:`flight_figures`).
 
-Measured on PX4 SIH (one ``make sitl-demo``): its EKF height on the ground drifted from 0.47 m to 5.9 m over
-32 flights, and once its land detector did not fire in the bridge's 60 s of AUTO.LAND; the next flight then
-started on a vehicle still armed and landing, was disarmed mid-take-off and ran into its timeout, and the one
-after a later drift ended the same way. Both were scored as if flown. Now such a flight is kept beside its
-retry (``<name>_attempt1.*``: nothing recorded is lost) and flown again on a disarmed vehicle; a second
-failure stops the run with the bridge's output.
+Why both: a SITL's land detector can miss a landing (PX4 SIH's, while its EKF height drifts on a long
+session), and a flight started on a vehicle still armed and landing is disarmed mid-take-off and ends on its
+timeout. Such a flight is kept beside its retry (``<name>_attempt<k>.*``: nothing recorded is lost), never
+scored as flown; a second failure stops the run with the bridge's output.
 """
 
 from __future__ import annotations
@@ -104,8 +102,11 @@ def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: 
     ``<name>_attempt<k>.*`` and flown again, up to ``attempts`` flights.
 
     Raises:
+        ValueError: ``attempts`` < 1.
         RuntimeError: the bridge exited non-zero, or no attempt flew the duration.
     """
+    if attempts < 1:
+        raise ValueError(f"attempts must be >= 1; got {attempts}")
     name = f"{autopilot}_{tag or mode}"
     cmd = bridge_command(sitl, autopilot, mode, out, duration, timeout, extra, tag)
     if solver is not None:

@@ -143,3 +143,5 @@ def test_no_attempt_flying_its_duration_stops_the_run(tmp_path, monkeypatch):
     monkeypatch.setattr(sitl_flight.subprocess, "run", run)
     with pytest.raises(RuntimeError, match="1 attempts"):  # make sitl-adapt: one attempt (its change is timed)
         fly(_FakeSitl(0), "px4", "passthrough", tmp_path, 20.0, tag="y", attempts=1)
+    with pytest.raises(ValueError, match=r"^attempts must be >= 1; got 0$"):
+        fly(_FakeSitl(0), "px4", "passthrough", tmp_path, 20.0, tag="z", attempts=0)
