@@ -49,6 +49,7 @@ def build_manifest(problem, name: str, backend: str, module: str, extension: Pat
         "bounds": {"u_min": _inf_list(c.u_min), "u_max": _inf_list(c.u_max), "y_min": _inf_list(c.y_min),
                    "y_max": _inf_list(c.y_max), "du_max": _inf_list(c.du_max)},
         "weights": {"Q": c.Q.tolist(), "R": c.R.tolist(), "R_du": c.R_du.tolist(), "R_ddu": c.R_ddu.tolist(),
+                    "R_doffset": c.R_doffset.tolist(),
                     "R_de": c.R_de.tolist(),
                     "lambda_sigma": c.lambda_sigma},
         "settings": settings,

@@ -31,7 +31,7 @@ _SCHEMA: dict[str, tuple[str, ...]] = {
     "": ("name", "horizon", "signals", "cost", "bounds", "predictor", "codegen", "artificial_io", "data", "adapt"),
     "horizon": ("t_ini", "t_f", "dt", "knots"),
     "signals": ("inputs", "outputs", "input_units", "output_units"),
-    "cost": ("Q", "R", "R_mode", "R_du", "R_ddu", "R_de", "lambda_sigma"),
+    "cost": ("Q", "R", "R_mode", "R_du", "R_doffset", "R_ddu", "R_de", "lambda_sigma"),
     "bounds": ("u_min", "u_max", "y_min", "y_max", "du_max"),
     "predictor": ("method", "form", "slack_weight", "ridge", "rcond"),
     "codegen": ("backend", "max_iter", "eps", "rho", "march_native"),
@@ -109,7 +109,10 @@ class SteeringConfig:
     u_min/u_max/du_max (m,), y_min/y_max (p,) in the signals' units (±inf = unbounded).
     ``R_mode``: ``absolute`` penalises ||u||_R (the paper), ``offset`` ||u - u_nom||_R,
     ``increment`` ||Δu||_R with Δu_0 = u_0 - u_ini[-1]. ``R_du`` (m, m; default 0) adds a rate
-    penalty ||Δu||_R_du on top of any mode, e.g. a smooth *and* small steering offset. ``R_ddu`` (m, m;
+    penalty ||Δu||_R_du on top of any mode, e.g. a smooth *and* small steering offset. ``R_doffset`` (m, m;
+    default 0; R_mode ``offset`` only) penalizes the changes of the steering offset ||Δ(u - u_nom)||_R_doffset
+    instead: the references follow the nominal ones' own ramps for free (the first change against the last
+    applied input and the nominal's first increment extrapolated one step back). ``R_ddu`` (m, m;
     default 0) penalizes the second differences ||Δ²u||_R_ddu (Δ²u_0 = u_0 - 2 u_ini[-1] + u_ini[-2]): ramps
     without kinks, which a cascaded position loop turns into thrust steps; needs t_ini >= 2. ``R_de`` (m, m; default
     0) penalizes the changes of the tracking error e = u_i - y_i (input i against output i; needs m <= p; the first
@@ -128,6 +131,7 @@ class SteeringConfig:
     lambda_sigma: float = 1e3
     R_mode: str = "offset"
     R_du: np.ndarray | None = None
+    R_doffset: np.ndarray | None = None
     R_ddu: np.ndarray | None = None
     R_de: np.ndarray | None = None
     u_min: np.ndarray | None = None
@@ -163,6 +167,8 @@ class SteeringConfig:
         set_("Q", _weight(self.Q, p, "[cost] Q", src))
         set_("R", _weight(self.R, m, "[cost] R", src))
         set_("R_du", np.zeros((m, m)) if self.R_du is None else _weight(self.R_du, m, "[cost] R_du", src))
+        set_("R_doffset", np.zeros((m, m)) if self.R_doffset is None
+             else _weight(self.R_doffset, m, "[cost] R_doffset", src))
         set_("R_ddu", np.zeros((m, m)) if self.R_ddu is None else _weight(self.R_ddu, m, "[cost] R_ddu", src))
         set_("R_de", np.zeros((m, m)) if self.R_de is None else _weight(self.R_de, m, "[cost] R_de", src))
         if np.any(self.R_de) and m > p:
@@ -172,6 +178,9 @@ class SteeringConfig:
                        f"applied inputs); t_ini is {self.t_ini}")
         if self.R_mode not in R_MODES:
             raise _err(src, "[cost] R_mode", f"must be one of {list(R_MODES)}; got {self.R_mode!r}")
+        if np.any(self.R_doffset) and self.R_mode != "offset":
+            raise _err(src, "[cost] R_doffset", f"penalizes the changes of u - u_nom and needs R_mode = \"offset\" "
+                       f"(u_nom is a parameter only there); R_mode is {self.R_mode!r}")
         ls = self.lambda_sigma
         if not _is_num(ls) or not np.isfinite(ls) or ls < 0:
             raise _err(src, "[cost] lambda_sigma", f"must be a number >= 0; got {ls!r}")
@@ -350,6 +359,7 @@ class SteeringConfig:
             R=co["R"],
             R_mode=co.get("R_mode", "offset"),
             R_du=co.get("R_du"),
+            R_doffset=co.get("R_doffset"),
             R_ddu=co.get("R_ddu"),
             R_de=co.get("R_de"),
             lambda_sigma=co.get("lambda_sigma", 1e3),
@@ -382,6 +392,7 @@ class SteeringConfig:
             "codegen": {k: v for k, v in self.codegen.items()},
             # only when used: configs without a rate penalty keep their digest (and their solvers)
             **({"R_du": self.R_du.tolist()} if np.any(self.R_du) else {}),
+            **({"R_doffset": self.R_doffset.tolist()} if np.any(self.R_doffset) else {}),
             **({"R_ddu": self.R_ddu.tolist()} if np.any(self.R_ddu) else {}),
             **({"R_de": self.R_de.tolist()} if np.any(self.R_de) else {}),
             **({"knots": list(self.knots)} if self.knots is not None else {}),

@@ -19,7 +19,7 @@ from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.hankel import mosaic_hankel
-from ddpc_codegen.design.solve_result import SteeringResult, stack_window, within_bounds
+from ddpc_codegen.design.solve_result import SteeringResult, nominal_increments, stack_window, within_bounds
 
 __all__ = ["DeePCProblem"]
 
@@ -27,7 +27,7 @@ __all__ = ["DeePCProblem"]
 class DeePCProblem:
     """DeePC QP from a dataset and a steering config (same weights, modes and bounds).
 
-    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du, + R_ddu, + R_de)
+    Cost, exactly as written: ||y - y_des||_Q^2 + (R term of the config's R_mode, + R_du, + R_doffset, + R_ddu, + R_de)
     + lambda_g ||g||^2 + lambda_sigma ||sigma||^2 (every term without a 1/2; the QP form
     1/2 x'Px carries the factor 2 on all of them). g (N,) has one entry per Hankel column.
     """
@@ -53,7 +53,8 @@ class DeePCProblem:
         Ru = D.T @ Rb @ D if c.R_mode == "increment" else Rb
         Rdu = np.kron(np.eye(Tf), c.R_du)
         Rddu = np.kron(np.eye(Tf), c.R_ddu)
-        Ru = Ru + D.T @ Rdu @ D + (D @ D).T @ Rddu @ (D @ D)
+        Rdo = np.kron(np.eye(Tf), c.R_doffset)
+        Ru = Ru + D.T @ (Rdu + Rdo) @ D + (D @ D).T @ Rddu @ (D @ D)
         P = sp.block_diag([2 * self.lambda_g * sp.eye(N), 2 * Ru, 2 * Qb, 2 * c.lambda_sigma * sp.eye(ns)], format="csc")
         # R_de: ||D (u - S y) - e0||^2 (S: output i of each step against input i) couples the u and y blocks
         S = np.kron(np.eye(Tf), np.eye(m, p))
@@ -102,6 +103,9 @@ class DeePCProblem:
             q[N : N + nu] = -2 * self._D.T @ self._Rb @ d0
         if np.any(c.R_du):
             q[N : N + nu] += -2 * self._D.T @ self._Rdu @ d0
+        if np.any(c.R_doffset):  # D u - d0 - Dn u_nom = changes of u - u_nom (Dn: nominal_increments)
+            dn = nominal_increments(m, Tf) @ stack_window(u_nom, Tf, m, "u_nom")
+            q[N : N + nu] += -2 * self._D.T @ np.kron(np.eye(Tf), c.R_doffset) @ (d0 + dn)
         if np.any(c.R_ddu):  # D D u - dd0 = second differences, the first against u_ini[-1] and u_ini[-2]
             dd0 = self._D @ d0
             dd0[:m] += ui[-m:] - ui[-2 * m : -m]

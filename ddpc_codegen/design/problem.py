@@ -27,7 +27,8 @@ from ddpc_codegen.design.blocking import distinct_rows, knot_basis
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import Predictor
-from ddpc_codegen.design.solve_result import BOUND_TOL, SteeringResult, stack_window, within_bounds
+from ddpc_codegen.design.solve_result import (BOUND_TOL, SteeringResult, nominal_increments, stack_window,
+                                              within_bounds)
 
 __all__ = ["SteeringProblem", "SteeringResult", "SOLVERS", "P_COND_MAX", "DAQP_OPTIONS"]
 
@@ -125,6 +126,8 @@ class SteeringProblem:
         J = J + ca.mtimes([ru.T, Rb, ru])
         if np.any(c.R_du):
             J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
+        if np.any(c.R_doffset):
+            J = J + self._offset_rate_cost(du_expr, theta[self.n_w + p * Tf :])
         if np.any(c.R_ddu):
             # Second differences, the first against the last applied increment u_ini[-1] - u_ini[-2].
             du_prev = u_ini[m * (Ti - 1) :] - u_ini[m * (Ti - 2) : m * (Ti - 1)]
@@ -133,6 +136,14 @@ class SteeringProblem:
         if np.any(c.R_de):
             J = J + self._tracking_rate_cost(u_full, y, theta)
         return J, y, du_expr, D
+
+    def _offset_rate_cost(self, du_expr: ca.SX, u_nom: ca.SX) -> ca.SX:
+        """||Δ(u - u_nom)||^2_R_doffset: the increments of u less those of the nominal references, which the
+        references may then follow for free. The nominal's increment before the horizon is not a parameter: the
+        first one, extrapolated one step back (exact on a ramp), stands for it."""
+        m, Tf = self.config.m, self.config.t_f
+        dv = du_expr - ca.mtimes(ca.DM(nominal_increments(m, Tf)), u_nom)
+        return ca.mtimes([dv.T, ca.DM(np.kron(np.eye(Tf), self.config.R_doffset)), dv])
 
     def _tracking_rate_cost(self, u_full: ca.SX, y: ca.SX, theta: ca.SX) -> ca.SX:
         """||Δe||^2_R_de, e = u_i - y_i (input i against output i; Δe_0 against u_ini[-1] - y_ini[-1]): the change

@@ -7,7 +7,7 @@ import numpy as np
 
 from ddpc_codegen.errors import DataError
 
-__all__ = ["SteeringResult", "stack_window", "within_bounds", "BOUND_TOL"]
+__all__ = ["SteeringResult", "stack_window", "nominal_increments", "within_bounds", "BOUND_TOL"]
 
 # The one feasibility tolerance of the package: a result may say "solved" only when every bound
 # holds within BOUND_TOL * max(1, |bound|) (u, du and y bounds; the generated C, the fast path,
@@ -85,6 +85,18 @@ def stack_window(x, T: int, c: int, what: str, check_finite: bool = True) -> np.
     if check_finite and not np.all(np.isfinite(a)):
         raise DataError(f"{what} contains NaN or inf; refusing to steer on it")
     return a
+
+
+def nominal_increments(m: int, t_f: int) -> np.ndarray:
+    """(m*Tf, m*Tf) map of the stacked nominal references u_nom (time-major) to their increments over the
+    horizon, the first one (before the horizon: not known) extrapolated one step back, u_nom_1 - u_nom_0 (zero
+    when Tf = 1): what ``[cost] R_doffset`` takes off the references' increments."""
+    n = m * t_f
+    Dn = np.eye(n) - np.eye(n, k=-m)
+    Dn[:m, :] = 0.0
+    if t_f > 1:
+        Dn[:m, :m], Dn[:m, m : 2 * m] = -np.eye(m), np.eye(m)
+    return Dn
 
 
 def within_bounds(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:

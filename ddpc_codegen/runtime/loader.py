@@ -242,15 +242,15 @@ class GeneratedSolver:
 
 
 def _check_weights(folder: Path, man: dict) -> None:
-    """``weights`` in manifest.json: Q (p, p), R, R_du, R_ddu and R_de (m, m; the last two absent in artifacts made
-    before they existed) finite, lambda_sigma a number >= 0."""
+    """``weights`` in manifest.json: Q (p, p), R, R_du, R_ddu, R_de and R_doffset (m, m; the last three absent in
+    artifacts made before they existed) finite, lambda_sigma a number >= 0."""
     w, d = man.get("weights"), man["dims"]
     if not isinstance(w, dict):
         raise ManifestError(f"{folder}: manifest.json 'weights' must be an object with Q, R, R_du, lambda_sigma; "
                             f"got {w!r}")
-    # (key, size, required): R_ddu and R_de are absent from artifacts generated before they existed
+    # (key, size, required): R_ddu, R_de and R_doffset are absent from artifacts generated before they existed
     for key, n, required in (("Q", d["p"], True), ("R", d["m"], True), ("R_du", d["m"], True), ("R_ddu", d["m"], False),
-                             ("R_de", d["m"], False)):
+                             ("R_de", d["m"], False), ("R_doffset", d["m"], False)):
         if not required and key not in w:
             continue
         try:

@@ -98,13 +98,14 @@ def test_daqp_matches_exact_interpreted_over_200_draws(problem, plant, solvers):
 
 
 def test_rate_penalty_generated_equals_interpreted(problem, plant, tmp_path):
-    # R_du, R_ddu and R_de only change P and the affine q map; the generated code must follow without special cases.
+    # R_du, R_ddu, R_de and R_doffset only change P and the affine q map; the generated code must follow without special cases.
     prob = SteeringProblem(problem.predictor, _config(R_du=[5.0, 1.0], R_ddu=[0.0, 3.0], R_de=[2.0, 0.0],
-                                                      name="cg_rdu"))
+                                                      R_doffset=[0.0, 4.0], name="cg_rdu"))
     s = load_solver(generate(prob, tmp_path / "rdu", backend="daqp"))
     assert s.manifest["weights"]["R_du"] == [[5.0, 0.0], [0.0, 1.0]]
     assert s.manifest["weights"]["R_ddu"] == [[0.0, 0.0], [0.0, 3.0]]
     assert s.manifest["weights"]["R_de"] == [[2.0, 0.0], [0.0, 0.0]]
+    assert s.manifest["weights"]["R_doffset"] == [[0.0, 0.0], [0.0, 4.0]]
     for th in _draws(prob, plant, 40, 7):
         r, ref = s.solve_theta(th), prob.solve_theta(th, solver="exact")
         assert r.ok and ref.ok and np.abs(r.u - ref.u).max() <= 1e-8

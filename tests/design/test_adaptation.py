@@ -102,8 +102,9 @@ def test_qp_model_rebuilds_the_qp_casadi_forms_for_another_g(form, method, R_mod
     ds = _dataset(4)
     pred = fit_incremental(ds, 5, 6, "lsq", ridge=1e-6) if form == "incremental" else \
         fit_predictor(ds, 4, 6, method, ridge=1e-6)
+    # R_doffset (offset mode only) is G-free: it must land in the fixed parts
     cfg = SteeringConfig(t_ini=pred.t_ini, t_f=6, m=2, p=2, Q=[10.0, 3.0], R=[1.0, 0.5], R_mode=R_mode,
-                         R_du=[0.2, 0.1], lambda_sigma=50.0, u_min=[-1.0] * 2, u_max=[1.0] * 2, y_min=[-5.0, -np.inf],
+                         R_du=[0.2, 0.1], R_doffset=[0.5, 0.0] if R_mode == "offset" else None, lambda_sigma=50.0, u_min=[-1.0] * 2, u_max=[1.0] * 2, y_min=[-5.0, -np.inf],
                          y_max=[5.0, 3.0], du_max=[0.3, 0.5], knots=knots, predictor={"method": pred.method})
     prob = SteeringProblem(pred, cfg)
     model = qp_model(prob)

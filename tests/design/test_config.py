@@ -59,6 +59,13 @@ def test_rate_penalty_defaults_to_zero_and_enters_the_digest_only_when_used(tmp_
         _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_de = [1.0, 0.0]"))
     e = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_de = [0.0, 0.0]"))
     assert np.array_equal(e.R_de, np.zeros((2, 2))) and e.digest == a.digest and "R_de" not in e.to_dict()
+    f = _load(tmp_path, BASE.replace("Q = [1.0]", "Q = [1.0]\nR_doffset = [3.0, 0.0]"))
+    assert f.to_dict()["R_doffset"] == [[3.0, 0.0], [0.0, 0.0]] and f.digest not in (a.digest, c.digest, d.digest)
+    assert "R_doffset" not in a.to_dict() and np.array_equal(a.R_doffset, np.zeros((2, 2)))
+    # the changes of u - u_nom: u_nom is a parameter only in R_mode "offset"
+    with pytest.raises(ConfigError, match=r"\[cost\] R_doffset penalizes the changes of u - u_nom and needs "
+                                          r"R_mode = \"offset\" .* R_mode is 'increment'"):
+        _load(tmp_path, BASE.replace("Q = [1.0]", 'Q = [1.0]\nR_mode = "increment"\nR_doffset = [1.0, 0.0]'))
 
 
 def test_artificial_io_table_reaches_the_hopping_setup(tmp_path):
@@ -107,6 +114,7 @@ def test_digest_ignores_codegen_but_not_weights(tmp_path):
         (("Q = [1.0]", "Q = [1.0]\nR_du = [1.0]"), "[cost] R_du must have 2 entries"),
         (("Q = [1.0]", "Q = [1.0]\nR_ddu = [1.0, -1.0]"), "[cost] R_ddu"),
         (("Q = [1.0]", "Q = [1.0]\nR_de = [1.0, -1.0]"), "[cost] R_de"),
+        (("Q = [1.0]", "Q = [1.0]\nR_doffset = [1.0]"), "[cost] R_doffset must have 2 entries"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nt_a = 0'), "[artificial_io] t_a must be an integer >= 1; got 0"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nmin_ascent = 2.5'), "[artificial_io] min_ascent must be an integer >= 1; got 2.5"),
         (('name = "t"', 'name = "t"\n[artificial_io]\nnoise_level = -1e-3'), "[artificial_io] noise_level must be a number >= 0"),

@@ -23,9 +23,9 @@ def plant():
     return sys_, IODataset(u, y, 0.01)
 
 
-def _cfg(lambda_sigma, mode="offset", R_ddu=None, R_de=None):
+def _cfg(lambda_sigma, mode="offset", R_ddu=None, R_de=None, R_doffset=None):
     return SteeringConfig(t_ini=TI, t_f=TF, m=M, p=P, Q=[[10.0, 1.0], [1.0, 4.0]], R=[0.5, 0.2], R_du=[0.3, 0.0],
-                          R_ddu=R_ddu, R_de=R_de,
+                          R_ddu=R_ddu, R_de=R_de, R_doffset=R_doffset,
                           R_mode=mode, lambda_sigma=lambda_sigma, u_min=[-0.6, -0.5], u_max=[0.6, 0.5],
                           y_min=[-0.8, -1.0], y_max=[0.8, 1.0], du_max=[0.3, 0.25])
 
@@ -44,10 +44,11 @@ def _cvxpy_deepc(ds, c, lambda_g, u_ini, y_ini, y_des, u_nom):
     ddu = du - cp.vstack([u_ini[-1:] - u_ini[-2:-1], du[:-1]])
     e = u - y[:, :M]  # input i against output i
     de = e - cp.vstack([u_ini[-1:] - y_ini[-1:, :M], e[:-1]])
+    dnom = u_nom - np.vstack([2 * u_nom[:1] - u_nom[1:2], u_nom[:-1]])  # the first change extrapolated back
     offset = {"absolute": u, "offset": u - u_nom, "increment": du}[c.R_mode]
     cost = (sum(cp.quad_form(y[k] - y_des[k], c.Q) for k in range(TF))
             + sum(cp.quad_form(offset[k], c.R) + cp.quad_form(du[k], c.R_du) + cp.quad_form(ddu[k], c.R_ddu)
-                  + cp.quad_form(de[k], c.R_de) for k in range(TF))
+                  + cp.quad_form(de[k], c.R_de) + cp.quad_form(du[k] - dnom[k], c.R_doffset) for k in range(TF))
             + lambda_g * cp.sum_squares(g) + c.lambda_sigma * cp.sum_squares(s))
     # time-major stacking: Up @ g is u_ini.reshape(-1), i.e. row-major flattening of (TI, M)
     cons = [Up @ g == u_ini.reshape(-1), Yp @ g == cp.reshape(y_ini - s, (TI * P,), order="C"),
@@ -98,6 +99,11 @@ def test_deepc_with_a_second_difference_penalty_equals_cvxpy(plant):
 def test_deepc_with_a_tracking_error_rate_penalty_equals_cvxpy(plant):
     """R_de written out for cvxpy (changes of u - y, the first from u_ini[-1] - y_ini[-1]) against DeePCProblem."""
     _agrees_with_cvxpy(plant, _cfg(1e3, R_de=[3.0, 0.5]), 1e-2, 5)
+
+
+def test_deepc_with_an_offset_rate_penalty_equals_cvxpy(plant):
+    """R_doffset written out for cvxpy (changes of u - u_nom, the nominal's first change extrapolated back)."""
+    _agrees_with_cvxpy(plant, _cfg(1e3, R_doffset=[2.0, 0.5]), 1e-2, 7)
 
 
 def test_deepc_failed_status_gives_nan_never_a_guess(plant):

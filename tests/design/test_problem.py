@@ -45,6 +45,10 @@ def _solve_direct(prob: SteeringProblem, u_ini, y_ini, y_des, u_nom):
     J += ca.mtimes([ru.T, np.kron(np.eye(TF), c.R), ru])
     du = ca.mtimes(D, u) - d0
     J += ca.mtimes([du.T, np.kron(np.eye(TF), c.R_du), du])
+    # changes of the offset u - u_nom written out, the nominal's change before the horizon as its first one
+    un = np.ravel(u_nom)
+    dn = np.r_[un[M : 2 * M] - un[:M], un[M:] - un[:-M]]
+    J += ca.mtimes([(du - dn).T, np.kron(np.eye(TF), c.R_doffset), du - dn])
     # second differences written out: u_k - 2 u_(k-1) + u_(k-2), the earlier ones from u_ini
     ext = ca.vertcat(np.ravel(u_ini)[-2 * M :], u)
     ddu = ext[2 * M :] - 2 * ext[M:-M] + ext[: -2 * M]
@@ -140,6 +144,29 @@ def test_tracking_error_rate_penalty_equals_direct_and_calms_the_error_changes(p
         e = np.vstack([args[0][-1:] - args[1][-1:], r.u - r.y_pred])
         return float(np.sum(np.diff(e, axis=0) ** 2 * [4.0, 1.0]))
     assert changes(prob.solve(*args, solver="exact")) < 0.95 * changes(plain.solve(*args, solver="exact"))
+
+
+@pytest.mark.parametrize("extra", [{}, {"R_du": [1.0, 0.0]}, {"knots": [0, 3, TF - 1]}])
+def test_offset_rate_penalty_equals_direct_and_lets_the_references_follow_the_nominal_ramp(plant, extra):
+    """R_doffset adds ||Δ(u - u_nom)||^2 (the nominal's change before the horizon taken as its first): equal to
+    the uncondensed QP written out, and on a nominal ramp it leaves u closer to the ramp's own increments than
+    R_du of the same weight (which charges the ramp itself)."""
+    sys_, ds = plant
+    pred = fit_predictor(ds, TI, TF, "pem")
+    prob = SteeringProblem(pred, _cfg("offset", R_doffset=[30.0, 10.0], **extra))
+    rng = np.random.default_rng(31)
+    for k in range(8):
+        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
+        res = prob.solve(*args, solver="exact")
+        assert res.ok
+        if "knots" not in extra:
+            assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    u_ini, y_ini, y_des, _ = _params(sys_, np.random.default_rng(4), scale=0.1)
+    ramp = u_ini[-1] + 0.04 * np.arange(1, TF + 1)[:, None] * [1.0, -1.0]  # inside the rate bound
+    rate = SteeringProblem(pred, _cfg("offset", **(extra | {"R_du": np.add(extra.get("R_du", 0.0), [30.0, 10.0])})))
+    # the offset's changes, the first from 0 (the ramp extended back one step is u_ini[-1])
+    off = lambda r: np.abs(np.diff(np.vstack([np.zeros((1, M)), r.u - ramp]), axis=0)).sum()  # noqa: E731
+    assert off(prob.solve(u_ini, y_ini, y_des, ramp, solver="exact")) < off(rate.solve(u_ini, y_ini, y_des, ramp, solver="exact"))
 
 
 def test_fast_path_is_exact_and_kkt_holds(plant):

@@ -76,7 +76,7 @@ def test_weights_checked_against_dims(folder, tmp_path):
                                                   "got [[1.0, 0.0], [0.0, 1.0]]")
 
 
-@pytest.mark.parametrize("key", ["R_ddu", "R_de"])
+@pytest.mark.parametrize("key", ["R_ddu", "R_de", "R_doffset"])
 def test_later_weights_checked_when_present_and_optional_in_older_manifests(folder, tmp_path, key):
     def wrong(f, m):
         m["weights"][key] = [[float("nan")]]
