@@ -46,12 +46,13 @@ def context(ad, problem, name: str, banner: str) -> dict:
     n_z, n_g1, n_th = problem.n_z, max(1, problem.n_g), problem.n_theta
     n_o, n_wu = qp.Lm.shape[0], qp.Rm.shape[1]
     qp_words = 2 * (n_z * n_z + 2 * n_g1 * n_z + 2 * n_z * n_th + n_g1 * n_th) + n_o * (lay.r + n_wu + 2 * n_z)
-    ws_words = 3 * w * w + 3 * q * lay.r + 2 * s.window * w + 5 * w + nu * nu + qp_words + n_z * n_z + 2 * qp.n_y
+    ring = s.window + 2 * s.period_ticks  # the window and the columns a re-solve has not folded in yet
+    ws_words = 3 * w * w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
             "window": s.window, "forgetting": _c(s.forgetting), "period_ticks": s.period_ticks,
-            "w2": w * w, "qr": q * lay.r, "ring": s.window * w, "nu2": nu * nu, "n_urows": nu,
+            "w2": w * w, "qr": q * lay.r, "ring": ring * w, "ring_cols": ring, "nu2": nu * nu, "n_urows": nu,
             "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": _c(ad.slack_weight), "ridge": _c(ad.ridge),
             "rcond": _c(ad.rcond), "max_change": _c(s.max_change), "min_excitation": _c(s.min_excitation),
             "min_improvement": _c(s.min_improvement),
@@ -104,19 +105,19 @@ def cdef_text(name: str) -> str:
     """The update's C API as cffi declares it."""
     return f"""
 typedef struct {{ const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM; }} {name}_qpdata;
-typedef struct {{ int updates; int skipped; int resolves; int accepted; int swaps; int clipped; int rejected[7];
+typedef struct {{ int updates; int skipped; int dropped; int folded; int resolves; int accepted; int swaps; int clipped; int rejected[7];
                  double error_current; double error_candidate; double excitation;
                  int offset_swaps; int offset_clipped; int offset_rejected; double offset_norm; }} {name}_adapt_counts;
 typedef struct {{ double U[...]; double d[...]; double Rs[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...];
                  double ring_s[...]; double x[...]; double xr[...];
-                 double Rx[...]; {name}_qpdata qd[2]; double yoff[...]; int head; int n_ring; int n_snap; int pending;
+                 double Rx[...]; {name}_qpdata qd[2]; double yoff[...]; int head; int n_ring; int n_snap; int pending; int queued;
                  int spare;
                  int off_pending; int off_spare;
                  {name}_adapt_counts counts; ...; }}
         {name}_adapt_workspace;
 int {name}_adapt_init({name}_adapt_workspace *ws);
 int {name}_adapt_push({name}_adapt_workspace *ws, const double *window);
-void {name}_adapt_r(const {name}_adapt_workspace *ws, double *R);
+void {name}_adapt_r({name}_adapt_workspace *ws, double *R);
 void {name}_adapt_snapshot({name}_adapt_workspace *ws);
 int {name}_adapt_resolve({name}_adapt_workspace *ws);
 int {name}_adapt_swap({name}_adapt_workspace *ws, {name}_workspace *solver);

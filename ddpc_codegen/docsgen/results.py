@@ -101,8 +101,9 @@ def _bench_section(bench: dict) -> str:
     if bench.get("adapt"):
         from ddpc_codegen.experiments.bench_adapt import adapt_lines  # the lines make bench prints
 
-        text += ("\nOnline adaptation in the generated C (`[adapt]`): the rank-one update per tick and the verified "
-                 "re-solve (G, QP data, fast-path gain, output offset); the aarch64 line: the same calls in a C "
+        text += ("\nOnline adaptation in the generated C (`[adapt]`): what the tick does (a column queued, the "
+                 "recent window copied once per period), the rank-one fold of each column into R and the verified "
+                 "re-solve (G, QP data, fast-path gain, output offset) off the tick; the aarch64 line: the same calls in a C "
                  "program cross-compiled for aarch64 under qemu-user, with its native build as the reference:\n\n```\n"
                  + "\n".join(adapt_lines(list(bench["adapt"].values()))) + "\n```\n")
     p = bench.get("predictor_1e6")

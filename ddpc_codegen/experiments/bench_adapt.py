@@ -1,5 +1,5 @@
-"""Timing of the generated online predictor update (issue 30): the rank-one update per tick and the
-re-solve of G, rebuild of the QP data (Hessian, linear-term map, output rows, gain) and verification, in C, at the
+"""Timing of the generated online predictor update (issue 30): the tick's share (a column queued per tick, the
+recent window copied once per period), the rank-one fold of each column into R and the re-solve of G rebuild of the QP data (Hessian, linear-term map, output rows, gain) and verification, in C, at the
 benchmark's flying and hopping sizes; the output offset's share of a re-solve (``[adapt] offset``: the mean
 residual of the recent window, the same re-solves timed in a build without it); and the same pushes and re-solves
 timed by a C program cross-compiled for aarch64 under qemu, with its native build as the reference
@@ -44,34 +44,44 @@ def _ridge_problem(size: str) -> SteeringProblem:
 
 
 def _resolve_times(prob: SteeringProblem, st: AdaptSettings, name: str, wins: np.ndarray, n_resolves: int,
-                   tmp: str) -> tuple[np.ndarray, np.ndarray, int]:
-    """(seconds per ``<name>_adapt_push``, seconds per ``<name>_adapt_snapshot`` + ``_resolve``, the last
-    re-solve's verdict) of a fresh build."""
+                   tmp: str) -> tuple[dict, int]:
+    """Seconds per call of a fresh build, as the bridge calls them ({"push": the tick's ``<name>_adapt_push``,
+    "fold": per column, the fold of a period's queued columns into R (``<name>_adapt_r``: the re-solve's first
+    step, in the worker), "snapshot": the tick's ``<name>_adapt_snapshot`` once per period, "resolve":
+    ``_snapshot`` + ``_resolve`` on the last snapshot}) and the last re-solve's verdict."""
     ffi, lib = compile_alone(prob, st, tmp, name)
     ws = ffi.new(f"{name}_adapt_workspace *")
     if getattr(lib, f"{name}_adapt_init")(ws) != 0:
         raise RuntimeError("the benchmark's R factor is rank deficient")
-    push, resolve = getattr(lib, f"{name}_adapt_push"), getattr(lib, f"{name}_adapt_resolve")
-    snapshot = getattr(lib, f"{name}_adapt_snapshot")
-    t_push = np.empty(wins.shape[0])
+    fn = {k: getattr(lib, f"{name}_adapt_{k}") for k in ("push", "r", "snapshot", "resolve")}
+    w = fit_layout(prob.predictor).width
+    r_out = ffi.new("double[]", w * w)
+    t: dict[str, list[float]] = {"push": [], "fold": [], "snapshot": [], "resolve": []}
     for k in range(wins.shape[0]):
         buf = ffi.from_buffer("double[]", wins[k])
         t0 = time.perf_counter()
-        push(ws, buf)
-        t_push[k] = time.perf_counter() - t0
-    t_res = np.empty(n_resolves)
+        fn["push"](ws, buf)
+        t["push"].append(time.perf_counter() - t0)
+        if (k + 1) % st.period_ticks == 0:
+            t0 = time.perf_counter()
+            fn["r"](ws, r_out)
+            t["fold"].append((time.perf_counter() - t0) / st.period_ticks)
+            t0 = time.perf_counter()
+            fn["snapshot"](ws)
+            t["snapshot"].append(time.perf_counter() - t0)
     verdict = -1
-    for k in range(n_resolves):
+    for _ in range(n_resolves):
         t0 = time.perf_counter()
-        snapshot(ws)  # timed with it: the synchronous re-solve
-        verdict = resolve(ws)
-        t_res[k] = time.perf_counter() - t0
-    return t_push, t_res, verdict
+        fn["snapshot"](ws)  # timed with it: the synchronous re-solve
+        verdict = fn["resolve"](ws)
+        t["resolve"].append(time.perf_counter() - t0)
+    return {k: np.asarray(v) for k, v in t.items()}, verdict
 
 
 def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None) -> dict:
-    """Median / max microseconds of ``<name>_adapt_push``, milliseconds of ``<name>_adapt_resolve`` (with the output
-    offset on), the offset's share: the median re-solve with it minus the median of a build without it, and
+    """Median / p99 microseconds of the tick's ``<name>_adapt_push`` (``update_us``: the column queued), of the fold
+    of each column into R off the tick (``fold_us``) and of the tick's snapshot once per period (``snapshot_us``),
+    milliseconds of ``<name>_adapt_resolve`` (with the output offset on), the offset's share: the median re-solve with it minus the median of a build without it, and
     ``aarch64_qemu``: the same calls timed in C under qemu aarch64 and natively (None, with ``aarch64_qemu_note``
     saying why, when the tools are missing or the cross build failed its checks)."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
@@ -82,32 +92,41 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
     rng = np.random.default_rng(0)
     wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05
     with tempfile.TemporaryDirectory() as tmp:
-        t_push, t_res, verdict = _resolve_times(prob, st, f"bench_adapt_{size}", wins, n_resolves, tmp)
+        t, verdict = _resolve_times(prob, st, f"bench_adapt_{size}", wins, n_resolves, tmp)
         try:  # the folder compile_alone emitted, built again by its Makefile (the same windows, the same verdict)
             arm, note = cross_figures(tmp, wins, n_resolves, verdict, log), standalone.MISSING_AARCH64
         except (CodegenError, subprocess.SubprocessError, OSError) as e:  # a figure missing, not the benchmark
             log(f"  aarch64 online update of {size}: failed ({e})")
             arm, note = None, f"failed: {str(e).splitlines()[0][:200]}"
     with tempfile.TemporaryDirectory() as tmp:  # the same windows and re-solves without the offset
-        _, t_plain, _ = _resolve_times(prob, AdaptSettings(enabled=True, window=window), f"bench_adapt_{size}_plain",
-                                       wins, n_resolves, tmp)
-    return {"size": size, "width": lay.width, "window": st.window,
-            "update_us_median": round(float(np.median(t_push)) * 1e6, 2),
-            "update_us_p99": round(float(np.percentile(t_push, 99)) * 1e6, 2),
-            "resolve_ms_median": round(float(np.median(t_res)) * 1e3, 3),
-            "resolve_ms_max": round(float(np.max(t_res)) * 1e3, 3),
-            "offset_ms_median": round(float(np.median(t_res) - np.median(t_plain)) * 1e3, 3),
+        plain, _ = _resolve_times(prob, AdaptSettings(enabled=True, window=window), f"bench_adapt_{size}_plain",
+                                  wins, n_resolves, tmp)
+    us = lambda a, f: round(float(f(a)) * 1e6, 2)  # noqa: E731
+    p99 = lambda a: np.percentile(a, 99)  # noqa: E731
+    return {"size": size, "width": lay.width, "window": st.window, "period_ticks": st.period_ticks,
+            "update_us_median": us(t["push"], np.median), "update_us_p99": us(t["push"], p99),
+            "fold_us_median": us(t["fold"], np.median), "fold_us_max": us(t["fold"], np.max),
+            "snapshot_us_median": us(t["snapshot"], np.median), "snapshot_us_max": us(t["snapshot"], np.max),
+            "resolve_ms_median": round(float(np.median(t["resolve"])) * 1e3, 3),
+            "resolve_ms_max": round(float(np.max(t["resolve"])) * 1e3, 3),
+            "offset_ms_median": round(float(np.median(t["resolve"]) - np.median(plain["resolve"])) * 1e3, 3),
             "aarch64_qemu": arm, **({"aarch64_qemu_note": note} if arm is None else {}),
             "targets": {"update_us": TARGET_UPDATE_US, "resolve_ms": TARGET_RESOLVE_MS}}
 
 
 def adapt_lines(rows: list[dict]) -> list[str]:
     """Table lines of :func:`adapt_timing` results."""
-    out = ["online update (C): size  width  update us (median/p99)  re-solve+rebuild+verify+offset ms (median/max)"
-           "  of it the offset ms (a difference of two medians: ~0, the offset reuses the prediction check's residuals)"]
+    out = ["online update (C), in the tick: a column queued per tick, the window copied once per period; off the "
+           "tick (worker): each column folded into R, then the re-solve",
+           "  size  width  tick: update us (median/p99)  snapshot us (median/max)  worker: fold us per column "
+           "(median/max)  re-solve+rebuild+verify+offset ms (median/max)  of it the offset ms (a difference of two "
+           "medians: ~0, the offset reuses the prediction check's residuals)"]
     for r in rows:
+        fold = (f"{r['snapshot_us_median']:>8.1f} / {r['snapshot_us_max']:<8.1f}  {r['fold_us_median']:>8.2f} / "
+                f"{r['fold_us_max']:<8.2f}" if "fold_us_median" in r else f"{'-':>28}")  # older reports: in the tick
         out.append(f"  {r['size']:<8} {r['width']:>5}  {r['update_us_median']:>8.2f} / {r['update_us_p99']:<8.2f}"
-                   f"  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:<8.3f}  {r.get('offset_ms_median', 0.0):.3f}")
+                   f"  {fold}  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:<8.3f}"
+                   f"  {r.get('offset_ms_median', 0.0):.3f}")
     out += [ln for ln in (cross_line(r["size"], r) for r in rows) if ln]
     return out
 

@@ -1,6 +1,7 @@
 """The online predictor update timed by a C program (issue 30's target: "in C, also under qemu aarch64"): the
 emitted folder's library built by its own Makefile, natively and with the aarch64 cross compiler, linked with
-``<name>_adapt_bench`` (``templates/adapt_bench.c.in``: init, one push per window, a few re-solves, each call timed
+``<name>_adapt_bench`` (``templates/adapt_bench.c.in``: init, one push per window, each period's fold into R and
+snapshot, a few re-solves, each call timed
 with ``clock_gettime(CLOCK_MONOTONIC)``); the aarch64 build runs under qemu-user, the native build of the same
 program in the same run is the reference (qemu's slowdown is the ratio). Both runs must agree on what they computed
 (the re-solve's verdict, the updated R and the candidate G) before a time is reported.
@@ -59,7 +60,8 @@ def run_timer(exe: Path, windows: Path, n_resolves: int, qemu: str | None = None
         raise CodegenError(f"{exe.name}{' under qemu' if qemu else ''} exited {res.returncode}: "
                            f"{(res.stdout + res.stderr)[-2000:]}")
     out = json.loads(res.stdout.strip().splitlines()[-1])
-    times = [out[k] for k in ("push_ns_median", "push_ns_max", "resolve_ns_median", "resolve_ns_max")]
+    times = [out[k] for k in ("push_ns_median", "push_ns_max", "resolve_ns_median", "resolve_ns_max",
+                              "fold_ns_median", "snapshot_ns_median")]
     if not all(np.isfinite(t) and t > 0 for t in times):
         raise CodegenError(f"{exe.name} reported a non-positive time: {out}")
     return out
@@ -94,6 +96,8 @@ def cross_figures(folder: Path, windows: np.ndarray, n_resolves: int, verdict: i
     return {"push_us_median": round(arm["push_ns_median"] * us, 2), "push_us_max": round(arm["push_ns_max"] * us, 2),
             "resolve_ms_median": round(arm["resolve_ns_median"] * ms, 3),
             "resolve_ms_max": round(arm["resolve_ns_max"] * ms, 3),
+            "fold_us_median": round(arm["fold_ns_median"] * us, 2),
+            "native_fold_us_median": round(native["fold_ns_median"] * us, 2),
             "native_push_us_median": round(native["push_ns_median"] * us, 2),
             "native_push_us_max": round(native["push_ns_max"] * us, 2),
             "native_resolve_ms_median": round(native["resolve_ns_median"] * ms, 3),
@@ -111,7 +115,8 @@ def cross_line(size: str, row: dict) -> str | None:
     a = row["aarch64_qemu"]
     if a is None:
         return f"  {size:<8} aarch64 (qemu): {row.get('aarch64_qemu_note', 'not measured')}"
+    fold = f"  fold us per column {a['fold_us_median']:.2f}" if "fold_us_median" in a else ""
     return (f"  {size:<8} aarch64 (qemu), median/max: update us {a['push_us_median']:.2f} / {a['push_us_max']:.2f}"
-            f"  re-solve ms {a['resolve_ms_median']:.3f} / {a['resolve_ms_max']:.3f}  (same C program native: "
+            f"{fold}  re-solve ms {a['resolve_ms_median']:.3f} / {a['resolve_ms_max']:.3f}  (same C program native: "
             f"{a['native_push_us_median']:.2f} us, {a['native_resolve_ms_median']:.3f} ms; qemu / native "
             f"{a['qemu_over_native_push']:.1f}x, {a['qemu_over_native_resolve']:.1f}x)")

@@ -11,7 +11,7 @@ from ddpc_codegen.runtime.adaptation import OFFSET_COUNTS, REJECTIONS, AdaptSett
 
 __all__ = ["GeneratedAdaptation"]
 
-_COUNTS = ("updates", "skipped", "resolves", "accepted", "swaps", "clipped")
+_COUNTS = ("updates", "skipped", "dropped", "folded", "resolves", "accepted", "swaps", "clipped")
 
 
 class GeneratedAdaptation:
@@ -37,7 +37,8 @@ class GeneratedAdaptation:
         self._pbuf = self._ffi.from_buffer("double[]", self._buf)
 
     def push(self, u: np.ndarray, y: np.ndarray) -> bool:
-        """One (u (m,), y (p,)) sample; True when a column was folded into R."""
+        """One (u (m,), y (p,)) sample; True when a column was taken (queued for R: the next re-solve folds it
+        in, off the tick path)."""
         w = self._window.push(np.asarray(u, float), np.asarray(y, float))
         if w is None:
             return False
@@ -48,7 +49,7 @@ class GeneratedAdaptation:
         self._window.clear()
 
     def snapshot(self) -> None:
-        """Copy R and the recent columns for the next re-solve (in the tick)."""
+        """Copy the recent columns and hand the queued ones to the next re-solve (in the tick)."""
         self._fn["snapshot"](self._ws)
 
     def resolve(self, snapshot: bool = True) -> str:

@@ -13,7 +13,8 @@ is re-solved, verified and, if accepted, swapped in before the next tick; with `
 offset staged by every re-solve (accepted or not) is swapped in too.
 
 ``background=True`` (the bridge): a re-solve takes tens of ms at flight sizes, far more than a 5 ms tick, so
-the tick only takes the snapshot (``adapt_snapshot()``) and a worker thread runs ``adapt_resolve(False)``
+the tick only queues columns and takes the snapshot (``adapt_snapshot()``; the generated C folds the queued
+columns into R in the re-solve) and a worker thread runs ``adapt_resolve(False)``
 (C: cffi releases the GIL for the call) while later ticks keep pushing and solving. The first update tick
 after it returned swaps (a verdict lands only on an update tick, as in the synchronous schedule: after a
 reset, once the window has refilled). One re-solve at a time: a period that comes while one runs is counted
@@ -40,7 +41,7 @@ __all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "adapt_code", "SNAP_
 SNAP_TAKEN, SNAP_BUSY = 1, 2
 
 # What a tick did, as the bridge's tick log stores it: 0 nothing (no update: not steered, or no adaptation),
-# then the window filling, a column folded in, a re-solve swapped in, and each rejection of a re-solve.
+# then the window filling, a column taken in, a re-solve swapped in, and each rejection of a re-solve.
 ADAPT_CODES = ("", "warmup", "update", "accepted") + REJECTIONS
 
 

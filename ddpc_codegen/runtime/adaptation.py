@@ -222,7 +222,9 @@ class Adapter:
                            else np.diag(np.tile(self.scale[lay.m :], lay.t_f)))
         self.offset = np.zeros(self.offset_map.shape[0])
         self.pending_offset: np.ndarray | None = None
-        self.counts = {"updates": 0, "skipped": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
+        # "folded": columns in R (here at once: the reference has no tick to keep short); "dropped": never here,
+        # the C refuses columns only when its bounded queue is full
+        self.counts = {"updates": 0, "skipped": 0, "dropped": 0, "folded": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
                        **{f"rejected_{k}": 0 for k in REJECTIONS},
                        **{k: 0 for k in OFFSET_COUNTS}, "offset_norm": 0.0,
                        "error_current": 0.0, "error_candidate": 0.0}  # of the last error check
@@ -239,6 +241,7 @@ class Adapter:
         self.n_ring = min(self.n_ring + 1, self.settings.window)
         givens_update(self.R, x, self.settings.forgetting)
         self.counts["updates"] += 1
+        self.counts["folded"] += 1
         return True
 
     def recent(self) -> np.ndarray:

@@ -362,3 +362,43 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
         assert _close(_arr(ffi, ws.Gc, q * lay.r).reshape(q, lay.r), ref.pending)
     assert ws.counts.updates == ref.counts["updates"] == j
     assert _close(_r_of(ffi, lib, "ad_gil", ws, lay.width), ref.R)
+
+
+def test_the_tick_only_queues_columns_and_the_resolve_folds_them_into_r(tmp_path):
+    """push() leaves R (d, U) alone (O(width) in the tick); the re-solve folds exactly the columns its snapshot
+    handed over (R then equals the numpy twin's after those columns, not after the ones pushed meanwhile);
+    <name>_adapt_r folds the rest; a full queue refuses columns (counted) instead of overwriting one R lacks."""
+    prob = _problem("absolute")
+    st = AdaptSettings(enabled=True, window=40, period_ticks=20, min_excitation=1e-4)
+    name = "ad_queue"
+    ffi, lib = compile_alone(prob, st, tmp_path, name)
+    ref = adapter(prob, st)
+    lay = ref.layout
+    w, ring = lay.width, st.window + 2 * st.period_ticks
+    ws = ffi.new(f"{name}_adapt_workspace *")
+    assert getattr(lib, f"{name}_adapt_init")(ws) == 0
+    push = lambda win: getattr(lib, f"{name}_adapt_push")(ws, ffi.from_buffer("double[]", win))  # noqa: E731
+    factor = lambda: (_arr(ffi, ws.U, w * w), _arr(ffi, ws.d, w))  # noqa: E731
+    rng = np.random.default_rng(4)
+    wins = np.ascontiguousarray(rng.standard_normal((200, lay.depth, lay.m + lay.p)) * 0.1)
+    before = factor()
+    for win in wins[:30]:
+        assert push(win) == 1 and ref.push(win)
+    after_30 = ref.R.copy()
+    assert all(np.array_equal(a, b) for a, b in zip(factor(), before))  # the tick never touched R
+    assert (ws.counts.updates, ws.counts.folded, ws.queued) == (30, 0, 30)
+    getattr(lib, f"{name}_adapt_snapshot")(ws)
+    for win in wins[30:40]:  # pushed while the re-solve would run in the worker
+        assert push(win) == 1 and ref.push(win)
+    getattr(lib, f"{name}_adapt_resolve")(ws)
+    assert ws.counts.folded == 30 and ws.queued == 10
+    assert _close(_arr(ffi, ws.Rs, w * w).reshape(w, w), after_30)  # the re-solve's R: the handed-over columns
+    assert _close(_r_of(ffi, lib, name, ws, w), ref.R) and ws.counts.folded == 40
+    for k, win in enumerate(wins[40 : 40 + ring + 5]):  # no re-solve takes the queue: full after `ring` columns
+        taken = push(win)
+        assert taken == int(k < ring)
+        if taken:
+            ref.push(win)
+    assert (ws.counts.updates, ws.counts.dropped) == (40 + ring, 5)
+    assert _close(_r_of(ffi, lib, name, ws, w), ref.R)  # nothing taken was lost, nothing dropped got in
+    assert push(wins[-1]) == 1  # the queue is empty again
