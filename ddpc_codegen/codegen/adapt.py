@@ -47,7 +47,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
     n_o, n_wu = qp.Lm.shape[0], qp.Rm.shape[1]
     qp_words = 2 * (n_z * n_z + 2 * n_g1 * n_z + 2 * n_z * n_th + n_g1 * n_th) + n_o * (lay.r + n_wu + 2 * n_z)
     ring = s.window + 2 * s.period_ticks  # the window and the columns a re-solve has not folded in yet
-    ws_words = 3 * w * w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + 2 * qp.n_y
+    ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
@@ -108,7 +108,7 @@ typedef struct {{ const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM; }} {name
 typedef struct {{ int updates; int skipped; int dropped; int folded; int resolves; int accepted; int swaps; int clipped; int rejected[7];
                  double error_current; double error_candidate; double excitation;
                  int offset_swaps; int offset_clipped; int offset_rejected; double offset_norm; }} {name}_adapt_counts;
-typedef struct {{ double U[...]; double d[...]; double Rs[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...];
+typedef struct {{ double U[...]; double d[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...];
                  double ring_s[...]; double x[...]; double xr[...];
                  double Rx[...]; {name}_qpdata qd[2]; double yoff[...]; int head; int n_ring; int n_snap; int pending; int queued;
                  int spare;

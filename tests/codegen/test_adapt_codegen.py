@@ -392,7 +392,9 @@ def test_the_tick_only_queues_columns_and_the_resolve_folds_them_into_r(tmp_path
         assert push(win) == 1 and ref.push(win)
     getattr(lib, f"{name}_adapt_resolve")(ws)
     assert ws.counts.folded == 30 and ws.queued == 10
-    assert _close(_arr(ffi, ws.Rs, w * w).reshape(w, w), after_30)  # the re-solve's R: the handed-over columns
+    U, d = factor()
+    R = np.sqrt(d)[:, None] * (np.triu(U.reshape(w, w), 1) + np.eye(w))  # R = diag(sqrt(d)) U, U unit triangular
+    assert _close(R, after_30)  # the re-solve folded the handed-over columns, not those pushed meanwhile
     assert _close(_r_of(ffi, lib, name, ws, w), ref.R) and ws.counts.folded == 40
     for k, win in enumerate(wins[40 : 40 + ring + 5]):  # no re-solve takes the queue: full after `ring` columns
         taken = push(win)
