@@ -158,8 +158,9 @@ class GeneratedSolver:
         return self._adapt().swap()
 
     def adapt_counts(self) -> dict:
-        """updates, skipped, resolves, accepted, swaps, clipped, rejected_<reason>, offset_swaps, offset_clipped,
-        offset_rejected counters and offset_norm (the norm of the output offset in use)."""
+        """updates (columns taken), skipped (NaN/inf), dropped (queue full), folded (columns in R), resolves,
+        accepted, swaps, clipped, rejected_<reason>, offset_swaps, offset_clipped, offset_rejected counters and
+        offset_norm (the norm of the output offset in use)."""
         return self._adapt().counts()
 
     def adapt_offset(self) -> np.ndarray:
