@@ -166,14 +166,18 @@ def _sitl_adaptation_table(a: dict) -> str:
     missed ticks (a re-solve runs inside a tick)."""
     head = ("| autopilot | condition | static | adapted | prefilter | static / adapted | static's first "
             f"{a.get('learn_s', '?')} s alone | static: this change / nominal (true, EKF) | before: static / adapted / "
-            "prefilter | EKF after: static / adapted | estimator error after: static / adapted | updates | swaps accepted | rejected | "
+            "prefilter | EKF after: static / adapted | estimator error after: static / adapted | updates | swaps accepted | "
+            "their error ratio | rejected | "
             "missed ticks: static / adapted |")
     lines = [f"The change at trajectory time {a.get('t_change_s', '?')} s (set by the harness over a second MAVLink link "
              f"while the bridge flies), true-height RMSE [mm] in the {a.get('window_s', '?')} s after it; before: from "
              f"{a.get('settle_s', '?')} s to the change; mean of {a.get('rounds', '?')} round(s). Static's first "
              f"{a.get('learn_s', '?')} s alone: the window's RMS if the error were zero after them, a floor for any "
              "learner that needs data of the change (its verification window is that long). Static: this change / "
-             "nominal: what the change cost the static steering, all an adaptation can give back.\n", head,
+             "nominal: what the change cost the static steering, all an adaptation can give back. Their error ratio: "
+             "the accepted swaps' prediction error on the recent window over the current G's (min-max): a swap in "
+             "nominal flight that cuts it as much as one after a change shows the check cannot tell the two apart.\n",
+             head,
              "|" + "---|" * (head.count("|") - 1)]
     for ap, res in (a.get("autopilots") or {}).items():
         for name, c in (res.get("conditions") or {}).items():
@@ -188,9 +192,16 @@ def _sitl_adaptation_table(a: dict) -> str:
                          f"{get('static', 'after', 'rmse_z')} / {get('adapted', 'after', 'rmse_z')} | "
                          f"{get('static', 'after', 'estimator_rms')} / {get('adapted', 'after', 'estimator_rms')} | "
                          f"{ad.get('updates', '--')} | "
-                         f"{ad.get('accepted', '--')} | {rej} | {(c.get('static') or {}).get('missed_ticks', '--')} / "
+                         f"{ad.get('accepted', '--')} | {_ratio_range(c)} | {rej} | "
+                         f"{(c.get('static') or {}).get('missed_ticks', '--')} / "
                          f"{(c.get('adapted') or {}).get('missed_ticks', '--')} |")
     return "\n".join(lines) + "\n"
+
+
+def _ratio_range(c: dict) -> str:
+    """min-max of the accepted swaps' error ratios of a condition ("--" without a swap or in older reports)."""
+    rng = (c.get("adapted") or {}).get("accepted_ratio_range")
+    return f"{rng[0]:.2f}-{rng[1]:.2f}" if rng else "--"
 
 
 _METHODS = ("passthrough", "ctrl_ff", "prefilter", "ilc", "steered")

@@ -184,7 +184,8 @@ def _mean(vals: list) -> float | None:
 def summarize(per_round: list[dict[str, dict]]) -> dict[str, Any]:
     """One condition's rounds (each method -> :func:`window_figures` + ``fallbacks``) -> per method the mean over
     the rounds of each figure (``before`` / ``after`` x rmse_z, rmse_z_truth, estimator_rms; None if any round has
-    none), ``floor`` (:func:`_floor`, mean of the rounds), the adaptation counters summed, and
+    none), ``floor`` (:func:`_floor`, mean of the rounds), the adaptation counters summed, the range of the
+    accepted swaps' error ratios (``accepted_ratio_range``: [min, max] over the rounds, None without a swap), and
     ``static_over_adapted`` (true height, after / before the change)."""
     out: dict[str, Any] = {}
     for m in METHODS:
@@ -203,6 +204,9 @@ def summarize(per_round: list[dict[str, dict]]) -> dict[str, Any]:
             for r in runs:
                 _add_counts(c, r["adapt"])
             fig["adapt"] = c
+            acc = [x for r in runs for x in r.get("accepted_ratios", [])]
+            # what a swap cut: the same range in nominal flight as after a change is a margin that cannot tell them apart
+            fig["accepted_ratio_range"] = [min(acc), max(acc)] if acc else None
         out[m] = fig
     if "static" in out and "adapted" in out:
         ratio = lambda w: (out["static"][w]["rmse_z_truth"] / out["adapted"][w]["rmse_z_truth"]  # noqa: E731
@@ -258,14 +262,16 @@ def flight_record(out: Path, autopilot: str, tag: str, change: dict) -> dict:
     around ``change["sent_s"]`` (:data:`CHANGE_S` without one), the fallbacks, the loop's missed ticks and largest
     gap [ms] (a re-solve runs inside a tick), the bridge's adaptation counters, ``change``, and ``error_ratios``:
     each re-solve's candidate-over-current prediction error on its recent window, in flight order (what
-    ``[adapt] min_improvement`` is set against)."""
+    ``[adapt] min_improvement`` is set against), and ``accepted_ratios``: those of the swaps accepted."""
     summary = json.loads((out / f"{autopilot}_{tag}.json").read_text())
     f = window_figures(out / f"{autopilot}_{tag}.npz", change.get("sent_s") or CHANGE_S)
     adaptation = (summary.get("steering") or {}).get("adaptation") or {}
     f.update(fallbacks=summary.get("fallbacks"), missed_ticks=summary.get("missed_ticks"),
              max_gap_ms=summary.get("max_gap_ms"), change=change, bridge_counts=adaptation.get("counts"),
              error_ratios=[round(e[6], 4) for e in adaptation.get("events", [])
-                           if len(e) > 6 and e[6] is not None and np.isfinite(e[6])])
+                           if len(e) > 6 and e[6] is not None and np.isfinite(e[6])],
+             accepted_ratios=[round(e[6], 4) for e in adaptation.get("events", [])
+                              if len(e) > 6 and e[1] == "accepted" and e[6] is not None and np.isfinite(e[6])])
     return f
 
 
@@ -341,6 +347,12 @@ def _mm(v: Any) -> str:
     return "-" if v is None else f"{1e3 * v:.1f}"
 
 
+def _ratios(c: dict) -> str:
+    """`` (error ratio a-b)``: the range of the accepted swaps' candidate-over-current errors, when any."""
+    rng = (c.get("adapted") or {}).get("accepted_ratio_range")
+    return f" (error ratio {rng[0]:.2f}-{rng[1]:.2f})" if rng else ""
+
+
 def format_adaptation(adaptation: dict) -> str:
     """Printed lines per autopilot and condition: true height after the change per method, the ratio, the
     nominal part, the estimator's error and the counters of the adapted flights."""
@@ -362,7 +374,7 @@ def format_adaptation(adaptation: dict) -> str:
                          f"static after this change / in nominal flight: true {_x(cost[0])}, EKF {_x(cost[1])}); "
                          f"nominal part {before} mm; "
                          f"estimator {_mm(est)} mm; adapted: {ad.get('updates', '-')} updates, "
-                         f"{ad.get('accepted', '-')} swaps accepted, rejected {ad.get('rejected', {})}")
+                         f"{ad.get('accepted', '-')} swaps accepted{_ratios(c)}, rejected {ad.get('rejected', {})}")
     return "\n".join(lines)
 
 

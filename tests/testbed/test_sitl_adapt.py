@@ -102,6 +102,7 @@ def test_rescore_scores_every_flight_again_from_its_files(log, tmp_path):
     assert c["static"]["after"]["rmse_z_truth"] == pytest.approx(0.08) and c["static"]["missed_ticks"] == 7
     assert c["adapted"]["adapt"]["accepted"] == 1 and c["params"] == {"SIH_MASS": 1.2}
     assert c["rounds"][0]["adapted"]["error_ratios"] == [0.97, 0.8123]  # the error check's verdicts, in order
+    assert c["rounds"][0]["adapted"]["accepted_ratios"] == [0.8123] and c["adapted"]["accepted_ratio_range"] == [0.8123] * 2
     assert c["rounds"][0]["static"]["change"] == {"sent_s": 10.0} and c["static_over_adapted"]["after"] == 1.0
     assert new["t_change_s"] == 10.0 and new["autopilots"]["px4"]["wall_s"] == 1.0
     assert old["autopilots"]["px4"]["conditions"]["heavy"]["rounds"][0]["static"] == {"change": {"sent_s": 10.0}}
@@ -127,6 +128,9 @@ def test_summarize_means_the_rounds_sums_the_counts_and_gives_the_ratio():
     assert s["static_over_adapted"]["before"] == pytest.approx(0.01 / 0.015)
     assert "adapt" not in s["static"] and s["rounds"] == rounds
     assert s["adapted"]["missed_ticks"] == 10 and s["adapted"]["max_gap_ms"] == 11.0
+    assert s["adapted"]["accepted_ratio_range"] is None  # no round recorded an accepted swap's ratio
+    rounds[0]["adapted"]["accepted_ratios"], rounds[1]["adapted"]["accepted_ratios"] = [0.8, 0.85], [0.78]
+    assert summarize(rounds)["adapted"]["accepted_ratio_range"] == [0.78, 0.85]
 
 
 def test_summarize_gives_none_where_a_round_has_no_truth():
@@ -157,7 +161,8 @@ def test_merge_report_replaces_only_the_adaptation_key(tmp_path):
 
 
 def _adaptation() -> dict:
-    s = summarize([{"static": _flight(0.03, 0.01), "adapted": _flight(0.02, 0.01, 1, {"gain": 3}),
+    s = summarize([{"static": _flight(0.03, 0.01), "adapted": {**_flight(0.02, 0.01, 1, {"gain": 3}),
+                                                               "accepted_ratios": [0.812]},
                     "prefilter": _flight(0.05, 0.04)}])
     nominal = summarize([{"static": _flight(0.02, 0.01), "adapted": _flight(0.02, 0.01)}])
     return {"t_change_s": 10.0, "window_s": 10.0, "settle_s": 3.0, "rounds": 1, "learn_s": 2.0,
@@ -168,10 +173,12 @@ def test_the_results_table_and_the_printed_lines():
     table = _sitl_adaptation_table(_adaptation())
     row = [line for line in table.splitlines() if line.startswith("| px4 | heavy |")]
     assert row == ["| px4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 | 1.50x, 1.50x | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | "
-                   "5.0 / 5.0 | 100 | 1 | gain 3 | 5 / 5 |"]
+                   "5.0 / 5.0 | 100 | 1 | 0.81-0.81 | gain 3 | 5 / 5 |"]
     assert "static's first 2.0 s alone" in table
     text = format_adaptation(_adaptation())
-    assert "static / adapted 1.50" in text and "1 swaps accepted" in text
+    assert "static / adapted 1.50" in text and "1 swaps accepted (error ratio 0.81-0.81)" in text
+    nominal = [line for line in table.splitlines() if line.startswith("| px4 | nominal |")][0]
+    assert "| 0 | -- |" in nominal  # no swap, no ratio
     # the floor of any learner (static 30 mm over a 10 mm first-2-s floor) and the change's cost to static (30 / 20)
     assert "static / any learner <= 3.00" in text and "in nominal flight: true 1.50x, EKF 1.50x" in text
 
