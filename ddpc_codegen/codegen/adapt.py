@@ -22,6 +22,7 @@ from ddpc_codegen.runtime.adaptation import AdaptSettings
 
 __all__ = ["emit_adapt", "cdef_text", "context", "compile_alone"]
 
+RES_BLOCK = 4  # window columns per pass of the C residuals over G (G read once for them)
 _SERIAL = itertools.count()  # a process cannot dlopen two builds under one module name
 
 
@@ -47,12 +48,12 @@ def context(ad, problem, name: str, banner: str) -> dict:
     n_o, n_wu = qp.Lm.shape[0], qp.Rm.shape[1]
     qp_words = 2 * (n_z * n_z + 2 * n_g1 * n_z + 2 * n_z * n_th + n_g1 * n_th) + n_o * (lay.r + n_wu + 2 * n_z)
     ring = s.window + 2 * s.period_ticks  # the window and the columns a re-solve has not folded in yet
-    ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + 2 * qp.n_y
+    ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
             "window": s.window, "forgetting": _c(s.forgetting), "period_ticks": s.period_ticks,
-            "w2": w * w, "qr": q * lay.r, "ring": ring * w, "ring_cols": ring, "nu2": nu * nu, "n_urows": nu,
+            "w2": w * w, "qr": q * lay.r, "ring": ring * w, "ring_cols": ring, "res_block": RES_BLOCK, "rb": RES_BLOCK * lay.q_y, "nu2": nu * nu, "n_urows": nu,
             "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": _c(ad.slack_weight), "ridge": _c(ad.ridge),
             "rcond": _c(ad.rcond), "max_change": _c(s.max_change), "min_excitation": _c(s.min_excitation),
             "min_improvement": _c(s.min_improvement),
