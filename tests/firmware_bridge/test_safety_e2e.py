@@ -63,13 +63,17 @@ def stalled(tmp_path_factory, flying_solver):
 def test_a_sigstop_is_a_stall_with_an_event_and_a_refilled_window(stalled):
     assert stalled["rc"] == 0, stalled["out"]
     s, t = stalled["s"], stalled["log"].ticks
-    assert len(s["stalls"]) == 1 and 1.9 <= s["stalls"][0]["gap_s"] <= 3.0, s["stalls"]
+    # one stall of the SIGSTOP's 2 s; a loaded CI machine may hold the bridge off for tens of ms besides: real
+    # stalls too, detected and recorded the same way, but never long
+    big = [i for i, x in enumerate(s["stalls"]) if x["gap_s"] >= 1.9]
+    assert len(big) == 1 and s["stalls"][big[0]]["gap_s"] <= 3.0, s["stalls"]
+    assert all(x["gap_s"] < 0.5 for i, x in enumerate(s["stalls"]) if i != big[0]), s["stalls"]
     ev = [e for _, e in s["events"]]
     assert any(e.startswith("bridge stalled: no tick for 2.") for e in ev), ev
     assert stalled["log"].metadata["stalls"] == s["stalls"]  # in the tick log too, with its time
     k = np.nonzero(t["gate"] & GATE_FLAGS["stall"])[0]
-    assert k.size == 1
-    after = t["reason"][k[0]:]
+    assert k.size == len(s["stalls"])  # each stall flags the tick after it, in time order
+    after = t["reason"][k[big[0]]:]
     # refilled: never steered on the window with the hole; (after the backlog of telemetry that arrived
     # stale is drained) blended back in, then steered again
     assert after[after != R["stale"]][0] in (R["blend"], R["warmup"]), after[:20]
