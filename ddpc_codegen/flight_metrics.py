@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 
 from ddpc_codegen.stats import limit_share, step_rms
 
-__all__ = ["flight_metrics", "rms", "scored_ticks"]
+__all__ = ["flight_metrics", "rms", "scored_ticks", "near_changes"]
 
 
 def rms(e: ArrayLike, empty: Any = None) -> Any:
@@ -36,6 +36,25 @@ def scored_ticks(t: ArrayLike, settle: float = 0.0, active: ArrayLike | None = N
             raise ValueError(f"active has {active.shape[0]} ticks, t has {t.shape[0]}")
         on &= active
     return on
+
+
+def near_changes(t: ArrayLike, y_des: ArrayLike, before: float = 0.5, after: float = 1.5,
+                 eps: float = 5e-4) -> np.ndarray:
+    """(N,) bool: the ticks within [-before, +after] s [trajectory time ``t``] of a tick where the desired height
+    (``y_des`` (N,), m) moves by more than ``eps`` m from the tick before: a step's lead, its ramp and the settling
+    after it. The rest is the path holding still (or moving slower than ``eps`` per tick)."""
+    t = np.asarray(t, dtype=float).ravel()
+    z = np.asarray(y_des, dtype=float).ravel()
+    moving = np.zeros(t.shape, dtype=bool)
+    moving[1:] = np.abs(np.diff(z)) > eps  # NaN (before the trajectory) never moves
+    out = np.zeros(t.shape, dtype=bool)
+    tm = np.sort(t[moving])
+    if tm.size:  # distance to the nearest moving tick on each side
+        i = np.searchsorted(tm, np.nan_to_num(t, nan=-np.inf))
+        nxt = np.where(i < tm.size, tm[np.minimum(i, tm.size - 1)], np.inf) - t
+        prv = t - np.where(i > 0, tm[np.maximum(i - 1, 0)], -np.inf)
+        out = (nxt <= before) | (prv <= after)
+    return out & np.isfinite(t)
 
 
 def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: float = 0.0,

@@ -156,8 +156,11 @@ def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
             "thrust_step_rms": {"passthrough": 0.0002, "steered": 0.0005},
             "max_ref_step": {"steered": 0.006}, "fallbacks": {"steered": 0.0}, "solve_us_p99": {"steered": 612.0}}
     table = results._conditions_table([("ardupilot", "steps", cond), ("px4", "wind", {"skipped": "no wind parameter"})])
-    assert ("| ardupilot | steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | 8.0 | 5.6 | 2.00x | 1.50x | 6.0 | 2.5x | 0 | 0.61 |"
-            in table.splitlines())
+    assert ("| ardupilot | steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | 8.0 | 5.6 | 2.00x | 1.50x | -- | 6.0 | 2.5x | 0 | 0.61 |"
+            in table.splitlines())  # -- : a report from before the split near path changes / steady
+    cond["rmse_z_truth_changing"] = {"steered": 0.0107, "prefilter": 0.0219}
+    cond["rmse_z_truth_steady"] = {"steered": 0.0009, "prefilter": 0.0057}
+    assert "| 1.50x | 10.7 / 0.9 (21.9 / 5.7) | 6.0 |" in results._conditions_table([("ardupilot", "steps", cond)])
     del cond["solve_us_p99"]  # a report from before the figure
     assert "| 2.5x | 0 | -- |" in results._conditions_table([("ardupilot", "steps", cond)])
     cond["estimator_bias_rms"] = {"steered": 0.0049}  # reports since the constant part is recorded

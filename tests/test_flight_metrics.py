@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ddpc_codegen.flight_metrics import flight_metrics, rms, scored_ticks
+from ddpc_codegen.flight_metrics import flight_metrics, near_changes, rms, scored_ticks
 
 
 def _reference(t, y, y_des, settle, active, u, r_nom, thrust, z_truth, steered):
@@ -82,3 +82,25 @@ def test_no_scored_tick_gives_the_empty_value_and_bad_shapes_are_refused():
         scored_ticks(t, 0.0, np.ones(2, bool))
     # A NaN trajectory time (before the trajectory started) never counts, whatever the settle time.
     assert scored_ticks(t, -5.0).tolist() == [False, True, True]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 60), st.floats(-0.3, 0.3), st.integers(0, 40)), min_size=1, max_size=6),
+       st.integers(0, 5), st.floats(0.0, 0.6), st.floats(0.0, 2.0))
+def test_near_changes_is_the_tick_by_tick_definition(segments, lead, before, after):
+    """Holds then ramps of the desired height (hold ticks, ramp height, ramp ticks), NaN before the start: a tick is
+    near a change when a tick at most `before` s later or `after` s earlier moved by more than eps from the one
+    before it."""
+    z, dt = [np.nan] * lead, 0.05
+    level = 1.0
+    for hold, dz, ramp in segments:
+        z += [level] * hold
+        z += [level + dz * (k + 1) / ramp for k in range(ramp)]
+        level += dz if ramp else 0.0
+    z = np.array(z)
+    t = np.where(np.isnan(z), np.nan, dt * (np.arange(z.size) - lead))
+    got = near_changes(t, z, before, after, eps=5e-4)
+    moved = [k for k in range(1, z.size) if abs(z[k] - z[k - 1]) > 5e-4]  # NaN compares False: never moved
+    want = [math.isfinite(t[k]) and any(0 <= t[m] - t[k] <= before or 0 <= t[k] - t[m] <= after for m in moved)
+            for k in range(z.size)]
+    assert got.tolist() == want

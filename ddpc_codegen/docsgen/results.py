@@ -213,9 +213,19 @@ def _bias(c: dict) -> str:
     return "" if b is None else f" ({_mm(b)})"
 
 
+def _split(c: dict) -> str:
+    """The steered (and prefilter) true-height RMSE near changes of the path's height / elsewhere [mm]."""
+    ch, st = c.get("rmse_z_truth_changing") or {}, c.get("rmse_z_truth_steady") or {}
+    if ch.get("steered") is None or st.get("steered") is None:
+        return "--"
+    return f"{_mm(ch['steered'])} / {_mm(st['steered'])} ({_mm(ch.get('prefilter'))} / {_mm(st.get('prefilter'))})"
+
+
 def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
     """Per autopilot and condition: each method's true-height RMSE (mean over the rounds), the estimator's
     own error in the steered flights (and its constant part per flight, when recorded), the steering against the best simple method (ctrl ff, prefilter, ILC) and the estimator, the
+    steered and prefilter true-height error near changes of the path's height (0.5 s before to 1.5 s after) and
+    elsewhere, the
     largest tick-to-tick step of the applied height reference in the steered flights (fallbacks included;
     the config's rate bound ``du_max`` is the limit; a stall resumes from the measured height, wherever the
     vehicle went meanwhile), the thrust steps against passthrough's, the fallbacks (with the bridge's own stalls
@@ -223,14 +233,16 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
     p99 of the steering's solver call in flight (the worst round's)."""
     head = ("| autopilot | condition | " + " | ".join(m.replace("_", " ") for m in _METHODS)
             + " | EKF steered | estimator error (steered flights): RMS (its constant part) | best simple / steered "
-            "| steered / estimator "
+            "| steered / estimator | near path changes / steady: steered (prefilter) "
             "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks (bridge stalls) "
             "| solve p99 in flight [ms] |")
-    lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds:\n",
+    lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds; "
+             "near path changes: from 0.5 s before to 1.5 s after any tick where the desired height moves (a step's "
+             "lead, ramp and settling), steady: the rest:\n",
              head, "|" + "---|" * (head.count("|") - 1)]
     for ap, name, c in conditions:
         if "skipped" in c:
-            lines.append(f"| {ap} | {name} | " + " | ".join(["--"] * (len(_METHODS) + 8)) + " |")
+            lines.append(f"| {ap} | {name} | " + " | ".join(["--"] * (len(_METHODS) + 9)) + " |")
             continue
         vt, est = c["rmse_z_truth"], steered_estimator_rms(c)
         simple = [vt.get(m) for m in ("ctrl_ff", "prefilter", "ilc") if vt.get(m) is not None]
@@ -244,7 +256,7 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
         stalls = (c.get("stalls") or {}).get("steered")
         solve = (c.get("solve_us_p99") or {}).get("steered")
         lines.append(f"| {ap} | {name} | " + " | ".join(_mm(vt.get(m)) for m in _METHODS)
-                     + f" | {_mm(c['rmse_z'].get('steered'))} | {_mm(est)}{_bias(c)} | {best} | {vs_est} | "
+                     + f" | {_mm(c['rmse_z'].get('steered'))} | {_mm(est)}{_bias(c)} | {best} | {vs_est} | {_split(c)} | "
                      + f"{'--' if step is None else f'{1e3 * step:.1f}'} | {thr_ratio} | "
                      + f"{'--' if fb is None else f'{fb:g}'}{'' if stalls is None else f' ({stalls:g})'} | "
                      + f"{'--' if solve is None else f'{solve / 1e3:.2f}'} |")

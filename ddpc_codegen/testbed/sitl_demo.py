@@ -350,6 +350,10 @@ def format_condition(ap: str, name: str, c: dict) -> str:
         solve_txt = f"; solve p99 in flight {solve / 1e3:.2f} ms (<= 1 ms)" if solve is not None else ""
         stalls, stale = ((c.get(k) or {}).get("steered") for k in ("stalls", "stale_ticks"))
         solve_txt += f"; bridge stalls {stalls:g}, stale ticks {stale:g}" if stalls is not None and stale is not None else ""
+        ch, st = c.get("rmse_z_truth_changing") or {}, c.get("rmse_z_truth_steady") or {}
+        if ch.get("steered") is not None and st.get("steered") is not None:
+            est_txt += (f"; true height near path changes / steady: steered {mm(ch['steered'])} / "
+                        f"{mm(st['steered'])}, prefilter {mm(ch.get('prefilter'))} / {mm(st.get('prefilter'))} mm")
         lines.append(f"[sitl-demo] {ap} {name} target {goal}{est_txt}; largest reference step "
                      f"{mm((c.get('max_ref_step') or {}).get('steered'))} mm per tick (of the correction u - r_nom "
                      f"{mm((c.get('max_offset_step') or {}).get('steered'))}){thr_txt}{solve_txt}")

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.flight_metrics import flight_metrics
+from ddpc_codegen.flight_metrics import flight_metrics, near_changes, scored_ticks
 from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
@@ -145,11 +145,22 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved), and the bridge's own
     stalls (``stalls``: ticks after a gap in its clock, each resumed from where the vehicle then was) and the
     ticks on stale telemetry (``stale_ticks``) from the start of the trajectory: what explains a step beyond the
-    rate bound (a stall resumes relative to the measured height, and the vehicle moved meanwhile)."""
+    rate bound (a stall resumes relative to the measured height, and the vehicle moved meanwhile); with the
+    truth, the true-height RMSE split into the ticks near a change of the desired height
+    (``rmse_z_truth_changing``: :func:`~ddpc_codegen.flight_metrics.near_changes`) and the rest
+    (``rmse_z_truth_steady``; None without such ticks)."""
     t = load_ticklog(log_path).ticks
     f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=t["active"], u=t["u"], r_nom=t["r_nom"],
                        thrust=t["sp_thrust"], z_truth=t["truth_position"][:, 2] if "truth_position" in t else None,
                        steered=t["reason"] == _STEERED)
+    near = near_changes(t["t_traj"], t["y_des"][:, 0])
+    split = {}
+    if "truth_position" in t:  # the true-height error where the path changes height (lead, ramp, settling) and elsewhere
+        on = scored_ticks(t["t_traj"], settle, t["active"])
+        e = t["truth_position"][:, 2] - t["y_des"][:, 0]
+        for key, mask in (("rmse_z_truth_changing", on & near), ("rmse_z_truth_steady", on & ~near)):
+            v = e[mask & np.isfinite(e)]
+            split[key] = float(np.sqrt(np.mean(v ** 2))) if v.size else None
     solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
     flown = np.isfinite(t["t_traj"])
     return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
@@ -159,4 +170,4 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
             # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved
             "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None,
             "stalls": int(np.count_nonzero(flown & (t["gate"] & GATE_FLAGS["stall"]).astype(bool))),
-            "stale_ticks": int(np.count_nonzero(flown & (t["reason"] == _STALE)))}
+            "stale_ticks": int(np.count_nonzero(flown & (t["reason"] == _STALE))), **split}

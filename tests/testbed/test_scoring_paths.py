@@ -66,3 +66,5 @@ def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
     solved = (10.0 + np.arange(res.n) % 100)[steered]  # every solver call of the flight, warm-up included
     assert ff["solve_us_p99"] == pytest.approx(np.percentile(solved, 99), rel=1e-12)
     assert ff["stalls"] == 1 and ff["stale_ticks"] == 10  # counted from the trajectory's start, settle or not
+    # the ellipse's height never holds still for 0.5 s: every scored tick is near a change of the path's height
+    assert ff["rmse_z_truth_changing"] == pytest.approx(ff["rmse_z_truth"], rel=1e-12) and ff["rmse_z_truth_steady"] is None
