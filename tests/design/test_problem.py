@@ -66,6 +66,18 @@ def _solve_direct(prob: SteeringProblem, u_ini, y_ini, y_des, u_nom):
     return np.array(solver(lbg=lb, ubg=ub)["x"]).ravel()[:nu]
 
 
+def _agrees_with_direct(prob: SteeringProblem, sys_, seed: int, draws: int, direct: bool = True) -> None:
+    """``draws`` parameter draws (small and large y_des in turn): each solves, and (``direct``) equals the
+    uncondensed QP written out to 1e-6."""
+    rng = np.random.default_rng(seed)
+    for k in range(draws):
+        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
+        res = prob.solve(*args, solver="exact")
+        assert res.ok
+        if direct:
+            assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+
+
 @pytest.mark.parametrize("mode", ["offset", "absolute", "increment"])
 def test_condensed_equals_direct_ddpc_flying(plant, mode):
     sys_, ds = plant
@@ -95,13 +107,7 @@ def test_second_difference_penalty_equals_direct_and_smooths(plant, mode, extra)
     pred = fit_predictor(ds, TI, TF, "pem")
     prob = SteeringProblem(pred, _cfg(mode, R_ddu=[5.0, 2.0], **extra))
     plain = SteeringProblem(pred, _cfg(mode, **extra))
-    rng = np.random.default_rng(23)
-    for k in range(8):
-        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
-        res = prob.solve(*args, solver="exact")
-        assert res.ok
-        if "knots" not in extra:
-            assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    _agrees_with_direct(prob, sys_, 23, 8, direct="knots" not in extra)
     args = _params(sys_, np.random.default_rng(2), scale=0.1)
     bend = lambda r: np.sum(np.diff(np.vstack([args[0][-2:], r.u]), 2, axis=0) ** 2 * [5.0, 2.0])  # noqa: E731
     assert bend(prob.solve(*args, solver="exact")) < 0.95 * bend(plain.solve(*args, solver="exact"))
@@ -113,12 +119,7 @@ def test_rate_penalty_on_top_of_any_mode_equals_direct(plant, mode):
     sys_, ds = plant
     prob = SteeringProblem(fit_predictor(ds, TI, TF, "pem"), _cfg(mode, R_du=[3.0, 0.5]))
     plain = SteeringProblem(prob.predictor, _cfg(mode))
-    rng = np.random.default_rng(17)
-    for k in range(10):
-        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
-        res = prob.solve(*args, solver="exact")
-        assert res.ok
-        assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    _agrees_with_direct(prob, sys_, 17, 10)
     # The penalty does what it says: smaller steps than without it (same parameters).
     args = _params(sys_, np.random.default_rng(1), scale=0.1)
     du = lambda r: np.diff(np.vstack([args[0][-1:], r.u]), axis=0)  # noqa: E731
@@ -132,12 +133,7 @@ def test_tracking_error_rate_penalty_equals_direct_and_calms_the_error_changes(p
     sys_, ds = plant
     prob = SteeringProblem(fit_predictor(ds, TI, TF, "pem"), _cfg(mode, R_de=[4.0, 1.0]))
     plain = SteeringProblem(prob.predictor, _cfg(mode))
-    rng = np.random.default_rng(29)
-    for k in range(8):
-        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
-        res = prob.solve(*args, solver="exact")
-        assert res.ok
-        assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    _agrees_with_direct(prob, sys_, 29, 8)
     args = _params(sys_, np.random.default_rng(3), scale=0.1)
 
     def changes(r) -> float:
@@ -154,13 +150,7 @@ def test_offset_rate_penalty_equals_direct_and_lets_the_references_follow_the_no
     sys_, ds = plant
     pred = fit_predictor(ds, TI, TF, "pem")
     prob = SteeringProblem(pred, _cfg("offset", R_doffset=[30.0, 10.0], **extra))
-    rng = np.random.default_rng(31)
-    for k in range(8):
-        args = _params(sys_, rng, scale=0.1 if k % 2 else 4.0)
-        res = prob.solve(*args, solver="exact")
-        assert res.ok
-        if "knots" not in extra:
-            assert np.abs(res.u.ravel() - _solve_direct(prob, *args)).max() <= 1e-6
+    _agrees_with_direct(prob, sys_, 31, 8, direct="knots" not in extra)
     u_ini, y_ini, y_des, _ = _params(sys_, np.random.default_rng(4), scale=0.1)
     ramp = u_ini[-1] + 0.04 * np.arange(1, TF + 1)[:, None] * [1.0, -1.0]  # inside the rate bound
     rate = SteeringProblem(pred, _cfg("offset", **(extra | {"R_du": np.add(extra.get("R_du", 0.0), [30.0, 10.0])})))
