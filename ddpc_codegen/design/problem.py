@@ -24,11 +24,11 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ddpc_codegen.design.blocking import distinct_rows, knot_basis
+from ddpc_codegen.design.penalties import reference_penalties
 from ddpc_codegen.design.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import Predictor
-from ddpc_codegen.design.solve_result import (BOUND_TOL, SteeringResult, nominal_increments, stack_window,
-                                              within_bounds)
+from ddpc_codegen.design.solve_result import BOUND_TOL, SteeringResult, stack_window, within_bounds
 
 __all__ = ["SteeringProblem", "SteeringResult", "SOLVERS", "P_COND_MAX", "DAQP_OPTIONS"]
 
@@ -109,7 +109,6 @@ class SteeringProblem:
         y = ca.mtimes(ca.DM(pr.Gy_w), w) + ca.mtimes(ca.DM(self._through_basis(pr.Gy_u)), u)
         sig = ca.mtimes(ca.DM(pr.Gs_w), w) + ca.mtimes(ca.DM(self._through_basis(pr.Gs_u)), u)
         Qb = ca.DM(np.kron(np.eye(Tf), c.Q))
-        Rb = ca.DM(np.kron(np.eye(Tf), c.R))
         e = y - y_des
         J = ca.mtimes([e.T, Qb, e]) + c.lambda_sigma * ca.dot(sig, sig)
         D = np.eye(self.n_u) - np.eye(self.n_u, k=-m)  # stacked differences
@@ -117,42 +116,10 @@ class SteeringProblem:
         du_expr = ca.mtimes(ca.DM(self._through_basis(D)), u) - ca.vertcat(u_ini[m * (Ti - 1) :],
                                                                             ca.DM.zeros(self.n_u - m))
         u_full = u if self.B is None else ca.mtimes(ca.DM(self.B), u)
-        if c.R_mode == "absolute":
-            ru = u_full
-        elif c.R_mode == "offset":
-            ru = u_full - theta[self.n_w + p * Tf :]
-        else:
-            ru = du_expr
-        J = J + ca.mtimes([ru.T, Rb, ru])
-        if np.any(c.R_du):
-            J = J + ca.mtimes([du_expr.T, ca.DM(np.kron(np.eye(Tf), c.R_du)), du_expr])
-        if np.any(c.R_doffset):
-            J = J + self._offset_rate_cost(du_expr, theta[self.n_w + p * Tf :])
-        if np.any(c.R_ddu):
-            # Second differences, the first against the last applied increment u_ini[-1] - u_ini[-2].
-            du_prev = u_ini[m * (Ti - 1) :] - u_ini[m * (Ti - 2) : m * (Ti - 1)]
-            ddu = ca.mtimes(ca.DM(D), du_expr) - ca.vertcat(du_prev, ca.DM.zeros(self.n_u - m))
-            J = J + ca.mtimes([ddu.T, ca.DM(np.kron(np.eye(Tf), c.R_ddu)), ddu])
-        if np.any(c.R_de):
-            J = J + self._tracking_rate_cost(u_full, y, theta)
+        u_nom = theta[self.n_w + p * Tf :] if c.R_mode == "offset" else None
+        y_ini_last = theta[m * Ti + p * (Ti - 1) : m * Ti + p * Ti]
+        J = J + reference_penalties(c, u_full, du_expr, u_ini, u_nom, y, y_ini_last)
         return J, y, du_expr, D
-
-    def _offset_rate_cost(self, du_expr: ca.SX, u_nom: ca.SX) -> ca.SX:
-        """||Δ(u - u_nom)||^2_R_doffset: the increments of u less those of the nominal references, which the
-        references may then follow for free. The nominal's increment before the horizon is not a parameter: the
-        first one, extrapolated one step back (exact on a ramp), stands for it."""
-        m, Tf = self.config.m, self.config.t_f
-        dv = du_expr - ca.mtimes(ca.DM(nominal_increments(m, Tf)), u_nom)
-        return ca.mtimes([dv.T, ca.DM(np.kron(np.eye(Tf), self.config.R_doffset)), dv])
-
-    def _tracking_rate_cost(self, u_full: ca.SX, y: ca.SX, theta: ca.SX) -> ca.SX:
-        """||Δe||^2_R_de, e = u_i - y_i (input i against output i; Δe_0 against u_ini[-1] - y_ini[-1]): the change
-        of the tracking loop's error input, which a PD on it turns into command (thrust) steps."""
-        m, p, Ti, Tf = self.config.m, self.config.p, self.config.t_ini, self.config.t_f
-        e = u_full - ca.mtimes(ca.DM(np.kron(np.eye(Tf), np.eye(m, p))), y)  # the first m outputs of each step
-        e_prev = theta[m * (Ti - 1) : m * Ti] - theta[m * Ti + p * (Ti - 1) : m * Ti + p * (Ti - 1) + m]
-        de = ca.mtimes(ca.DM(np.eye(m * Tf) - np.eye(m * Tf, k=-m)), e) - ca.vertcat(e_prev, ca.DM.zeros(m * (Tf - 1)))
-        return ca.mtimes([de.T, ca.DM(np.kron(np.eye(Tf), self.config.R_de)), de])
 
     def _general_constraints(self, y: ca.SX, du_expr: ca.SX, D: np.ndarray) -> tuple[ca.SX, list, list]:
         """Simple bounds on z (constant) and the general rows g with their bounds: predicted y and
