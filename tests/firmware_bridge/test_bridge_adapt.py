@@ -69,11 +69,8 @@ def test_steered_ticks_update_and_the_tick_log_records_every_update_verdict_and_
     assert [e[1] for e in landed] == [ADAPT_CODES[c] for c in code[resolves]]
     assert all(e[4] < e[0] for e in landed) and all(e[5] > 0 for e in s["events"])
     assert s["counts"]["swaps"] == int((code == ADAPT_CODES.index("accepted")).sum())
-    # no tick carried a re-solve: the ticks that took a snapshot or landed a verdict took no longer than the others
-    tick_us = t["compute_us"][steered]
-    busy_us = t["compute_us"][np.concatenate([snaps, resolves])]
-    assert np.median(busy_us) < np.median(tick_us) + 0.5e3 * np.median([e[5] for e in s["events"]]), \
-        (np.median(busy_us), np.median(tick_us), [e[5] for e in s["events"]])
+    # (that the tick never waits for the re-solve is the gated test in tests/runtime/test_adapt_loop.py; how long
+    # the ticks take is measured by `make bench`, not asserted here: a loaded machine's tick times say nothing)
     # the offset in use: one per re-solve, as the events record it, unchanged between re-solves
     off = t["adapt_offset"]
     assert np.all(np.isfinite(off[steered])) and np.isnan(off).any()  # nan: ticks the steering did not decide
