@@ -47,7 +47,9 @@ def context(ad, problem, name: str, banner: str) -> dict:
     n_z, n_g1, n_th = problem.n_z, max(1, problem.n_g), problem.n_theta
     n_o, n_wu = qp.Lm.shape[0], qp.Rm.shape[1]
     qp_words = 2 * (n_z * n_z + 2 * n_g1 * n_z + 2 * n_z * n_th + n_g1 * n_th) + n_o * (lay.r + n_wu + 2 * n_z)
-    ring = s.window + 2 * s.period_ticks  # the window and the columns a re-solve has not folded in yet
+    # the held-out window, the period's columns a re-solve folds in, and two more periods of slack (a re-solve still
+    # running when the next period comes) before a full queue refuses columns
+    ring = s.window + 3 * s.period_ticks
     ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,

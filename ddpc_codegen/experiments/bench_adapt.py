@@ -46,8 +46,8 @@ def _ridge_problem(size: str) -> SteeringProblem:
 def _resolve_times(prob: SteeringProblem, st: AdaptSettings, name: str, wins: np.ndarray, n_resolves: int,
                    tmp: str) -> tuple[dict, int]:
     """Seconds per call of a fresh build, as the bridge calls them ({"push": the tick's ``<name>_adapt_push``,
-    "fold": per column, the fold of a period's queued columns into R (``<name>_adapt_r``: the re-solve's first
-    step, in the worker), "snapshot": the tick's ``<name>_adapt_snapshot`` once per period, "resolve":
+    "fold": per column, the fold of the queued columns older than the held-out window into R (``<name>_adapt_r``:
+    the re-solve's first step, in the worker), "snapshot": the tick's ``<name>_adapt_snapshot`` once per period, "resolve":
     ``_snapshot`` + ``_resolve`` on the last snapshot}) and the last re-solve's verdict."""
     ffi, lib = compile_alone(prob, st, tmp, name)
     ws = ffi.new(f"{name}_adapt_workspace *")
@@ -63,9 +63,11 @@ def _resolve_times(prob: SteeringProblem, st: AdaptSettings, name: str, wins: np
         fn["push"](ws, buf)
         t["push"].append(time.perf_counter() - t0)
         if (k + 1) % st.period_ticks == 0:
+            before = ws.counts.folded
             t0 = time.perf_counter()
             fn["r"](ws, r_out)
-            t["fold"].append((time.perf_counter() - t0) / st.period_ticks)
+            if ws.counts.folded > before:  # none while the held-out window fills
+                t["fold"].append((time.perf_counter() - t0) / (ws.counts.folded - before))
             t0 = time.perf_counter()
             fn["snapshot"](ws)
             t["snapshot"].append(time.perf_counter() - t0)

@@ -2,17 +2,20 @@
 
 The fit's sufficient statistic is the upper-triangular R factor of the scaled data matrix
 X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see :class:`.fit_layout.FitLayout`).
-Online, each new Hankel column x (width,) updates it with exponential forgetting f:
+Online, each new Hankel column x (width,) joins the recent window of ``window`` columns; the column it pushes
+out updates R with exponential forgetting f:
 
     R <- triu(qr([sqrt(f) R; x^T]))      (Givens rotations, O(width^2), :func:`givens_update`)
 
-At a low rate G is re-solved from R exactly as the batch fit does (the pem slack rows and the relative
-ridge appended, then G^T = R11^-1 R12; :func:`solve_g`), so with f = 1 and every column fed one by one
-the result is the batch refit. A candidate G is verified before it may replace the current one
-(:meth:`Adapter.resolve`): finite, R11 well conditioned, a bounded change, a positive definite QP
-Hessian and the rest of the rebuilt QP data (when a QP model is given), the recent window exciting enough, and a smaller prediction
-error than the current G's on that window. Rejections are counted by reason. The candidate only
-becomes current on :meth:`Adapter.swap` (between control ticks).
+so R holds every column but the recent window's: the window is held out of the fit. At a low rate G is
+re-solved from R exactly as the batch fit does (the pem slack rows and the relative ridge appended, then
+G^T = R11^-1 R12; :func:`solve_g`), so with f = 1 the result is the batch refit of the columns before the
+window. A candidate G is verified before it may replace the current one (:meth:`Adapter.resolve`): finite,
+R11 well conditioned, a bounded change, a positive definite QP Hessian and the rest of the rebuilt QP data
+(when a QP model is given), the recent window exciting enough, and a smaller prediction error than the current
+G's on that window -- out of sample for both (the current G was fitted on columns older still), so a candidate
+that predicts the window better predicts data it has not seen better, not its own noise. Rejections are counted
+by reason. The candidate only becomes current on :meth:`Adapter.swap` (between control ticks).
 
 A re-solve reads a snapshot (:meth:`Adapter.snapshot`: R and the recent columns as of one tick), so it may run
 while later columns are pushed (the C code's threaded schedule); ``resolve()`` takes the snapshot itself
@@ -64,10 +67,9 @@ class AdaptSettings:
     max_change: largest ||G_new - G||_F / ||G||_F of one swap (a bigger step is scaled down to it).
     min_excitation: smallest min/max |diag| of the R factor of the recent window's scaled input rows.
     min_improvement: the fraction by which a candidate must cut the current G's prediction error on the recent
-        window to be accepted (0: any cut). The window is in the fit, so a candidate always fits it a little
-        better; on closed-loop data such in-sample gains are noise (a few percent on both SITLs, in nominal flight
-        as after a change the incremental predictor absorbs), and the margin keeps G until the data show a change the
-        current one does not predict.
+        window to be accepted (0: any cut). The window is held out of the candidate's fit, so the cut is out of
+        sample; the margin keeps G through the noise of closed-loop data until they show a change the current
+        one does not predict.
     max_gain_change: largest ||S_new - S_0||_F / ||S_0||_F of the predictor's steady-state gain S (outputs per
         constant reference, p x m) against the shipped one. Closed-loop data explain an offset the fit has no
         term for (a payload, battery sag) by distorting the gains, e.g. height through the pitch reference;
@@ -222,26 +224,28 @@ class Adapter:
                            else np.diag(np.tile(self.scale[lay.m :], lay.t_f)))
         self.offset = np.zeros(self.offset_map.shape[0])
         self.pending_offset: np.ndarray | None = None
-        # "folded": columns in R (here at once: the reference has no tick to keep short); "dropped": never here,
-        # the C refuses columns only when its bounded queue is full
+        # "folded": columns in R (here as they leave the window: the reference has no tick to keep short);
+        # "dropped": never here, the C refuses columns only when its bounded queue is full
         self.counts = {"updates": 0, "skipped": 0, "dropped": 0, "folded": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
                        **{f"rejected_{k}": 0 for k in REJECTIONS},
                        **{k: 0 for k in OFFSET_COUNTS}, "offset_norm": 0.0,
                        "error_current": 0.0, "error_candidate": 0.0}  # of the last error check
 
     def push(self, window: np.ndarray) -> bool:
-        """One new Hankel column from a time-major window (depth, m+p) in data units: R and the ring updated.
-        A window with a NaN/inf is skipped (False, counted): it must not poison R."""
+        """One new Hankel column from a time-major window (depth, m+p) in data units: into the recent window;
+        the column it pushes out (the window's oldest) into R. A window with a NaN/inf is skipped (False,
+        counted): it must not poison R."""
         x = self.layout.column(window, self.scale)
         if not np.all(np.isfinite(x)):
             self.counts["skipped"] += 1
             return False
+        if self.n_ring == self.settings.window:  # the oldest leaves the held-out window: R takes it
+            givens_update(self.R, self.ring[self.head].copy(), self.settings.forgetting)
+            self.counts["folded"] += 1
         self.ring[self.head] = x
         self.head = (self.head + 1) % self.settings.window
         self.n_ring = min(self.n_ring + 1, self.settings.window)
-        givens_update(self.R, x, self.settings.forgetting)
         self.counts["updates"] += 1
-        self.counts["folded"] += 1
         return True
 
     def recent(self) -> np.ndarray:

@@ -366,15 +366,16 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
 
 def test_the_tick_only_queues_columns_and_the_resolve_folds_them_into_r(tmp_path):
     """push() leaves R (d, U) alone (O(width) in the tick); the re-solve folds exactly the columns its snapshot
-    handed over (R then equals the numpy twin's after those columns, not after the ones pushed meanwhile);
-    <name>_adapt_r folds the rest; a full queue refuses columns (counted) instead of overwriting one R lacks."""
+    handed over, those older than the held-out window (R then equals the numpy twin's after those columns, not
+    after the ones pushed meanwhile); <name>_adapt_r folds the rest but the window; a full queue refuses columns
+    (counted) instead of overwriting one R lacks."""
     prob = _problem("absolute")
     st = AdaptSettings(enabled=True, window=40, period_ticks=20, min_excitation=1e-4)
     name = "ad_queue"
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     ref = adapter(prob, st)
     lay = ref.layout
-    w, ring = lay.width, st.window + 2 * st.period_ticks
+    w, ring = lay.width, st.window + 3 * st.period_ticks
     ws = ffi.new(f"{name}_adapt_workspace *")
     assert getattr(lib, f"{name}_adapt_init")(ws) == 0
     push = lambda win: getattr(lib, f"{name}_adapt_push")(ws, ffi.from_buffer("double[]", win))  # noqa: E731
@@ -382,25 +383,26 @@ def test_the_tick_only_queues_columns_and_the_resolve_folds_them_into_r(tmp_path
     rng = np.random.default_rng(4)
     wins = np.ascontiguousarray(rng.standard_normal((200, lay.depth, lay.m + lay.p)) * 0.1)
     before = factor()
-    for win in wins[:30]:
+    for win in wins[:60]:
         assert push(win) == 1 and ref.push(win)
-    after_30 = ref.R.copy()
+    after_60 = ref.R.copy()  # the 20 oldest: the window (40) held out
     assert all(np.array_equal(a, b) for a, b in zip(factor(), before))  # the tick never touched R
-    assert (ws.counts.updates, ws.counts.folded, ws.queued) == (30, 0, 30)
+    assert (ws.counts.updates, ws.counts.folded, ws.queued) == (60, 0, 60)
     getattr(lib, f"{name}_adapt_snapshot")(ws)
-    for win in wins[30:40]:  # pushed while the re-solve would run in the worker
+    assert ws.queued == 40  # the 20 oldest handed over; the window's columns stay queued: not in R
+    for win in wins[60:70]:  # pushed while the re-solve would run in the worker
         assert push(win) == 1 and ref.push(win)
     getattr(lib, f"{name}_adapt_resolve")(ws)
-    assert ws.counts.folded == 30 and ws.queued == 10
+    assert ws.counts.folded == 20 and ws.queued == 50
     U, d = factor()
     R = np.sqrt(d)[:, None] * (np.triu(U.reshape(w, w), 1) + np.eye(w))  # R = diag(sqrt(d)) U, U unit triangular
-    assert _close(R, after_30)  # the re-solve folded the handed-over columns, not those pushed meanwhile
-    assert _close(_r_of(ffi, lib, name, ws, w), ref.R) and ws.counts.folded == 40
-    for k, win in enumerate(wins[40 : 40 + ring + 5]):  # no re-solve takes the queue: full after `ring` columns
+    assert _close(R, after_60)  # the re-solve folded the handed-over columns, not those pushed meanwhile
+    assert _close(_r_of(ffi, lib, name, ws, w), ref.R) and ws.counts.folded == 30 and ws.queued == 40
+    for k, win in enumerate(wins[70 : 70 + ring - 40 + 5]):  # no re-solve takes the queue: full after `ring`
         taken = push(win)
-        assert taken == int(k < ring)
+        assert taken == int(k < ring - 40)
         if taken:
             ref.push(win)
-    assert (ws.counts.updates, ws.counts.dropped) == (40 + ring, 5)
+    assert (ws.counts.updates, ws.counts.dropped) == (70 + ring - 40, 5)
     assert _close(_r_of(ffi, lib, name, ws, w), ref.R)  # nothing taken was lost, nothing dropped got in
-    assert push(wins[-1]) == 1  # the queue is empty again
+    assert push(wins[-1]) == 1  # the queue holds only the window again

@@ -45,7 +45,7 @@ def test_givens_update_is_the_qr_of_the_stacked_rows(n, k, f, seed):
 
 
 @pytest.mark.parametrize("method, ridge", [("lsq", 1e-6), ("lsq", 0.0), ("pem", 1e-4), ("pem", 0.0)])
-def test_columns_fed_one_by_one_equal_the_batch_refit(method, ridge):
+def test_columns_fed_one_by_one_equal_the_batch_refit_of_the_data_before_the_held_out_window(method, ridge):
     u, y = _data(3)
     lay = AdaptLayout(2, 1, 4, 3, method)
     flay = FitLayout(2, 1, 4, 3, method)
@@ -55,7 +55,10 @@ def test_columns_fed_one_by_one_equal_the_batch_refit(method, ridge):
     ad = Adapter(lay, R0, scale, AdaptSettings(forgetting=1.0, window=30), ridge=ridge)
     for w in _windows(u, y, lay.depth)[half - lay.depth + 1 :]:
         assert ad.push(w)
-    batch = _solve_r(hankel_r_factor([(u, y)], flay, scale), flay, 1.0, ridge, 1e-10)["G"]
+    assert ad.recent().shape[0] == 30 and ad.counts["folded"] == ad.counts["updates"] - 30
+    # R holds every column but the window's 30 newest: the batch fit of the samples that end before them
+    keep = len(u) - 30
+    batch = _solve_r(hankel_r_factor([(u[:keep], y[:keep])], flay, scale), flay, 1.0, ridge, 1e-10)["G"]
     G, _ = solve_g(ad.R, lay, 1.0, ridge, 1e-10)
     assert np.abs(G - batch).max() <= 1e-9 * max(1.0, np.abs(batch).max())
 
@@ -93,8 +96,9 @@ def test_forgetting_weights_old_columns_down():
     wins = _windows(u, y, lay.depth)
     for w in wins:
         ad.push(w)
-    X = np.vstack([R0, np.array([lay.column(w, np.ones(3)) for w in wins])])
-    ref = np.linalg.qr(_aged(X, len(wins), 0.97), mode="r")
+    fitted = wins[:-30]  # the window's 30 newest are held out of R
+    X = np.vstack([R0, np.array([lay.column(w, np.ones(3)) for w in fitted])])
+    ref = np.linalg.qr(_aged(X, len(fitted), 0.97), mode="r")
     np.testing.assert_allclose(ad.R.T @ ad.R, ref.T @ ref, atol=1e-9 * np.abs(ref.T @ ref).max())
 
 
@@ -119,6 +123,30 @@ def test_a_better_predictor_is_accepted_and_swapped_a_worse_window_is_rejected()
     for _ in range(60):
         ad.push(np.hstack([np.ones((lay.depth, 2)), np.zeros((lay.depth, 1))]))
     assert ad.resolve() == "excitation" and ad.counts["rejected_excitation"] == 1 and not ad.swap()
+
+
+@pytest.mark.parametrize("seed", range(40, 45))
+def test_the_held_out_window_does_not_reward_fitting_its_noise(seed):
+    """Nominal flight: the same system as the shipped data, noisy outputs, a short memory (f = 0.98). The
+    candidate, fitted without the recent window, predicts it no better than the current G: rejected. Folded into
+    the fit, the same window is predicted 10-25 % better by a candidate that only learnt its noise -- what a
+    verification on in-sample data would have accepted."""
+    from ddpc_codegen.runtime.adaptation import _prediction_error
+
+    lay = AdaptLayout(2, 1, 4, 3, "lsq")
+    u, y = _data(seed, T=1500, noise=0.05)
+    R0 = hankel_r_factor([(u[:1000], y[:1000])], FitLayout(2, 1, 4, 3, "lsq"), np.ones(3))
+    ad = Adapter(lay, R0, np.ones(3), AdaptSettings(forgetting=0.98, window=60, max_change=10.0), ridge=1e-6)
+    for w in _windows(u[1000:], y[1000:], lay.depth):
+        ad.push(w)
+    assert ad.resolve() == "prediction" and not ad.swap()
+    held_out = ad.counts["error_candidate"] / ad.counts["error_current"]
+    R_in = ad.R.copy()
+    for x in ad.recent():
+        givens_update(R_in, x.copy(), 0.98)
+    G_in, _ = solve_g(R_in, lay, 1.0, 1e-6, 1e-10)
+    in_sample = _prediction_error(G_in, ad.recent(), lay) / _prediction_error(ad.G, ad.recent(), lay)
+    assert in_sample < 1.0 - ad.settings.min_improvement <= held_out, (in_sample, held_out)
 
 
 def test_no_improvement_on_the_recent_window_is_rejected():
