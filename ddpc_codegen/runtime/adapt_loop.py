@@ -34,15 +34,21 @@ import numpy as np
 
 from ddpc_codegen.runtime.adaptation import REJECTIONS
 
-__all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "adapt_code", "SNAP_TAKEN", "SNAP_BUSY"]
+__all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "VERDICT_CODES", "UPDATE_CODES", "adapt_code", "SNAP_TAKEN",
+           "SNAP_BUSY"]
 
 # What a tick did about the background re-solve (the tick log's ``adapt_snap``): 0 nothing, 1 a snapshot was
 # taken and handed to the worker, 2 a re-solve period came while one still ran (counted, skipped).
 SNAP_TAKEN, SNAP_BUSY = 1, 2
 
 # What a tick did, as the bridge's tick log stores it: 0 nothing (no update: not steered, or no adaptation),
-# then the window filling, a column taken in, a re-solve swapped in, and each rejection of a re-solve.
-ADAPT_CODES = ("", "warmup", "update", "accepted") + REJECTIONS
+# then the window filling, a column taken in, a re-solve swapped in, each rejection of a re-solve, and a full
+# window whose column the solver refused (a NaN/inf: ``skipped``; its queue full: ``dropped``). Appended only:
+# the codes of older tick logs keep their meaning.
+ADAPT_CODES = ("", "warmup", "update", "accepted") + REJECTIONS + ("refused",)
+# The codes of a tick that took a column in ("update" or a re-solve's verdict) and of a verdict alone.
+VERDICT_CODES = tuple(ADAPT_CODES.index(k) for k in ("accepted",) + REJECTIONS)
+UPDATE_CODES = (ADAPT_CODES.index("update"),) + VERDICT_CODES
 
 
 def adapt_code(last: str) -> int:
@@ -100,6 +106,7 @@ class OnlineAdaptation:
         self.dither = d
         self._rng = np.random.default_rng(self.seed)
         self._since = 0  # updates since the last re-solve
+        self._refused = 0  # the solver's dropped + skipped columns as of the last refusal seen
         self._tick = 0
         self.last: str = ""  # what the last tick did: "update", "warmup", "skip", or a re-solve verdict
         self.offset_norm = 0.0  # norm of the output offset in use (data units), read back after each swap
@@ -126,16 +133,19 @@ class OnlineAdaptation:
 
     def tick(self, u: np.ndarray, y: np.ndarray, steered: bool) -> str:
         """The applied reference u (m,) and measured output y (p,) of this tick; ``steered``: the tick may
-        update. Returns what happened: "update", "warmup" (window filling), "skip" (not an update tick), or
-        the verdict of a re-solve ("accepted" and swapped, or the rejection reason)."""
+        update. Returns what happened: "update", "warmup" (window filling), "refused" (the solver did not take
+        the column), "skip" (not an update tick), or the verdict of a re-solve ("accepted" and swapped, or the rejection reason)."""
         self._tick += 1
         self.last_snap = 0
         if not steered:
             self.solver.adapt_clear()
             self.last = "skip"
             return self.last
-        if not self.solver.adapt_push(u, y):
-            self.last = "warmup"
+        if not self.solver.adapt_push(u, y):  # the window filling, or a full one's column refused (counted)
+            c = self.solver.adapt_counts()
+            refused = c.get("dropped", 0) + c.get("skipped", 0)
+            self.last = "refused" if refused > self._refused else "warmup"
+            self._refused = refused
             return self.last
         self._since += 1
         self.last = "update"

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.flight_metrics import flight_metrics
-from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
+from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES, UPDATE_CODES, VERDICT_CODES
 from ddpc_codegen.runtime.adaptation import REJECTIONS
 from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
@@ -132,15 +132,17 @@ def _started(text: str) -> bool:
 
 def adapt_tick_counts(codes: np.ndarray, t_traj: np.ndarray, t_change: float) -> dict[str, Any]:
     """From the tick log's ``adapt`` codes (N,) (:data:`ADAPT_CODES`) and trajectory times (N,) [s]: columns
-    folded in (``updates``), re-solves, accepted swaps and rejections by reason, over the whole flight and
+    folded in (``updates``), columns the solver refused (``refused``), re-solves, accepted swaps and rejections by
+    reason, over the whole flight and
     (``*_after``) from ``t_change`` on."""
     codes = np.asarray(codes).astype(int).ravel()
     after = np.nan_to_num(np.asarray(t_traj, dtype=float).ravel(), nan=-np.inf) >= t_change
     idx = {k: i for i, k in enumerate(ADAPT_CODES)}
-    verdict = codes >= idx["accepted"]
+    verdict = np.isin(codes, VERDICT_CODES)
     out: dict[str, Any] = {}
     for suffix, win in (("", np.ones_like(after)), ("_after", after)):
-        out["updates" + suffix] = int(np.sum((codes >= idx["update"]) & win))
+        out["updates" + suffix] = int(np.sum(np.isin(codes, UPDATE_CODES) & win))
+        out["refused" + suffix] = int(np.sum((codes == idx["refused"]) & win))
         out["resolves" + suffix] = int(np.sum(verdict & win))
         out["accepted" + suffix] = int(np.sum((codes == idx["accepted"]) & win))
         out["rejected" + suffix] = {r: int(np.sum((codes == idx[r]) & win)) for r in REJECTIONS

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.flight_metrics import flight_metrics, near_changes, scored_ticks
+from ddpc_codegen.flight_metrics import flight_metrics, near_changes, rms, scored_ticks
 from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
@@ -159,8 +159,7 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
         on = scored_ticks(t["t_traj"], settle, t["active"])
         e = t["truth_position"][:, 2] - t["y_des"][:, 0]
         for key, mask in (("rmse_z_truth_changing", on & near), ("rmse_z_truth_steady", on & ~near)):
-            v = e[mask & np.isfinite(e)]
-            split[key] = float(np.sqrt(np.mean(v ** 2))) if v.size else None
+            split[key] = rms(e[mask & np.isfinite(e)])
     solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
     flown = np.isfinite(t["t_traj"])
     return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES, SNAP_BUSY, SNAP_TAKEN
+from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES, SNAP_BUSY, SNAP_TAKEN, UPDATE_CODES, VERDICT_CODES
 from firmware_bridge.ticklog import REASONS, load_ticklog
 from support.bridge_helpers import ROOT, free_port, read_json
 
@@ -55,8 +55,9 @@ def test_steered_ticks_update_and_the_tick_log_records_every_update_verdict_and_
     code = t["adapt"]
     steered = t["reason"] == REASONS.index("steered")
     assert np.all(code[~steered] == 0) and np.all(t["adapt_snap"][~steered] == 0)  # only steered ticks update
-    updates = np.isin(code, [ADAPT_CODES.index(k) for k in ADAPT_CODES[2:]])  # a column folded in (+ verdict)
-    verdicts = code >= ADAPT_CODES.index("accepted")
+    updates = np.isin(code, UPDATE_CODES)  # a column taken in (+ a verdict)
+    verdicts = np.isin(code, VERDICT_CODES)
+    assert not np.any(code == ADAPT_CODES.index("refused")) and s["counts"]["dropped"] == 0
     assert s["counts"]["updates"] == int(updates.sum()) > 200
     # the re-solves ran in the worker: each from a snapshot taken on one tick, its verdict and swap on a later one
     # (the first update tick after it returned); one at a time; one still running at the stop joined and dropped

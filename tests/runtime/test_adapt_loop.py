@@ -42,6 +42,20 @@ def test_only_runs_of_steered_ticks_update_and_a_reset_tick_breaks_the_window():
     assert what[:depth - 1] == ["warmup"] * (depth - 1) and what[10] == "skip" and what[-1] == "update"
 
 
+def test_a_column_the_solver_refuses_is_refused_not_warmup():
+    """A full window with a NaN output: the solver does not take its column (counted ``skipped``); the tick says
+    "refused" (the tick log's code), and the next clean window is an update again."""
+    twin = _twin(window=30, period_ticks=1000)
+    ad = OnlineAdaptation(twin)
+    rng = np.random.default_rng(1)
+    what = [ad.tick(rng.standard_normal(1), rng.standard_normal(1), True) for _ in range(T_INI + T_F)]
+    assert what[-1] == "update"
+    assert ad.tick(np.zeros(1), np.full(1, np.nan), True) == "refused" and twin.adapt_counts()["skipped"] == 1
+    assert ad.tick(np.zeros(1), np.zeros(1), True) == "refused"  # the NaN is still in the window
+    what = [ad.tick(rng.standard_normal(1), rng.standard_normal(1), True) for _ in range(T_INI + T_F)]
+    assert what[-1] == "update" and "warmup" not in what
+
+
 def test_a_re_solve_every_period_updates_is_recorded_and_swapped_in():
     twin = _twin(window=20, period_ticks=25, forgetting=0.98, min_excitation=1e-6, max_change=0.5, max_gain_change=1e3)
     ad = OnlineAdaptation(twin)

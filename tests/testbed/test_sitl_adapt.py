@@ -45,10 +45,12 @@ def test_the_start_event_is_the_end_of_the_approach_not_the_engaged_line():
 
 
 def test_adapt_counts_over_the_flight_and_after_the_change():
-    t = np.array([np.nan, 1.0, 2.0, 9.0, 10.0, 11.0, 12.0, 13.0])
-    codes = np.array([0, A["warmup"], A["update"], A["accepted"], A["update"], A["gain"], A["accepted"], A["gain"]])
+    t = np.array([np.nan, 1.0, 2.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0])
+    codes = np.array([0, A["warmup"], A["update"], A["accepted"], A["update"], A["gain"], A["accepted"], A["gain"],
+                      A["refused"]])
     c = adapt_tick_counts(codes, t, 10.0)
     assert c["updates"] == 6 and c["resolves"] == 4 and c["accepted"] == 2 and c["rejected"] == {"gain": 2}
+    assert c["refused"] == c["refused_after"] == 1
     assert c["updates_after"] == 4 and c["resolves_after"] == 3 and c["accepted_after"] == 1
     assert c["rejected_after"] == {"gain": 2}
 
