@@ -63,7 +63,8 @@ class AdaptSettings:
     forgetting: f in (0, 1], weight of the past per new column (0.999: ~1000 columns, 5 s at 200 Hz).
     period_ticks: new columns between two re-solves of G.
     dither: amplitude of the optional dither on the steered references while adapting (their units; 0 = none).
-    window: recent columns kept for the verification (prediction error, excitation); >= m (Tini+Tf).
+    window: recent columns kept for the verification (prediction error, excitation), held out of the fit until
+        they leave it (a change reaches a candidate once it is older than the window); >= m (Tini+Tf).
     max_change: largest ||G_new - G||_F / ||G||_F of one swap (a bigger step is scaled down to it).
     min_excitation: smallest min/max |diag| of the R factor of the recent window's scaled input rows.
     min_improvement: the fraction by which a candidate must cut the current G's prediction error on the recent
