@@ -228,7 +228,12 @@ def _add_counts(total: dict, counts: dict) -> None:
 
 
 def merge_report(path: Path, adaptation: dict) -> dict:
-    """Load ``path`` (a JSON object; {} if absent), replace only its ``adaptation`` key, write it back; the result."""
+    """Load ``path`` (a JSON object; {} if absent), replace only its ``adaptation`` key, write it back; the result.
+    The figures of an autopilot not flown this time (``--autopilot`` the other one) are kept."""
+    prev = json.loads(path.read_text()) if path.is_file() else {}
+    flown = (prev.get("adaptation") or {}).get("autopilots") if isinstance(prev, dict) else None
+    if isinstance(flown, dict) and isinstance(adaptation.get("autopilots"), dict):
+        adaptation = {**adaptation, "autopilots": {**flown, **adaptation["autopilots"]}}
     return update_report(path, {"adaptation": adaptation}, default=nan_as_null)
 
 

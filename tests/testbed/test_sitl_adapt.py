@@ -154,6 +154,10 @@ def test_merge_report_replaces_only_the_adaptation_key(tmp_path):
     path.write_text("[]")
     with pytest.raises(ValueError, match="expected a JSON object"):
         merge_report(path, {})
+    # flying one autopilot keeps the other's figures
+    path.write_text(json.dumps({"adaptation": {"rounds": 2, "autopilots": {"px4": {"a": 1}, "ardupilot": {"a": 2}}}}))
+    merge_report(path, {"rounds": 1, "autopilots": {"ardupilot": {"a": 3}}})
+    assert json.loads(path.read_text())["adaptation"] == {"rounds": 1, "autopilots": {"px4": {"a": 1}, "ardupilot": {"a": 3}}}
     # make sitl-demo's write replaces the autopilots and keeps the adaptation
     from ddpc_codegen.experiments.report_file import update_report
 
