@@ -288,6 +288,9 @@ class AdaptiveProblem:
         self.problem = installed(self.shipped, self.adapter.qp_data)
         return True
 
+    def adapt_refused(self) -> int:
+        return self.adapter.counts["skipped"] + self.adapter.counts["dropped"]
+
     def adapt_counts(self) -> dict:
         return dict(self.adapter.counts)
 

@@ -65,6 +65,12 @@ class GeneratedAdaptation:
         """Install a verified candidate into the solver's workspace (its warm start is dropped)."""
         return self._fn["swap"](self._ws, self._solver._ws) == 1
 
+    def refused(self) -> int:
+        """Columns not taken (skipped NaN/inf + dropped on a full queue): counters only push() writes, so safe to
+        read in the tick while a re-solve runs."""
+        c = self._ws.counts
+        return int(c.skipped) + int(c.dropped)
+
     def counts(self) -> dict:
         c = self._ws.counts
         out = {k: int(getattr(c, k)) for k in _COUNTS}

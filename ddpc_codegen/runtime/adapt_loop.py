@@ -3,7 +3,7 @@ the optional dither, and the record of every update and rejection (issue 30).
 
 One implementation for every loop (the simulator's hook, the MAVLink bridge): :class:`OnlineAdaptation`
 sits behind :class:`~ddpc_codegen.runtime.policy.SteeringPolicy` and drives any solver with the adaptation
-API (``adapt_push(u, y)``, ``adapt_clear()``, ``adapt_resolve()``, ``adapt_swap()``, ``adapt_counts()``): a
+API (``adapt_push(u, y)``, ``adapt_refused()``, ``adapt_clear()``, ``adapt_resolve()``, ``adapt_swap()``, ``adapt_counts()``): a
 generated solver built with ``[adapt] enabled`` or the interpreted
 :class:`~ddpc_codegen.design.adaptation.AdaptiveProblem`.
 
@@ -142,8 +142,7 @@ class OnlineAdaptation:
             self.last = "skip"
             return self.last
         if not self.solver.adapt_push(u, y):  # the window filling, or a full one's column refused (counted)
-            c = self.solver.adapt_counts()
-            refused = c.get("dropped", 0) + c.get("skipped", 0)
+            refused = self.solver.adapt_refused()  # push's own counters: not the running re-solve's
             self.last = "refused" if refused > self._refused else "warmup"
             self._refused = refused
             return self.last

@@ -157,6 +157,11 @@ class GeneratedSolver:
         """Make a verified candidate current (between ticks); False when none is pending."""
         return self._adapt().swap()
 
+    def adapt_refused(self) -> int:
+        """Columns the update did not take (a NaN/inf window: skipped; its queue full: dropped); cheap, and safe in
+        the tick while a background re-solve runs (push's own counters)."""
+        return self._adapt().refused()
+
     def adapt_counts(self) -> dict:
         """updates (columns taken), skipped (NaN/inf), dropped (queue full), folded (columns in R), resolves,
         accepted, swaps, clipped, rejected_<reason>, offset_swaps, offset_clipped, offset_rejected counters and

@@ -197,6 +197,10 @@ def test_generate_with_adaptation_emits_the_update_into_every_build_file(tmp_pat
     solver = load_solver(folders["on"])
     assert solver.adapt_settings == st and solver.adapt_counts()["updates"] == 0
     assert not solver.adapt_swap() and solver.adapt_resolve() in REJECTIONS  # nothing pushed: no excitation
+    rng = np.random.default_rng(0)
+    assert any(solver.adapt_push(rng.standard_normal(2), rng.standard_normal(2)) for _ in range(200))
+    assert solver.adapt_refused() == 0 and not solver.adapt_push(np.zeros(2), np.full(2, np.nan))
+    assert solver.adapt_refused() == 1 == solver.adapt_counts()["skipped"]  # a full window's column, refused
     plain = load_solver(folders["plain"])
     assert plain.adaptation is None
     with pytest.raises(DataError, match=r"^solver 'adsolver' was generated without \[adapt\] enabled: it has no "

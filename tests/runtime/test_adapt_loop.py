@@ -127,6 +127,9 @@ class _GatedSolver:
         self.swaps += 1
         return len(self.calls) % 2 == 0
 
+    def adapt_refused(self) -> int:
+        return 0
+
     def adapt_counts(self) -> dict:
         return {"resolves": len(self.calls), "offset_norm": 0.0}
 
