@@ -23,6 +23,7 @@ from ddpc_codegen.runtime.adaptation import AdaptSettings
 __all__ = ["emit_adapt", "cdef_text", "context", "compile_alone"]
 
 RES_BLOCK = 4  # window columns per pass of the C residuals over G (G read once for them)
+FACTOR_BLOCK = 4  # vectors per pass of a C factor update (U loaded and stored once for them)
 _SERIAL = itertools.count()  # a process cannot dlopen two builds under one module name
 
 
@@ -50,12 +51,12 @@ def context(ad, problem, name: str, banner: str) -> dict:
     # the held-out window, the period's columns a re-solve folds in, and two more periods of slack (a re-solve still
     # running when the next period comes) before a full queue refuses columns
     ring = s.window + 3 * s.period_ticks
-    ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + 5 * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
+    ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + (3 + 2 * FACTOR_BLOCK) * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
             "window": s.window, "forgetting": _c(s.forgetting), "period_ticks": s.period_ticks,
-            "w2": w * w, "qr": q * lay.r, "ring": ring * w, "ring_cols": ring, "res_block": RES_BLOCK, "rb": RES_BLOCK * lay.q_y, "nu2": nu * nu, "n_urows": nu,
+            "w2": w * w, "qr": q * lay.r, "ring": ring * w, "ring_cols": ring, "res_block": RES_BLOCK, "nb": FACTOR_BLOCK, "rb": RES_BLOCK * lay.q_y, "nu2": nu * nu, "n_urows": nu,
             "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": _c(ad.slack_weight), "ridge": _c(ad.ridge),
             "rcond": _c(ad.rcond), "max_change": _c(s.max_change), "min_excitation": _c(s.min_excitation),
             "min_improvement": _c(s.min_improvement),

@@ -22,8 +22,9 @@ pytestmark = pytest.mark.compiler
 
 LIBC_LIBM = {"calloc", "malloc", "free", "memcpy", "memmove", "memset", "sqrt", "fmax", "fabs", "clock_gettime",
              "printf", "__stack_chk_fail", "__memcpy_chk", "__memset_chk", "_GLOBAL_OFFSET_TABLE_",
-             # libgcc's CPU detection behind the AVX2 clones (x86-64 Linux, GCC): linked by every gcc/g++ driver
-             "__cpu_indicator_init", "__cpu_model"}
+             # libgcc's CPU detection behind the AVX-512 / AVX2 clones (x86-64 Linux, GCC): linked by every gcc/g++
+             # driver
+             "__cpu_indicator_init", "__cpu_model", "__cpu_features2"}
 
 
 def _make(folder: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
