@@ -34,6 +34,13 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
     return build_solver(config, dataset, None, channel_map=channel_map, log=log).problem
 
 
+def _share(text: str) -> float:
+    v = float(text)
+    if not 0.0 <= v < 1.0:
+        raise argparse.ArgumentTypeError(f"a share in [0, 1), got {text}")
+    return v
+
+
 def _cmd_codegen(args: argparse.Namespace) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     mapping = parse_channel_map(args.map_channels)
@@ -43,7 +50,7 @@ def _cmd_codegen(args: argparse.Namespace) -> int:
         say(f"[{cfg.name}] {cfg_path}: m={cfg.m} p={cfg.p} Tini={cfg.t_ini} Tf={cfg.t_f} backend={backend}")
         t0 = time.perf_counter()
         built = build_solver(cfg, args.dataset, Path(args.out) / cfg.name, backend=backend, channel_map=mapping,
-                             march_native=args.march_native or None, log=say)
+                             march_native=args.march_native or None, holdout=args.holdout, log=say)
         prob = built.problem
         say(f"  generated + compiled {built.path}/ in {time.perf_counter() - t0:.1f} s "
             f"({prob.n_z} QP variables{'' if cfg.knots is None else f' on {len(cfg.knots)} knots'}, "
@@ -68,5 +75,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--backend", choices=BACKENDS, default=None, help="override the config's [codegen] backend")
     p.add_argument("--out", default="generated", help="output root (default generated/)")
     p.add_argument("--march-native", action="store_true", help="opt-in -march=native (binary tied to this CPU)")
+    p.add_argument("--holdout", type=_share, default=0.2, metavar="SHARE",
+                   help="keep the last SHARE of each trajectory out of a second fit and print how well that "
+                        "predictor predicts it (RMSE, persistence, fit %%; in the manifest); 0 = skip (default 0.2)")
     p.add_argument("--quiet", action="store_true", help="print only the output folders")
     p.set_defaults(func=_cmd_codegen)

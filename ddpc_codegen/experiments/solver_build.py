@@ -130,11 +130,22 @@ def _fleet_predictor(config: SteeringConfig, paths: Sequence[Path], fleet: Fleet
     return fit.predictor, report
 
 
+def _holdout(cfg: SteeringConfig, ds: IODataset, fit, share: float, report: dict, built: BuiltSolver, log) -> None:
+    """The held-out check's lines logged, its figures into the report and the provenance."""
+    from ddpc_codegen.design.holdout import holdout_check
+
+    figs, lines, warnings = holdout_check(cfg, ds, fit, share)
+    for line in lines + warnings:
+        log("  " + line)
+    if figs is not None:
+        report["holdout"] = built.provenance["holdout"] = {"share": share, **figs.as_dict()}
+
+
 def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: str | Path | None, *,
                  backend: str | None = None, name: str | None = None, channel_map: dict[str, str] | None = None,
                  march_native: bool | None = None, fit: Callable[[SteeringConfig, IODataset], Predictor] | None = None,
                  art_spec: ArtificialIOSpec | None = None, fleet: FleetOptions | None = None,
-                 log: Callable[[str], None] = lambda msg: None) -> BuiltSolver:
+                 holdout: float = 0.0, log: Callable[[str], None] = lambda msg: None) -> BuiltSolver:
     """Config + dataset -> the generated, compiled, vector-checked solver folder ``out``.
 
     Args:
@@ -146,6 +157,9 @@ def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: 
         channel_map: config channel -> dataset channel where they differ on purpose (one dataset only).
         fit: the predictor fit (default ``fit_configured``; the sweep passes a cached one).
         art_spec: hopping: the artificial-IO settings (default: the config's ``[artificial_io]``).
+        holdout: share of each trajectory (0 < share < 1) held out of a second fit whose held-out prediction
+            errors are logged, in the report and in the manifest's provenance
+            (:mod:`ddpc_codegen.design.holdout`); 0 = no check. One dataset, not hopping.
     Raises:
         DataError / ConfigError (one line, naming the file and key) before anything is fitted or written;
         CodegenError when the build fails (the old solver in ``out`` is kept).
@@ -189,6 +203,11 @@ def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: 
     lines, warnings = settling_report(pred)  # does the horizon cover the loop the data describe?
     for line in lines + warnings:
         log("  " + line)
+    if holdout and built.dataset is not None:
+        if is_hopping_config(cfg):
+            log("  held-out check skipped: hopping data (the ground phases are artificial IO)")
+        else:
+            _holdout(cfg, built.dataset, fit or fit_configured, holdout, report, built, log)
     built.problem, built.report = SteeringProblem(pred, cfg), report
     if out is not None:
         from ddpc_codegen.codegen import generate

@@ -121,3 +121,19 @@ def test_build_solver_in_memory_and_fit_only(cfg):
     built = build_solver(cfg, _dataset(), None)
     assert built.path is None and built.problem.config.name == "sbtest" and built.provenance["path"] == "<in memory>"
     assert built.dataset.input_names == ("z_ref",)
+
+
+def test_holdout_figures_reach_the_log_the_report_and_the_provenance(cfg):
+    logged: list[str] = []
+    built = build_solver(cfg, _dataset(), None, holdout=0.4, log=logged.append)
+    h = built.report["holdout"]
+    assert built.provenance["holdout"] is h and h["share"] == 0.4 and h["outputs"] == ["z"]
+    assert h["rmse"][0] < 1e-8 < h["persistence_rmse"][0]  # an exact LTI system: predicted exactly
+    assert any("held-out prediction" in m for m in logged) and any(m.strip().startswith("z:") for m in logged)
+    assert "holdout" not in build_solver(cfg, _dataset(), None).report  # off unless asked
+
+
+def test_codegen_refuses_a_holdout_share_outside_zero_one(cfg, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["codegen", str(cfg), "--holdout", "1.5"])
+    assert e.value.code == 2 and "a share in [0, 1)" in capsys.readouterr().err
