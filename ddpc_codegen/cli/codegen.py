@@ -35,9 +35,12 @@ def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
 
 
 def _share(text: str) -> float:
-    v = float(text)
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
     if not 0.0 <= v < 1.0:
-        raise argparse.ArgumentTypeError(f"a share in [0, 1), got {text}")
+        raise argparse.ArgumentTypeError(f"a share in [0, 1), got {text!r}")
     return v
 
 

@@ -133,7 +133,9 @@ def test_holdout_figures_reach_the_log_the_report_and_the_provenance(cfg):
     assert "holdout" not in build_solver(cfg, _dataset(), None).report  # off unless asked
 
 
-def test_codegen_refuses_a_holdout_share_outside_zero_one(cfg, capsys):
+@pytest.mark.parametrize("share, message", [("1.5", "a share in [0, 1)"), ("-0.1", "a share in [0, 1)"),
+                                            ("nan", "a share in [0, 1)"), ("a fifth", "a share in [0, 1), got 'a fifth'")])
+def test_codegen_refuses_a_holdout_share_outside_zero_one(cfg, capsys, share, message):
     with pytest.raises(SystemExit) as e:
-        main(["codegen", str(cfg), "--holdout", "1.5"])
-    assert e.value.code == 2 and "a share in [0, 1)" in capsys.readouterr().err
+        main(["codegen", str(cfg), "--holdout", share])
+    assert e.value.code == 2 and message in capsys.readouterr().err
