@@ -116,7 +116,7 @@ typedef struct {{ double U[...]; double d[...]; double Ra[...]; double G[...]; d
                  double ring_s[...]; double x[...]; double xr[...];
                  double Rx[...]; {name}_qpdata qd[2]; double yoff[...]; int head; int n_ring; int n_snap; int pending; int queued;
                  int spare;
-                 int off_pending; int off_spare;
+                 int off_pending; int off_spare; long long phase_ns[7];
                  {name}_adapt_counts counts; ...; }}
         {name}_adapt_workspace;
 int {name}_adapt_init({name}_adapt_workspace *ws);

@@ -25,10 +25,11 @@ from ddpc_codegen.design.adaptation import fit_layout
 from ddpc_codegen.design.data import IODataset, prbs
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.errors import CodegenError
-from ddpc_codegen.experiments.bench_adapt_cross import cross_figures, cross_line
+from ddpc_codegen.experiments.bench_adapt_cross import cross_figures, cross_line, native_figures
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.runtime.adaptation import AdaptSettings
 
+# issue 30: the tick's update <= 5 us, "a full G + QP rebuild <= 2 ms" (the verification after it is timed beside)
 TARGET_UPDATE_US, TARGET_RESOLVE_MS = 5.0, 2.0
 
 
@@ -95,8 +96,11 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
     wins = rng.standard_normal((n_updates, lay.depth * (lay.m + lay.p))) * 0.05
     with tempfile.TemporaryDirectory() as tmp:
         t, verdict = _resolve_times(prob, st, f"bench_adapt_{size}", wins, n_resolves, tmp)
-        try:  # the folder compile_alone emitted, built again by its Makefile (the same windows, the same verdict)
-            arm, note = cross_figures(tmp, wins, n_resolves, verdict, log), standalone.MISSING_AARCH64
+        # the folder compile_alone emitted, built again by its Makefile with the phase clock (the same windows,
+        # the same verdict): the re-solve's phases in C
+        native = native_figures(tmp, wins, n_resolves, verdict)
+        try:
+            arm, note = cross_figures(tmp, wins, n_resolves, verdict, log, native), standalone.MISSING_AARCH64
         except (CodegenError, subprocess.SubprocessError, OSError) as e:  # a figure missing, not the benchmark
             log(f"  aarch64 online update of {size}: failed ({e})")
             arm, note = None, f"failed: {str(e).splitlines()[0][:200]}"
@@ -112,8 +116,31 @@ def adapt_timing(size: str, n_updates: int = 2000, n_resolves: int = 9, log=None
             "resolve_ms_median": round(float(np.median(t["resolve"])) * 1e3, 3),
             "resolve_ms_max": round(float(np.max(t["resolve"])) * 1e3, 3),
             "offset_ms_median": round(float(np.median(t["resolve"]) - np.median(plain["resolve"])) * 1e3, 3),
+            **_phase_figures(native),
             "aarch64_qemu": arm, **({"aarch64_qemu_note": note} if arm is None else {}),
             "targets": {"update_us": TARGET_UPDATE_US, "resolve_ms": TARGET_RESOLVE_MS}}
+
+
+def _phase_figures(native: dict) -> dict:
+    """The C timing program's re-solve phases (median ms; -1: not stamped): each phase, the G solve + QP rebuild
+    (the issue's "full G + QP rebuild") and the verification after it (excitation + prediction check)."""
+    ph = {k: round(v * 1e-6, 3) if v >= 0 else -1.0 for k, v in native["phase_ns_median"].items()}
+    stamped = all(v >= 0 for v in ph.values())
+    return {"phase_ms_median": ph, "resolve_c_ms_median": round(native["resolve_ns_median"] * 1e-6, 3),
+            "g_rebuild_ms_median": round(ph["g_solve"] + ph["qp_rebuild"], 3) if stamped else None,
+            "verify_ms_median": round(ph["excitation"] + ph["prediction"], 3) if stamped else None}
+
+
+def phase_line(row: dict) -> str | None:
+    """The table line of a row's re-solve phases (None: an older report without them)."""
+    ph = row.get("phase_ms_median")
+    if not ph or row.get("g_rebuild_ms_median") is None:
+        return None
+    return (f"  {row['size']:<8} re-solve phases (C program, median ms of {row['resolve_c_ms_median']:.3f}): "
+            f"G + QP rebuild {row['g_rebuild_ms_median']:.3f} (G solve {ph['g_solve']:.3f}, QP rebuild "
+            f"{ph['qp_rebuild']:.3f}; target <= {TARGET_RESOLVE_MS:g}), then the verification "
+            f"{row['verify_ms_median']:.3f} (excitation {ph['excitation']:.3f}, prediction check "
+            f"{ph['prediction']:.3f}), offset {ph['offset']:.3f}")
 
 
 def adapt_lines(rows: list[dict]) -> list[str]:
@@ -129,6 +156,7 @@ def adapt_lines(rows: list[dict]) -> list[str]:
         out.append(f"  {r['size']:<8} {r['width']:>5}  {r['update_us_median']:>8.2f} / {r['update_us_p99']:<8.2f}"
                    f"  {fold}  {r['resolve_ms_median']:>8.3f} / {r['resolve_ms_max']:<8.3f}"
                    f"  {r.get('offset_ms_median', 0.0):.3f}")
+    out += [ln for ln in (phase_line(r) for r in rows) if ln]
     out += [ln for ln in (cross_line(r["size"], r) for r in rows) if ln]
     return out
 

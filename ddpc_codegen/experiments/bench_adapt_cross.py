@@ -32,7 +32,9 @@ def build_timer(folder: Path, cc: str | None = None, build: str = "build-adapt-b
     program linked with it; returns the executable."""
     folder = Path(folder)
     name = standalone.solver_name(folder)
-    args = ["make", "-s", f"BUILD={build}", f"{build}/lib{name}.a"] + ([f"CC={cc}"] if cc else [])
+    # the Makefile's default CFLAGS (-O3) and the phase clock the timing program provides
+    args = ["make", "-s", f"BUILD={build}", f"{build}/lib{name}.a",
+            f"CFLAGS=-O3 -D{name.upper()}_ADAPT_CLOCK={name}_bench_clock_ns"] + ([f"CC={cc}"] if cc else [])
     res = subprocess.run(args, cwd=folder, capture_output=True, text=True, timeout=900)
     if res.returncode != 0:
         raise CodegenError(f"`{' '.join(args)}` failed in {folder}:\n{(res.stdout + res.stderr)[-3000:]}")
@@ -74,24 +76,39 @@ def _agree(a: dict, b: dict) -> bool:
                         for k in ("sum_abs_g", "sum_abs_r", "error_candidate"))
 
 
+PHASES = ("fold", "g_solve", "qp_rebuild", "excitation", "prediction", "offset")  # the timing program's order
+
+
+def native_figures(folder: Path, windows: np.ndarray, n_resolves: int, verdict: int | None = None) -> dict:
+    """The timing program built natively for the emitted adaptive ``folder`` and run on ``windows`` ((N,
+    DEPTH*(M+P)) time-major data-unit windows, written to ``folder/adapt_bench_windows.bin``): its JSON figures
+    (ns) with ``phase_ns_median`` named by :data:`PHASES`. ``verdict``: the re-solve's verdict the caller's own
+    build gave, if known (a different one is a CodegenError)."""
+    folder = Path(folder)
+    data = folder / "adapt_bench_windows.bin"
+    np.ascontiguousarray(windows, dtype=np.float64).tofile(data)  # host order: x86-64 and aarch64 are little-endian
+    native = run_timer(build_timer(folder, None, "build-adapt-bench-native"), data, n_resolves)
+    if verdict is not None and native["verdict"] != verdict:
+        raise CodegenError(f"the timing program's verdict {native['verdict']} is not the Python build's {verdict}")
+    native["phase_ns_median"] = dict(zip(PHASES, native["phase_ns_median"]))
+    return native
+
+
 def cross_figures(folder: Path, windows: np.ndarray, n_resolves: int, verdict: int | None = None,
-                  log: Callable[[str], None] = print) -> dict | None:
+                  log: Callable[[str], None] = print, native: dict | None = None) -> dict | None:
     """Push / re-solve times of the emitted adaptive ``folder`` built for aarch64 and run under qemu, and of the
-    same program built natively (us / ms); None when the aarch64 tools are missing. ``windows``: (N, DEPTH*(M+P))
-    time-major data-unit windows; ``verdict``: the re-solve's verdict the caller's own build gave, if known."""
+    same program built natively (us / ms); None when the aarch64 tools are missing. ``windows``, ``verdict``: as
+    :func:`native_figures`; ``native``: its result when the caller already ran it on the same windows."""
     tools = standalone.aarch64_tools()
     if tools is None:
         log(f"  aarch64 online update: skipped ({standalone.MISSING_AARCH64})")
         return None
     folder = Path(folder)
+    native = native or native_figures(folder, windows, n_resolves, verdict)
     data = folder / "adapt_bench_windows.bin"
-    np.ascontiguousarray(windows, dtype=np.float64).tofile(data)  # host order: x86-64 and aarch64 are little-endian
-    native = run_timer(build_timer(folder, None, "build-adapt-bench-native"), data, n_resolves)
     arm = run_timer(build_timer(folder, tools[0], "build-adapt-bench-aarch64"), data, n_resolves, qemu=tools[1])
     if not _agree(native, arm):
         raise CodegenError(f"native and aarch64 timing programs disagree:\n native  {native}\n aarch64 {arm}")
-    if verdict is not None and native["verdict"] != verdict:
-        raise CodegenError(f"the timing program's verdict {native['verdict']} is not the Python build's {verdict}")
     us, ms = 1e-3, 1e-6
     return {"push_us_median": round(arm["push_ns_median"] * us, 2), "push_us_max": round(arm["push_ns_max"] * us, 2),
             "resolve_ms_median": round(arm["resolve_ns_median"] * ms, 3),
@@ -104,6 +121,7 @@ def cross_figures(folder: Path, windows: np.ndarray, n_resolves: int, verdict: i
             "native_resolve_ms_max": round(native["resolve_ns_max"] * ms, 3),
             "qemu_over_native_push": round(arm["push_ns_median"] / native["push_ns_median"], 1),
             "qemu_over_native_resolve": round(arm["resolve_ns_median"] / native["resolve_ns_median"], 1),
+            "phase_ms_median": {k: round(v * ms, 3) for k, v in zip(PHASES, arm["phase_ns_median"])},
             "pushes": arm["pushes"], "resolves": arm["resolves"], "verdict": arm["verdict"],
             "compiler": standalone.AARCH64_CC, "runner": standalone.QEMU}
 

@@ -85,3 +85,45 @@ def test_aarch64_timing_under_qemu_agrees_with_the_native_build(tmp_path):
     bad.tofile(tmp_path / "bad.bin")
     with pytest.raises(CodegenError, match="window 2 .* not taken"):
         cross.run_timer(native_exe, tmp_path / "bad.bin", 1)
+
+
+def _small_windows(prob: SteeringProblem, n: int = 300) -> np.ndarray:
+    lay = fit_layout(prob.predictor)
+    return np.random.default_rng(0).standard_normal((n, lay.depth * (lay.m + lay.p))) * 0.05  # the bench's recipe
+
+
+def test_native_timing_program_stamps_every_phase_of_a_resolve(tmp_path):
+    """Natively (no aarch64 tools needed): the library built with the phase clock stamps the re-solve's phases;
+    each is positive, they nest inside the timed call, and the row's figures and table line carry them."""
+    from ddpc_codegen.experiments.bench_adapt import _phase_figures, adapt_lines
+
+    prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
+    emit_sources(prob, tmp_path, "bx_phases", "daqp", dict(DEFAULTS["daqp"]), adapt=st)
+    native = cross.native_figures(tmp_path, _small_windows(prob), 5)
+    assert native["verdict"] in (0, 5)  # verified to the end (accepted, or refused by the prediction check)
+    ph = native["phase_ns_median"]
+    assert tuple(ph) == cross.PHASES
+    assert all(ph[k] > 0 for k in ("g_solve", "qp_rebuild", "excitation", "prediction")), ph
+    assert ph["fold"] >= 0 and ph["offset"] > 0  # no column handed over to the repeated snapshot: ~0
+    assert sum(ph.values()) <= native["resolve_ns_max"]
+    row = {"size": "small", "width": 1, "update_us_median": 1.0, "update_us_p99": 2.0, "resolve_ms_median": 1.0,
+           "resolve_ms_max": 1.0, **_phase_figures(native)}
+    assert row["g_rebuild_ms_median"] == pytest.approx((ph["g_solve"] + ph["qp_rebuild"]) * 1e-6, abs=2e-3)
+    line = [ln for ln in adapt_lines([row]) if "re-solve phases" in ln]
+    assert len(line) == 1 and "G + QP rebuild" in line[0] and "target <= 2" in line[0]
+    with pytest.raises(CodegenError, match="verdict"):
+        cross.native_figures(tmp_path, _small_windows(prob), 1, verdict=native["verdict"] + 1)
+
+
+def test_a_build_without_the_clock_stamps_nothing(tmp_path):
+    from ddpc_codegen.codegen.adapt import compile_alone
+
+    prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
+    ffi, lib = compile_alone(prob, st, tmp_path, "bx_noclock")
+    ws = ffi.new("bx_noclock_adapt_workspace *")
+    assert lib.bx_noclock_adapt_init(ws) == 0
+    for w in _small_windows(prob, 120):
+        lib.bx_noclock_adapt_push(ws, ffi.from_buffer("double[]", np.ascontiguousarray(w)))
+    lib.bx_noclock_adapt_snapshot(ws)
+    lib.bx_noclock_adapt_resolve(ws)
+    assert ws.counts.resolves == 1 and list(ws.phase_ns) == [0] * 7
