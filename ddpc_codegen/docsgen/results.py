@@ -103,7 +103,9 @@ def _bench_section(bench: dict) -> str:
 
         text += ("\nOnline adaptation in the generated C (`[adapt]`): what the tick does (a column queued, the "
                  "recent window copied once per period), the rank-one fold of each column into R and the verified "
-                 "re-solve (G, QP data, fast-path gain, output offset) off the tick; the aarch64 line: the same calls in a C "
+                 "re-solve (G, QP data, fast-path gain, output offset) off the tick; the phase lines: the same "
+                 "re-solve timed inside the C, phase by phase (G + QP rebuild is what a new G costs, the "
+                 "verification after it what makes it safe to swap in); the aarch64 line: the same calls in a C "
                  "program cross-compiled for aarch64 under qemu-user, with its native build as the reference:\n\n```\n"
                  + "\n".join(adapt_lines(list(bench["adapt"].values()))) + "\n```\n")
     p = bench.get("predictor_1e6")
