@@ -86,12 +86,14 @@ def native_figures(folder: Path, windows: np.ndarray, n_resolves: int, verdict: 
     JSON figures with each median (ns) the median of the runs' medians and each max their max, and
     ``phase_ns_median`` named by :data:`PHASES`. Several processes, because this machine's speed drifts between
     them (~1.5x) more than within one. ``verdict``: the re-solve's verdict the caller's own build gave, if known
-    (a different one, or runs that disagree, is a CodegenError)."""
+    (a different one, or runs that disagree, is a CodegenError). ValueError: ``runs`` < 1."""
+    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+        raise ValueError(f"runs must be an integer >= 1; got {runs!r}")
     folder = Path(folder)
     data = folder / "adapt_bench_windows.bin"
     np.ascontiguousarray(windows, dtype=np.float64).tofile(data)  # host order: x86-64 and aarch64 are little-endian
     exe = build_timer(folder, None, "build-adapt-bench-native")
-    outs = [run_timer(exe, data, n_resolves) for _ in range(max(1, runs))]
+    outs = [run_timer(exe, data, n_resolves) for _ in range(runs)]
     native = dict(outs[0])
     if not all(_agree(native, o) for o in outs[1:]):
         raise CodegenError(f"runs of the same timing program disagree: {outs}")

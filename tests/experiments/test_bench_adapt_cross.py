@@ -127,3 +127,21 @@ def test_a_build_without_the_clock_stamps_nothing(tmp_path):
     lib.bx_noclock_adapt_snapshot(ws)
     lib.bx_noclock_adapt_resolve(ws)
     assert ws.counts.resolves == 1 and list(ws.phase_ns) == [0] * 7
+
+
+def test_native_figures_refuse_a_bad_run_count_and_runs_that_disagree(tmp_path, monkeypatch):
+    for bad in (0, -1, 2.0, True, "3"):
+        with pytest.raises(ValueError, match="runs must be an integer >= 1"):
+            cross.native_figures(tmp_path, np.zeros((1, 4)), 1, runs=bad)
+    monkeypatch.setattr(cross, "build_timer", lambda *a, **k: tmp_path / "exe")
+    base = {"pushes": 3, "resolves": 1, "verdict": 5, "updates": 3, "sum_abs_g": 1.0, "sum_abs_r": 2.0,
+            "error_candidate": 0.5, "push_ns_median": 1.0, "push_ns_max": 2.0, "resolve_ns_median": 3.0,
+            "resolve_ns_max": 4.0, "phase_ns_median": [1.0] * 6}
+    outs = iter([base, {**base, "sum_abs_g": 1.1}])
+    monkeypatch.setattr(cross, "run_timer", lambda *a, **k: dict(next(outs)))
+    with pytest.raises(CodegenError, match="runs of the same timing program disagree"):
+        cross.native_figures(tmp_path, np.zeros((1, 4)), 1, runs=2)
+    outs = iter([base, {**base, "resolve_ns_median": 5.0, "resolve_ns_max": 9.0}, base])
+    agg = cross.native_figures(tmp_path, np.zeros((1, 4)), 1, runs=3)  # medians of the runs' medians, max of maxes
+    assert agg["runs"] == 3 and agg["resolve_ns_median"] == 3.0 and agg["resolve_ns_max"] == 9.0
+    assert agg["phase_ns_median"] == dict(zip(cross.PHASES, [1.0] * 6))
