@@ -70,14 +70,19 @@ def test_stale_telemetry_falls_back_within_one_tick_of_the_age_limit(stale_run):
     age, reason = t["age_ms"], t["reason"]
     stale = np.nonzero(reason == R["stale"])[0]
     assert stale.size > 0
-    first = stale[0]
+    # The injected silence is the longest run of stale ticks; a loaded machine (CI) may starve the fake
+    # vehicle past the limit for a tick or two elsewhere, and the bridge rightly falls back there too.
+    runs = np.split(stale, np.nonzero(np.diff(stale) > 1)[0] + 1)
+    silence = max(runs, key=len)
+    assert silence.size > 0.3 / 0.005
+    first = silence[0]
     # The first tick past the limit falls back; the tick before it was still within the limit.
     assert age[first] > MAX_AGE_MS
     assert age[first - 1] <= MAX_AGE_MS
     assert not t["event"][first]                      # a timer tick: telemetry had stopped
     # Nothing is ever steered on telemetry older than the limit, and steering resumes after it returns.
     assert not np.any((reason == R["steered"]) & (age > MAX_AGE_MS))
-    assert np.any((reason == R["steered"]) & (np.arange(t["reason"].size) > stale[-1]))
+    assert np.any((reason == R["steered"]) & (np.arange(t["reason"].size) > silence[-1]))
     # While stale the setpoint stream went on (the vehicle's COM_OF_LOSS_T never expires).
     assert np.all(t["sent"][stale])
     assert stale_run["n_silent"] > 0.3 * 0.4 / 0.005
