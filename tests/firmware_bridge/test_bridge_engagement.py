@@ -231,10 +231,12 @@ def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path, 
     lag = t["t_wall"][has] - t["t_traj"][has]   # one trajectory clock, never restarted (also across the
     assert np.ptp(lag) < 0.1                      # quiet second after 1 s of stale telemetry: no ticks logged)
     # Between consecutive engaged ticks the reference moves by at most the blend rate plus the
-    # trajectory's own rate: the re-engagement starts from the measured height, no jump.
+    # trajectory's own rate over the time between them (a loaded machine skips grid ticks: the trajectory
+    # clock then moves 10-25 ms at once): the re-engagement starts from the measured height, no jump.
     act = t["active"].astype(bool)
     both = act[1:] & act[:-1]
-    assert np.max(np.abs(np.diff(t["u"][:, 0]))[both]) < 0.5 * 0.005 + 0.19 * 0.005 * 2
+    bound = 0.5 * 0.005 + 0.19 * np.diff(t["t_traj"]) * 2
+    assert np.all(np.abs(np.diff(t["u"][:, 0]))[both] < bound[both])
     assert (t["reason"] == REASONS.index("blend")).sum() > 0
     if mode == "feedforward":
         k = np.flatnonzero(t["reason"] == REASONS.index("feedforward"))
