@@ -36,7 +36,14 @@ def test_a_px4_freeze_in_flight_falls_back_then_re_engages_on_the_same_trajector
     flying = np.isfinite(t["t_traj"]) & (t["t_traj"] > 0)  # the trajectory runs (after the take-off)
 
     # the stall: stale telemetry -> fallback ticks, then (after stale_stream_limit) a quiet hole
+    # (the stall's stale ticks are the longest run of them: a loaded machine may hold the bridge or the
+    # SITL off past the age limit for a few ticks elsewhere, and the bridge rightly falls back there too)
     stale = np.flatnonzero(flying & (reason == REASONS.index("stale")))
+    assert stale.size > 0, "no stale fallback during the stall"
+    runs = np.split(stale, np.flatnonzero(np.diff(stale) > 1) + 1)
+    stale = max(runs, key=len)
+    blips = [r for r in runs if r is not stale]
+    assert all(r.size <= 0.1 / DT for r in blips), [r.size for r in blips]
     assert stale.size >= 0.5 / DT, "no stale fallback during the stall"
     hole = np.flatnonzero((np.diff(t["t_wall"]) > 0.5) & flying[:-1])
     assert hole.size == 1 and stale[-1] <= hole[0], "one quiet hole, after the stale fallback"
@@ -58,13 +65,20 @@ def test_a_px4_freeze_in_flight_falls_back_then_re_engages_on_the_same_trajector
     np.testing.assert_allclose(t["y_des"][flying, 0], traj.sample(t["t_traj"][flying])["z"], atol=1e-9)
 
     # bumpless: between consecutive setpoints the z reference moves by at most the blend rate plus the
-    # trajectory's own rate; across the stall it resumes (rate-limited) where it stood relative to the
-    # measured height at the last fresh tick, so the frozen vehicle's thrust continues from there
+    # trajectory's own rate over the trajectory time between them (a loaded machine that holds the bridge
+    # off for tens of ms moves the trajectory clock that far at once); across the stall it resumes
+    # (rate-limited) where it stood relative to the measured height at the last fresh tick, so the frozen
+    # vehicle's thrust continues from there
     sent = np.flatnonzero(flying & t["sent"].astype(bool))
     vmax = np.abs(np.gradient(traj.sample(np.arange(0, 20, DT))["z"], DT)).max()
     step = np.abs(np.diff(t["u"][sent, 0]))
     same = np.diff(t["t_wall"][sent]) < 2.5 * DT
-    assert step[same].max() <= (BLEND_RATE + vmax) * DT + 1e-6, step[same].max()
+    # (a blip resumes by the stall's rule, checked at the stall below: from where the reference stood
+    # relative to the measured height at its last fresh tick, so not from what the stale ticks sent)
+    for r in blips:
+        same &= ~np.isin(sent[1:], np.arange(r[0], r[-1] + 2))
+    bound = BLEND_RATE * DT + vmax * np.maximum(np.diff(t["t_traj"][sent]), DT) + 1e-6
+    assert np.all(step[same] <= bound[same]), np.max(step[same] - bound[same])
     kf = np.flatnonzero(flying[: stale[0]] & t["fresh"][: stale[0]].astype(bool))[-1]  # last fresh tick
     k0 = sent[sent > hole[0]][0]                                                        # first one after
     assert any(e.startswith("resumed after stale telemetry: trajectory continues at t = ") for e in ev)
