@@ -18,6 +18,7 @@ _COMMAND_MODULES: tuple[str, ...] = (
     "ddpc_codegen.cli.logs",
     "ddpc_codegen.cli.codegen",
     "ddpc_codegen.cli.fit",
+    "ddpc_codegen.cli.front",
     "ddpc_codegen.cli.sweep",
     "ddpc_codegen.experiments.demo",
     "ddpc_codegen.experiments.adapt_eval",

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LTI", "random_lti"]
+__all__ = ["LTI", "random_lti", "height_loop"]
 
 
 @dataclass
@@ -42,3 +42,12 @@ def random_lti(n: int, m: int, p: int, seed: int, radius: float = 0.9, feedthrou
     C = rng.standard_normal((p, n))
     D = rng.standard_normal((p, m)) if feedthrough else np.zeros((p, m))
     return LTI(A, B, C, D)
+
+
+def height_loop() -> LTI:
+    """Two decoupled closed loops with unit steady-state gain: a damped second-order one (a height loop's
+    slow answer to its reference: poles 0.8 +- 0.1j) and a first-order lag (0.7)."""
+    a1, a2 = 1.6, -0.65
+    A = np.array([[a1, a2, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.7]])
+    B = np.array([[1.0 - a1 - a2, 0.0], [0.0, 0.0], [0.0, 0.3]])
+    return LTI(A, B, np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), np.zeros((2, 2)))

@@ -1,0 +1,128 @@
+"""``ddpc-codegen front``: how well the identified loop can follow a path at each reference activity, and
+where the config's steering sits against that.
+
+    ddpc-codegen front configs/sitl_ardupilot.toml --dataset collect.npz --trajectory steps.csv
+    ddpc-codegen front cfg.toml --dataset collect.npz --trajectory path.toml --duration 12 --json front.json
+
+The predictor is fitted as ``codegen`` fits it (no solver is generated); the path's output channel
+(default: the config's first output, e.g. ``z``) is taken from the trajectory, every other output's
+desired value is 0. Prints the front (error RMS at each reference activity, the activity relative to the
+path's own: passthrough's), the passthrough point and the config's steering flown on the predictor (the
+predictor as its own plant, no noise): see :mod:`ddpc_codegen.design.front`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ddpc_codegen.errors import ConfigError
+
+__all__ = ["register", "front_report"]
+
+
+def front_report(problem, desired: np.ndarray, input_index: int, output_index: int, log=lambda msg: None) -> dict:
+    """The front, passthrough's and the steering's points on the predictor (dict of floats, JSON-ready).
+    desired: (n, p) desired outputs."""
+    from ddpc_codegen.design.front import fly_on_model, front_error_at, point_of, reference_front
+
+    pred = problem.predictor
+    t0 = time.perf_counter()
+    front = reference_front(pred, desired, input_index=input_index, output_index=output_index)
+    log(f"  front: {len(front)} points in {time.perf_counter() - t0:.1f} s; flying the steering on the predictor ...")
+    u_pt = np.repeat(desired[:1, : pred.m], desired.shape[0], axis=0)
+    u_pt[:, input_index] = desired[:, output_index]
+    y_pt = _fly_references(pred, u_pt, desired)
+    u, y = fly_on_model(problem, desired)
+    path = desired[:, output_index]
+    pts = {"passthrough": point_of(y_pt[:, output_index] - path, u_pt[:, input_index], path),
+           "steered": point_of(y[:, output_index] - path, u[:, input_index], path)}
+    return {"samples": int(desired.shape[0]), "dt": pred.dt,
+            "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],
+            **{k: {"error_rms": p.error_rms, "rate_ratio": p.rate_ratio,
+                   "front_error_at_this_rate": front_error_at(front, p.rate_ratio)} for k, p in pts.items()}}
+
+
+def _fly_references(pred, u: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    """The predictor's outputs (n, p) for given references u (n, m), from rest at the path's start."""
+    from ddpc_codegen.design.front import operating_point
+
+    ti, tf = pred.t_ini, pred.t_f
+    u_hist = np.repeat(u[:1], ti, axis=0)
+    y_hist = np.repeat(operating_point(pred, u[0], desired[0])[None, :], ti, axis=0)
+    y = np.zeros((u.shape[0], pred.p))
+    for k in range(u.shape[0]):
+        y[k] = pred.predict(u_hist, y_hist, np.repeat(u[k:k + 1], tf, axis=0))[0][0]
+        u_hist, y_hist = np.vstack([u_hist[1:], u[k:k + 1]]), np.vstack([y_hist[1:], y[k:k + 1]])
+    return y
+
+
+def _desired(cfg, trajectory: str, output: str, duration: float | None) -> tuple[np.ndarray, int]:
+    from ddpc_codegen.robot.trajectory_files import load_trajectory
+
+    names = list(cfg.output_names)
+    if output not in names:
+        raise ConfigError(f"--output {output!r} is not one of the config's outputs {names}")
+    traj = load_trajectory(trajectory)
+    t0, t1 = traj.time_span()
+    end = t1 if duration is None else t0 + duration
+    if not np.isfinite(end) or end <= t0:
+        raise ConfigError(f"the trajectory's time span is {t0:g} .. {t1:g} s: give --duration (s, > 0)")
+    t = np.arange(t0, end, cfg.dt)
+    s = traj.sample(t)
+    if output not in s:
+        raise ConfigError(f"the trajectory has no channel {output!r} (it has {sorted(s)})")
+    desired = np.zeros((t.size, cfg.p))
+    desired[:, names.index(output)] = s[output]
+    return desired, names.index(output)
+
+
+def _cmd_front(args: argparse.Namespace) -> int:
+    from ddpc_codegen.cli.codegen import build_from_config
+    from ddpc_codegen.design.config import SteeringConfig
+
+    say = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    cfg = SteeringConfig.from_toml(args.config)
+    output = args.output or cfg.output_names[0]
+    desired, out_idx = _desired(cfg, args.trajectory, output, args.duration)
+    if desired.shape[0] > 6000:
+        raise ConfigError(f"{desired.shape[0]} samples: the front is dense (n x n); give --duration <= "
+                          f"{6000 * cfg.dt:g} s")
+    in_idx = out_idx if out_idx < cfg.m else 0  # the reference of the same channel
+    say(f"[{cfg.name}] fitting the predictor ({cfg.predictor['method']}, Tini={cfg.t_ini} Tf={cfg.t_f}) ...")
+    problem = build_from_config(cfg, args.dataset)
+    say(f"  {desired.shape[0]} samples of {output}; steering {cfg.input_names[in_idx]}")
+    rep = front_report(problem, desired, in_idx, out_idx, log=say)
+    unit = cfg.output_units[out_idx] if cfg.output_units else ""
+    print(f"{'reference activity / passthrough':>34}  {output} error RMS [{unit}]")
+    for p in rep["front"]:
+        print(f"{p['rate_ratio']:34.2f}  {p['error_rms']:.4g}")
+    for k in ("passthrough", "steered"):
+        p = rep[k]
+        label = f"{k} {p['rate_ratio']:.2f}"
+        print(f"{label:>34}  {p['error_rms']:.4g}  (the front at this activity: {p['front_error_at_this_rate']:.4g})")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rep, indent=2))
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add ``front`` to the ddpc-codegen command."""
+    p = subparsers.add_parser(
+        "front", help="the identified loop's tracking error at each reference activity on a path, and the steering's",
+        description="Fit the predictor as codegen does; on a trajectory's output channel, the least error any "
+                    "reference reaches at each activity (tick-to-tick change relative to the path's own), "
+                    "passthrough's point and the config's steering flown on the predictor.")
+    p.add_argument("config", help="steering config TOML")
+    p.add_argument("--dataset", default=None, help="IODataset .npz (default: the config's [data] dataset)")
+    p.add_argument("--trajectory", required=True, help="trajectory file (.csv / .toml)")
+    p.add_argument("--output", default=None, help="the output channel to follow (default: the config's first)")
+    p.add_argument("--duration", type=float, default=None, help="seconds of the path from its start (default: all)")
+    p.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    p.set_defaults(func=_cmd_front)

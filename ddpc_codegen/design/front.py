@@ -1,0 +1,129 @@
+"""What the identified loop allows on one path: tracking error against the reference's own activity.
+
+Leading a height step takes reference motion, and every method's thrust change per tick follows its
+reference's change per tick through the controller, so the two figures trade. The **front** is that
+trade for the loop the data describe, with nothing else in the way: one reference channel chosen with
+the whole desired path known in advance (no horizon, no bounds, no noise), for each weight w on its
+tick-to-tick change
+
+    u_w = argmin ||T u - e||^2 + w ||D u||^2,
+
+T the lower-triangular Toeplitz matrix of the predictor's chained impulse response (the loop from
+rest, as :func:`~ddpc_codegen.design.step_response.step_response`), e the desired output's deviation,
+D the first difference. Convex in u, so the weighted sums trace every Pareto point of the two squared
+figures: no reference, causal or not, does better on both. :func:`fly_on_model` flies a steering problem
+on the same predictor (the predictor as its own plant), so its point against the front says what the
+horizon and the penalties cost, and what only another loop could give.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sl
+
+from ddpc_codegen.design.predictor import Predictor
+from ddpc_codegen.design.step_response import step_response
+
+__all__ = ["FrontPoint", "impulse_response", "reference_front", "front_error_at", "fly_on_model", "operating_point",
+           "point_of"]
+
+# weights on the rate term relative to trace(T'T) / trace(D'D) (the two terms' scales): the front's span
+RELATIVE_WEIGHTS = tuple(float(w) for w in np.logspace(-2, 8, 21))
+
+
+@dataclass(frozen=True)
+class FrontPoint:
+    """One reference for one path: output error RMS (output units), the reference's tick-to-tick change
+    RMS over that of the desired path itself (what passthrough sends: 1.0), and the weight w that made it
+    (None: a flown point)."""
+
+    error_rms: float
+    rate_ratio: float
+    weight: float | None = None
+
+
+def impulse_response(pred: Predictor, input_index: int, output_index: int, n: int) -> np.ndarray:
+    """Output ``output_index``'s answer (n,) to a unit pulse on input ``input_index`` at k = 0, from rest."""
+    s = step_response(pred, input_index, n)[:, output_index]
+    return np.diff(s, prepend=0.0)
+
+
+def operating_point(pred: Predictor, u0: np.ndarray, y_start: np.ndarray | None = None, span: int = 4000) -> np.ndarray:
+    """Outputs (p,) at rest under the constant inputs u0 (m,): ``y_start`` when the predictor holds it there
+    (an offset-free, incremental predictor rests at any output), else what it settles to from rest (linear:
+    the step responses' final values, weighted)."""
+    u0 = np.asarray(u0, dtype=float)
+    if y_start is not None:
+        y_start = np.asarray(y_start, dtype=float)
+        held = pred.predict(np.tile(u0, (pred.t_ini, 1)), np.tile(y_start, (pred.t_ini, 1)),
+                            np.tile(u0, (pred.t_f, 1)))[0]
+        if np.allclose(held, y_start, rtol=0.0, atol=1e-9 * max(1.0, float(np.abs(y_start).max()))):
+            return y_start
+    return sum(u0[j] * step_response(pred, j, span)[-1] for j in range(pred.m) if u0[j] != 0.0) + np.zeros(pred.p)
+
+
+def point_of(error: np.ndarray, u: np.ndarray, desired_ref: np.ndarray, weight: float | None = None) -> FrontPoint:
+    """The figures of a reference u (n,) that left the output ``error`` (n,), against the desired path's
+    own reference desired_ref (n,) (passthrough)."""
+    base = np.sqrt(np.mean(np.diff(desired_ref) ** 2))
+    if not base > 0.0:
+        raise ValueError("the desired path does not move: no reference activity to compare against")
+    return FrontPoint(float(np.sqrt(np.mean(error ** 2))), float(np.sqrt(np.mean(np.diff(u) ** 2)) / base), weight)
+
+
+def reference_front(pred: Predictor, desired: np.ndarray, *, input_index: int = 0, output_index: int = 0,
+                    relative_weights: tuple[float, ...] = RELATIVE_WEIGHTS) -> list[FrontPoint]:
+    """The front on desired outputs ``desired`` (n, p) (the references' nominal values: the first m
+    outputs' channels), scored on output ``output_index``, steering input ``input_index``, the other inputs
+    held at the path's start. The loop starts at rest at the path's first sample (:func:`operating_point`).
+    One point per weight, by rising weight (the rate falls, the error rises). Dense: n up to a few
+    thousand samples (n x n matrices)."""
+    desired = np.asarray(desired, dtype=float)
+    if desired.ndim != 2 or desired.shape[1] != pred.p or desired.shape[0] < 2:
+        raise ValueError(f"desired must be (n >= 2, p = {pred.p}); got {desired.shape}")
+    n = desired.shape[0]
+    u0 = desired[0, : pred.m]
+    e = desired[:, output_index] - operating_point(pred, u0, desired[0])[output_index]
+    T = sl.toeplitz(impulse_response(pred, input_index, output_index, n), np.zeros(n))
+    # the reference's deviation du from u0, and its n - 1 changes: the two figures of point_of, squared
+    D = (np.eye(n, k=1) - np.eye(n))[:-1]
+    TT, DD, Te = T.T @ T, D.T @ D, T.T @ e
+    scale = np.trace(TT) / np.trace(DD)
+    out = []
+    for rw in sorted(relative_weights):
+        du = sl.solve(TT + rw * scale * DD, Te, assume_a="pos")
+        out.append(point_of(T @ du - e, u0[input_index] + du, desired[:, output_index], rw * scale))
+    return out
+
+
+def fly_on_model(problem, desired: np.ndarray, *, solver: str = "fast") -> tuple[np.ndarray, np.ndarray]:
+    """Steer ``problem`` (a :class:`~ddpc_codegen.design.problem.SteeringProblem`) on its own predictor as
+    the plant along desired outputs (n, p) (the references' nominal values: the same channels), from rest at
+    the operating point of the first desired sample. Returns the applied references u (n, m) and outputs
+    y (n, p); the horizon past the path's end sees its last sample."""
+    pred = problem.predictor
+    desired = np.asarray(desired, dtype=float)
+    n, ti, tf = desired.shape[0], pred.t_ini, pred.t_f
+    ahead = np.vstack([desired, np.repeat(desired[-1:], tf, axis=0)])
+    u_hist = np.repeat(desired[:1, : pred.m], ti, axis=0)
+    y_hist = np.repeat(operating_point(pred, desired[0, : pred.m], desired[0])[None, :], ti, axis=0)
+    u, y = np.zeros((n, pred.m)), np.zeros((n, pred.p))
+    for k in range(n):
+        r = problem.solve(u_hist, y_hist, ahead[k:k + tf], ahead[k:k + tf, : pred.m], solver=solver)
+        u[k] = r.u[0]
+        # the plant: the predictor's first predicted sample with this reference held
+        y[k] = pred.predict(u_hist, y_hist, np.repeat(u[k:k + 1], tf, axis=0))[0][0]
+        u_hist = np.vstack([u_hist[1:], u[k:k + 1]])
+        y_hist = np.vstack([y_hist[1:], y[k:k + 1]])
+    return u, y
+
+
+def front_error_at(front: list[FrontPoint], rate_ratio: float) -> float:
+    """The front's error at a reference activity (linear in log rate between its points); nan outside it."""
+    pts = sorted(front, key=lambda p: p.rate_ratio)
+    r = np.log([p.rate_ratio for p in pts])
+    if not (pts and r[0] <= np.log(rate_ratio) <= r[-1]):
+        return float("nan")
+    return float(np.interp(np.log(rate_ratio), r, [p.error_rms for p in pts]))
