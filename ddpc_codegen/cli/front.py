@@ -30,7 +30,7 @@ __all__ = ["register", "front_report"]
 def front_report(problem, desired: np.ndarray, input_index: int, output_index: int, log=lambda msg: None) -> dict:
     """The front, passthrough's and the steering's points on the predictor (dict of floats, JSON-ready).
     desired: (n, p) desired outputs."""
-    from ddpc_codegen.design.front import fly_on_model, front_error_at, point_of, reference_front
+    from ddpc_codegen.design.front import fly_on_model, follow_on_model, front_error_at, point_of, reference_front
 
     pred = problem.predictor
     t0 = time.perf_counter()
@@ -38,7 +38,7 @@ def front_report(problem, desired: np.ndarray, input_index: int, output_index: i
     log(f"  front: {len(front)} points in {time.perf_counter() - t0:.1f} s; flying the steering on the predictor ...")
     u_pt = np.repeat(desired[:1, : pred.m], desired.shape[0], axis=0)
     u_pt[:, input_index] = desired[:, output_index]
-    y_pt = _fly_references(pred, u_pt, desired)
+    y_pt = follow_on_model(pred, u_pt, desired)
     u, y = fly_on_model(problem, desired)
     path = desired[:, output_index]
     pts = {"passthrough": point_of(y_pt[:, output_index] - path, u_pt[:, input_index], path),
@@ -47,20 +47,6 @@ def front_report(problem, desired: np.ndarray, input_index: int, output_index: i
             "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],
             **{k: {"error_rms": p.error_rms, "rate_ratio": p.rate_ratio,
                    "front_error_at_this_rate": front_error_at(front, p.rate_ratio)} for k, p in pts.items()}}
-
-
-def _fly_references(pred, u: np.ndarray, desired: np.ndarray) -> np.ndarray:
-    """The predictor's outputs (n, p) for given references u (n, m), from rest at the path's start."""
-    from ddpc_codegen.design.front import operating_point
-
-    ti, tf = pred.t_ini, pred.t_f
-    u_hist = np.repeat(u[:1], ti, axis=0)
-    y_hist = np.repeat(operating_point(pred, u[0], desired[0])[None, :], ti, axis=0)
-    y = np.zeros((u.shape[0], pred.p))
-    for k in range(u.shape[0]):
-        y[k] = pred.predict(u_hist, y_hist, np.repeat(u[k:k + 1], tf, axis=0))[0][0]
-        u_hist, y_hist = np.vstack([u_hist[1:], u[k:k + 1]]), np.vstack([y_hist[1:], y[k:k + 1]])
-    return y
 
 
 def _desired(cfg, trajectory: str, output: str, duration: float | None) -> tuple[np.ndarray, int]:

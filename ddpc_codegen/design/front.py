@@ -26,8 +26,8 @@ import scipy.linalg as sl
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.step_response import step_response
 
-__all__ = ["FrontPoint", "impulse_response", "reference_front", "front_error_at", "fly_on_model", "operating_point",
-           "point_of"]
+__all__ = ["FrontPoint", "impulse_response", "reference_front", "front_error_at", "fly_on_model", "follow_on_model",
+           "operating_point", "point_of"]
 
 # weights on the rate term relative to trace(T'T) / trace(D'D) (the two terms' scales): the front's span
 RELATIVE_WEIGHTS = tuple(float(w) for w in np.logspace(-2, 8, 21))
@@ -101,19 +101,38 @@ def reference_front(pred: Predictor, desired: np.ndarray, *, input_index: int = 
 def fly_on_model(problem, desired: np.ndarray, *, solver: str = "fast") -> tuple[np.ndarray, np.ndarray]:
     """Steer ``problem`` (a :class:`~ddpc_codegen.design.problem.SteeringProblem`) on its own predictor as
     the plant along desired outputs (n, p) (the references' nominal values: the same channels), from rest at
-    the operating point of the first desired sample. Returns the applied references u (n, m) and outputs
-    y (n, p); the horizon past the path's end sees its last sample."""
-    pred = problem.predictor
+    the path's first sample (:func:`operating_point`). Returns the applied references u (n, m) and outputs
+    y (n, p); the horizon past the path's end sees its last sample. A tick the solver does not solve is an
+    error (no fallback here: this measures the steering)."""
+    tf = problem.predictor.t_f
     desired = np.asarray(desired, dtype=float)
-    n, ti, tf = desired.shape[0], pred.t_ini, pred.t_f
     ahead = np.vstack([desired, np.repeat(desired[-1:], tf, axis=0)])
+
+    def steer(k: int, u_hist: np.ndarray, y_hist: np.ndarray) -> np.ndarray:
+        r = problem.solve(u_hist, y_hist, ahead[k:k + tf], ahead[k:k + tf, : u_hist.shape[1]], solver=solver)
+        if r.status != "solved":
+            raise RuntimeError(f"the steering QP was not solved at sample {k}: {r.status}")
+        return r.u[0]
+
+    return _chain(problem.predictor, desired, steer)
+
+
+def follow_on_model(pred: Predictor, u: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    """The predictor's outputs (n, p) (as its own plant, from rest at the path's first sample) for the given
+    references u (n, m), e.g. the path itself (passthrough)."""
+    u = np.asarray(u, dtype=float)
+    return _chain(pred, np.asarray(desired, dtype=float), lambda k, uh, yh: u[k])[1]
+
+
+def _chain(pred: Predictor, desired: np.ndarray, reference_at) -> tuple[np.ndarray, np.ndarray]:
+    """(u, y) of the predictor as the plant: each sample's reference from reference_at(k, u_hist, y_hist),
+    its output the predictor's first predicted sample with that reference held."""
+    n, ti, tf = desired.shape[0], pred.t_ini, pred.t_f
     u_hist = np.repeat(desired[:1, : pred.m], ti, axis=0)
     y_hist = np.repeat(operating_point(pred, desired[0, : pred.m], desired[0])[None, :], ti, axis=0)
     u, y = np.zeros((n, pred.m)), np.zeros((n, pred.p))
     for k in range(n):
-        r = problem.solve(u_hist, y_hist, ahead[k:k + tf], ahead[k:k + tf, : pred.m], solver=solver)
-        u[k] = r.u[0]
-        # the plant: the predictor's first predicted sample with this reference held
+        u[k] = reference_at(k, u_hist, y_hist)
         y[k] = pred.predict(u_hist, y_hist, np.repeat(u[k:k + 1], tf, axis=0))[0][0]
         u_hist = np.vstack([u_hist[1:], u[k:k + 1]])
         y_hist = np.vstack([y_hist[1:], y[k:k + 1]])

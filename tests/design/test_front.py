@@ -8,8 +8,8 @@ import scipy.linalg as sl
 
 from support.lti import LTI, height_loop
 from ddpc_codegen import IODataset, SteeringConfig, SteeringProblem, fit_predictor
-from ddpc_codegen.design.front import (fly_on_model, front_error_at, impulse_response, operating_point, point_of,
-                                       reference_front)
+from ddpc_codegen.design.front import (fly_on_model, follow_on_model, front_error_at, impulse_response, operating_point,
+                                       point_of, reference_front)
 
 TI, TF = 6, 30
 
@@ -89,3 +89,16 @@ def test_steering_flown_on_the_predictor_is_never_below_the_front(loop):
     assert passthrough.rate_ratio == pytest.approx(1.0)
     assert passthrough.error_rms > front_error_at(front, 1.0)
     assert np.isnan(front_error_at(front, 1e9))
+
+
+def test_the_predictor_as_plant_follows_given_references_and_an_unsolved_tick_is_an_error(loop):
+    sys_, pred = loop
+    des = _steps(80)
+    u = np.column_stack([des[:, 0] + 0.05 * np.sin(np.arange(80) / 5.0), 0.1 * np.cos(np.arange(80) / 7.0)])
+    np.testing.assert_allclose(follow_on_model(pred, u, des), sys_.simulate(u, np.array([1.0, 1.0, 0.0]))[0],
+                               atol=1e-7)
+    # z_ref must start >= 2 m but may move 1 cm per tick from the 1 m it held: no reference satisfies both
+    cfg = SteeringConfig(t_ini=TI, t_f=TF, m=2, p=2, Q=[10.0, 1.0], R=[1e-6, 1.0], lambda_sigma=1e3,
+                         u_min=[2.0, -5.0], u_max=[5.0, 5.0], du_max=[0.01, 1.0])
+    with pytest.raises(RuntimeError, match="not solved at sample 0"):
+        fly_on_model(SteeringProblem(pred, cfg), des)
