@@ -79,7 +79,9 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
         With u and r_nom: ``offset_step_rms`` (per reference, :func:`~ddpc_codegen.stats.step_rms` of u - r_nom
         over pairs of scored ticks), ``max_offset_step`` and ``max_ref_step`` (reference 0: largest
         |change| of u - r_nom and of u from one tick to the next, over every pair of adjacent ticks after
-        ``settle`` whether active or not: a fallback's or a stall's hand-over counts, a hole never spans two ticks).
+        ``settle`` whether active or not: a fallback's or a stall's hand-over counts, a hole never spans two ticks),
+        ``ref_rate_ratio`` (the RMS of reference 0's tick-to-tick change over that of output 0's desired path, over
+        the same pairs: 1.0 for passthrough; what :mod:`ddpc_codegen.design.front` calls the activity).
         With thrust: ``thrust_step_rms`` (over the same adjacent pairs), ``thrust_limit_share``
         (:func:`~ddpc_codegen.stats.limit_share` at 0 and 1; None without a tick). With steered: ``engaged_fraction``.
     """
@@ -107,6 +109,8 @@ def flight_metrics(t: ArrayLike, y: ArrayLike, y_des: ArrayLike, *, settle: floa
         out["offset_step_rms"] = step_rms(u - r_nom, on)
         out["max_offset_step"] = _max_abs_step(u[:, 0] - r_nom[:, 0], flown, empty)
         out["max_ref_step"] = _max_abs_step(u[:, 0], flown, empty)
+        path, ref = rms(_adjacent_steps(y_des[:, 0], flown)), rms(_adjacent_steps(u[:, 0], flown))
+        out["ref_rate_ratio"] = ref / path if path and ref is not None else empty
     if thrust is not None:
         thr = np.asarray(thrust, dtype=float)
         out["thrust_step_rms"] = rms(_adjacent_steps(thr, flown), empty)

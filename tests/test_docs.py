@@ -177,6 +177,17 @@ def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
     assert "Not measured yet -- run `make adapt-eval`" in results.results_page({"summary.json": SUMMARY})
 
 
+def test_results_page_renders_the_steps_against_the_front():
+    model = {"passthrough": {"error_rms": 0.048, "rate_ratio": 1.0, "front_error_at_this_rate": 0.0131},
+             "steered": {"error_rms": 0.0065, "rate_ratio": 1.923, "front_error_at_this_rate": 0.0064}}
+    front = {"config": "sitl_ardupilot.toml", "model": model, "flown_rate_ratio": 1.87, "front_at_flown": 0.0066}
+    table = results._front_table([("ardupilot", front, {"rmse_z": {"steered": 0.0071}})])
+    assert "| ardupilot | 48.0 (13.1) | 6.5 at 1.92x | 6.4 | 1.87x, 6.6, 7.1 |" in table.splitlines()
+    no_flight = results._front_table([("px4", {**front, "flown_rate_ratio": None}, {"rmse_z": {}})])
+    assert no_flight.splitlines()[-1].endswith("| 6.4 | -- |")
+    assert results._front_table([]) == ""
+
+
 def test_markdown_table_escapes_pipes_inside_cells_and_moves_notes_to_a_code_block():
     grid = "| a | mean |apex err| [mm] |\n|---|---:|\n| x |  1 |\n* a note"
     assert results.markdown_table(grid) == ("| a | mean \\|apex err\\| [mm] |\n|---|---:|\n| x |  1 |\n\n"

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -24,32 +23,13 @@ import numpy as np
 
 from ddpc_codegen.errors import ConfigError
 
-__all__ = ["register", "front_report"]
+__all__ = ["register", "desired_from_trajectory"]
 
 
-def front_report(problem, desired: np.ndarray, input_index: int, output_index: int, log=lambda msg: None) -> dict:
-    """The front, passthrough's and the steering's points on the predictor (dict of floats, JSON-ready).
-    desired: (n, p) desired outputs."""
-    from ddpc_codegen.design.front import fly_on_model, follow_on_model, front_error_at, point_of, reference_front
-
-    pred = problem.predictor
-    t0 = time.perf_counter()
-    front = reference_front(pred, desired, input_index=input_index, output_index=output_index)
-    log(f"  front: {len(front)} points in {time.perf_counter() - t0:.1f} s; flying the steering on the predictor ...")
-    u_pt = np.repeat(desired[:1, : pred.m], desired.shape[0], axis=0)
-    u_pt[:, input_index] = desired[:, output_index]
-    y_pt = follow_on_model(pred, u_pt, desired)
-    u, y = fly_on_model(problem, desired)
-    path = desired[:, output_index]
-    pts = {"passthrough": point_of(y_pt[:, output_index] - path, u_pt[:, input_index], path),
-           "steered": point_of(y[:, output_index] - path, u[:, input_index], path)}
-    return {"samples": int(desired.shape[0]), "dt": pred.dt,
-            "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],
-            **{k: {"error_rms": p.error_rms, "rate_ratio": p.rate_ratio,
-                   "front_error_at_this_rate": front_error_at(front, p.rate_ratio)} for k, p in pts.items()}}
-
-
-def _desired(cfg, trajectory: str, output: str, duration: float | None) -> tuple[np.ndarray, int]:
+def desired_from_trajectory(cfg, trajectory: str, output: str, duration: float | None) -> tuple[np.ndarray, int]:
+    """Desired outputs (n, p) on the config's tick from a trajectory file's channel ``output`` (the config's
+    output of that name; every other output 0) over ``duration`` s from its start (None: its whole span),
+    and that output's index."""
     from ddpc_codegen.robot.trajectory_files import load_trajectory
 
     names = list(cfg.output_names)
@@ -72,11 +52,12 @@ def _desired(cfg, trajectory: str, output: str, duration: float | None) -> tuple
 def _cmd_front(args: argparse.Namespace) -> int:
     from ddpc_codegen.cli.codegen import build_from_config
     from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.design.front import front_report
 
     say = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
     cfg = SteeringConfig.from_toml(args.config)
     output = args.output or cfg.output_names[0]
-    desired, out_idx = _desired(cfg, args.trajectory, output, args.duration)
+    desired, out_idx = desired_from_trajectory(cfg, args.trajectory, output, args.duration)
     if desired.shape[0] > 6000:
         raise ConfigError(f"{desired.shape[0]} samples: the front is dense (n x n); give --duration <= "
                           f"{6000 * cfg.dt:g} s")

@@ -18,6 +18,7 @@ horizon and the penalties cost, and what only another loop could give.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +28,7 @@ from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.step_response import step_response
 
 __all__ = ["FrontPoint", "impulse_response", "reference_front", "front_error_at", "fly_on_model", "follow_on_model",
-           "operating_point", "point_of"]
+           "front_report", "operating_point", "point_of"]
 
 # weights on the rate term relative to trace(T'T) / trace(D'D) (the two terms' scales): the front's span
 RELATIVE_WEIGHTS = tuple(float(w) for w in np.logspace(-2, 8, 21))
@@ -146,3 +147,23 @@ def front_error_at(front: list[FrontPoint], rate_ratio: float) -> float:
     if not (pts and r[0] <= np.log(rate_ratio) <= r[-1]):
         return float("nan")
     return float(np.interp(np.log(rate_ratio), r, [p.error_rms for p in pts]))
+
+
+def front_report(problem, desired: np.ndarray, input_index: int, output_index: int, log=lambda msg: None) -> dict:
+    """The front, passthrough's point and the steering's (``problem`` flown on its predictor) on desired
+    outputs (n, p), as JSON-ready floats; each point with the front's error at its activity."""
+    pred = problem.predictor
+    t0 = time.perf_counter()
+    front = reference_front(pred, desired, input_index=input_index, output_index=output_index)
+    log(f"  front: {len(front)} points in {time.perf_counter() - t0:.1f} s; flying the steering on the predictor ...")
+    u_pt = np.repeat(desired[:1, : pred.m], desired.shape[0], axis=0)
+    u_pt[:, input_index] = desired[:, output_index]
+    y_pt = follow_on_model(pred, u_pt, desired)
+    u, y = fly_on_model(problem, desired)
+    path = desired[:, output_index]
+    pts = {"passthrough": point_of(y_pt[:, output_index] - path, u_pt[:, input_index], path),
+           "steered": point_of(y[:, output_index] - path, u[:, input_index], path)}
+    return {"samples": int(desired.shape[0]), "dt": pred.dt,
+            "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],
+            **{k: {"error_rms": p.error_rms, "rate_ratio": p.rate_ratio,
+                   "front_error_at_this_rate": front_error_at(front, p.rate_ratio)} for k, p in pts.items()}}

@@ -149,6 +149,7 @@ def _sitl_section(sitl: dict) -> str:
     conditions = [(a, n, c) for a in aps for n, c in (sitl[a].get("conditions") or {}).items()]
     if conditions:
         text += "\n" + _conditions_table(conditions)
+        text += _front_table([(a, c["front"], c) for a, n, c in conditions if n == "steps" and "model" in c.get("front", {})])
     text += "\n### Online adaptation, change applied mid-flight (`make sitl-adapt`)\n\n"
     text += _sitl_adaptation_table(adaptation) if adaptation else (
         "Not measured yet -- run `make sitl-adapt` (it adds `adaptation` to `reports/sitl.json` and rewrites this page).\n")
@@ -221,6 +222,29 @@ def _split(c: dict) -> str:
     if ch.get("steered") is None or st.get("steered") is None:
         return "--"
     return f"{_mm(ch['steered'])} / {_mm(st['steered'])} ({_mm(ch.get('prefilter'))} / {_mm(st.get('prefilter'))})"
+
+
+def _front_table(rows: list[tuple[str, dict, dict]]) -> str:
+    """The steps condition against the identified loop's front (``testbed.sitl_front``), per autopilot."""
+    if not rows:
+        return ""
+    lines = ["\nThe steps against the identified loop's front (`ddpc-codegen front` on the run's collect and the steps "
+             "file: the predictor as the plant, no noise; the front is the least height error any z_ref reaches at "
+             "each activity, its tick-to-tick change relative to the path's own, with the whole path known in "
+             "advance). A steered point near the front at its activity leaves a tuning change nothing to gain "
+             "there; only more reference activity (and thrust) or a better loop lowers it:\n",
+             "| autopilot | passthrough on the model [mm] (the front at 1.00x) | steered on the model [mm] at its activity "
+             "| the front at that activity [mm] | flown steered: activity, the front there [mm], EKF error [mm] |",
+             "|---|---|---|---|---|"]
+    for ap, f, c in rows:
+        m = f["model"]
+        pt, st = m["passthrough"], m["steered"]
+        flown = (f"{f['flown_rate_ratio']:.2f}x, {_mm(f['front_at_flown'])}, {_mm(c['rmse_z'].get('steered'))}"
+                 if f.get("flown_rate_ratio") else "--")
+        lines.append(f"| {ap} | {_mm(pt['error_rms'])} ({_mm(pt['front_error_at_this_rate'])}) | "
+                     f"{_mm(st['error_rms'])} at {st['rate_ratio']:.2f}x | {_mm(st['front_error_at_this_rate'])} | "
+                     f"{flown} |")
+    return "\n".join(lines) + "\n"
 
 
 def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:

@@ -157,6 +157,8 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
             steps = write_steps_trajectory(out / "steps.csv")
             res["conditions"] = {name: fly_condition(sitl, autopilot, name, out, steps, solver, pf, rounds, steps_s)
                                  for name in conditions}
+    if "steps" in res.get("conditions", {}):
+        add_steps_front(res["conditions"]["steps"], out, autopilot, ROOT / "configs" / (config or CONFIGS[autopilot]))
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
     if baselines:
         res["baselines"], ellipse = ellipse_figures(out, autopilot, ilc)
@@ -254,9 +256,20 @@ def rescore(out: Path) -> int:
                 conds[name] = {**c, **summarize_rounds(rescored_rounds(out / f"sitl_{ap}", ap, name, c["rounds"]))}
         if "ellipse" in conds:
             res["baselines"], conds["ellipse"] = ellipse_figures(out / f"sitl_{ap}", ap, res["baselines"]["ilc"])
+        if "steps" in conds and "rounds" in conds["steps"]:
+            config = (conds["steps"].get("front") or {}).get("config") or CONFIGS[ap]
+            add_steps_front(conds["steps"], out / f"sitl_{ap}", ap, ROOT / "configs" / config)
         print_result(ap, res)
     update_report(out / "sitl.json", report, default=nan_as_null)
     return 0
+
+
+def add_steps_front(steps: dict, folder: Path, autopilot: str, config: Path) -> None:
+    """The steps condition's ``front`` (:func:`~ddpc_codegen.testbed.sitl_front.steps_front`), at the steered
+    flights' mean reference activity."""
+    from ddpc_codegen.testbed.sitl_front import steps_front
+
+    steps["front"] = steps_front(folder, autopilot, config, (steps.get("ref_rate_ratio") or {}).get("steered"))
 
 
 def rescored_rounds(folder: Path, autopilot: str, name: str, rounds: list[dict]) -> list[dict]:

@@ -166,6 +166,7 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
             "estimator_bias": f.get("estimator_bias"),
             "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
             "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"],
+            "ref_rate_ratio": f["ref_rate_ratio"],
             # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved
             "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None,
             "stalls": int(np.count_nonzero(flown & (t["gate"] & GATE_FLAGS["stall"]).astype(bool))),

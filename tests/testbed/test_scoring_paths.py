@@ -61,6 +61,8 @@ def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
     off = res.u[on, 0] - res.r_nom[on, 0]
     assert ff["max_offset_step"] == pytest.approx(np.abs(np.diff(off)).max(), rel=1e-12) and ff["max_offset_step"] > 0
     assert ff["max_ref_step"] == pytest.approx(np.abs(np.diff(res.u[on, 0])).max(), rel=1e-12)
+    rate = lambda x: np.sqrt(np.mean(np.diff(x) ** 2))  # noqa: E731
+    assert ff["ref_rate_ratio"] == pytest.approx(rate(res.u[on, 0]) / rate(res.y_des[on, 0]), rel=1e-12)
     assert ff["thrust_step_rms"] == pytest.approx(np.sqrt(np.mean(np.diff(res.setpoint_thrust[on]) ** 2)), rel=1e-12)
     assert ff["engaged_fraction"] == pytest.approx(steered[on].mean(), rel=1e-12)
     solved = (10.0 + np.arange(res.n) % 100)[steered]  # every solver call of the flight, warm-up included

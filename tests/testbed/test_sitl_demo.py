@@ -71,3 +71,39 @@ def test_rescore_scores_each_condition_flight_again_from_its_tick_log(tmp_path, 
                                                                     rel=1e-9)
     assert steps["rmse_z"]["passthrough"] == pytest.approx(0.01)
     assert "solve p99 in flight 0.90 ms" in capsys.readouterr().out
+    assert steps["front"]["skipped"].startswith("not found: ")  # no collect flight and steps file in the folder
+
+
+def test_steps_front_from_a_collect_tick_log_and_a_steps_file(tmp_path):
+    """A collect flight of a known loop as the bridge logs it and the demo's steps file: the steering flown on
+    the fitted predictor sits at or above the front, and the flown activity is looked up on it."""
+    from support.lti import height_loop
+
+    from ddpc_codegen.design.data import prbs
+    from ddpc_codegen.testbed.sitl_conditions import write_steps_trajectory
+    from ddpc_codegen.testbed.sitl_front import steps_front
+    from firmware_bridge.ticklog import TickRecorder, reason_code
+
+    n = 3000
+    u = prbs(n, 2, amplitude=[0.3, 0.05], min_hold=4, seed=2) + [1.0, 0.0]
+    y, _ = height_loop().simulate(u, np.array([1.0, 1.0, 0.0]))
+    rec = TickRecorder(2, 2, capacity=n)
+    for k in range(n):
+        i = rec.new_row()
+        a = rec.arrays
+        a["t_traj"][i] = a["t_vehicle"][i] = 0.005 * k
+        a["y"][i], a["u"][i], a["r_nom"][i], a["y_des"][i] = y[k], u[k], (1.0, 0.0), (1.0, 0.0)
+        a["reason"][i] = reason_code("collect")
+        a["active"][i] = a["event"][i] = a["valid"][i] = True  # valid: a dataset row (engaged, fresh, collecting)
+    rec.to_log(dt=0.005, input_names=("z_ref", "pitch_ref"), output_names=("z", "pitch")).save(
+        tmp_path / "ardupilot_collect.npz")
+    write_steps_trajectory(tmp_path / "steps.csv")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('name = "loop"\n[horizon]\nt_ini = 6\nt_f = 30\n[signals]\ninputs = ["z_ref", "pitch_ref"]\n'
+                   'outputs = ["z", "pitch"]\n[cost]\nQ = [10.0, 1.0]\nR = [0.01, 1.0]\nR_du = [30.0, 0.0]\n'
+                   '[predictor]\nmethod = "lsq"\n')
+    f = steps_front(tmp_path, "ardupilot", cfg, 0.9, duration=6.0)
+    st = f["model"]["steered"]
+    assert f["model"]["samples"] == 1200 and st["error_rms"] < 0.5 * f["model"]["passthrough"]["error_rms"]
+    assert st["error_rms"] >= 0.99 * st["front_error_at_this_rate"]
+    assert f["flown_rate_ratio"] == 0.9 and 0 < f["front_at_flown"] < f["model"]["passthrough"]["error_rms"]
