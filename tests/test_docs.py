@@ -182,9 +182,10 @@ def test_results_page_renders_the_steps_against_the_front():
              "steered": {"error_rms": 0.0065, "rate_ratio": 1.923, "front_error_at_this_rate": 0.0064}}
     front = {"config": "sitl_ardupilot.toml", "model": model, "flown_rate_ratio": 1.87, "front_at_flown": 0.0066}
     table = results._front_table([("ardupilot", front, {"rmse_z": {"steered": 0.0071}})])
-    assert "| ardupilot | 48.0 (13.1) | 6.5 at 1.92x | 6.4 | 1.87x, 6.6, 7.1 |" in table.splitlines()
+    assert "| ardupilot | 48.0 (13.1) | 6.5 at 1.92x | 6.4 | 1.87x, 6.6, 7.1 | -- |" in table.splitlines()
+    model["step_gain"] = {"chained": 0.596, "predicted": 0.869}
     no_flight = results._front_table([("px4", {**front, "flown_rate_ratio": None}, {"rmse_z": {}})])
-    assert no_flight.splitlines()[-1].endswith("| 6.4 | -- |")
+    assert no_flight.splitlines()[-1].endswith("| 6.4 | -- | 0.60 / 0.87 |")
     assert results._front_table([]) == ""
 
 

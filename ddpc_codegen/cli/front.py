@@ -74,6 +74,10 @@ def _cmd_front(args: argparse.Namespace) -> int:
         p = rep[k]
         label = f"{k} {p['rate_ratio']:.2f}"
         print(f"{label:>34}  {p['error_rms']:.4g}  (the front at this activity: {p['front_error_at_this_rate']:.4g})")
+    g = rep["step_gain"]
+    print(f"step gain of the predictor as the plant {g['chained']:.3f}, of its multi-step prediction {g['predicted']:.3f}"
+          + ("" if abs(g["chained"] - g["predicted"]) <= 0.1 * abs(g["predicted"]) else
+             " (far apart: the steering plans with a loop other than the one it is flown on here)"))
     if args.json:
         Path(args.json).write_text(json.dumps(rep, indent=2))
     return 0

@@ -8,8 +8,8 @@ tick-to-tick change
 
     u_w = argmin ||T u - e||^2 + w ||D u||^2,
 
-T the lower-triangular Toeplitz matrix of the predictor's chained impulse response (the loop from
-rest, as :func:`~ddpc_codegen.design.step_response.step_response`), e the desired output's deviation,
+T the lower-triangular Toeplitz matrix of the impulse response of the predictor as the plant (its first
+prediction, chained sample by sample: :func:`impulse_response`), e the desired output's deviation,
 D the first difference. Convex in u, so the weighted sums trace every Pareto point of the two squared
 figures: no reference, causal or not, does better on both. :func:`fly_on_model` flies a steering problem
 on the same predictor (the predictor as its own plant), so its point against the front says what the
@@ -31,7 +31,7 @@ __all__ = ["FrontPoint", "impulse_response", "reference_front", "front_error_at"
            "front_report", "operating_point", "point_of"]
 
 # weights on the rate term relative to trace(T'T) / trace(D'D) (the two terms' scales): the front's span
-RELATIVE_WEIGHTS = tuple(float(w) for w in np.logspace(-2, 8, 21))
+RELATIVE_WEIGHTS = tuple(float(w) for w in np.logspace(-2, 8, 31))
 
 
 @dataclass(frozen=True)
@@ -46,15 +46,20 @@ class FrontPoint:
 
 
 def impulse_response(pred: Predictor, input_index: int, output_index: int, n: int) -> np.ndarray:
-    """Output ``output_index``'s answer (n,) to a unit pulse on input ``input_index`` at k = 0, from rest."""
-    s = step_response(pred, input_index, n)[:, output_index]
-    return np.diff(s, prepend=0.0)
+    """Output ``output_index``'s answer (n,) to a unit pulse on input ``input_index`` at k = 0, from rest, of
+    the predictor as the plant (:func:`follow_on_model`: each sample its first prediction, chained sample by
+    sample; a multi-step predictor fitted on noisy data is not exactly its own one-step chain, and this is
+    the plant the flown points use)."""
+    u = np.zeros((n, pred.m))
+    u[0, input_index] = 1.0
+    return _chain(pred, np.zeros((pred.t_ini, pred.m)), np.zeros((pred.t_ini, pred.p)),
+                  lambda k, uh, yh: u[k], n)[1][:, output_index]
 
 
 def operating_point(pred: Predictor, u0: np.ndarray, y_start: np.ndarray | None = None, span: int = 4000) -> np.ndarray:
     """Outputs (p,) at rest under the constant inputs u0 (m,): ``y_start`` when the predictor holds it there
-    (an offset-free, incremental predictor rests at any output), else what it settles to from rest (linear:
-    the step responses' final values, weighted)."""
+    (an offset-free, incremental predictor rests at any output), else what the predictor as the plant settles to
+    from zero after ``span`` samples of u0."""
     u0 = np.asarray(u0, dtype=float)
     if y_start is not None:
         y_start = np.asarray(y_start, dtype=float)
@@ -62,7 +67,7 @@ def operating_point(pred: Predictor, u0: np.ndarray, y_start: np.ndarray | None 
                             np.tile(u0, (pred.t_f, 1)))[0]
         if np.allclose(held, y_start, rtol=0.0, atol=1e-9 * max(1.0, float(np.abs(y_start).max()))):
             return y_start
-    return sum(u0[j] * step_response(pred, j, span)[-1] for j in range(pred.m) if u0[j] != 0.0) + np.zeros(pred.p)
+    return _chain(pred, np.zeros((pred.t_ini, pred.m)), np.zeros((pred.t_ini, pred.p)), lambda k, uh, yh: u0, span)[1][-1]
 
 
 def point_of(error: np.ndarray, u: np.ndarray, desired_ref: np.ndarray, weight: float | None = None) -> FrontPoint:
@@ -115,22 +120,22 @@ def fly_on_model(problem, desired: np.ndarray, *, solver: str = "fast") -> tuple
             raise RuntimeError(f"the steering QP was not solved at sample {k}: {r.status}")
         return r.u[0]
 
-    return _chain(problem.predictor, desired, steer)
+    return _chain(problem.predictor, *_at_rest(problem.predictor, desired), steer, desired.shape[0])
 
 
 def follow_on_model(pred: Predictor, u: np.ndarray, desired: np.ndarray) -> np.ndarray:
     """The predictor's outputs (n, p) (as its own plant, from rest at the path's first sample) for the given
     references u (n, m), e.g. the path itself (passthrough)."""
     u = np.asarray(u, dtype=float)
-    return _chain(pred, np.asarray(desired, dtype=float), lambda k, uh, yh: u[k])[1]
+    desired = np.asarray(desired, dtype=float)
+    return _chain(pred, *_at_rest(pred, desired), lambda k, uh, yh: u[k], desired.shape[0])[1]
 
 
-def _chain(pred: Predictor, desired: np.ndarray, reference_at) -> tuple[np.ndarray, np.ndarray]:
-    """(u, y) of the predictor as the plant: each sample's reference from reference_at(k, u_hist, y_hist),
-    its output the predictor's first predicted sample with that reference held."""
-    n, ti, tf = desired.shape[0], pred.t_ini, pred.t_f
-    u_hist = np.repeat(desired[:1, : pred.m], ti, axis=0)
-    y_hist = np.repeat(operating_point(pred, desired[0, : pred.m], desired[0])[None, :], ti, axis=0)
+def _chain(pred: Predictor, u_hist: np.ndarray, y_hist: np.ndarray, reference_at, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(u, y) over n samples of the predictor as the plant from the histories (Tini, m), (Tini, p): each sample's
+    reference from reference_at(k, u_hist, y_hist), its output the predictor's first predicted sample with that
+    reference held."""
+    tf = pred.t_f
     u, y = np.zeros((n, pred.m)), np.zeros((n, pred.p))
     for k in range(n):
         u[k] = reference_at(k, u_hist, y_hist)
@@ -140,18 +145,28 @@ def _chain(pred: Predictor, desired: np.ndarray, reference_at) -> tuple[np.ndarr
     return u, y
 
 
+def _at_rest(pred: Predictor, desired: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The histories at rest at the path's first sample (:func:`operating_point`)."""
+    u0 = desired[0, : pred.m]
+    return (np.repeat(u0[None, :], pred.t_ini, axis=0),
+            np.repeat(operating_point(pred, u0, desired[0])[None, :], pred.t_ini, axis=0))
+
+
 def front_error_at(front: list[FrontPoint], rate_ratio: float) -> float:
-    """The front's error at a reference activity (linear in log rate between its points); nan outside it."""
+    """The front's error at a reference activity (log error linear in log activity between its points, where
+    the front is nearly straight); nan outside it."""
     pts = sorted(front, key=lambda p: p.rate_ratio)
     r = np.log([p.rate_ratio for p in pts])
     if not (pts and r[0] <= np.log(rate_ratio) <= r[-1]):
         return float("nan")
-    return float(np.interp(np.log(rate_ratio), r, [p.error_rms for p in pts]))
+    return float(np.exp(np.interp(np.log(rate_ratio), r, np.log([p.error_rms for p in pts]))))
 
 
 def front_report(problem, desired: np.ndarray, input_index: int, output_index: int, log=lambda msg: None) -> dict:
     """The front, passthrough's point and the steering's (``problem`` flown on its predictor) on desired
-    outputs (n, p), as JSON-ready floats; each point with the front's error at its activity."""
+    outputs (n, p), as JSON-ready floats; each point with the front's error at its activity; ``step_gain``: the
+    steady-state gain of the predictor as the plant (``chained``) and of its own multi-step prediction
+    (``predicted``: what the steering plans with), which agree for a predictor consistent with itself."""
     pred = problem.predictor
     t0 = time.perf_counter()
     front = reference_front(pred, desired, input_index=input_index, output_index=output_index)
@@ -163,7 +178,11 @@ def front_report(problem, desired: np.ndarray, input_index: int, output_index: i
     path = desired[:, output_index]
     pts = {"passthrough": point_of(y_pt[:, output_index] - path, u_pt[:, input_index], path),
            "steered": point_of(y[:, output_index] - path, u[:, input_index], path)}
-    return {"samples": int(desired.shape[0]), "dt": pred.dt,
+    # the predictor's own consistency: the step gain of its one-step chain (the plant here) and of its
+    # multi-step prediction (what the steering plans with); far apart, the model flight is not the steering's loop
+    gains = {"chained": float(np.sum(impulse_response(pred, input_index, output_index, desired.shape[0]))),
+             "predicted": float(step_response(pred, input_index, desired.shape[0])[-1, output_index])}
+    return {"samples": int(desired.shape[0]), "dt": pred.dt, "step_gain": gains,
             "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],
             **{k: {"error_rms": p.error_rms, "rate_ratio": p.rate_ratio,
                    "front_error_at_this_rate": front_error_at(front, p.rate_ratio)} for k, p in pts.items()}}

@@ -224,6 +224,10 @@ def _split(c: dict) -> str:
     return f"{_mm(ch['steered'])} / {_mm(st['steered'])} ({_mm(ch.get('prefilter'))} / {_mm(st.get('prefilter'))})"
 
 
+def _gains(g: dict | None) -> str:
+    return "--" if not g else f"{g['chained']:.2f} / {g['predicted']:.2f}"
+
+
 def _front_table(rows: list[tuple[str, dict, dict]]) -> str:
     """The steps condition against the identified loop's front (``testbed.sitl_front``), per autopilot."""
     if not rows:
@@ -232,10 +236,14 @@ def _front_table(rows: list[tuple[str, dict, dict]]) -> str:
              "file: the predictor as the plant, no noise; the front is the least height error any z_ref reaches at "
              "each activity, its tick-to-tick change relative to the path's own, with the whole path known in "
              "advance). A steered point near the front at its activity leaves a tuning change nothing to gain "
-             "there; only more reference activity (and thrust) or a better loop lowers it:\n",
+             "there; only more reference activity (and thrust) or a better loop lowers it. The model flight is the "
+             "steering's own loop only where the predictor agrees with itself: the steady-state gain of its "
+             "one-step chain (the plant here) beside that of its multi-step prediction (what the steering plans "
+             "with):\n",
              "| autopilot | passthrough on the model [mm] (the front at 1.00x) | steered on the model [mm] at its activity "
-             "| the front at that activity [mm] | flown steered: activity, the front there [mm], EKF error [mm] |",
-             "|---|---|---|---|---|"]
+             "| the front at that activity [mm] | flown steered: activity, the front there [mm], EKF error [mm] "
+             "| step gain: the predictor as the plant / its multi-step prediction |",
+             "|---|---|---|---|---|---|"]
     for ap, f, c in rows:
         m = f["model"]
         pt, st = m["passthrough"], m["steered"]
@@ -243,7 +251,7 @@ def _front_table(rows: list[tuple[str, dict, dict]]) -> str:
                  if f.get("flown_rate_ratio") else "--")
         lines.append(f"| {ap} | {_mm(pt['error_rms'])} ({_mm(pt['front_error_at_this_rate'])}) | "
                      f"{_mm(st['error_rms'])} at {st['rate_ratio']:.2f}x | {_mm(st['front_error_at_this_rate'])} | "
-                     f"{flown} |")
+                     f"{flown} | {_gains(m.get('step_gain'))} |")
     return "\n".join(lines) + "\n"
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from support.lti import height_loop
 from ddpc_codegen.cli.main import main
@@ -33,9 +34,11 @@ def test_front_prints_the_table_and_writes_the_json(tmp_path, capsys):
     assert main(["front", str(cfg), "--dataset", str(ds), "--trajectory", str(traj), "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "z error RMS [m]" in text and "passthrough 1.00" in text and "steered " in text
+    assert "step gain of the predictor as the plant" in text and "far apart" not in text  # exact: consistent
     rep = json.loads(out.read_text())
     front = rep["front"]
-    assert rep["samples"] == 590 and len(front) == 21
+    assert rep["samples"] == 590 and len(front) == 31
+    assert rep["step_gain"]["chained"] == pytest.approx(1.0, abs=1e-6) == rep["step_gain"]["predicted"]
     assert all(a["rate_ratio"] > b["rate_ratio"] and a["error_rms"] < b["error_rms"] for a, b in zip(front, front[1:]))
     pt, st = rep["passthrough"], rep["steered"]
     assert pt["rate_ratio"] == 1.0 and st["error_rms"] < 0.5 * pt["error_rms"]
