@@ -53,3 +53,7 @@ def test_front_refuses_what_it_cannot_do(tmp_path, capsys):
     assert "--output 'x' is not one of the config's outputs ['z', 'pitch']" in capsys.readouterr().err
     assert main(["front", str(cfg), "--dataset", str(ds), "--trajectory", str(traj), "--duration", "40"]) == 2
     assert "the front is dense" in capsys.readouterr().err
+    assert main(["front", str(cfg), "--dataset", str(ds), "--trajectory", str(traj), "--duration", "-1"]) == 2
+    assert "the trajectory's time span is 0 .. 2.95 s: give --duration (s, > 0)" in capsys.readouterr().err
+    assert main(["front", str(cfg), "--dataset", str(ds), "--trajectory", str(traj), "--output", "pitch"]) == 2
+    assert "the trajectory has no channel 'pitch'" in capsys.readouterr().err
