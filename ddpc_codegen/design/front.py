@@ -80,19 +80,23 @@ def point_of(error: np.ndarray, u: np.ndarray, desired_ref: np.ndarray, weight: 
 
 
 def reference_front(pred: Predictor, desired: np.ndarray, *, input_index: int = 0, output_index: int = 0,
-                    relative_weights: tuple[float, ...] = RELATIVE_WEIGHTS) -> list[FrontPoint]:
+                    relative_weights: tuple[float, ...] = RELATIVE_WEIGHTS,
+                    impulse: np.ndarray | None = None) -> list[FrontPoint]:
     """The front on desired outputs ``desired`` (n, p) (the references' nominal values: the first m
     outputs' channels), scored on output ``output_index``, steering input ``input_index``, the other inputs
     held at the path's start. The loop starts at rest at the path's first sample (:func:`operating_point`).
     One point per weight, by rising weight (the rate falls, the error rises). Dense: n up to a few
-    thousand samples (n x n matrices)."""
+    thousand samples (n x n matrices). ``impulse``: :func:`impulse_response` (n,) if the caller has it."""
     desired = np.asarray(desired, dtype=float)
     if desired.ndim != 2 or desired.shape[1] != pred.p or desired.shape[0] < 2:
         raise ValueError(f"desired must be (n >= 2, p = {pred.p}); got {desired.shape}")
     n = desired.shape[0]
     u0 = desired[0, : pred.m]
     e = desired[:, output_index] - operating_point(pred, u0, desired[0])[output_index]
-    T = sl.toeplitz(impulse_response(pred, input_index, output_index, n), np.zeros(n))
+    h = impulse_response(pred, input_index, output_index, n) if impulse is None else np.asarray(impulse, dtype=float)
+    if h.shape != (n,):
+        raise ValueError(f"impulse must be ({n},); got {h.shape}")
+    T = sl.toeplitz(h, np.zeros(n))
     # the reference's deviation du from u0, and its n - 1 changes: the two figures of point_of, squared
     D = (np.eye(n, k=1) - np.eye(n))[:-1]
     TT, DD, Te = T.T @ T, D.T @ D, T.T @ e
@@ -169,7 +173,8 @@ def front_report(problem, desired: np.ndarray, input_index: int, output_index: i
     (``predicted``: what the steering plans with), which agree for a predictor consistent with itself."""
     pred = problem.predictor
     t0 = time.perf_counter()
-    front = reference_front(pred, desired, input_index=input_index, output_index=output_index)
+    h = impulse_response(pred, input_index, output_index, desired.shape[0])
+    front = reference_front(pred, desired, input_index=input_index, output_index=output_index, impulse=h)
     log(f"  front: {len(front)} points in {time.perf_counter() - t0:.1f} s; flying the steering on the predictor ...")
     u_pt = np.repeat(desired[:1, : pred.m], desired.shape[0], axis=0)
     u_pt[:, input_index] = desired[:, output_index]
@@ -180,7 +185,7 @@ def front_report(problem, desired: np.ndarray, input_index: int, output_index: i
            "steered": point_of(y[:, output_index] - path, u[:, input_index], path)}
     # the predictor's own consistency: the step gain of its one-step chain (the plant here) and of its
     # multi-step prediction (what the steering plans with); far apart, the model flight is not the steering's loop
-    gains = {"chained": float(np.sum(impulse_response(pred, input_index, output_index, desired.shape[0]))),
+    gains = {"chained": float(np.sum(h)),
              "predicted": float(step_response(pred, input_index, desired.shape[0])[-1, output_index])}
     return {"samples": int(desired.shape[0]), "dt": pred.dt, "step_gain": gains,
             "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],

@@ -144,7 +144,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         steer = fly(sitl, autopilot, "steer", out, steer_s, solver=solver)
         for spec in trajectories:  # any trajectory steers with the solver collected on the ellipse
             path = str(write_steps_trajectory(out / "steps.csv")) if spec == "steps" else spec
-            tag = "steer_" + "".join(ch for ch in Path(spec).stem if ch.isalnum())
+            tag = trajectory_tag(spec)
             fly(sitl, autopilot, "steer", out, steps_s, solver=solver, extra=("--trajectory", path), tag=tag)
             res.setdefault("steered_trajectories", {})[spec] = flight_figures(out / f"{autopilot}_{tag}.npz")
         if baselines:
@@ -176,6 +176,11 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         "wall_s": round(time.monotonic() - t0, 1),
     })
     return res
+
+
+def trajectory_tag(spec: str) -> str:
+    """The flight tag (``<autopilot>_<tag>.npz``) of the steered flight on a ``--trajectory`` value."""
+    return "steer_" + "".join(ch for ch in Path(spec).stem if ch.isalnum())
 
 
 def ellipse_figures(out: Path, autopilot: str, ilc: dict) -> tuple[dict, dict]:

@@ -64,6 +64,11 @@ def test_each_front_point_is_the_least_squares_optimum_of_the_exact_loop(loop):
     assert all(a.rate_ratio > b.rate_ratio and a.error_rms < b.error_rms for a, b in zip(front, front[1:]))
     with pytest.raises(ValueError, match="desired must be"):
         reference_front(pred, des[:, 0])
+    # a caller's impulse response (the exact one here) gives the same points; one of the wrong length is refused
+    given = reference_front(pred, des, relative_weights=(1e-3, 1e-1, 10.0), impulse=T[:, 0])
+    assert [p.error_rms for p in given] == pytest.approx([p.error_rms for p in front], rel=1e-6)
+    with pytest.raises(ValueError, match=r"impulse must be \(240,\)"):
+        reference_front(pred, des, impulse=T[:-1, 0])
 
 
 def test_steering_flown_on_the_predictor_is_never_below_the_front(loop):

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl_demo import trajectory_tag
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.compiler, pytest.mark.realtime]
 
@@ -68,7 +69,7 @@ def test_from_the_ground_to_steered_flight(tmp_path, autopilot):
     # whole flight, 4.9 mm EKF error: the truth is logged, the estimator's error is not the steering's).
     for spec in ("steps", "random:3"):
         f = res["steered_trajectories"][spec]
-        log = Path(tmp_path) / f"{autopilot}_steer_{''.join(ch for ch in Path(spec).stem if ch.isalnum())}.npz"
+        log = Path(tmp_path) / f"{autopilot}_{trajectory_tag(spec)}.npz"
         if _simulator_froze(log):  # the SITL, not the steering: nothing to judge in this flight
             warnings.warn(f"{autopilot} {spec}: the simulator's true height stood still for >= 2 s under a thrust "
                           "far from hover (a loaded machine stalled the SITL): flight not judged")

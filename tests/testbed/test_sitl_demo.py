@@ -71,6 +71,7 @@ def test_rescore_scores_each_condition_flight_again_from_its_tick_log(tmp_path, 
                                                                     rel=1e-9)
     assert steps["rmse_z"]["passthrough"] == pytest.approx(0.01)
     assert "solve p99 in flight 0.90 ms" in capsys.readouterr().out
+    assert steps["rounds"][0]["steered"]["ref_rate_ratio"] is None  # a path that does not move: no activity ratio
     assert steps["front"]["skipped"].startswith("not found: ")  # no collect flight and steps file in the folder
 
 
