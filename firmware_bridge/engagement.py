@@ -131,28 +131,37 @@ class Approach:
 class RefBlend:
     """Rate-limited hand-over of the applied reference (bumpless engagement).
 
+    The applied reference starts at the measured outputs and its offset to the nominal reference shrinks by at
+    most ``rates`` per second: it moves with the path meanwhile, so the hand-over ends within |offset| / rate
+    seconds however fast the path itself moves (a blend toward the moving reference would never catch a path
+    faster than the rate).
+
     Attributes:
-        rates: largest change per second of each reference channel (z [m/s], pitch [rad/s], ...).
+        rates: largest change per second of each reference channel's offset (z [m/s], pitch [rad/s], ...).
     """
 
     rates: tuple[float, ...]
     current: np.ndarray | None = None
+    offset: np.ndarray | None = None
     active: bool = False
 
     def start(self, y_now: np.ndarray) -> None:
         """Begin at the measured outputs (the references are desired outputs: same channels)."""
         self.current = np.array(y_now, dtype=float)
+        self.offset = None  # measured at the first apply, against that tick's nominal reference
         self.active = True
 
     def apply(self, r: np.ndarray, dt: float) -> np.ndarray:
-        """The reference to apply this tick: ``r`` once caught up, else a bounded step toward it."""
+        """The reference to apply this tick: ``r`` once the offset is gone, else ``r`` + the shrunk offset."""
         if not self.active or self.current is None:
             return r
+        r = np.asarray(r, dtype=float)
         step = np.asarray(self.rates, dtype=float) * dt
-        d = np.asarray(r, dtype=float) - self.current
-        if np.all(np.abs(d) <= step):
-            self.active = False
-            self.current = None
+        if self.offset is None:
+            self.offset = self.current - r
+        if np.all(np.abs(self.offset) <= step):
+            self.active, self.current, self.offset = False, None, None
             return r
-        self.current = self.current + np.clip(d, -step, step)
+        self.offset = np.sign(self.offset) * np.maximum(np.abs(self.offset) - step, 0.0)
+        self.current = r + self.offset
         return self.current.copy()

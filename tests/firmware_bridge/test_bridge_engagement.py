@@ -6,6 +6,8 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import pytest
 from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
@@ -86,6 +88,24 @@ def test_blend_starts_at_the_measurement_and_hands_over_exactly():
     steps = np.abs(np.diff(np.vstack([[0.8, 0.0]] + out), axis=0))
     assert np.all(steps <= 0.0025 + 1e-12)
     assert np.array_equal(out[-1], [1.0, 0.1]) and not b.active
+
+
+@settings(max_examples=200, deadline=None)
+@given(y0=st.floats(-2.0, 2.0), r0=st.floats(-2.0, 2.0), speed=st.floats(-3.0, 3.0), wiggle=st.floats(0.0, 2.0))
+def test_blend_ends_on_a_path_faster_than_its_rate(y0, r0, speed, wiggle):
+    """Whatever the path does (here up to 6x the 0.5 m/s rate), the offset to it shrinks by the rate per tick:
+    the hand-over ends within |offset| / rate, and the applied reference moves with the path plus at most one
+    rate step per tick (the gate's rule for a correction)."""
+    dt, rate = 0.005, 0.5
+    b = RefBlend((rate,))
+    b.start(np.array([y0]))
+    t = np.arange(0, 2000) * dt
+    r = r0 + speed * t + wiggle * np.sin(7.0 * t)
+    out = np.array([b.apply(np.array([ri]), dt)[0] for ri in r])
+    n_end = int(np.ceil(abs(y0 - r0) / (rate * dt) + 1e-9)) + 1
+    assert not b.active and np.array_equal(out[n_end:], r[n_end:])
+    corr = np.concatenate([[y0 - r0], out - r])
+    assert np.all(np.abs(np.diff(corr)) <= rate * dt + 1e-12)
 
 
 def _fly_against(tmp_path, veh: FakeVehicle, port: int, *args: str) -> tuple[int, str]:
