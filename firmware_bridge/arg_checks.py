@@ -33,6 +33,7 @@ BRIDGE_RANGES: dict[str, tuple[str, float, Range]] = {
     "thrust_min": ("--thrust-min", 1.0, Range(lo=0.0, hi=1.0)),
     "thrust_max": ("--thrust-max", 1.0, Range(lo=0.0, hi=1.0)),
     "max_gap_fill": ("--max-gap-fill", 1.0, Range(lo=0, hi=1000, integer=True)),
+    "guard_hold": ("--guard-hold", 1.0, Range(lo=0.0, hi=3600.0)),
     "arm_timeout": ("--arm-timeout", 1.0, Range(lo=0.0, lo_open=True, hi=3600.0)),
     "prestream": ("--prestream", 1.0, Range(lo=0.0, hi=60.0)),
     "climb_rate": ("--climb-rate", 1.0, Range(lo=0.0, lo_open=True, hi=10.0)),

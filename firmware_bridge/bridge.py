@@ -344,6 +344,7 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
             state = self.hop.observe(state, tel)
         ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
         flags = self._gate_reference(ref) | (GATE_FLAGS["stall"] if stalled else 0)  # the last gate
+        flags |= self._check_guard_saturation(flags, now)
         if fresh and engaged:
             self._ref_offset = ref["u"] - ref["y"]  # applied reference - measured output (a stall resumes here)
         if not fresh and c.stale_action != "reference":

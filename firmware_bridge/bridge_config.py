@@ -91,6 +91,11 @@ class BridgeConfig:
         max_tilt_deg, thrust_min, thrust_max: clamps on the sent setpoint.
         max_step: (m,) largest |u_steered - u_nom| accepted per channel (None: no guard; hopping's
             default, as in the simulator's loop).
+        guard_hold: steer: the steering's correction clamped at the ``max_step`` guard on every tick for this
+            long [s] means the predictor no longer explains the vehicle (an unseen change it cannot absorb, a
+            vehicle that stopped following its references): the steering is forgotten and refilled and the
+            reference handed back toward the nominal one at the rate bound, an event and an entry of
+            ``summary["guard_saturations"]``; 0: never (the clamp may then hold indefinitely).
         max_gap_fill: up to this many lost telemetry samples in a row are bridged in the steering
             history (reference held, outputs interpolated; :meth:`ReferenceSteerer.fill_gap`)
             instead of resetting it (a reset costs Tini unsteered ticks); 0: always reset.
@@ -164,6 +169,7 @@ class BridgeConfig:
     thrust_min: float = 0.0
     thrust_max: float = 1.0
     max_step: tuple | None = (0.3, 0.5)
+    guard_hold: float = 1.0
     max_gap_fill: int = 3
     adapt: bool = False
     arm: bool = False

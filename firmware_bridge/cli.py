@@ -160,6 +160,10 @@ def _bridge_safety_args(g) -> None:
     g.add_argument("--max-step", type=floats_or_none, default=argparse.SUPPRESS, metavar="Z,PITCH|none",
                    help="largest |steered - nominal| per reference, comma-separated, or 'none' (default: the "
                         "profile's [steering] max_step, else 0.3,0.5 flying / none hopping)")
+    g.add_argument("--guard-hold", type=float, default=_D["guard_hold"], metavar="S",
+                   help="steer: the correction clamped at the --max-step guard this long [s] hands the reference back "
+                        "to the nominal one at the rate bound and refills the steering (the predictor no longer "
+                        "explains the vehicle); 0: never (default %(default)s)")
     g.add_argument("--adapt", action="store_true",
                    help="steer: update the predictor online from steered ticks (a solver generated with [adapt] enabled)")
     g.add_argument("--max-gap-fill", type=int, default=_D["max_gap_fill"],
@@ -233,7 +237,8 @@ def bridge_config_from_args(a: argparse.Namespace):
         position_stream=POSITION_STREAMS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout,
         vehicle_lost_timeout=a.vehicle_lost_timeout, max_tilt_deg=a.max_tilt_deg,
-        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), max_gap_fill=a.max_gap_fill,
+        thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), guard_hold=a.guard_hold,
+        max_gap_fill=a.max_gap_fill,
         adapt=a.adapt,
         arm=a.arm, offboard=a.offboard, arm_timeout=a.arm_timeout, takeoff=a.takeoff, climb_rate=a.climb_rate,
         approach_timeout=a.approach_timeout, approach_tolerance=a.approach_tolerance,
@@ -264,7 +269,8 @@ def format_summary(s: dict) -> str:
     if g is not None:
         lines.append(f"  gate: rate-limited {g['rate_limited']}  envelope {g['envelope']}  non-finite "
                      f"{g['nonfinite_reference'] + g['nonfinite_setpoint']}  guard clamped {g['guard_clamped']}  "
-                     f"stalls {len(s.get('stalls', []))}  telemetry dropped {s.get('telemetry_dropped', 0)}")
+                     f"stalls {len(s.get('stalls', []))}  guard saturations {len(s.get('guard_saturations', []))}  "
+                     f"telemetry dropped {s.get('telemetry_dropped', 0)}")
     if "hopping" in s:
         h = s["hopping"]
         lines.append(f"  hopping: phases from {h['contact_source']}, touchdowns {h['touchdowns']} liftoffs {h['liftoffs']}"

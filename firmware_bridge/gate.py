@@ -24,7 +24,7 @@ __all__ = ["SetpointGate", "GATE_FLAGS"]
 
 # Bits of the tick log's ``gate`` column: what the gate (and the loop around it) did on that tick.
 GATE_FLAGS = {"stall": 1, "rate_limited": 2, "envelope": 4, "nonfinite_reference": 8, "nonfinite_setpoint": 16,
-              "guard_clamped": 32}
+              "guard_clamped": 32, "guard_saturated": 64}
 
 
 @dataclass

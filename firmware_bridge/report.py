@@ -100,7 +100,7 @@ class Reporting:
                 "thrust_field": "climb_rate" if self.profile.climb_rate_thrust else "thrust",
                 # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
                 "frame": self.frame.as_dict(), "truth": self.truth.as_dict(), "events": list(self.events),
-                "stalls": list(self.stalls),
+                "stalls": list(self.stalls), "guard_saturations": list(self.guard_saturations),
                 "solver": None if self.solver is None else {"folder": str(getattr(self.solver, "folder", "")),
                                                            "config_hash": self.solver.manifest.get("config_hash"),
                                                            "predictor_hash": self.solver.manifest.get("predictor_hash")}}
@@ -141,7 +141,8 @@ class Reporting:
             "params": self.params, "scheduling": self.scheduling, "frame": self.frame.as_dict(),
             "events": self.events, "approach": self.approach_result,
             # the last gate: ticks per action (rate_limited, envelope, nonfinite_*, guard_clamped, stall) and its bounds
-            "gate": self.gate.summary(), "stalls": list(self.stalls), "telemetry_dropped": self.telem.dropped,
+            "gate": self.gate.summary(), "stalls": list(self.stalls),
+            "guard_saturations": list(self.guard_saturations), "telemetry_dropped": self.telem.dropped,
         }
         if self.hop is not None:
             out["hopping"] = self.hop.summary()

@@ -8,6 +8,14 @@ wakes up: the vehicle flew on its last setpoint meanwhile, and the steering wind
 treated like stale telemetry: the steering history is forgotten and refilled, the reference resumes
 bumplessly from where it stood (:meth:`Supervisor._update_engagement`'s resume), and the stall is an
 event (time, length) in the summary, the tick log's ``gate`` column (bit ``stall``) and ``summary["stalls"]``.
+
+Guard saturation. A steered correction beyond the ``max_step`` guard is clamped to it, tick by tick. Clamped on
+every tick for ``guard_hold`` seconds, the steering is no longer a correction the predictor can stand behind (an
+unseen change it cannot absorb, a vehicle that stopped following its references): holding the reference at the
+guard indefinitely would be confidently wrong. The steering is forgotten and refilled (its warm-up hands the
+reference back toward the nominal one at the gate's rate bound), and the saturation is an event (time, length),
+bit ``guard_saturated`` of the tick log's ``gate`` column and an entry of ``summary["guard_saturations"]``; it
+steers again once its window is full.
 """
 
 from __future__ import annotations
@@ -49,6 +57,8 @@ class TickSafety:
         self._gate_prev = 0
         self._prev_reason = ""
         self.stalls: list[dict] = []
+        self.guard_saturations: list[dict] = []
+        self._clamped_since = math.nan  # bridge time of the first tick of the current clamped streak
         self._dropped_seen = 0
 
     def _check_stall(self, now: float) -> bool:
@@ -66,6 +76,26 @@ class TickSafety:
         if self._flown:
             self._fresh_again = True  # the bumpless resume of a stale stretch (Supervisor._update_engagement)
         return True
+
+    def _check_guard_saturation(self, flags: int, now: float) -> int:
+        """The ``guard_saturated`` flag (and the steering handed back) when this tick ends a streak of
+        ``guard_hold`` s of guard-clamped ticks; else 0."""
+        if not flags & GATE_FLAGS["guard_clamped"]:
+            self._clamped_since = math.nan
+            return 0
+        if math.isnan(self._clamped_since):
+            self._clamped_since = now
+        held = now - self._clamped_since
+        if not (self.cfg.guard_hold > 0 and held >= self.cfg.guard_hold):
+            return 0
+        self._clamped_since = math.nan
+        self.guard_saturations.append({"t": round(now - self.t0, 4), "held_s": round(held, 4)})
+        self.gate.counts["guard_saturated"] += 1
+        self._event(f"steering saturated: its correction held at the {self.steerer.max_step.tolist()} guard for "
+                    f"{held:.2f} s (the predictor no longer explains the vehicle): steering refilled, reference "
+                    "handed back to the nominal one at the rate bound")
+        self._reset_steering()
+        return GATE_FLAGS["guard_saturated"]
 
     def _gate_reference(self, ref: dict) -> int:
         """Pass ``ref["u"]`` through the gate (in place); returns the gate flags of this tick. A guard trip

@@ -183,3 +183,50 @@ def test_a_restarted_vehicle_is_picked_up_again(procs, tmp_path, fake_vehicle_fa
     assert s["reboots"] == 1 and s["stream_requests"] == 2   # noticed, and asked for the streams again
     assert s["link"]["peer_changes"] == 2                     # replies follow the vehicle to its new port
     assert any("reboot" in e for _, e in s["events"])
+
+
+def _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory, solver, hold: str, name: str) -> dict:
+    """Steer the fake vehicle, which hovers at 0.9 m whatever it is sent, for ~4 s with a 5 cm guard."""
+    port = free_port()
+    veh = fake_vehicle_factory(port, z=0.9)
+    veh.start()
+    br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "steer", "--solver", str(solver),
+                     "--max-step", "0.05,0.5", "--guard-hold", hold, "--log", str(tmp_path / f"{name}.npz"),
+                     "--summary", str(tmp_path / f"{name}.json"), "--timeout", "60", name=name)
+    try:
+        _wait(veh.first_setpoint.is_set, 30, "the first setpoint")
+        _wait(lambda: len(veh.setpoints) > 800, 30, "4 s of setpoints")
+        assert procs.terminate(br) == 0, procs.log(br)
+    finally:
+        veh.close()
+    return {"s": read_json(tmp_path / f"{name}.json"), "t": load_ticklog(tmp_path / f"{name}.npz").ticks}
+
+
+def test_a_correction_held_at_the_guard_hands_the_reference_back(procs, tmp_path, fake_vehicle_factory, flying_solver):
+    """A vehicle that no longer follows its references: the steering drives its correction into the guard and
+    would hold it there for ever; after --guard-hold s of clamped ticks it is forgotten and refilled, the
+    reference rate-limited back toward the nominal one, an event, a tick-log flag and a summary entry."""
+    from firmware_bridge.gate import GATE_FLAGS
+
+    run = _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory, flying_solver, "0.5", "held")
+    s, t = run["s"], run["t"]
+    sat = s["guard_saturations"]
+    assert sat and all(0.5 <= x["held_s"] < 1.0 for x in sat), sat
+    ev = [e for _, e in s["events"]]
+    assert sum(e.startswith("steering saturated: its correction held at the [0.05, 0.5] guard") for e in ev) == len(sat)
+    flagged = np.flatnonzero(t["gate"] & GATE_FLAGS["guard_saturated"])
+    assert flagged.size == len(sat) == s["gate"]["guard_saturated"]
+    clamped = (t["gate"] & GATE_FLAGS["guard_clamped"]).astype(bool)
+    n = int(0.5 / 0.005)
+    for k in flagged:
+        assert clamped[k - n + 1: k + 1].all()            # every tick of the streak was clamped ...
+        after = t["reason"][k + 1: k + 6]
+        assert np.all(after == R["warmup"]), after        # ... then refilled, not steered on
+        off = np.abs(t["u"][k: k + 6, 0] - t["r_nom"][k: k + 6, 0])
+        assert np.all(np.diff(off) <= 0) and off[-1] < off[0], off  # handed back toward the nominal one ...
+    rate = np.array(s["gate"]["rate_per_tick"])           # ... at the rate bound, never in a step
+    du, dr = np.abs(np.diff(t["u"], axis=0)), np.abs(np.diff(t["r_nom"], axis=0))
+    assert np.all(du <= rate + dr + 1e-9)
+    # --guard-hold 0: the old behaviour, the clamp holds (and says so in the gate counts only)
+    run0 = _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory, flying_solver, "0", "never")
+    assert run0["s"]["guard_saturations"] == [] and run0["s"]["gate"]["guard_clamped"] > 2 * n
