@@ -167,6 +167,8 @@ def test_results_page_renders_the_sitl_conditions_and_the_adaptation():
     assert "| 8.0 | 5.6 (4.9) | 2.00x |" in results._conditions_table([("ardupilot", "steps", cond)])
     cond["stalls"] = {"steered": 1.5}  # reports since the bridge's stalls are counted per flight
     assert "| 2.5x | 0 (1.5) | -- |" in results._conditions_table([("ardupilot", "steps", cond)])
+    cond["guard_saturations"] = {"steered": 0.0}  # reports since the guard saturations are counted per flight
+    assert "| 2.5x | 0 (1.5, 0) | -- |" in results._conditions_table([("ardupilot", "steps", cond)])
     assert "- px4 wind: no wind parameter" in table
     adaptation = {"scenario": "flying", "duration_s": 25.0, "t_change_s": 10.0, "window_s": 10.0, "adapt": {"forgetting": 0.999},
                   "conditions": {"mass": {"what": "+0.4 kg", "static": 0.0134, "adapted": 0.0067, "offset_only": 0.0061,

@@ -263,12 +263,12 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
     largest tick-to-tick step of the applied height reference in the steered flights (fallbacks included;
     the config's rate bound ``du_max`` is the limit; a stall resumes from the measured height, wherever the
     vehicle went meanwhile), the thrust steps against passthrough's, the fallbacks (with the bridge's own stalls
-    in the steered flights, when recorded) and the
+    and the steering's guard saturations in the steered flights, when recorded) and the
     p99 of the steering's solver call in flight (the worst round's)."""
     head = ("| autopilot | condition | " + " | ".join(m.replace("_", " ") for m in _METHODS)
             + " | EKF steered | estimator error (steered flights): RMS (its constant part) | best simple / steered "
             "| steered / estimator | near path changes / steady: steered (prefilter) "
-            "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks (bridge stalls) "
+            "| largest reference step [mm/tick] | thrust steps / passthrough | fallbacks (bridge stalls, guard saturations) "
             "| solve p99 in flight [ms] |")
     lines = ["True height RMSE [mm] per condition (`--` not flown: ILC needs a repeating path), mean of the rounds; "
              "near path changes: from 0.5 s before to 1.5 s after any tick where the desired height moves (a step's "
@@ -288,11 +288,13 @@ def _conditions_table(conditions: list[tuple[str, str, dict]]) -> str:
         step = (c.get("max_ref_step") or {}).get("steered")
         fb = (c.get("fallbacks") or {}).get("steered")
         stalls = (c.get("stalls") or {}).get("steered")
+        sat = (c.get("guard_saturations") or {}).get("steered")
+        held = ("" if stalls is None else f" ({stalls:g}" + ("" if sat is None else f", {sat:g}") + ")")
         solve = (c.get("solve_us_p99") or {}).get("steered")
         lines.append(f"| {ap} | {name} | " + " | ".join(_mm(vt.get(m)) for m in _METHODS)
                      + f" | {_mm(c['rmse_z'].get('steered'))} | {_mm(est)}{_bias(c)} | {best} | {vs_est} | {_split(c)} | "
                      + f"{'--' if step is None else f'{1e3 * step:.1f}'} | {thr_ratio} | "
-                     + f"{'--' if fb is None else f'{fb:g}'}{'' if stalls is None else f' ({stalls:g})'} | "
+                     + f"{'--' if fb is None else f'{fb:g}'}{held} | "
                      + f"{'--' if solve is None else f'{solve / 1e3:.2f}'} |")
     skipped = [f"{ap} {name}: {c['skipped']}" for ap, name, c in conditions if "skipped" in c]
     return "\n".join(lines) + "\n" + ("".join(f"\n- {s}" for s in skipped) + "\n" if skipped else "")

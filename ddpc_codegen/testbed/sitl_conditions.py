@@ -131,14 +131,14 @@ def fly_condition(sitl, autopilot: str, name: str, out: Path, trajectory: Path, 
 
 def summarize_rounds(per_round: list[dict]) -> dict:
     """Per key (rmse_z, rmse_z_truth and its split near path changes / steady, thrust_step_rms, max_ref_step,
-    max_offset_step, ref_rate_ratio, fallbacks, stalls, stale_ticks) and method: the mean over the
+    max_offset_step, ref_rate_ratio, fallbacks, stalls, stale_ticks, guard_saturations) and method: the mean over the
     rounds (None where any round has none; ``solve_us_p99``: the largest over the rounds); ``ilc`` None (the path does not repeat); the estimator's
     error per method (RMS over the rounds: the steered figure is the one of the steered flights, which the
     target compares against); the rounds themselves."""
     out: dict = {}
     for key in ("rmse_z", "rmse_z_truth", "rmse_z_truth_changing", "rmse_z_truth_steady", "thrust_step_rms",
                 "max_ref_step", "max_offset_step", "ref_rate_ratio", "fallbacks", "stalls", "stale_ticks",
-                "solve_us_p99"):
+                "guard_saturations", "solve_us_p99"):
         out[key] = {}
         worst = max if key == "solve_us_p99" else np.mean  # a latency target holds in every flight
         for method in METHODS:

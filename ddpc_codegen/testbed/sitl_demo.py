@@ -368,6 +368,8 @@ def format_condition(ap: str, name: str, c: dict) -> str:
         solve_txt = f"; solve p99 in flight {solve / 1e3:.2f} ms (<= 1 ms)" if solve is not None else ""
         stalls, stale = ((c.get(k) or {}).get("steered") for k in ("stalls", "stale_ticks"))
         solve_txt += f"; bridge stalls {stalls:g}, stale ticks {stale:g}" if stalls is not None and stale is not None else ""
+        sat = (c.get("guard_saturations") or {}).get("steered")
+        solve_txt += f", guard saturations {sat:g}" if sat is not None else ""
         ch, st = c.get("rmse_z_truth_changing") or {}, c.get("rmse_z_truth_steady") or {}
         if ch.get("steered") is not None and st.get("steered") is not None:
             est_txt += (f"; true height near path changes / steady: steered {mm(ch['steered'])} / "

@@ -144,7 +144,8 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     (``max_ref_step``: the trajectory's own steps included) and of its correction u - r_nom
     (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved), and the bridge's own
     stalls (``stalls``: ticks after a gap in its clock, each resumed from where the vehicle then was) and the
-    ticks on stale telemetry (``stale_ticks``) from the start of the trajectory: what explains a step beyond the
+    ticks on stale telemetry (``stale_ticks``) and the steering's hand-backs after its correction held at the step
+    guard (``guard_saturations``) from the start of the trajectory: what explains a step beyond the
     rate bound (a stall resumes relative to the measured height, and the vehicle moved meanwhile); with the
     truth, the true-height RMSE split into the ticks near a change of the desired height
     (``rmse_z_truth_changing``: :func:`~ddpc_codegen.flight_metrics.near_changes`) and the rest
@@ -170,4 +171,5 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
             # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved
             "solve_us_p99": float(np.percentile(solve, 99)) if solve.size else None,
             "stalls": int(np.count_nonzero(flown & (t["gate"] & GATE_FLAGS["stall"]).astype(bool))),
+            "guard_saturations": int(np.count_nonzero(flown & (t["gate"] & GATE_FLAGS["guard_saturated"]).astype(bool))),
             "stale_ticks": int(np.count_nonzero(flown & (t["reason"] == _STALE))), **split}

@@ -74,6 +74,7 @@ def test_the_solve_time_of_the_rounds_is_the_worst_flight_s():
     r2["steered"].update(stalls=0, stale_ticks=0)
     s = summarize_rounds([r1, r2])
     assert s["stalls"]["steered"] == 0.5 and s["stale_ticks"]["steered"] == 15.0  # mean of the rounds, as fallbacks
+    assert s["guard_saturations"]["steered"] is None  # flights from before the saturations were counted
 
 
 def test_condition_lines_state_the_target_on_the_true_height():
@@ -89,6 +90,8 @@ def test_condition_lines_state_the_target_on_the_true_height():
         "passthrough's"]
     c.update(stalls={"steered": 2.0}, stale_ticks={"steered": 40.0})
     assert format_condition("px4", "heavy", c).endswith("; bridge stalls 2, stale ticks 40")
+    c["guard_saturations"] = {"steered": 0.5}
+    assert format_condition("px4", "heavy", c).endswith("; bridge stalls 2, stale ticks 40, guard saturations 0.5")
     assert format_condition("px4", "wind", {"skipped": CONDITIONS["px4"]["wind"]}) == (
         "[sitl-demo] px4 wind: PX4 SIH in this build has no wind parameter (no SIH_WIND_*): not flown")
     c["ilc"] = None

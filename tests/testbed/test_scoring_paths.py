@@ -33,6 +33,8 @@ def scored(tmp_path_factory):
         a["truth_position"][i, 2] = res.y_true[k, 0]
         a["reason"][i] = reason_code("stale" if 300 <= k < 310 else "steered" if steered[k] else "prefilter")
         a["gate"][i] = GATE_FLAGS["stall"] if k == 310 else 0  # one stall, resumed after 10 stale ticks
+        if k in (400, 700):  # two guard saturations (each after a clamped streak)
+            a["gate"][i] |= GATE_FLAGS["guard_saturated"] | GATE_FLAGS["guard_clamped"]
         a["solve_us"][i] = 10.0 + k % 100 if steered[k] else np.nan  # the solver's call, on the steered ticks
         a["active"][i] = a["event"][i] = True
     tmp = tmp_path_factory.mktemp("scoring")
@@ -68,5 +70,6 @@ def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
     solved = (10.0 + np.arange(res.n) % 100)[steered]  # every solver call of the flight, warm-up included
     assert ff["solve_us_p99"] == pytest.approx(np.percentile(solved, 99), rel=1e-12)
     assert ff["stalls"] == 1 and ff["stale_ticks"] == 10  # counted from the trajectory's start, settle or not
+    assert ff["guard_saturations"] == 2
     # the ellipse's height never holds still for 0.5 s: every scored tick is near a change of the path's height
     assert ff["rmse_z_truth_changing"] == pytest.approx(ff["rmse_z_truth"], rel=1e-12) and ff["rmse_z_truth_steady"] is None
