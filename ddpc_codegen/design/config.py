@@ -154,15 +154,30 @@ class SteeringConfig:
     adapt: AdaptSettings | dict | None = None  # [adapt] table -> AdaptSettings (online predictor updates; disabled by default)
     source: str = "<config>"
 
+    def _set(self, key: str, value) -> None:
+        object.__setattr__(self, key, value)  # a frozen dataclass normalises its fields once, on validation
+
     def __post_init__(self) -> None:
         src = self.source
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        set_ = self._set
         for key in ("t_ini", "t_f", "m", "p"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise _err(src, key, f"must be a positive integer; got {v!r}")
             set_(key, int(v))
         self._check_sizes()
+        self._validate_cost()
+        self._validate_bounds()
+        self._validate_horizon()
+        self._check_signals()
+        self._validate_predictor()
+        self._validate_codegen()
+        self._validate_extras()
+
+    def _validate_cost(self) -> None:
+        """[cost]: the weights as matrices of the right size, the penalties their options need."""
+        src = self.source
+        set_ = self._set
         m, p = self.m, self.p
         set_("Q", _weight(self.Q, p, "[cost] Q", src))
         set_("R", _weight(self.R, m, "[cost] R", src))
@@ -185,6 +200,12 @@ class SteeringConfig:
         if not _is_num(ls) or not np.isfinite(ls) or ls < 0:
             raise _err(src, "[cost] lambda_sigma", f"must be a number >= 0; got {ls!r}")
         set_("lambda_sigma", float(ls))
+
+    def _validate_bounds(self) -> None:
+        """[bounds] and [data] max_output_noise: per-channel arrays, lower strictly below upper."""
+        src = self.source
+        set_ = self._set
+        m, p = self.m, self.p
         set_("u_min", _bound(self.u_min, m, "[bounds] u_min", src, -np.inf))
         set_("u_max", _bound(self.u_max, m, "[bounds] u_max", src, np.inf))
         set_("y_min", _bound(self.y_min, p, "[bounds] y_min", src, -np.inf))
@@ -204,6 +225,11 @@ class SteeringConfig:
                            f"{getattr(self, hi)[i]}; the lower bound must be strictly below the upper")
         if np.any(self.du_max <= 0):
             raise _err(src, "[bounds] du_max", f"must be > 0 (per step); got {self.du_max.tolist()}")
+
+    def _validate_horizon(self) -> None:
+        """[horizon] dt and knots."""
+        src = self.source
+        set_ = self._set
         if not (_is_num(self.dt) and np.isfinite(self.dt) and self.dt > 0):
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
@@ -214,7 +240,11 @@ class SteeringConfig:
                 set_("knots", knot_positions(self.knots, self.t_f))
             except ValueError as e:
                 raise _err(src, "[horizon] knots", str(e)) from None
-        self._check_signals()
+
+    def _validate_predictor(self) -> None:
+        """[predictor]: method, form and the fit options, with their defaults."""
+        src = self.source
+        set_ = self._set
         pred = dict(self.predictor)
         pred.setdefault("method", "pem")
         if pred["method"] not in _PREDICTOR_METHODS:
@@ -233,6 +263,11 @@ class SteeringConfig:
                 what = "a number >= 0" if k == "ridge" else "a positive number"
                 raise _err(src, f"[predictor] {k}", f"must be {what}; got {pred[k]!r}")
         set_("predictor", pred)
+
+    def _validate_codegen(self) -> None:
+        """[codegen]: the backend and its solver options, with the default backend."""
+        src = self.source
+        set_ = self._set
         cg = dict(self.codegen)
         cg.setdefault("backend", "daqp")
         if cg["backend"] not in BACKENDS:
@@ -246,6 +281,11 @@ class SteeringConfig:
         if "march_native" in cg and not isinstance(cg["march_native"], bool):
             raise _err(src, "[codegen] march_native", f"must be true or false; got {cg['march_native']!r}")
         set_("codegen", cg)
+
+    def _validate_extras(self) -> None:
+        """[artificial_io] and [adapt]."""
+        src = self.source
+        set_ = self._set
         art = dict(self.artificial_io)
         for k, v in art.items():
             if k == "denoise_online":
@@ -283,7 +323,7 @@ class SteeringConfig:
 
     def _check_signals(self) -> None:
         """Names and units: lists of strings of the right length, channel names unique; name and dataset strings."""
-        src, set_ = self.source, lambda k, v: object.__setattr__(self, k, v)
+        src, set_ = self.source, self._set
         m, p = self.m, self.p
         for key, n in (("input_names", m), ("output_names", p), ("input_units", m), ("output_units", p)):
             raw = getattr(self, key)
