@@ -58,7 +58,7 @@ class TickSafety:
         self._prev_reason = ""
         self.stalls: list[dict] = []
         self.guard_saturations: list[dict] = []
-        self._clamped_since = math.nan  # bridge time of the first tick of the current clamped streak
+        self._clamped_since = math.nan  # control-clock time of the first tick of the current clamped streak
         self._dropped_seen = 0
 
     def _check_stall(self, now: float) -> bool:
@@ -79,13 +79,14 @@ class TickSafety:
 
     def _check_guard_saturation(self, flags: int, now: float) -> int:
         """The ``guard_saturated`` flag (and the steering handed back) when this tick ends a streak of
-        ``guard_hold`` s of guard-clamped ticks; else 0."""
+        ``guard_hold`` s of guard-clamped ticks; else 0. Held on the control clock (vehicle time in lock-step,
+        where a simulated vehicle runs faster than the wall); ``now``: the bridge's clock, for the record."""
         if not flags & GATE_FLAGS["guard_clamped"]:
             self._clamped_since = math.nan
             return 0
         if math.isnan(self._clamped_since):
-            self._clamped_since = now
-        held = now - self._clamped_since
+            self._clamped_since = self._tick_t
+        held = self._tick_t - self._clamped_since
         if not (self.cfg.guard_hold > 0 and held >= self.cfg.guard_hold):
             return 0
         self._clamped_since = math.nan
