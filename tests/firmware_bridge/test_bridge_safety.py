@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
+from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.link import mavlink
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
@@ -206,8 +207,6 @@ def test_a_correction_held_at_the_guard_hands_the_reference_back(procs, tmp_path
     """A vehicle that no longer follows its references: the steering drives its correction into the guard and
     would hold it there for ever; after --guard-hold s of clamped ticks it is forgotten and refilled, the
     reference rate-limited back toward the nominal one, an event, a tick-log flag and a summary entry."""
-    from firmware_bridge.gate import GATE_FLAGS
-
     run = _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory, flying_solver, "0.5", "held")
     s, t = run["s"], run["t"]
     sat = s["guard_saturations"]
@@ -231,3 +230,23 @@ def test_a_correction_held_at_the_guard_hands_the_reference_back(procs, tmp_path
     # --guard-hold 0: the old behaviour, the clamp holds (and says so in the gate counts only)
     run0 = _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory, flying_solver, "0", "never")
     assert run0["s"]["guard_saturations"] == [] and run0["s"]["gate"]["guard_clamped"] > 2 * 0.5 / 0.005
+
+
+def test_in_lockstep_the_guard_is_held_on_vehicle_time(procs, tmp_path, flying_solver):
+    """Lock-step runs the simulated vehicle faster than the wall clock: --guard-hold counts vehicle seconds. A
+    5 cm guard is far tighter than the flying solver's corrections, so the steering saturates again and again,
+    each time after exactly 1 s of clamped ticks on the vehicle's clock, and flies on (handed back each time)."""
+    port = free_port()
+    veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--lockstep", "--seed", "4", name="vehicle")
+    br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--lockstep", "--offboard", "--duration", "8",
+                     "--mode", "steer", "--solver", str(flying_solver), "--max-step", "0.05,0.5",
+                     "--log", str(tmp_path / "t.npz"), "--summary", str(tmp_path / "s.json"), "--timeout", "90",
+                     name="bridge")
+    assert procs.wait(br, 150) == 0, procs.log(br)
+    procs.terminate(veh)
+    s, t = read_json(tmp_path / "s.json"), load_ticklog(tmp_path / "t.npz").ticks
+    sat = s["guard_saturations"]
+    assert len(sat) >= 2 and all(1.0 <= x["held_s"] < 1.0 + 1.5 * 0.005 for x in sat), sat
+    k = np.flatnonzero(t["gate"] & GATE_FLAGS["guard_saturated"])
+    assert np.all(np.diff(t["t_vehicle"][k]) >= 1.0)  # each after a new streak of 1 s, the warm-up between
+    assert s["stop_reason"].startswith("duration")
