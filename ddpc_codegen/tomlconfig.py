@@ -10,7 +10,7 @@ from typing import Any, TypeVar
 
 from ddpc_codegen.errors import ConfigError
 
-__all__ = ["load_toml", "check_keys", "dataclass_from_table"]
+__all__ = ["load_toml", "check_keys", "dataclass_from_table", "config_error"]
 
 T = TypeVar("T")
 
@@ -49,3 +49,8 @@ def dataclass_from_table(cls: type[T], table: Any, where: str, src: str, base: T
         return dataclasses.replace(base, **values) if base is not None else cls(**values)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"{src}: {where} {e}") from None
+
+
+def config_error(src: str, key: str, msg: str) -> ConfigError:
+    """The error of one bad value: ``<file>: <key> <what is wrong>``."""
+    return ConfigError(f"{src}: {key} {msg}")

@@ -16,8 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from ddpc_codegen.design.config_values import channel_bounds, is_number, weight_matrix
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.tomlconfig import config_error as _err
 
 __all__ = ["SteeringConfig", "R_MODES", "BACKENDS"]
 
@@ -47,58 +49,6 @@ MAX_CHANNELS = 32
 MAX_HANKEL_ROWS = 8000
 # [artificial_io] (hopping): integer keys and their smallest allowed value; the rest are sigmas >= 0.
 _ART_INT_MIN = {"t_d": 1, "t_a": 1, "t_d_online": 0, "min_ascent": 1, "ground_margin": 0}
-
-
-def _err(src: str, key: str, msg: str) -> ConfigError:
-    return ConfigError(f"{src}: {key} {msg}")
-
-
-def _is_num(v: Any) -> bool:
-    """A real number as TOML gives it (bool is an int in Python, but `true` is not a weight)."""
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
-def _weight(value: Any, n: int, key: str, src: str) -> np.ndarray:
-    """Diagonal (n,) or full (n, n) weight -> symmetric PSD (n, n) matrix."""
-    try:
-        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
-            raise TypeError
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _err(src, key, f"must be a list of numbers or a matrix; got {value!r}") from None
-    if a.ndim == 0:
-        a = np.full(n, float(a))
-    if a.ndim == 1:
-        if a.shape[0] != n:
-            raise _err(src, key, f"must have {n} entries (one per channel) or be a {n}x{n} matrix; got {a.shape[0]} entries {a.tolist()}")
-        if np.any(a < 0) or not np.all(np.isfinite(a)):
-            raise _err(src, key, f"diagonal entries must be finite and >= 0; got {a.tolist()}")
-        return np.diag(a)
-    if a.shape != (n, n):
-        raise _err(src, key, f"must be {n} entries or a {n}x{n} matrix; got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or not np.allclose(a, a.T, atol=1e-12):
-        raise _err(src, key, "must be a finite symmetric matrix")
-    if np.linalg.eigvalsh(a).min() < -1e-12:
-        raise _err(src, key, f"must be positive semidefinite; smallest eigenvalue {np.linalg.eigvalsh(a).min():.3g}")
-    return a
-
-
-def _bound(value: Any, n: int, key: str, src: str, default: float) -> np.ndarray:
-    if value is None:
-        return np.full(n, default)
-    try:
-        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
-            raise TypeError
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _err(src, key, f"must be a number or a list of {n} numbers; got {value!r}") from None
-    if a.ndim == 0:
-        a = np.full(n, float(a))
-    if a.shape != (n,):
-        raise _err(src, key, f"must have {n} entries (one per channel); got {a.size}: {np.ravel(a).tolist()}")
-    if np.any(np.isnan(a)):
-        raise _err(src, key, f"must not contain NaN; got {a.tolist()}")
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,13 +129,13 @@ class SteeringConfig:
         src = self.source
         set_ = self._set
         m, p = self.m, self.p
-        set_("Q", _weight(self.Q, p, "[cost] Q", src))
-        set_("R", _weight(self.R, m, "[cost] R", src))
-        set_("R_du", np.zeros((m, m)) if self.R_du is None else _weight(self.R_du, m, "[cost] R_du", src))
+        set_("Q", weight_matrix(self.Q, p, "[cost] Q", src))
+        set_("R", weight_matrix(self.R, m, "[cost] R", src))
+        set_("R_du", np.zeros((m, m)) if self.R_du is None else weight_matrix(self.R_du, m, "[cost] R_du", src))
         set_("R_doffset", np.zeros((m, m)) if self.R_doffset is None
-             else _weight(self.R_doffset, m, "[cost] R_doffset", src))
-        set_("R_ddu", np.zeros((m, m)) if self.R_ddu is None else _weight(self.R_ddu, m, "[cost] R_ddu", src))
-        set_("R_de", np.zeros((m, m)) if self.R_de is None else _weight(self.R_de, m, "[cost] R_de", src))
+             else weight_matrix(self.R_doffset, m, "[cost] R_doffset", src))
+        set_("R_ddu", np.zeros((m, m)) if self.R_ddu is None else weight_matrix(self.R_ddu, m, "[cost] R_ddu", src))
+        set_("R_de", np.zeros((m, m)) if self.R_de is None else weight_matrix(self.R_de, m, "[cost] R_de", src))
         if np.any(self.R_de) and m > p:
             raise _err(src, "[cost] R_de", f"pairs input i with output i and needs m <= p; m is {m}, p is {p}")
         if np.any(self.R_ddu) and self.t_ini < 2:
@@ -197,7 +147,7 @@ class SteeringConfig:
             raise _err(src, "[cost] R_doffset", f"penalizes the changes of u - u_nom and needs R_mode = \"offset\" "
                        f"(u_nom is a parameter only there); R_mode is {self.R_mode!r}")
         ls = self.lambda_sigma
-        if not _is_num(ls) or not np.isfinite(ls) or ls < 0:
+        if not is_number(ls) or not np.isfinite(ls) or ls < 0:
             raise _err(src, "[cost] lambda_sigma", f"must be a number >= 0; got {ls!r}")
         set_("lambda_sigma", float(ls))
 
@@ -206,13 +156,13 @@ class SteeringConfig:
         src = self.source
         set_ = self._set
         m, p = self.m, self.p
-        set_("u_min", _bound(self.u_min, m, "[bounds] u_min", src, -np.inf))
-        set_("u_max", _bound(self.u_max, m, "[bounds] u_max", src, np.inf))
-        set_("y_min", _bound(self.y_min, p, "[bounds] y_min", src, -np.inf))
-        set_("y_max", _bound(self.y_max, p, "[bounds] y_max", src, np.inf))
-        set_("du_max", _bound(self.du_max, m, "[bounds] du_max", src, np.inf))
+        set_("u_min", channel_bounds(self.u_min, m, "[bounds] u_min", src, -np.inf))
+        set_("u_max", channel_bounds(self.u_max, m, "[bounds] u_max", src, np.inf))
+        set_("y_min", channel_bounds(self.y_min, p, "[bounds] y_min", src, -np.inf))
+        set_("y_max", channel_bounds(self.y_max, p, "[bounds] y_max", src, np.inf))
+        set_("du_max", channel_bounds(self.du_max, m, "[bounds] du_max", src, np.inf))
         if self.max_output_noise is not None:
-            a = _bound(self.max_output_noise, p, "[data] max_output_noise", src, np.inf)
+            a = channel_bounds(self.max_output_noise, p, "[data] max_output_noise", src, np.inf)
             if np.any(a < 0):
                 raise _err(src, "[data] max_output_noise", f"must be >= 0 per output; got {a.tolist()}")
             set_("max_output_noise", a)
@@ -230,7 +180,7 @@ class SteeringConfig:
         """[horizon] dt and knots."""
         src = self.source
         set_ = self._set
-        if not (_is_num(self.dt) and np.isfinite(self.dt) and self.dt > 0):
+        if not (is_number(self.dt) and np.isfinite(self.dt) and self.dt > 0):
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
         if self.knots is not None:
@@ -259,7 +209,7 @@ class SteeringConfig:
             if why:
                 raise _err(src, "[predictor] form", f"\"incremental\" {why}")
         for k, lo in (("slack_weight", 0.0), ("ridge", -1e-300), ("rcond", 0.0)):
-            if k in pred and not (_is_num(pred[k]) and np.isfinite(pred[k]) and pred[k] > lo):
+            if k in pred and not (is_number(pred[k]) and np.isfinite(pred[k]) and pred[k] > lo):
                 what = "a number >= 0" if k == "ridge" else "a positive number"
                 raise _err(src, f"[predictor] {k}", f"must be {what}; got {pred[k]!r}")
         set_("predictor", pred)
@@ -272,11 +222,11 @@ class SteeringConfig:
         cg.setdefault("backend", "daqp")
         if cg["backend"] not in BACKENDS:
             raise _err(src, "[codegen] backend", f"must be one of {list(BACKENDS)}; got {cg['backend']!r}")
-        if "max_iter" in cg and not (_is_num(cg["max_iter"]) and isinstance(cg["max_iter"], int) and cg["max_iter"] > 0):
+        if "max_iter" in cg and not (is_number(cg["max_iter"]) and isinstance(cg["max_iter"], int) and cg["max_iter"] > 0):
             raise _err(src, "[codegen] max_iter", f"must be a positive integer; got {cg['max_iter']!r}")
-        if "eps" in cg and not (_is_num(cg["eps"]) and 0 < cg["eps"] < 1):
+        if "eps" in cg and not (is_number(cg["eps"]) and 0 < cg["eps"] < 1):
             raise _err(src, "[codegen] eps", f"must be a number in (0, 1); got {cg['eps']!r}")
-        if "rho" in cg and not (_is_num(cg["rho"]) and np.isfinite(cg["rho"]) and cg["rho"] > 0):
+        if "rho" in cg and not (is_number(cg["rho"]) and np.isfinite(cg["rho"]) and cg["rho"] > 0):
             raise _err(src, "[codegen] rho", f"must be a positive number; got {cg['rho']!r}")
         if "march_native" in cg and not isinstance(cg["march_native"], bool):
             raise _err(src, "[codegen] march_native", f"must be true or false; got {cg['march_native']!r}")

@@ -44,10 +44,10 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.design.config import _SCHEMA, SteeringConfig
-from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.experiments.pipeline import CollectSpec, default_config
 from ddpc_codegen.sim import PogoXParams, Push
 from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
+from ddpc_codegen.tomlconfig import config_error as _err
 
 __all__ = ["Condition", "Point", "SweepSpec", "METRICS"]
 
@@ -103,10 +103,6 @@ class Point:
     def variant(self) -> str:
         """The overrides as compact JSON (the table's configuration label)."""
         return json.dumps(dict(self.overrides), separators=(",", ":")) if self.kind == "steered" else "baseline"
-
-
-def _err(src: str, key: str, msg: str) -> ConfigError:
-    return ConfigError(f"{src}: {key} {msg}")
 
 
 def _space_key(key: str, src: str) -> tuple[str, str]:

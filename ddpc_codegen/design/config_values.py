@@ -1,0 +1,62 @@
+"""One value of a steering config, checked and normalised: a number, a weight matrix, per-channel bounds.
+Each bad value is a :class:`~ddpc_codegen.errors.ConfigError` naming the file, the key and the value."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ddpc_codegen.tomlconfig import config_error as _err
+
+__all__ = ["is_number", "weight_matrix", "channel_bounds"]
+
+
+def is_number(v: Any) -> bool:
+    """A real number as TOML gives it (bool is an int in Python, but `true` is not a weight)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def weight_matrix(value: Any, n: int, key: str, src: str) -> np.ndarray:
+    """Diagonal (n,) or full (n, n) weight -> symmetric PSD (n, n) matrix."""
+    try:
+        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
+            raise TypeError
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise _err(src, key, f"must be a list of numbers or a matrix; got {value!r}") from None
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.ndim == 1:
+        if a.shape[0] != n:
+            raise _err(src, key, f"must have {n} entries (one per channel) or be a {n}x{n} matrix; got {a.shape[0]} entries {a.tolist()}")
+        if np.any(a < 0) or not np.all(np.isfinite(a)):
+            raise _err(src, key, f"diagonal entries must be finite and >= 0; got {a.tolist()}")
+        return np.diag(a)
+    if a.shape != (n, n):
+        raise _err(src, key, f"must be {n} entries or a {n}x{n} matrix; got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or not np.allclose(a, a.T, atol=1e-12):
+        raise _err(src, key, "must be a finite symmetric matrix")
+    low = float(np.linalg.eigvalsh(a).min())
+    if low < -1e-12 * max(1.0, float(np.abs(a).max())):  # relative: round-off grows with the entries
+        raise _err(src, key, f"must be positive semidefinite; smallest eigenvalue {low:.3g}")
+    return a
+
+
+def channel_bounds(value: Any, n: int, key: str, src: str, default: float) -> np.ndarray:
+    """A bound per channel (n,): a number for all, or n numbers (inf allowed, NaN not); ``default`` when None."""
+    if value is None:
+        return np.full(n, default)
+    try:
+        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
+            raise TypeError
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise _err(src, key, f"must be a number or a list of {n} numbers; got {value!r}") from None
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.shape != (n,):
+        raise _err(src, key, f"must have {n} entries (one per channel); got {a.size}: {np.ravel(a).tolist()}")
+    if np.any(np.isnan(a)):
+        raise _err(src, key, f"must not contain NaN; got {a.tolist()}")
+    return a
