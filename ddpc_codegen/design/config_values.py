@@ -19,14 +19,7 @@ def is_number(v: Any) -> bool:
 
 def weight_matrix(value: Any, n: int, key: str, src: str) -> np.ndarray:
     """Diagonal (n,) or full (n, n) weight -> symmetric PSD (n, n) matrix."""
-    try:
-        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
-            raise TypeError
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _err(src, key, f"must be a list of numbers or a matrix; got {value!r}") from None
-    if a.ndim == 0:
-        a = np.full(n, float(a))
+    a = _numbers(value, n, key, src, "a list of numbers or a matrix")
     if a.ndim == 1:
         if a.shape[0] != n:
             raise _err(src, key, f"must have {n} entries (one per channel) or be a {n}x{n} matrix; got {a.shape[0]} entries {a.tolist()}")
@@ -47,16 +40,21 @@ def channel_bounds(value: Any, n: int, key: str, src: str, default: float) -> np
     """A bound per channel (n,): a number for all, or n numbers (inf allowed, NaN not); ``default`` when None."""
     if value is None:
         return np.full(n, default)
-    try:
-        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
-            raise TypeError
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _err(src, key, f"must be a number or a list of {n} numbers; got {value!r}") from None
-    if a.ndim == 0:
-        a = np.full(n, float(a))
+    a = _numbers(value, n, key, src, f"a number or a list of {n} numbers")
     if a.shape != (n,):
         raise _err(src, key, f"must have {n} entries (one per channel); got {a.size}: {np.ravel(a).tolist()}")
     if np.any(np.isnan(a)):
         raise _err(src, key, f"must not contain NaN; got {a.tolist()}")
     return a
+
+
+def _numbers(value: Any, n: int, key: str, src: str, what: str) -> np.ndarray:
+    """``value`` as a float array, a single number broadcast to (n,); strings and booleans (anywhere in it) are
+    refused: ``<src>: <key> must be <what>; got ...``."""
+    try:
+        if isinstance(value, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(value, object))):
+            raise TypeError
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise _err(src, key, f"must be {what}; got {value!r}") from None
+    return np.full(n, float(a)) if a.ndim == 0 else a

@@ -35,6 +35,9 @@ def test_bad_frame_gap_fill_and_start_options_are_refused(capsys):
         BridgeConfig(mode="passthrough", frame="body")
     with pytest.raises(ValueError, match=r"--max-gap-fill must be an integer in \[0, 1000\]; got -1"):
         BridgeConfig(mode="passthrough", max_gap_fill=-1)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match=r"^--guard-hold must be a finite number in \[0, 3600\]; got "):
+            BridgeConfig(mode="passthrough", guard_hold=bad)
     with pytest.raises(ValueError, match=r"prefilter mode needs a prefilter JSON file \(--prefilter"):
         BridgeConfig(mode="prefilter")
     with pytest.raises(ValueError, match="mode must be one of steer, passthrough, collect, prefilter, feedforward; "
