@@ -51,7 +51,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
     # the held-out window, the period's columns a re-solve folds in, and two more periods of slack (a re-solve still
     # running when the next period comes) before a full queue refuses columns
     ring = s.window + 3 * s.period_ticks
-    ws_words = 2 * w * w + w + 3 * q * lay.r + 2 * ring * w + (3 + 2 * FACTOR_BLOCK) * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
+    ws_words = 2 * w * w + w + lay.r + 1 + 3 * q * lay.r + 2 * ring * w + (3 + 2 * FACTOR_BLOCK) * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
@@ -73,12 +73,20 @@ def context(ad, problem, name: str, banner: str) -> dict:
             "_sparse": {k: v[0] for k, v in sparse.items()}}
 
 
+def _padded(R: np.ndarray, width: int) -> np.ndarray:
+    """R (k <= width rows) with zero rows below: square."""
+    full = np.zeros((width, width))
+    full[: R.shape[0]] = R
+    return full
+
+
 def data_arrays(ad, ctx: dict) -> dict[str, tuple[np.ndarray, str]]:
     """Constant arrays of the update (suffix -> (values, comment))."""
     lay, qp = ad.layout, ad.qp
     sp = ctx["_sparse"]
     return {
-        "ADAPT_R0": (ad.R, f"shipped R factor of the scaled fit data, row-major {lay.width} x {lay.width}"),
+        "ADAPT_R0": (_padded(ad.R0, lay.width),
+                     f"shipped R factor of the scaled fit data (no ridge rows), row-major {lay.width} x {lay.width}"),
         "ADAPT_SCALE": (ad.scale, "channel scale (u then y) of the fit"),
         "ADAPT_LM": (sp["lm"], "nonzeros of Lm: data-unit predictor rows of the fit's targets"),
         "ADAPT_RM": (sp["rm"], "nonzeros of Rm: fit regressors -> data-unit [w; u] columns"),

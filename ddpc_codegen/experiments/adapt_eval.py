@@ -110,7 +110,7 @@ def prediction_evidence(setup, res, settings, t0: float, split: float) -> dict[s
             train.append(lay.column(w, ad.scale))
         else:
             test.append(lay.column(w, ad.scale))
-    G1, _ = solve_g(ad.R, lay, ad.slack_weight, ad.ridge, ad.rcond)
+    G1, _ = solve_g(ad.R, lay, ad.slack_weight, ad.rcond)
     C, T = np.array(test), np.array(train)
     resid = lambda X, G: X[:, lay.r : lay.r + lay.q_y] - X[:, : lay.r] @ G[: lay.q_y].T  # noqa: E731
     err = lambda G, b=0.0: float(np.sum((resid(C, G) - b) ** 2))  # noqa: E731

@@ -7,10 +7,14 @@ out updates R with exponential forgetting f:
 
     R <- triu(qr([sqrt(f) R; x^T]))      (Givens rotations, O(width^2), :func:`givens_update`)
 
-so R holds every column but the recent window's: the window is held out of the fit. At a low rate G is
-re-solved from R exactly as the batch fit does (the pem slack rows and the relative ridge appended, then
-G^T = R11^-1 R12; :func:`solve_g`), so with f = 1 the result is the batch refit of the columns before the
-window. A candidate G is verified before it may replace the current one (:meth:`Adapter.resolve`): finite,
+so R holds every column but the recent window's: the window is held out of the fit. The batch fit's relative
+ridge (rows sqrt(lam) e_k, k < r, lam = ridge ||R11||_F^2 / r of the data) lives in R (:func:`with_ridge`): folded
+once, forgotten with the data, and renewed one row per folded column (:meth:`Adapter._fold`: row k = columns
+folded before mod r, topped up to the lam of the data as they are then), so that a re-solve need not fold r
+rows: row k carries the lam of at most r columns ago, forgotten since (f^(r-1) lam at the least). At a low rate
+G is re-solved from R as the batch fit does (the pem slack rows appended, then G^T = R11^-1 R12;
+:func:`solve_g`), so with f = 1 the result is the batch refit of the columns before the window, with each ridge
+row's lam up to r columns old. A candidate G is verified before it may replace the current one (:meth:`Adapter.resolve`): finite,
 R11 well conditioned, a bounded change, a positive definite QP Hessian and the rest of the rebuilt QP data
 (when a QP model is given), the recent window exciting enough, and a smaller prediction error than the current
 G's on that window -- out of sample for both (the current G was fitted on columns older still), so a candidate
@@ -42,8 +46,8 @@ from ddpc_codegen.errors import DataError
 from ddpc_codegen.runtime.adapt_qp import QPData, QPModel
 from ddpc_codegen.runtime.fit_layout import FitLayout
 
-__all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "extra_rows", "solve_g",
-           "excitation_ratio", "REJECTIONS", "OFFSET_COUNTS"]
+__all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "slack_rows", "data_trace", "with_ridge",
+           "solve_g", "excitation_ratio", "REJECTIONS", "OFFSET_COUNTS"]
 
 # Reasons a candidate G is rejected (the C code's codes 1..6, in this order). Checked in the order rank, nonfinite,
 # gain, (QP data) nonfinite, hessian, excitation, prediction -- numpy and C alike.
@@ -115,8 +119,8 @@ def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None
         R[i, i] = rad
 
 
-def extra_rows(layout: AdaptLayout, slack_weight: float, lam: float) -> list[np.ndarray]:
-    """The rows the batch fit appends to the data rows: pem's slack columns of M, then the ridge."""
+def slack_rows(layout: AdaptLayout, slack_weight: float) -> list[np.ndarray]:
+    """The rows pem's batch fit appends to the data rows: its slack columns of M (none for lsq)."""
     r, q_y, width = layout.r, layout.q_y, layout.width
     n_up, n_yp = layout.m * layout.t_ini, layout.p * layout.t_ini
     rows = []
@@ -125,23 +129,35 @@ def extra_rows(layout: AdaptLayout, slack_weight: float, lam: float) -> list[np.
             e = np.zeros(width)
             e[n_up + k] = e[r + q_y + k] = 1.0 / np.sqrt(slack_weight)
             rows.append(e)
-    if lam > 0:
-        for k in range(r):
-            e = np.zeros(width)
-            e[k] = np.sqrt(lam)
-            rows.append(e)
     return rows
 
 
-def solve_g(R: np.ndarray, layout: AdaptLayout, slack_weight: float, ridge: float,
+def data_trace(R: np.ndarray, r: int) -> float:
+    """||R[:, :r]||_F^2 of a data-only factor: the scale of the relative ridge."""
+    return float(np.sum(R[:, :r] ** 2))
+
+
+def with_ridge(R: np.ndarray, r: int, ridge: float) -> np.ndarray:
+    """A copy of the data-only R (width, width) with the batch fit's ridge rows sqrt(lam) e_k (k < r, in order;
+    lam = ridge ||R11||_F^2 / r) folded in: the factor the batch fit solves G from. ridge = 0: R unchanged."""
+    Rr = np.array(R, dtype=float)
+    if ridge > 0.0:
+        lam = ridge * data_trace(R, r) / r
+        for k in range(r):
+            e = np.zeros(Rr.shape[1])
+            e[k] = math.sqrt(lam)
+            givens_update(Rr, e)
+    return Rr
+
+
+def solve_g(R: np.ndarray, layout: AdaptLayout, slack_weight: float,
             rcond: float) -> tuple[np.ndarray | None, float]:
-    """(G (q_y + q_s, r), diag ratio) from the data-only R (width, width): the extra rows of the batch fit
-    appended by Givens rotations, then G^T = R11^-1 R12 by back substitution. G is None when
+    """(G (q_y + q_s, r), diag ratio) from R (width, width; the data and the ridge rows, :func:`with_ridge`):
+    pem's slack rows appended by Givens rotations, then G^T = R11^-1 R12 by back substitution. G is None when
     min |diag R11| <= rcond * max |diag R11| (rank deficient: the batch fit would truncate)."""
     r = layout.r
-    lam = ridge * float(np.sum(R[:, :r] ** 2)) / r  # relative ridge, as the batch fit
     Ra = np.array(R, dtype=float)
-    for e in extra_rows(layout, slack_weight, lam):
+    for e in slack_rows(layout, slack_weight):
         givens_update(Ra, e)
     d = np.abs(np.diag(Ra)[:r])
     ratio = float(d.min() / d.max()) if d.max() > 0 else 0.0
@@ -177,7 +193,7 @@ def _prediction_error(G: np.ndarray, cols: np.ndarray, layout: AdaptLayout) -> f
 class Adapter:
     """The online update of one predictor (the interpreted twin of ``<name>_adapt_*`` in C).
 
-    R0: the shipped data-only R factor (k <= width rows); scale (m+p,): the fit's channel scale;
+    R0: the shipped data-only R factor (k <= width rows; ``R``: it with the ridge rows, as updated); scale (m+p,): the fit's channel scale;
     slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.runtime.adapt_qp.QPModel`
     or None (then no QP data are rebuilt and the Hessian is not checked). ``qp_data``: the QP data of the
     current G (None until the first swap: the shipped data are in use). ``offset`` (p Tf,): the output offset in
@@ -204,13 +220,17 @@ class Adapter:
         if s.window < self.layout.min_window:
             raise DataError(f"[adapt] window must be >= m (Tini+Tf) = {self.layout.min_window} columns "
                             f"(fewer cannot show excitation); got {s.window}")
-        self.R = np.zeros((w, w))
-        self.R[: self.R0.shape[0]] = self.R0
+        R = np.zeros((w, w))
+        R[: self.R0.shape[0]] = self.R0
+        self.trace = data_trace(R, self.layout.r)  # of the data alone, forgotten as they are
+        self.R = with_ridge(R, self.layout.r, self.ridge)
+        # the ridge each of R's ridge rows carries now (forgotten with the data, topped up on schedule)
+        self.ridge_k = np.full(self.layout.r, self.ridge * self.trace / self.layout.r)
         self.ring = np.zeros((s.window, w))
         self.n_ring = 0
         self.head = 0
         self.snapshot()  # a re-solve before any snapshot sees the shipped R and an empty window
-        G, _ = solve_g(self.R, self.layout, self.slack_weight, self.ridge, self.rcond)
+        G, _ = solve_g(self.R, self.layout, self.slack_weight, self.rcond)
         if G is None:
             raise DataError("the shipped R factor is rank deficient: the predictor cannot be re-solved from it "
                             "(fit it with [predictor] ridge > 0)")
@@ -241,13 +261,30 @@ class Adapter:
             self.counts["skipped"] += 1
             return False
         if self.n_ring == self.settings.window:  # the oldest leaves the held-out window: R takes it
-            givens_update(self.R, self.ring[self.head].copy(), self.settings.forgetting)
-            self.counts["folded"] += 1
+            self._fold(self.ring[self.head])
         self.ring[self.head] = x
         self.head = (self.head + 1) % self.settings.window
         self.n_ring = min(self.n_ring + 1, self.settings.window)
         self.counts["updates"] += 1
         return True
+
+    def _fold(self, x: np.ndarray) -> None:
+        """One data column (width,) into R with forgetting f, then ridge row k = (columns folded before) mod r
+        topped up to the current lam: sqrt(lam - its forgotten ridge) e_k (>= 0 but for rounding: the trace
+        shrinks by at most f per column, the ridge by exactly f)."""
+        f, r = self.settings.forgetting, self.layout.r
+        self.trace = f * self.trace + float(np.dot(x[:r], x[:r]))
+        givens_update(self.R, x.copy(), f)
+        if self.ridge > 0.0:
+            self.ridge_k *= f
+            k, lam = self.counts["folded"] % r, self.ridge * self.trace / r
+            add = lam - self.ridge_k[k]
+            if add > 0.0:
+                e = np.zeros(self.layout.width)
+                e[k] = math.sqrt(add)
+                givens_update(self.R, e)
+                self.ridge_k[k] = lam
+        self.counts["folded"] += 1
 
     def recent(self) -> np.ndarray:
         """The recent columns (n_ring, width), oldest first."""
@@ -268,7 +305,7 @@ class Adapter:
         self.counts["resolves"] += 1
         # a new re-solve replaces any candidate not yet swapped in
         self.pending, self.pending_qp, self.pending_offset = None, None, None
-        G, _ = solve_g(self._R_snap, self.layout, self.slack_weight, self.ridge, self.rcond)
+        G, _ = solve_g(self._R_snap, self.layout, self.slack_weight, self.rcond)
         reason = self._verify(G)
         if reason is None:
             self.counts["accepted"] += 1

@@ -17,7 +17,7 @@ from ddpc_codegen.design.predictor import (FitLayout, _solve_r, _unscale, channe
                                           hankel_r_factor)
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import ConfigError, DataError
-from ddpc_codegen.runtime.adaptation import AdaptSettings, solve_g
+from ddpc_codegen.runtime.adaptation import AdaptSettings, solve_g, with_ridge
 from support.lti import random_lti
 
 
@@ -48,7 +48,7 @@ def test_fit_statistic_is_the_r_factor_of_the_scaled_hankel_data(method):
     assert R.shape == (lay.width, lay.width) == (flay.width, flay.width)
     np.testing.assert_allclose(R.T @ R, X.T @ X, rtol=1e-10, atol=1e-9)
     # and the predictor re-solved from it is the shipped one (scaled domain)
-    G, _ = solve_g(R, lay, 1.0, 1e-6, 1e-10)
+    G, _ = solve_g(with_ridge(R, lay.r, 1e-6), lay, 1.0, 1e-10)
     ref = _solve_r(hankel_r_factor(ds.trajectories(), flay, scale), flay, 1.0, 1e-6, 1e-10)["G"]
     assert np.abs(G - ref).max() <= 1e-9 * np.abs(ref).max()
 
@@ -109,7 +109,7 @@ def test_qp_model_rebuilds_the_qp_casadi_forms_for_another_g(form, method, R_mod
     prob = SteeringProblem(pred, cfg)
     model = qp_model(prob)
     R, lay = fit_statistic(pred)
-    G0, _ = solve_g(R, lay, 1.0, 1e-6, 1e-10)
+    G0, _ = solve_g(with_ridge(R, lay.r, 1e-6), lay, 1.0, 1e-10)
     np.testing.assert_allclose(model.rebuild(G0).P, prob.P, rtol=1e-9, atol=1e-9 * np.abs(prob.P).max())
     G1 = G0 * (1.0 + 0.1 * np.random.default_rng(3).standard_normal(G0.shape))
     ref = SteeringProblem(_refitted(pred, lay, G1), cfg)
@@ -132,8 +132,8 @@ def test_qp_model_refuses_a_candidate_whose_hessian_is_not_positive_definite():
     prob = _problem(pred)
     model = dataclasses.replace(qp_model(prob), P_fixed=-1e6 * np.eye(prob.n_z))
     R, lay = fit_statistic(pred)
-    assert model.rebuild(solve_g(R, lay, 1.0, 1e-6, 1e-10)[0]) == "hessian"
-    assert qp_model(prob).rebuild(np.full_like(solve_g(R, lay, 1.0, 1e-6, 1e-10)[0], np.inf)) == "nonfinite"
+    assert model.rebuild(solve_g(with_ridge(R, lay.r, 1e-6), lay, 1.0, 1e-10)[0]) == "hessian"
+    assert qp_model(prob).rebuild(np.full_like(solve_g(with_ridge(R, lay.r, 1e-6), lay, 1.0, 1e-10)[0], np.inf)) == "nonfinite"
 
 
 def test_adapt_settings_defaults_and_values():

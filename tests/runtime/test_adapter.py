@@ -44,8 +44,23 @@ def test_givens_update_is_the_qr_of_the_stacked_rows(n, k, f, seed):
     assert np.allclose(np.tril(R, -1), 0.0)
 
 
+def _ridges(trace0: float, cols: np.ndarray, r: int, ridge: float, f: float) -> np.ndarray:
+    """The ridge each ridge row carries after the columns (k, width) were folded, from the rule alone: every row
+    lam0 = ridge trace0 / r at first; after column j row j mod r is set to the lam of the data then; every
+    ridge forgotten by f per column."""
+    lam = np.full(r, ridge * trace0 / r)
+    trace = trace0
+    for j, x in enumerate(cols):
+        trace = f * trace + float(x[:r] @ x[:r])
+        lam *= f
+        lam[j % r] = max(lam[j % r], ridge * trace / r)
+    return lam
+
+
 @pytest.mark.parametrize("method, ridge", [("lsq", 1e-6), ("lsq", 0.0), ("pem", 1e-4), ("pem", 0.0)])
 def test_columns_fed_one_by_one_equal_the_batch_refit_of_the_data_before_the_held_out_window(method, ridge):
+    """f = 1: R holds the shipped data, every column but the window's and the ridge rows as they stand; G equals
+    the batch fit (design/predictor.py's solve, no ridge of its own) of the QR of all of them stacked."""
     u, y = _data(3)
     lay = AdaptLayout(2, 1, 4, 3, method)
     flay = FitLayout(2, 1, 4, 3, method)
@@ -53,14 +68,49 @@ def test_columns_fed_one_by_one_equal_the_batch_refit_of_the_data_before_the_hel
     half = 150
     R0 = hankel_r_factor([(u[:half], y[:half])], flay, scale)  # the shipped factor: the first part
     ad = Adapter(lay, R0, scale, AdaptSettings(forgetting=1.0, window=30), ridge=ridge)
-    for w in _windows(u, y, lay.depth)[half - lay.depth + 1 :]:
+    wins = _windows(u, y, lay.depth)[half - lay.depth + 1 :]
+    for w in wins:
         assert ad.push(w)
     assert ad.recent().shape[0] == 30 and ad.counts["folded"] == ad.counts["updates"] - 30
     # R holds every column but the window's 30 newest: the batch fit of the samples that end before them
     keep = len(u) - 30
-    batch = _solve_r(hankel_r_factor([(u[:keep], y[:keep])], flay, scale), flay, 1.0, ridge, 1e-10)["G"]
-    G, _ = solve_g(ad.R, lay, 1.0, ridge, 1e-10)
+    folded = np.array([lay.column(w, scale) for w in wins[:-30]])
+    lam = _ridges(float(np.sum(R0[:, : lay.r] ** 2)), folded, lay.r, ridge, 1.0)
+    rows = np.zeros((lay.r, lay.width))
+    rows[:, : lay.r] = np.diag(np.sqrt(lam))
+    Rb = np.linalg.qr(np.vstack([hankel_r_factor([(u[:keep], y[:keep])], flay, scale), rows]), mode="r")
+    batch = _solve_r(Rb, flay, 1.0, 0.0, 1e-10)["G"]
+    G, _ = solve_g(ad.R, lay, 1.0, 1e-10)
     assert np.abs(G - batch).max() <= 1e-9 * max(1.0, np.abs(batch).max())
+    if ridge:  # the ridge tracks the data: every row renewed in the last r columns
+        assert np.all(lam >= ridge * ad.trace / lay.r * (1 - lay.r * 1e-2)) and np.allclose(ad.ridge_k, lam)
+
+
+@pytest.mark.parametrize("f", [0.97, 0.999])
+def test_ridge_rows_stay_within_one_renewal_of_the_relative_ridge(f):
+    """f < 1: each ridge row lies between f^(r-1) and 1 times ridge * trace / r of the data r columns ago or
+    later; the factor is the QR of the forgotten data and those rows (numpy's QR)."""
+    u, y = _data(7, T=300)
+    lay = AdaptLayout(2, 1, 4, 3, "lsq")
+    R0 = hankel_r_factor([(u[:100], y[:100])], FitLayout(2, 1, 4, 3, "lsq"), np.ones(3))
+    ad = Adapter(lay, R0, np.ones(3), AdaptSettings(forgetting=f, window=20), ridge=1e-3)
+    wins = _windows(u[100:], y[100:], lay.depth)
+    for w in wins:
+        ad.push(w)
+    folded = np.array([lay.column(w, np.ones(3)) for w in wins[:-20]])
+    lam = _ridges(float(np.sum(R0[:, : lay.r] ** 2)), folded, lay.r, 1e-3, f)
+    np.testing.assert_allclose(ad.ridge_k, lam, rtol=1e-12)
+    # within one renewal: at least f^(r-1) times the smallest lam of the last r columns, at most the largest
+    r, trace, hist = lay.r, float(np.sum(R0[:, : lay.r] ** 2)), []
+    for x in folded:
+        trace = f * trace + float(x[:r] @ x[:r])
+        hist.append(1e-3 * trace / r)
+    last = np.array(hist[-lay.r :])
+    assert np.all(lam >= f ** (lay.r - 1) * last.min() * (1 - 1e-12)) and np.all(lam <= last.max() * (1 + 1e-12))
+    X = np.vstack([_aged(np.vstack([R0, folded]), len(folded), f),
+                   np.hstack([np.diag(np.sqrt(lam)), np.zeros((lay.r, lay.width - lay.r))])])
+    ref = np.linalg.qr(X, mode="r")
+    np.testing.assert_allclose(ad.R.T @ ad.R, ref.T @ ref, atol=1e-9 * np.abs(ref.T @ ref).max())
 
 
 def test_layout_matches_the_design_fit_layout():
@@ -144,7 +194,7 @@ def test_the_held_out_window_does_not_reward_fitting_its_noise(seed):
     R_in = ad.R.copy()
     for x in ad.recent():
         givens_update(R_in, x.copy(), 0.98)
-    G_in, _ = solve_g(R_in, lay, 1.0, 1e-6, 1e-10)
+    G_in, _ = solve_g(R_in, lay, 1.0, 1e-10)
     in_sample = _prediction_error(G_in, ad.recent(), lay) / _prediction_error(ad.G, ad.recent(), lay)
     assert in_sample < 1.0 - ad.settings.min_improvement <= held_out, (in_sample, held_out)
 
