@@ -101,16 +101,19 @@ def data_arrays(ad, ctx: dict) -> dict[str, tuple[np.ndarray, str]]:
 
 
 def emit_adapt(problem, settings: AdaptSettings, out_dir: Path, name: str, banner: str, data_files) -> list[Path]:
-    """Write ``<name>_adapt.{h,c}`` and ``<name>_adapt_data.{h,c}`` into ``out_dir``; returns the compilation
-    units. ``data_files(arrays, ctx, stem)`` renders constant arrays (emit's helper)."""
+    """Write ``<name>_adapt.{h,c}`` (the API: ring, re-solve, verification, swap), ``<name>_adapt_factor.c`` (R
+    and G from it), ``<name>_adapt_rebuild.c`` (the QP data of a G), ``<name>_adapt_impl.h`` (what they share) and
+    ``<name>_adapt_data.{h,c}`` into ``out_dir``; returns the compilation units. ``data_files(arrays, ctx,
+    stem)`` renders constant arrays (emit's helper)."""
     ad = adapter(problem, settings)
     ctx = context(ad, problem, name, banner)
     h, c = data_files(data_arrays(ad, ctx), ctx, f"{name}_adapt_data")
     (out_dir / f"{name}_adapt_data.h").write_text(h)
     (out_dir / f"{name}_adapt_data.c").write_text(c)
-    for tpl, fname in (("adapt.h.in", "adapt.h"), ("adapt.c.in", "adapt.c")):
-        (out_dir / f"{name}_{fname}").write_text(render(tpl, **{k: ctx[k] for k in placeholders(tpl)}))
-    return [out_dir / f"{name}_adapt.c", out_dir / f"{name}_adapt_data.c"]
+    for stem in ("adapt.h", "adapt_impl.h", "adapt.c", "adapt_factor.c", "adapt_rebuild.c"):
+        tpl = f"{stem}.in"
+        (out_dir / f"{name}_{stem}").write_text(render(tpl, **{k: ctx[k] for k in placeholders(tpl)}))
+    return [out_dir / f"{name}_{stem}.c" for stem in ("adapt", "adapt_factor", "adapt_rebuild", "adapt_data")]
 
 
 def cdef_text(name: str) -> str:

@@ -1,5 +1,5 @@
 """The steering QP's data as a function of the re-solved predictor G (numpy reference of the rebuild in
-the generated ``<name>_adapt.c``; no casadi).
+the generated ``<name>_adapt_rebuild.c``; no casadi).
 
 After a verified re-solve, everything of the QP that depends on G is rebuilt (issue 30): the Hessian P,
 the linear-term map F_q (q = F_q theta + q0), the general rows that bound predicted outputs (their

@@ -1,4 +1,4 @@
-"""Online predictor updates (numpy reference of the generated ``<name>_adapt.c``; no casadi).
+"""Online predictor updates (numpy reference of the generated ``<name>_adapt*.c``; no casadi).
 
 The fit's sufficient statistic is the upper-triangular R factor of the scaled data matrix
 X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see :class:`.fit_layout.FitLayout`).

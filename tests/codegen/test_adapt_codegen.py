@@ -180,16 +180,18 @@ def test_generate_with_adaptation_emits_the_update_into_every_build_file(tmp_pat
     assert all((folders["plain"] / f).read_bytes() == (folders["off"] / f).read_bytes() for f in files["plain"])
     man = {k: json.loads((f / "manifest.json").read_text()) for k, f in folders.items()}
     extra = set(man["on"]["sources"]) - set(man["plain"]["sources"])
-    assert extra == {"adsolver_adapt.c", "adsolver_adapt.h", "adsolver_adapt_data.c", "adsolver_adapt_data.h"}
+    units = {f"adsolver_{s}.c" for s in ("adapt", "adapt_factor", "adapt_rebuild", "adapt_data")}
+    assert extra == units | {"adsolver_adapt.h", "adsolver_adapt_impl.h", "adsolver_adapt_data.h"}
     for build_file in ("CMakeLists.txt", "Makefile"):
         text = (folders["on"] / build_file).read_text()
-        assert "adsolver_adapt.c" in text and "adsolver_adapt_data.c" in text
+        assert all(u in text for u in units)
         assert "adsolver_adapt" not in (folders["plain"] / build_file).read_text()
     # the folder builds without Python (strict C99) with the update in its library, and replays its vectors
     make = subprocess.run(["make", "-C", str(folders["on"]), "check", "BUILD=build-check"], capture_output=True,
                           text=True, timeout=600)
     assert make.returncode == 0, make.stdout[-2000:] + make.stderr[-2000:]
-    assert "adsolver_adapt.o" in " ".join(p.name for p in (folders["on"] / "build-check").iterdir())
+    built = " ".join(p.name for p in (folders["on"] / "build-check").iterdir())
+    assert all(u.replace(".c", ".o") in built for u in units)
     assert man["on"]["adapt"] == man["config"]["adapt"] == dataclasses.asdict(st) and "adapt" not in man["plain"]
     fs = man["on"]["fit_statistic"]
     assert fs["adapt"]["forgetting"] == 0.995 and fs["signal"] == "increments"
