@@ -86,11 +86,14 @@ def test_columns_fed_one_by_one_equal_the_batch_refit_of_the_data_before_the_hel
         assert np.all(lam >= ridge * ad.trace / lay.r * (1 - lay.r * 1e-2)) and np.allclose(ad.ridge_k, lam)
 
 
-@pytest.mark.parametrize("f", [0.97, 0.999])
-def test_ridge_rows_stay_within_one_renewal_of_the_relative_ridge(f):
-    """f < 1: each ridge row lies between f^(r-1) and 1 times ridge * trace / r of the data r columns ago or
-    later; the factor is the QR of the forgotten data and those rows (numpy's QR)."""
-    u, y = _data(7, T=300)
+@given(f=st.floats(0.9, 1.0), seed=st.integers(0, 10**6), gain=st.floats(0.1, 10.0))
+@settings(max_examples=15, deadline=None)
+def test_ridge_rows_stay_within_one_renewal_of_the_relative_ridge(f, seed, gain):
+    """Any forgetting, data whose scale changes (``gain``) after the shipped part: each ridge row lies between
+    f^(r-1) times the smallest and the largest ridge * trace / r of the last r columns, as the rule alone
+    predicts; the factor is the QR of the forgotten data and those rows (numpy's QR)."""
+    u, y = _data(seed % 1000, T=300)
+    u[100:], y[100:] = gain * u[100:], gain * y[100:]
     lay = AdaptLayout(2, 1, 4, 3, "lsq")
     R0 = hankel_r_factor([(u[:100], y[:100])], FitLayout(2, 1, 4, 3, "lsq"), np.ones(3))
     ad = Adapter(lay, R0, np.ones(3), AdaptSettings(forgetting=f, window=20), ridge=1e-3)
