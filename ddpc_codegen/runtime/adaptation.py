@@ -14,9 +14,9 @@ folded before mod r, topped up to the lam of the data as they are then), so that
 rows: row k carries the lam of at most r columns ago, forgotten since (f^(r-1) lam at the least). At a low rate
 G is re-solved from R as the batch fit does (the pem slack rows appended, then G^T = R11^-1 R12;
 :func:`solve_g`), so with f = 1 the result is the batch refit of the columns before the window, with each ridge
-row's lam up to r columns old. A candidate G is verified before it may replace the current one (:meth:`Adapter.resolve`): finite,
-R11 well conditioned, a bounded change, a positive definite QP Hessian and the rest of the rebuilt QP data
-(when a QP model is given), the recent window exciting enough, and a smaller prediction error than the current
+row's lam up to r columns old. A candidate G is verified before it may replace the current one
+(:meth:`Adapter.resolve`): finite, R11 well conditioned, a bounded change, a positive definite QP Hessian and
+the rest of the rebuilt QP data (when a QP model is given), the recent window exciting enough, and a smaller prediction error than the current
 G's on that window -- out of sample for both (the current G was fitted on columns older still), so a candidate
 that predicts the window better predicts data it has not seen better, not its own noise. Rejections are counted
 by reason. The candidate only becomes current on :meth:`Adapter.swap` (between control ticks).
@@ -193,8 +193,8 @@ def _prediction_error(G: np.ndarray, cols: np.ndarray, layout: AdaptLayout) -> f
 class Adapter:
     """The online update of one predictor (the interpreted twin of ``<name>_adapt_*`` in C).
 
-    R0: the shipped data-only R factor (k <= width rows; ``R``: it with the ridge rows, as updated); scale (m+p,): the fit's channel scale;
-    slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.runtime.adapt_qp.QPModel`
+    R0: the shipped data-only R factor (k <= width rows; ``R``: it with the ridge rows, as updated); scale
+    (m+p,): the fit's channel scale; slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.runtime.adapt_qp.QPModel`
     or None (then no QP data are rebuilt and the Hessian is not checked). ``qp_data``: the QP data of the
     current G (None until the first swap: the shipped data are in use). ``offset`` (p Tf,): the output offset in
     use (data units, time-major; zeros until the first offset swap), ``pending_offset`` the staged one.
