@@ -16,9 +16,11 @@ from pathlib import Path
 import pytest
 
 from ddpc_codegen.docsgen import results
+from ddpc_codegen.docsgen.assets import MATHJAX_SCRIPT
 from ddpc_codegen.docsgen.c_api import TEMPLATES, c_api_page, declarations
 from ddpc_codegen.docsgen.cli_reference import cli_page, flags_of, parser_of, parsers
 from ddpc_codegen.docsgen.config_reference import attribute_docs, config_page, config_rules
+from ddpc_codegen.docsgen.diagrams import steering_loop_svg
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
@@ -76,7 +78,7 @@ def _returns_early(argv: list[str]) -> int:
 
 # ----------------------------------------------------------------------------- config reference
 def test_config_page_lists_every_key_with_the_validators_rules():
-    from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.values.config import SteeringConfig
     from ddpc_codegen.errors import ConfigError
 
     rules = config_rules()
@@ -304,3 +306,62 @@ def test_no_development_history_in_the_docs():
         text = page.read_text().lower()
         for phrase in ("this session", "the run before", "the helper", "previous release", "earlier run"):
             assert phrase not in text, f"{page.relative_to(ROOT)}: {phrase!r}"
+
+
+def _sitl_best(cond: dict, metric: str) -> tuple[str, float]:
+    """The closest method of one SITL condition on one metric (None = not flown there)."""
+    scores = {k: v for k, v in cond[metric].items() if v is not None}
+    return min(scores.items(), key=lambda kv: kv[1])
+
+
+def test_the_baselines_page_claims_only_what_the_sitl_report_shows():
+    """docs/concepts/baselines.md states orderings, not figures: each one is read back from reports/sitl.json,
+    so a re-measured report that changes an ordering fails here until the page is changed too."""
+    sitl = json.loads((ROOT / "reports" / "sitl.json").read_text())
+    flown = {ap: {c: v for c, v in rep["conditions"].items() if "skipped" not in v} for ap, rep in sitl.items()
+             if ap in ("px4", "ardupilot")}
+    for ap, conds in flown.items():  # on the estimate: the steering is closest everywhere
+        for c, cond in conds.items():
+            assert _sitl_best(cond, "rmse_z")[0] == "steered", (ap, c)
+    for c, cond in flown["ardupilot"].items():  # true height: the same, except ILC on the repeated ellipse
+        assert _sitl_best(cond, "rmse_z_truth")[0] == ("ilc" if c == "ellipse" else "steered"), c
+    for c, cond in flown["px4"].items():  # PX4 true height: the estimator's error dominates
+        assert cond["estimator_rms"]["steered"] > cond["rmse_z"]["steered"], c
+        assert (_sitl_best(cond, "rmse_z_truth")[0] == "steered") == (c == "ellipse"), c
+    page = (ROOT / "docs" / "concepts" / "baselines.md").read_text()
+    assert "do not show that steering beats the best simple method" in page
+
+
+def test_the_simulator_baselines_claims_match_the_summary():
+    """The simulator half of baselines.md: steering closest off the repeated path, ILC on it (flying)."""
+    base = json.loads((ROOT / "reports" / "summary.json").read_text())["baselines"]
+
+    def best(scenario: str, cond: str) -> str:
+        metric = base[scenario]["metric"]
+        scores = {k: v[metric] for k, v in base[scenario]["conditions"][cond].items()
+                  if isinstance(v, dict) and metric in v}
+        return min(scores, key=scores.get)
+
+    flying = base["flying"]["conditions"]
+    assert best("flying", "ellipse (periodic)") == best("flying", "sensor noise") == "ilc"
+    for cond in ("random smooth path", "push", "mass -300 g"):
+        assert best("flying", cond) == "ddpc", cond
+    assert flying["random smooth path"]["ilc"]["rmse_z"] > flying["random smooth path"]["passthrough"]["rmse_z"]
+    for cond in base["hopping"]["conditions"]:
+        assert best("hopping", cond) == "ddpc", cond
+
+
+def test_concept_pages_render_math_and_the_steering_loop_offline(tmp_path):
+    """The built site serves MathJax itself (no CDN), the concept pages carry arithmatex math, and the
+    steering-loop diagram is drawn by the build (an SVG, the same bytes twice)."""
+    site = tmp_path / "site"
+    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
+                       cwd=ROOT, capture_output=True, text=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert (site / MATHJAX_SCRIPT).stat().st_size > 100_000
+    page = (site / "concepts" / "reference-steering" / "index.html").read_text()
+    assert 'class="arithmatex"' in page and "steering-loop.svg" in page
+    for html in site.rglob("*.html"):
+        assert not re.search(r"<script[^>]+src=\"https?://", html.read_text()), html
+    svg = (site / "figures" / "steering-loop.svg").read_text()
+    assert svg.startswith("<?xml") and "<svg" in svg and svg == steering_loop_svg()
