@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from ddpc_codegen.docsgen.results import _sitl_adaptation_table, _sitl_section
+from ddpc_codegen.docsgen.results_adapt import adaptation_page, sitl_adaptation
+from ddpc_codegen.docsgen.results_sitl import sitl_page
 from ddpc_codegen.flight_metrics import rms
 from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES
 from ddpc_codegen.testbed.sitl import Sitl
@@ -176,14 +177,15 @@ def _adaptation() -> dict:
 
 
 def test_the_results_table_and_the_printed_lines():
-    table = _sitl_adaptation_table(_adaptation())
-    row = [line for line in table.splitlines() if line.startswith("| px4 | heavy |")]
-    assert row == ["| px4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 | 1.50x, 1.50x | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | "
-                   "5.0 / 5.0 | 100 | 1 | 0.81-0.81 | gain 3 | 5 / 5 |"]
+    table = sitl_adaptation(_adaptation())
+    rows = [line for line in table.splitlines() if line.startswith("| PX4 | heavy |")]
+    assert rows == ["| PX4 | heavy | 30.0 | 20.0 | 50.0 | 1.50 | 10.0 | 1.50 / 1.50 |",  # after the change
+                    "| PX4 | heavy | 10.0 / 10.0 / 40.0 | 15.0 / 10.0 | 5.0 / 5.0 | 5 / 5 |",  # before, the estimator
+                    "| PX4 | heavy | 100 | 1 | 0.81-0.81 | gain 3 |"]  # the adapted flights' counters
     assert "static's first 2.0 s alone" in table
     text = format_adaptation(_adaptation())
     assert "static / adapted 1.50" in text and "1 swaps accepted (error ratio 0.81-0.81)" in text
-    nominal = [line for line in table.splitlines() if line.startswith("| px4 | nominal |")][0]
+    nominal = [line for line in table.splitlines() if line.startswith("| PX4 | nominal |")][-1]
     assert "| 0 | -- |" in nominal  # no swap, no ratio
     # the floor of any learner (static 30 mm over a 10 mm first-2-s floor) and the change's cost to static (30 / 20)
     assert "static / any learner <= 3.00" in text and "in nominal flight: true 1.50x, EKF 1.50x" in text
@@ -197,8 +199,9 @@ def test_change_cost_needs_the_condition_and_the_nominal_flights():
 
 
 def test_the_sitl_section_does_not_take_adaptation_for_an_autopilot():
-    page = _sitl_section({"adaptation": _adaptation()})
-    assert "| adaptation |" not in page and "| px4 | heavy | 30.0 |" in page
+    page = sitl_page({"adaptation": _adaptation()})
+    assert "adaptation" not in page.lower().split("-->", 1)[1] and "found no SITL" in page
+    assert "| PX4 | heavy | 30.0 |" in adaptation_page(None, {"adaptation": _adaptation()})
 
 
 def test_the_report_names_the_adapt_settings_the_solver_was_built_with(tmp_path):
