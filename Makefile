@@ -55,7 +55,7 @@ lint: install
 docs: install
 	$(VENV)/bin/mkdocs build --strict --site-dir build/docs
 
-# Each measuring target ends by rendering its reports/*.json into docs/results.md and the README table.
+# Each measuring target ends by rendering its reports/*.json into docs/results/ and the README table.
 RENDER := $(PY) -m ddpc_codegen.docsgen.results
 
 # The main job: both scenarios with and without steering; table, reports/summary.json, figures.

@@ -1,5 +1,5 @@
 """The README and the docs site: the site builds with --strict, the generated reference pages follow
-the code (every CLI flag, every config key and rule, every C function), the results page and the
+the code (every CLI flag, every config key and rule, every C function), the results pages and the
 README table are rendered from the reports, and the README stays one screen of real commands."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The docs site's generated pages: the results page and the README's results table (from
+"""The docs site's generated pages: the results pages and the README's results table (from
 ``reports/*.json``), and the reference pages that follow the code (CLI from the argparse parsers,
 config schema from the validators, C API from the header templates).
 
