@@ -181,6 +181,19 @@ def test_the_headline_names_steered_over_the_best_simple_fix_on_the_true_height(
     assert "[SITL page](sitl.md#px4)" in index and "[SITL page](sitl.md#ardupilot)" in index
 
 
+def test_the_bench_page_and_headline_render_a_small_report():
+    daqp = {"median_us": 7.0, "p99_us": 30.0, "c_median_us": 1.0, "max_err": 1e-14, "fast_path_fraction": 0.8,
+            "speedup_vs_osqp_interp_1e-6": 11.4}
+    bench = {"flying": {"daqp": daqp, "cvxpygen": {"median_us": 518.0, "p99_us": 2000.0, "max_err": 0.38},
+                        "osqp": {"skipped": "no osqp"}, "active_fraction": {"value": 0.17}},
+             "meta": {"ticks": 100, "machine": "x86_64", "date": "2026-12-04"}}
+    index = results.index_page({"bench.json": bench})
+    assert "| flying | 7.0 / 30.0 | 1.0 | 74 | 11 | 1.0e-14 |" in index  # CVXPYgen 518 / 7.0 µs
+    page = results.pages({"bench.json": bench})["bench.md"]
+    assert "| daqp | 7.0 | 30.0 | 1.0 | 1.0e-14 | 80 |" in page and "| osqp | skipped: no osqp |" in page
+    assert "```" not in page and "## Online adaptation" not in page  # no console text; nothing not measured
+
+
 def test_the_sitl_page_renders_each_autopilots_conditions():
     cond = {"rmse_z": {"passthrough": 0.07, "ctrl_ff": 0.05, "prefilter": 0.016, "ilc": None, "steered": 0.008},
             "rmse_z_truth": {"passthrough": 0.07, "ctrl_ff": 0.054, "prefilter": 0.0168, "ilc": None, "steered": 0.0084},

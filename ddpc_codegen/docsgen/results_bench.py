@@ -1,7 +1,8 @@
 """The solver bench's results (``make bench``, ``reports/bench.json``): its page and its headline table.
 
 The page: each solver's call per tick at each benchmark size, the generated C alone and cross-compiled for
-aarch64, the OSQP backend's accuracy, the online update in the generated C and the 10^6-sample fit. The
+aarch64, the OSQP backend's accuracy, the online update in the generated C, the horizon length, hopping's
+completion, the 10^6-sample fit and the fleet fit and sweep on Ray. The
 headline: per size, the generated solver's call against CVXPYgen and interpreted OSQP.
 """
 
@@ -108,6 +109,51 @@ def _adapt_tables(rows: list[dict]) -> str:
     return text
 
 
+_PREVIEW = {"tf15": "Tf 15", "tf100_knots10": "Tf 100 on 10 knots", "tf100_free": "Tf 100, every step free"}
+
+
+def _preview_table(pt: dict) -> str:
+    rows = [[_PREVIEW.get(k, k), str(r["n_z"]), " / ".join(num(v, 1e3, 2) for v in r["rmse"]),
+             f"{num(r['tick_median_us'])} / {num(r['tick_p99_us'])}"] for k, r in pt.items()]
+    return ("The same plant tracked by generated solvers of a short and a long horizon, the long one free or on "
+            "knots (the references at the knots, linear in between).\n\n"
+            + table(["horizon", "QP variables", "tracking RMSE per output [mm]", "solver tick median / p99 [µs]"], rows))
+
+
+def _completion_table(c: dict) -> str:
+    return (f"The generated artificial-IO completion of the hopping solver (depth {c['depth']}, rank {c['rank']}) "
+            "called on the windows of a noisy hopping run, against the interpreted one.\n\n"
+            + table(["calls (bounded)", "generated median / p99 [µs]", "unbounded / bounded calls, median [µs]",
+                     "interpreted median [µs]", "max |difference|"],
+                    [[f"{c['calls']} ({c['bounded_calls']})", f"{num(c['c_median_us'])} / {num(c['c_p99_us'])}",
+                      f"{num(c['c_unbounded_median_us'])} / {num(c['c_bounded_median_us'])}",
+                      num(c["python_interpreted_median_us"]), _e(c["max_abs_diff_generated_vs_interpreted"])]]))
+
+
+def _scale_tables(s: dict) -> str:
+    out = []
+    f = s.get("fit")
+    if f:
+        out.append(f"A predictor fitted on {f['samples']} samples in {f['files']} files ({f['method']}, Tini {f['t_ini']}, "
+                   f"Tf {f['t_f']}). The workers' times include reading the files (and Ray's start-up for 2); serial, in "
+                   "memory: the fit on data already loaded, one BLAS thread; peak: the fitting process, or the largest "
+                   "Ray worker.\n\n"
+                   + table(["serial, in memory [s]", "1 worker [s]", "2 workers [s]", "speed-up", "peak per worker [MiB]",
+                            "max relative difference of G"],
+                           [[num(f["serial_in_memory_s"]), num(f["workers_1_s"]), num(f["workers_2_s"]),
+                             num(f["speedup"], 1, 2), num(f["peak_mib_per_worker"], 1, 0), _e(f["max_rel_diff_G"])]]))
+    w = s.get("sweep")
+    if w:
+        out.append(f"A sweep of {w['points']} points: wall time of the whole sweep, fits, code generation, runs and "
+                   "Ray's start-up included; same table: the parallel sweep's table equals the serial one but for its "
+                   "timing columns.\n\n"
+                   + table(["serial [s]", f"{w['workers']} workers [s]", "speed-up", "errors: serial / parallel",
+                            "same table"],
+                           [[num(w["serial_s"]), num(w["parallel_s"]), num(w["speedup"], 1, 2),
+                             f"{w['serial_errors']} / {w['parallel_errors']}", "yes" if w.get("identical") else "no"]]))
+    return "\n".join(out)
+
+
 def headline(bench: dict) -> str:
     """Per size: the generated solver's call (median, p99), inside the C, and its speed-up and accuracy."""
     rows = []
@@ -141,10 +187,16 @@ def bench_page(bench: dict | None) -> str:
         out += ["The OSQP backend on the ticks with an active bound:\n", acc]
     if bench.get("adapt"):
         out += ["## Online adaptation in the generated C\n", _adapt_tables(list(bench["adapt"].values()))]
+    if bench.get("preview_tracking"):
+        out += ["## Horizon length\n", _preview_table(bench["preview_tracking"])]
+    if bench.get("hopping_completion"):
+        out += ["## Hopping's artificial-IO completion\n", _completion_table(bench["hopping_completion"])]
     p = bench.get("predictor_1e6")
     if p:
         out += ["## Predictor fit on 10^6 samples\n",
                 table(["samples", "lsq [s]", "pem [s]", "peak RSS [MiB]", "RSS before fitting [MiB]"],
                       [[str(p.get("samples", 10 ** 6)), num(p["lsq_seconds"]), num(p["pem_seconds"]),
                         num(p["peak_rss_mib"], 1, 0), num(p["rss_before_fit_mib"], 1, 0)]])]
+    if bench.get("scale"):
+        out += ["## Fleet fits and sweeps on Ray\n", _scale_tables(bench["scale"])]
     return "\n".join(out)
