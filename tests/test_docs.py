@@ -407,6 +407,19 @@ def test_the_simulator_baselines_claims_match_the_summary():
         assert best("hopping", cond) == "ddpc", cond
 
 
+def test_the_reference_steering_page_claims_match_the_demo():
+    """reference-steering.md: flying height error and hopping apex error down by more than an order of
+    magnitude, the pitch error a little (reports/summary.json, make demo)."""
+    s = json.loads((ROOT / "reports" / "summary.json").read_text())
+    fly, hop = s["flying"], s["hopping"]
+    assert fly["baseline"]["rmse_z"] > 10 * fly["steered"]["rmse_z"]
+    assert fly["baseline"]["rmse_pitch"] > fly["steered"]["rmse_pitch"] > fly["baseline"]["rmse_pitch"] / 2
+    assert hop["baseline"]["apex_error_mean_abs"] > 10 * hop["steered"]["apex_error_mean_abs"]
+    page = " ".join((ROOT / "docs" / "concepts" / "reference-steering.md").read_text().split())
+    assert "the height error drops by more than an order of magnitude, the pitch error a little" in page
+    assert "the mean apex error drops by more than an order of magnitude" in page
+
+
 def test_concept_pages_render_math_and_the_steering_loop_offline(tmp_path):
     """The built site serves MathJax itself (no CDN), the concept pages carry arithmatex math, and the
     steering-loop diagram is drawn by the build (an SVG, the same bytes twice)."""
