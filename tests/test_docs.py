@@ -27,14 +27,21 @@ README = (ROOT / "README.md").read_text()
 
 
 # ----------------------------------------------------------------------------- the site
-def test_site_builds_with_strict(tmp_path):
-    """mkdocs build --strict: a broken link, a missing nav page or a docstring warning fails."""
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    """The site built once with mkdocs build --strict (the folder), or the build's output as the failure."""
+    out = tmp_path_factory.mktemp("site") / "site"
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
-    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
                        cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    return out
+
+
+def test_site_builds_with_strict(site):
+    """mkdocs build --strict: a broken link, a missing nav page or a docstring warning fails."""
     for page in ("reference/cli", "reference/config", "reference/python-api", "reference/c-api", "results"):
-        assert (tmp_path / "site" / page / "index.html").is_file(), page
+        assert (site / page / "index.html").is_file(), page
 
 
 # ----------------------------------------------------------------------------- CLI reference
@@ -420,13 +427,9 @@ def test_the_reference_steering_page_claims_match_the_demo():
     assert "the mean apex error drops by more than an order of magnitude" in page
 
 
-def test_concept_pages_render_math_and_the_steering_loop_offline(tmp_path):
+def test_concept_pages_render_math_and_the_steering_loop_offline(site):
     """The built site serves MathJax itself (no CDN), the concept pages carry arithmatex math, and the
     steering-loop diagram is drawn by the build (an SVG, the same bytes twice)."""
-    site = tmp_path / "site"
-    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
-                       cwd=ROOT, capture_output=True, text=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
-    assert r.returncode == 0, r.stderr[-3000:]
     assert (site / MATHJAX_SCRIPT).stat().st_size > 100_000
     page = (site / "concepts" / "reference-steering" / "index.html").read_text()
     assert 'class="arithmatex"' in page and "steering-loop.svg" in page
