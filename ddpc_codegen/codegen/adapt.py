@@ -1,47 +1,38 @@
 """Emit the online predictor update of an adaptive solver (``<name>_adapt.{h,c}``, issue 30).
 
 Only when adaptation is enabled: the non-adaptive folder is unchanged. The C is the twin of
-:class:`ddpc_codegen.runtime.adaptation.Adapter` (sizes fixed here, state in a caller-owned workspace):
+:class:`ddpc_codegen.design.adapter.Adapter` (sizes fixed here, state in a caller-owned workspace):
 the shipped R factor, the channel scale and the QP model (:func:`ddpc_codegen.design.adaptation.qp_model`: the
 maps from G to the solver's Hessian, linear-term map, output rows and gain) are its constant data.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import importlib.util
-import itertools
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.codegen.render import placeholders, render
+from ddpc_codegen.codegen.render import c_float, render_ctx
+from ddpc_codegen.codegen.tables import Tables, write_tables
 from ddpc_codegen.design.adaptation import adapter
-from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.values.adapt import AdaptSettings
 
-__all__ = ["emit_adapt", "cdef_text", "context", "compile_alone"]
+__all__ = ["emit_adapt", "context"]
 
 RES_BLOCK = 4  # window columns per pass of the C residuals over G (G read once for them)
 FACTOR_BLOCK = 4  # vectors per pass of a C factor update (U loaded and stored once for them)
-_SERIAL = itertools.count()  # a process cannot dlopen two builds under one module name
 
 
-def _c(x: float) -> str:
-    r = repr(float(x))
-    return r if ("." in r or "e" in r) else r + ".0"
-
-
-def _pairs(M: np.ndarray) -> tuple[np.ndarray, str, int]:
-    """(values, "i0, j0, i1, j1, ..." , count) of the nonzeros of M, row by row (C has no empty arrays:
+def _pairs(M: np.ndarray) -> tuple[np.ndarray, list[int], int]:
+    """(values, [i0, j0, i1, j1, ...], count) of the nonzeros of M, row by row (C has no empty arrays:
     a zero matrix gives one unread pair)."""
     i, j = np.nonzero(M)
-    idx = ", ".join(f"{a}, {b}" for a, b in zip(i.tolist(), j.tolist())) or "0, 0"
+    idx = [v for pair in zip(i.tolist(), j.tolist()) for v in pair] or [0, 0]
     return M[i, j], idx, int(i.size)
 
 
 def context(ad, problem, name: str, banner: str) -> dict:
-    """Template values of the update of ``ad`` (an :class:`~ddpc_codegen.runtime.adaptation.Adapter` with a
+    """Template values of the update of ``ad`` (an :class:`~ddpc_codegen.design.adapter.Adapter` with a
     QP model) for the solver of ``problem``."""
     lay, s, qp = ad.layout, ad.settings, ad.qp
     w, q, nu = lay.width, lay.q_y + lay.q_s, lay.u_rows.size
@@ -55,18 +46,18 @@ def context(ad, problem, name: str, banner: str) -> dict:
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
-            "window": s.window, "forgetting": _c(s.forgetting), "period_ticks": s.period_ticks,
+            "window": s.window, "forgetting": c_float(s.forgetting), "period_ticks": s.period_ticks,
             "w2": w * w, "qr": q * lay.r, "ring": ring * w, "ring_cols": ring, "res_block": RES_BLOCK, "nb": FACTOR_BLOCK, "rb": RES_BLOCK * lay.q_y, "nu2": nu * nu, "n_urows": nu,
-            "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": _c(ad.slack_weight), "ridge": _c(ad.ridge),
-            "rcond": _c(ad.rcond), "max_change": _c(s.max_change), "min_excitation": _c(s.min_excitation),
-            "min_improvement": _c(s.min_improvement),
+            "ws_kib": int(ws_words * 8 / 1024) + 1, "slack_weight": c_float(ad.slack_weight), "ridge": c_float(ad.ridge),
+            "rcond": c_float(ad.rcond), "max_change": c_float(s.max_change), "min_excitation": c_float(s.min_excitation),
+            "min_improvement": c_float(s.min_improvement),
             "n_z": n_z, "n_g": problem.n_g, "n_g1": n_g1, "n_theta": n_th, "n_w": problem.n_w, "n_y": qp.n_y,
             "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
-            "y_rows": ", ".join(map(str, qp.y_rows.tolist())) or "0",
-            "check_gain": int(qp.S0 is not None), "max_gain_change": _c(min(qp.max_gain_change, 1e300)),
-            "offset": int(s.offset), "max_offset": ", ".join(_c(min(v, 1e300)) for v in ad.max_offset),
+            "y_rows": qp.y_rows.tolist() or [0],
+            "check_gain": int(qp.S0 is not None), "max_gain_change": c_float(min(qp.max_gain_change, 1e300)),
+            "offset": int(s.offset), "max_offset": [min(v, 1e300) for v in ad.max_offset],
             "p_data": problem.config.p, "t_ini_data": problem.config.t_ini,
-            "win_idx": ", ".join(map(str, lay.row_order().tolist())),
+            "win_idx": lay.row_order().tolist(),
             "nz2": n_z * n_z, "ngz": n_g1 * n_z, "nzth": n_z * n_th, "ngth": n_g1 * n_th,
             "n_lg": n_o * lay.r, "n_gd": n_o * n_wu, "n_gu": n_o * n_z,
             **{f"{k}_ij": v[1] for k, v in sparse.items()}, **{f"n_{k}": v[2] for k, v in sparse.items()},
@@ -80,7 +71,7 @@ def _padded(R: np.ndarray, width: int) -> np.ndarray:
     return full
 
 
-def data_arrays(ad, ctx: dict) -> dict[str, tuple[np.ndarray, str]]:
+def data_arrays(ad, ctx: dict) -> Tables:
     """Constant arrays of the update (suffix -> (values, comment))."""
     lay, qp = ad.layout, ad.qp
     sp = ctx["_sparse"]
@@ -100,58 +91,14 @@ def data_arrays(ad, ctx: dict) -> dict[str, tuple[np.ndarray, str]]:
     }
 
 
-def emit_adapt(problem, settings: AdaptSettings, out_dir: Path, name: str, banner: str, data_files) -> list[Path]:
+def emit_adapt(problem, settings: AdaptSettings, out_dir: Path, name: str, banner: str) -> list[Path]:
     """Write ``<name>_adapt.{h,c}`` (the API: ring, re-solve, verification, swap), ``<name>_adapt_factor.c`` (R
     and G from it), ``<name>_adapt_rebuild.c`` (the QP data of a G), ``<name>_adapt_impl.h`` (what they share) and
-    ``<name>_adapt_data.{h,c}`` into ``out_dir``; returns the compilation units. ``data_files(arrays, ctx,
-    stem)`` renders constant arrays (emit's helper)."""
+    ``<name>_adapt_data.{h,c}`` into ``out_dir``; returns the compilation units."""
     ad = adapter(problem, settings)
     ctx = context(ad, problem, name, banner)
-    h, c = data_files(data_arrays(ad, ctx), ctx, f"{name}_adapt_data")
-    (out_dir / f"{name}_adapt_data.h").write_text(h)
-    (out_dir / f"{name}_adapt_data.c").write_text(c)
+    data_unit = write_tables(data_arrays(ad, ctx), out_dir, banner, name, f"{name}_adapt_data")
     for stem in ("adapt.h", "adapt_impl.h", "adapt.c", "adapt_factor.c", "adapt_rebuild.c"):
-        tpl = f"{stem}.in"
-        (out_dir / f"{name}_{stem}").write_text(render(tpl, **{k: ctx[k] for k in placeholders(tpl)}))
-    return [out_dir / f"{name}_{stem}.c" for stem in ("adapt", "adapt_factor", "adapt_rebuild", "adapt_data")]
+        (out_dir / f"{name}_{stem}").write_text(render_ctx(f"{stem}.in", ctx))
+    return [out_dir / f"{name}_{stem}.c" for stem in ("adapt", "adapt_factor", "adapt_rebuild")] + [data_unit]
 
-
-def cdef_text(name: str) -> str:
-    """The update's C API as cffi declares it."""
-    return f"""
-typedef struct {{ const double *P, *A_G, *A_G_CM, *K, *F_Q_CM, *F_G_CM; }} {name}_qpdata;
-typedef struct {{ int updates; int skipped; int dropped; int folded; int resolves; int accepted; int swaps; int clipped; int rejected[7];
-                 double error_current; double error_candidate; double excitation;
-                 int offset_swaps; int offset_clipped; int offset_rejected; double offset_norm; }} {name}_adapt_counts;
-typedef struct {{ double U[...]; double d[...]; double Ra[...]; double G[...]; double Gc[...]; double ring[...];
-                 double ring_s[...]; double x[...]; double xr[...];
-                 double Rx[...]; {name}_qpdata qd[2]; double yoff[...]; int head; int n_ring; int n_snap; int pending; int queued;
-                 int spare;
-                 int off_pending; int off_spare; long long phase_ns[7];
-                 {name}_adapt_counts counts; ...; }}
-        {name}_adapt_workspace;
-int {name}_adapt_init({name}_adapt_workspace *ws);
-int {name}_adapt_push({name}_adapt_workspace *ws, const double *window);
-void {name}_adapt_r({name}_adapt_workspace *ws, double *R);
-void {name}_adapt_snapshot({name}_adapt_workspace *ws);
-int {name}_adapt_resolve({name}_adapt_workspace *ws);
-int {name}_adapt_swap({name}_adapt_workspace *ws, {name}_workspace *solver);
-"""
-
-
-def compile_alone(problem, settings: AdaptSettings, folder: Path, name: str):
-    """Emit the adaptive solver (daqp backend) into ``folder`` and compile it with cffi (the package's portable
-    flags) without test vectors or manifest, for tests and the benchmark; returns the module's (ffi, lib)."""
-    from ddpc_codegen.codegen.build import compile_extension
-    from ddpc_codegen.codegen.emit import DEFAULTS, emit_sources
-
-    folder = Path(folder)
-    settings = dataclasses.replace(settings, enabled=True)
-    units = emit_sources(problem, folder, name, "daqp", dict(DEFAULTS["daqp"]), adapt=settings)
-    module = f"_adapt_alone_{name}_{next(_SERIAL)}"
-    ext, _ = compile_extension(folder, name, module, units, "daqp", adapt=True)
-    spec = importlib.util.spec_from_file_location(module, ext)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[module] = mod
-    spec.loader.exec_module(mod)
-    return mod.ffi, mod.lib

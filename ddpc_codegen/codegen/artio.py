@@ -16,12 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.codegen import libs
-from ddpc_codegen.codegen.render import render
+from ddpc_codegen.codegen.constants import DAQP_PRIMAL_TOL, DAQP_STRUCT_WORDS
+from ddpc_codegen.codegen.render import c_float, render_ctx
+from ddpc_codegen.codegen.tables import Tables, write_tables
 from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.solve_result import BOUND_TOL
+from ddpc_codegen.values.solve_result import BOUND_TOL
 from ddpc_codegen.errors import CodegenError
 
-__all__ = ["OnlineCompletion", "emit_artio", "manifest_entry", "cdef_text"]
+__all__ = ["OnlineCompletion", "emit_artio", "manifest_entry"]
 
 
 @dataclass(frozen=True)
@@ -59,7 +61,7 @@ class OnlineCompletion:
                 f"[artificial_io] noise_level_online > 0 (default 2e-3)")
 
 
-def data_arrays(oc: OnlineCompletion) -> dict[str, tuple[np.ndarray, str]]:
+def data_arrays(oc: OnlineCompletion) -> Tables:
     """Constant arrays of the completion (suffix -> (values, comment))."""
     B = np.ascontiguousarray(oc.art.basis, dtype=float)
     G = B @ B.T
@@ -78,39 +80,28 @@ def data_arrays(oc: OnlineCompletion) -> dict[str, tuple[np.ndarray, str]]:
 
 def context(oc: OnlineCompletion, base: dict) -> dict:
     """Template values of the completion (``base``: the steering solver's context)."""
-    from ddpc_codegen.codegen.emit import DAQP_PRIMAL_TOL, DAQP_STRUCT_WORDS, c_float
-
     art = oc.art
     rows, r = art.depth * art.d, art.rank
     ctx = {k: base[k] for k in ("banner", "name", "NAME", "max_iter")}
     ctx.update(depth=art.depth, rank=r, m=art.m, p=art.p, d=art.d, rows=rows, rows_sq=rows * rows, rows_sq4=rows * rows // 4 + 1,
                rank_sq=r * r, n_m=r * rows, n_vals=2 * art.d + 3, n_columns=art.n_columns,
                sigma=c_float(oc.noise_level), lam=c_float(oc.lam), feas_tol=repr(BOUND_TOL),
-               daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL))
+               daqp_version=libs.DAQP_VERSION, daqp_primal_tol=repr(DAQP_PRIMAL_TOL), daqp_words=DAQP_STRUCT_WORDS)
     ws_words = (4 * rows + 5 * rows + 2.25 * rows * rows + r + r * r + r + r * rows  # arrays of the header
                 + 3 * r * rows + (r + 1) * (r + 2) // 2 + r * (r + 1) // 2 + 12 * (r + 1) + 8 * rows)
     ctx["ws_kib"] = int(ws_words * 8 / 1024) + 1
-    ctx["ws_daqp"] = render("ws_daqp.h.in", n_z=r, n_c=rows, n_u1=r + 1, n_l=(r + 1) * (r + 2) // 2,
-                            n_m=r * rows, n_g1=rows, n_r=r * (r + 1) // 2, daqp_words=DAQP_STRUCT_WORDS,
-                            daqp_version=libs.DAQP_VERSION, name=base["name"]).rstrip("\n")
-    ctx["daqp_wire"] = render("daqp_wire.in", ws_type=f"{base['name']}_artio_workspace").rstrip("\n")
     return ctx
 
 
-def emit_artio(oc: OnlineCompletion, out_dir: Path, base: dict, data_files) -> list[Path]:
-    """Write ``<name>_artio.h``, ``<name>_artio.c`` and its data files; returns the compilation units.
-    ``data_files(arrays, ctx, stem)`` renders (header, source) of constant arrays (emit's helper)."""
-    from ddpc_codegen.codegen.emit import render_ctx
-
+def emit_artio(oc: OnlineCompletion, out_dir: Path, base: dict) -> list[Path]:
+    """Write ``<name>_artio.h``, ``<name>_artio.c`` and its data files; returns the compilation units."""
     oc.check()
     ctx = context(oc, base)
     name = base["name"]
-    h, c = data_files(data_arrays(oc), ctx, f"{name}_artio_data")
-    (out_dir / f"{name}_artio_data.h").write_text(h)
-    (out_dir / f"{name}_artio_data.c").write_text(c)
+    data_unit = write_tables(data_arrays(oc), out_dir, ctx["banner"], name, f"{name}_artio_data")
     (out_dir / f"{name}_artio.h").write_text(render_ctx("artio.h.in", ctx))
     (out_dir / f"{name}_artio.c").write_text(render_ctx("artio.c.in", ctx))
-    return [out_dir / f"{name}_artio.c", out_dir / f"{name}_artio_data.c"]
+    return [out_dir / f"{name}_artio.c", data_unit]
 
 
 def _inf_list(a) -> list:
@@ -126,16 +117,3 @@ def manifest_entry(oc: OnlineCompletion) -> dict:
             "min_ascent": int(oc.min_ascent), "denoise_online": bool(oc.denoise_online),
             "refit_residual": float(oc.refit_residual), "rcond": art.rcond}
 
-
-def cdef_text(name: str) -> str:
-    """The completion's C API as cffi declares it."""
-    return f"""
-typedef struct {{ int bounded; int reduced; int iterations; int raw_status; int n_known; double residual; double g_norm;
-                 double max_violation; double solve_time_us; }} {name}_artio_info;
-typedef struct {{ ...; }} {name}_artio_workspace;
-int {name}_artio_init({name}_artio_workspace *ws);
-int {name}_artio_complete({name}_artio_workspace *ws, int L, const double *w, const unsigned char *missing,
-                          int replace_known, double *w_out, {name}_artio_info *info);
-void {name}_artio_describe(int *dims, double *vals);
-const char *{name}_artio_status_string(int status);
-"""

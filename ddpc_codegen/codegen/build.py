@@ -12,6 +12,7 @@ from pathlib import Path
 
 import cffi
 
+from ddpc_codegen.codegen.render import render
 from ddpc_codegen.errors import CodegenError
 
 PORTABLE_FLAGS = ["-O3", "-std=c99", "-fno-strict-aliasing", "-Wno-unused-function", "-Wno-unused-variable"]
@@ -40,20 +41,10 @@ def _captured_fds():
             text.append(tmp.read().decode(errors="replace"))
 
 
-def cdef_text(name: str) -> str:
-    """The C API of a generated solver, as cffi declares it (the workspace's layout is the compiler's)."""
-    return f"""
-typedef struct {{ int iterations; int fast_path; int raw_status; int refined; double max_violation;
-                 double solve_time_us; }} {name}_info;
-typedef struct {{ ...; }} {name}_workspace;
-int {name}_init({name}_workspace *ws);
-void {name}_reset({name}_workspace *ws);
-int {name}_solve({name}_workspace *ws, const double *theta, double *u_out, {name}_info *info);
-void {name}_predict(const double *theta, const double *u, double *y_out, double *sigma_out);
-void {name}_describe(int *dims, double *bounds);
-int {name}_bench({name}_workspace *ws, const double *thetas, int n, double *u_out, double *times_us, int *statuses);
-const char *{name}_status_string(int status);
-"""
+def cdef_text(name: str, artio: bool = False, adapt: bool = False) -> str:
+    """The C API of a generated solver (with its artificial-IO completion, its online update) as cffi declares
+    it (the workspace's layout is the compiler's)."""
+    return render("cdef.in", name=name, artio=artio, adapt=adapt)
 
 
 def include_dirs_of(backend: str, artio: bool = False) -> list[str]:
@@ -73,18 +64,9 @@ def compile_extension(out_dir: Path, name: str, module: str, units: list[Path], 
     predictor update (``<name>_adapt.h``, emitted only when adaptation is enabled)."""
     flags = list(PORTABLE_FLAGS) + (["-march=native"] if march_native else [])
     include_dirs = [str(out_dir)] + [str(out_dir / i) for i in include_dirs_of(backend, artio)]
-    glue = f'#include "{name}_solver.h"\n'  # which includes <name>_artio.h in a hopping solver
+    glue = render("cffi_glue.c.in", name=name, adapt=adapt)  # <name>_solver.h includes <name>_artio.h
     ffi = cffi.FFI()
-    ffi.cdef(cdef_text(name))
-    if artio:
-        from ddpc_codegen.codegen.artio import cdef_text as artio_cdef
-
-        ffi.cdef(artio_cdef(name))
-    if adapt:
-        from ddpc_codegen.codegen.adapt import cdef_text as adapt_cdef
-
-        ffi.cdef(adapt_cdef(name))
-        glue += f'#include "{name}_adapt.h"\n'
+    ffi.cdef(cdef_text(name, artio, adapt))
     ffi.set_source(module, glue, sources=[str(u) for u in units], include_dirs=include_dirs,
                    libraries=["m"], extra_compile_args=flags)
     # A fresh directory per build: distutils caches the directories it created per process, so

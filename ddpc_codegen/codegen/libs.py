@@ -89,14 +89,13 @@ def global_names(sources: list[Path], keep_prefix: str) -> list[str]:
 
 
 def _names_header(path: Path, name: str, lib: str, names: list[str]) -> None:
-    lines = "\n".join(f"#define {n} {name}_{n}" for n in names)
     path.write_text(render("names.h.in", guard=f"{name.upper()}_{lib.upper()}_NAMES_H", lib=lib, name=name,
-                           defines=lines))
+                           symbols=names))
 
 
 def _prepend_include(files: list[Path], include: str) -> None:
     for f in files:
-        f.write_text(f'#include "{include}" /* ddpc-codegen: per-solver symbol names */\n' + f.read_text())
+        f.write_text(render("names_include.in", header=include) + f.read_text())
 
 
 def emit_daqp(out_dir: Path, name: str) -> list[Path]:

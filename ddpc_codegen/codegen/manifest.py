@@ -11,7 +11,7 @@ import numpy as np
 import osqp
 
 from ddpc_codegen import __version__
-from ddpc_codegen.codegen.emit import FEAS_TOL, VECTOR_TOL
+from ddpc_codegen.codegen.constants import FEAS_TOL, VECTOR_TOL
 from ddpc_codegen.codegen.libs import DAQP_VERSION
 from ddpc_codegen.runtime.manifest import FORMAT, VERSION, sha256_file
 

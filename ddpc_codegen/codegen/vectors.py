@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.design.solve_result import BOUND_TOL
+from ddpc_codegen.values.solve_result import BOUND_TOL
 from ddpc_codegen.codegen.tuning import sample_thetas
 
 MAGIC = "ddpc-vectors"

@@ -21,8 +21,10 @@ HEADERS = {"solver.h.in": "`<name>_solver.h`: the steering solver (every artifac
 
 
 def _names(text: str) -> str:
-    """Template placeholders as a reader sees them: ``${name}`` -> ``<name>``, ``${NAME}`` -> ``<NAME>``."""
-    return re.sub(r"\$\{(\w+)\}", r"<\1>", text)
+    """Template placeholders as a reader sees them: ``{{ name }}`` -> ``<name>``, ``{{ NAME }}`` -> ``<NAME>``;
+    the template's own lines (``{% ... %}`` branches and includes, ``{# ... #}`` notes) are left out."""
+    text = re.sub(r"^[ \t]*\{[%#].*?[%#]\}[ \t]*\n", "", text, flags=re.M | re.S)
+    return re.sub(r"\{\{ (\w+) \}\}", r"<\1>", text)
 
 
 def _comment(block: str) -> str:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.experiments.bench import build_problem
+from ddpc_codegen.experiments.bench_problems import build_problem
 
 SIZES = ("flying", "hopping")
 BACKENDS = ("daqp", "osqp")

@@ -8,14 +8,14 @@ import subprocess
 import numpy as np
 import pytest
 
-from ddpc_codegen.codegen.adapt import compile_alone
+from ddpc_codegen.codegen.artifact import compile_alone
 from ddpc_codegen.design.adaptation import AdaptiveProblem, adapter
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.fit import fit_incremental
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.runtime.adaptation import REJECTIONS, AdaptSettings
+from ddpc_codegen.values.adapt import REJECTIONS, AdaptSettings
 from support.lti import random_lti
 
 
@@ -163,7 +163,7 @@ def test_generate_with_adaptation_emits_the_update_into_every_build_file(tmp_pat
     the plain build; a plain solver refuses the adaptation API with a precise message."""
     import json
 
-    from ddpc_codegen.codegen.generate import generate
+    from ddpc_codegen.codegen import generate
     from ddpc_codegen.errors import DataError
     from ddpc_codegen.runtime.loader import load_solver
 
@@ -211,7 +211,7 @@ def test_generate_with_adaptation_emits_the_update_into_every_build_file(tmp_pat
 
 
 def test_adaptation_needs_the_daqp_backend(tmp_path):
-    from ddpc_codegen.codegen.generate import generate
+    from ddpc_codegen.codegen import generate
     from ddpc_codegen.errors import CodegenError
 
     with pytest.raises(CodegenError, match=r"online adaptation \(\[adapt\] enabled\) needs the daqp backend; got "

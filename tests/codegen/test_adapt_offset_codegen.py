@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ddpc_codegen.codegen.adapt import compile_alone
+from ddpc_codegen.codegen.artifact import compile_alone
 from ddpc_codegen.design.adaptation import AdaptiveProblem
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.fit import fit_incremental
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.runtime.adaptation import OFFSET_COUNTS, REJECTIONS, AdaptSettings
+from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings
 from support.lti import random_lti
 
 pytestmark = pytest.mark.compiler

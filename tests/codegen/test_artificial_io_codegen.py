@@ -15,7 +15,7 @@ from ddpc_codegen import (CodegenError, DataError, IODataset, ManifestError, Ste
                           fit_predictor, generate, load_solver)
 from ddpc_codegen.codegen import OnlineCompletion
 from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.solve_result import BOUND_TOL
+from ddpc_codegen.values.solve_result import BOUND_TOL
 from ddpc_codegen.experiments.pipeline import default_config
 
 pytestmark = pytest.mark.compiler
@@ -230,7 +230,7 @@ def test_cli_builds_a_hopping_artifact_with_its_completion_from_a_raw_log(hop_lo
     assert (gen.t_d_online, gen.min_ascent) == (spec.t_d_online, spec.min_ascent)
     assert gen.window_settings()["refit_residual"] == spec.refit_residual == 6.5e-3  # manifest -> runtime window
     # the online window of a recorded hop: ground phase + the first ascent samples
-    from ddpc_codegen.design.phases import ground_runs
+    from ddpc_codegen.values.phases import ground_runs
 
     raw = IODataset.load(hop_log)
     ph = raw.phases[0]
@@ -265,7 +265,7 @@ def test_the_standalone_example_calls_the_completion_from_c(folders, tmp_path):
 
 
 def test_the_runtime_hopping_window_runs_on_the_generated_completion(plant, art, completers):
-    from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
+    from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND
     from ddpc_codegen.runtime.hopping import HoppingWindow
 
     u, y = _window(plant, 120, 0.3, 4)

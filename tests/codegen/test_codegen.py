@@ -331,16 +331,22 @@ def test_missing_daqp_source_cache_names_the_fix(problem, tmp_path, monkeypatch)
 
 
 def test_templates_render_strictly():
+    """A name a rendered branch reads and the context lacks is an error (StrictUndefined), and so is a value no
+    branch of the template (or of what it includes) ever reads."""
     from ddpc_codegen import CodegenError
     from ddpc_codegen.codegen.render import placeholders, render
 
     names = placeholders("qp.h.in")
     ctx = {k: "x" for k in names}
     assert "int x_qp_init(x_workspace *ws);" in render("qp.h.in", **ctx)
-    with pytest.raises(CodegenError, match=r"template qp.h.in: missing values \['name'\]"):
+    with pytest.raises(CodegenError, match=r"template qp.h.in: missing value \('name' is undefined\)"):
         render("qp.h.in", **{k: v for k, v in ctx.items() if k != "name"})
     with pytest.raises(CodegenError, match=r"unused values \['typo'\]"):
         render("qp.h.in", typo=1, **ctx)
+    # names read only inside an include or a branch not taken count as used, and are required once taken
+    assert {"n_uu", "daqp_words"} <= placeholders("solver.h.in")
+    with pytest.raises(CodegenError, match=r"template cffi_glue.c.in: missing value \('adapt' is undefined\)"):
+        render("cffi_glue.c.in", name="x")
 
 
 def test_noise_warning_names_the_channels_and_the_limit(tmp_path):

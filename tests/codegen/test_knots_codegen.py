@@ -6,7 +6,7 @@ import pytest
 
 from ddpc_codegen import SteeringProblem, generate, load_solver
 from ddpc_codegen.codegen.tuning import sample_thetas
-from ddpc_codegen.experiments.bench import build_problem, theta_stream
+from ddpc_codegen.experiments.bench_problems import build_problem, theta_stream
 
 pytestmark = pytest.mark.compiler
 

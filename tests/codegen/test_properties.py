@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from ddpc_codegen import load_solver
 from ddpc_codegen.codegen import vectors as test_vectors
-from ddpc_codegen.design.solve_result import BOUND_TOL
+from ddpc_codegen.values.solve_result import BOUND_TOL
 
 pytestmark = pytest.mark.compiler
 

@@ -8,7 +8,7 @@ import pytest
 
 from ddpc_codegen.codegen import tuning
 from ddpc_codegen.codegen.emit import DEFAULTS
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem

@@ -1,5 +1,6 @@
-"""The one entry of code generation: a SteeringProblem -> self-contained C folder + compiled extension +
-manifest.json, built in a temporary folder that replaces the old solver only once it works.
+"""The artifact a user ships: a SteeringProblem -> self-contained C folder + compiled extension + manifest.json,
+built in a temporary folder that replaces the old solver only once it works (:func:`generate`, the one entry of
+code generation; :func:`compile_alone` for tests and benchmarks that need no vectors or manifest).
 
 A rebuild never destroys what a user had: the new solver is emitted, compiled and made to replay its own
 test vectors in ``.<name>.build-*`` next to the target; only then is the old folder swapped out (two
@@ -10,8 +11,11 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.util
+import itertools
 import json
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -21,15 +25,19 @@ import numpy as np
 from ddpc_codegen.codegen import vectors as test_vectors
 from ddpc_codegen.codegen.artio import OnlineCompletion, manifest_entry
 from ddpc_codegen.codegen.build import compile_extension
-from ddpc_codegen.codegen.emit import (BACKENDS, DEFAULTS, VECTOR_TOL, VECTORS_FILE, check_name, emit_sources)
+from ddpc_codegen.codegen.constants import BACKENDS, DEFAULTS, VECTOR_TOL, VECTORS_FILE
+from ddpc_codegen.codegen.emit import check_name, emit_sources
 from ddpc_codegen.codegen.manifest import build_manifest, write_manifest
 from ddpc_codegen.codegen.tuning import choose_rho
 from ddpc_codegen.design.adaptation import ship_fit_statistic
-from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.values.adapt import AdaptSettings
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import CodegenError
+from ddpc_codegen.runtime.loader import load_solver
 
-__all__ = ["generate", "verify_vectors", "replace_folder"]
+__all__ = ["generate", "verify_vectors", "replace_folder", "compile_alone"]
+
+_SERIAL = itertools.count()  # compile_alone: a process cannot dlopen two builds under one module name
 
 
 def _settings(problem: SteeringProblem, backend: str, max_iter, eps) -> dict:
@@ -152,8 +160,6 @@ def _build(problem: SteeringProblem, out: Path, name: str, backend: str, compile
 def verify_vectors(folder: Path, vec: test_vectors.Vectors, tol: float) -> None:
     """The compiled solver in ``folder`` replays ``vec`` in order on one instance (warm starts as the
     C example): same status everywhere, max |u - u_recorded| <= ``tol`` where solved; CodegenError otherwise."""
-    from ddpc_codegen.runtime.loader import load_solver
-
     solver = load_solver(folder)
     for i, (th, u_rec, st) in enumerate(zip(vec.theta, vec.u, vec.status)):
         r = solver.solve_theta(th)
@@ -182,3 +188,18 @@ def replace_folder(new: Path, out: Path) -> None:
         old.replace(out)  # put the user's solver back before reporting
         raise
     shutil.rmtree(old, ignore_errors=True)
+
+
+def compile_alone(problem: SteeringProblem, settings: AdaptSettings, folder: Path, name: str):
+    """Emit the adaptive solver (daqp backend) into ``folder`` and compile it with cffi (the package's portable
+    flags) without test vectors or manifest, for tests and the benchmark; returns the module's (ffi, lib)."""
+    folder = Path(folder)
+    settings = dataclasses.replace(settings, enabled=True)
+    units = emit_sources(problem, folder, name, "daqp", dict(DEFAULTS["daqp"]), adapt=settings)
+    module = f"_adapt_alone_{name}_{next(_SERIAL)}"
+    ext, _ = compile_extension(folder, name, module, units, "daqp", adapt=True)
+    spec = importlib.util.spec_from_file_location(module, ext)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[module] = mod
+    spec.loader.exec_module(mod)
+    return mod.ffi, mod.lib
