@@ -8,6 +8,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -16,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from ddpc_codegen.docsgen import results, results_format, results_sitl
-from ddpc_codegen.docsgen.assets import MATHJAX_SCRIPT
+from ddpc_codegen.docsgen.assets import MATHJAX_SCRIPT, mathjax_root
 from ddpc_codegen.docsgen.c_api import TEMPLATES, c_api_page, declarations
 from ddpc_codegen.docsgen.cli_reference import cli_page, flags_of, parser_of, parsers
 from ddpc_codegen.docsgen.config_reference import attribute_docs, config_page, config_rules
@@ -437,3 +438,16 @@ def test_concept_pages_render_math_and_the_steering_loop_offline(site):
         assert not re.search(r"<script[^>]+src=\"https?://", html.read_text()), html
     svg = (site / "figures" / "steering-loop.svg").read_text()
     assert svg.startswith("<?xml") and "<svg" in svg and svg == steering_loop_svg()
+
+
+def test_every_formula_of_the_site_renders(site):
+    """Each arithmatex formula typesets with the MathJax the site serves (in node): no TeX error, no
+    undefined macro. Skipped without node."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("needs node to run MathJax")
+    script = ROOT / "ddpc_codegen" / "docsgen" / "typeset_check.js"
+    r = subprocess.run([node, str(script), str(mathjax_root()), str(site)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert int(re.search(r"(\d+) formulas", r.stdout).group(1)) >= 20, r.stdout  # the concept pages' were found

@@ -27,13 +27,18 @@ def mathjax_config_js() -> str:
     return _CONFIG_JS
 
 
-def mathjax_js() -> str:
-    """MathJax 3's single-file TeX-to-SVG component, from the ``django-static-mathjax`` package (docs extra)."""
+def mathjax_root():  # noqa: ANN201 -- an importlib.resources Traversable
+    """MathJax 3's ``es5`` folder (its components), from the ``django-static-mathjax`` package (docs extra)."""
     try:
         root = resources.files("mathjax")
     except ModuleNotFoundError as exc:
         raise RuntimeError("the docs need MathJax: pip install -e '.[docs]' (package django-static-mathjax)") from exc
-    return (root / "static" / "mathjax" / "es5" / "tex-svg.js").read_text(encoding="utf-8")
+    return root / "static" / "mathjax" / "es5"
+
+
+def mathjax_js() -> str:
+    """MathJax 3's single-file TeX-to-SVG component, the one the site serves."""
+    return (mathjax_root() / "tex-svg.js").read_text(encoding="utf-8")
 
 
 # asset path inside the site -> its renderer
