@@ -54,7 +54,6 @@ import dataclasses
 import gc
 import math
 import signal
-import sys
 import time
 from collections.abc import Sized
 
@@ -62,34 +61,58 @@ import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig
-from ddpc_codegen.runtime.adapt_loop import adapt_code
-from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
-from firmware_bridge.baseline_modes import BASELINE_MODES, baseline_policy, feedforward_row
-from firmware_bridge.clock import TickClock
 from firmware_bridge.bridge_config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
-                                    default_controller_config)
-from firmware_bridge.hopping_loop import HoppingLoop, hopping_window
-from firmware_bridge.link import CommandTracker, MavLink
-from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
+                                           default_controller_config)
+from firmware_bridge.clock import TickTrigger
+from firmware_bridge.engagement import Engagement
+from firmware_bridge.events import EventLog
 from firmware_bridge.gate import GATE_FLAGS
-from firmware_bridge.preflight import PreflightError, VehicleInfo
-from firmware_bridge.profiles import Profile, make_profile
+from firmware_bridge.hopping_loop import HoppingLoop
+from firmware_bridge.link import MavLink
+from firmware_bridge.mode_requests import ModeRequests
+from firmware_bridge.preflight import PreflightError, VehicleInfo, hover_param
+from firmware_bridge.profiles import make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
-from firmware_bridge.report import Reporting, gap_statistics
-from firmware_bridge.safety import TickSafety, make_gate
-from firmware_bridge.setpoints import SetpointShaping
-from firmware_bridge.steering_setup import SteeringSetup
-from firmware_bridge.supervisor import Supervisor
+from firmware_bridge.reference_stage import TickReference
+from firmware_bridge.report import FlightRecorder, gap_statistics, write_summary
+from firmware_bridge.setpoints import AttitudeSetpoints, SetpointStream
+from firmware_bridge.steering_setup import Steering, build_reference_stage, build_steering, loop_warnings
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
-from firmware_bridge.ticklog import TickRecorder
-from firmware_bridge.truth import SimTruth
+from firmware_bridge.tick_gate import TickGate, make_gate
+from firmware_bridge.ticklog import TickLog
+from firmware_bridge.vehicle_link import VehicleLink
 
 __all__ = ["BridgeConfig", "Bridge", "FaultInjectingSolver", "FlightError", "NoVehicleError",
            "default_controller_config", "gap_statistics"]
 
-class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
-    """The tick loop (see the module docstring). ``run()`` returns the summary dict.
+_NO_NOTES: list[str] = []
+
+
+def _tick_gate(c: BridgeConfig, steering: Steering | None, hover_thrust: float, events: EventLog) -> TickGate:
+    """The last gate of the bridge's ticks, from its config (and the steering's step guard)."""
+    period = 1.0 / c.rate_hz
+    return TickGate(make_gate(c, c.mode, period, steering.solver if steering is not None else None), events,
+                    max_step=steering.steerer.max_step if steering is not None else None,
+                    max_tilt=math.radians(c.max_tilt_deg), thrust_min=c.thrust_min, thrust_max=c.thrust_max,
+                    hover_thrust=hover_thrust, max_age=None if c.lockstep else c.max_age, guard_hold=c.guard_hold)
+
+
+def _engagement(c: BridgeConfig, events: EventLog, ctrl: HeightLegAngleController,
+                frame: TrajectoryFrame) -> Engagement:
+    """The bridge's engagement, from its config (take-off to the trajectory's start height)."""
+    return Engagement(events, blend_rates=c.blend_rates, takeoff=c.takeoff,
+                      start_height=lambda: ctrl.trajectory.start_point()[1], climb_rate=c.climb_rate,
+                      tolerance=c.approach_tolerance, timeout=c.approach_timeout, max_age=c.max_age,
+                      stale_action=c.stale_action, stale_stream_limit=c.stale_stream_limit,
+                      describe=lambda: f"{c.mode}; {frame.describe()}")
+
+
+class Bridge:
+    """The tick loop (see the module docstring), composed of its parts: the vehicle (:class:`VehicleLink`,
+    :class:`ModeRequests`, :class:`SetpointStream`), the tick's trigger (:class:`TickTrigger`), engagement
+    (:class:`Engagement`), the reference stage (:class:`ReferenceStage`), the last gate (:class:`TickGate`) and the
+    record (:class:`FlightRecorder`). ``run()`` returns the summary dict.
 
     Args:
         config: :class:`BridgeConfig`.
@@ -100,118 +123,56 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
     def __init__(self, config: BridgeConfig, link: MavLink | None = None, solver=None) -> None:
         self.cfg = c = config
         self.period = 1.0 / c.rate_hz
-        self.ctrl_cfg = c.controller or default_controller_config()
-        if abs(self.ctrl_cfg.dt - self.period) > 1e-9:
-            raise ValueError(f"controller dt {self.ctrl_cfg.dt} s does not match the rate {c.rate_hz} Hz")
-        self.ctrl = HeightLegAngleController(self.ctrl_cfg, c.trajectory)
-        self.hopping = self.ctrl.mode == "hopping"
-        contact = c.contact or ContactConfig(leg_length=self.ctrl_cfg.leg_length)
-        self.hop: HoppingLoop | None = None
-        self.m, self.p = self.ctrl.m, self.ctrl.p
-        self.hover_thrust = self.ctrl_cfg.model_mass * self.ctrl_cfg.g / self.ctrl_cfg.max_thrust
-        self.profile: Profile = make_profile(c.autopilot, prestream=c.prestream)
-        self.vehicle: VehicleInfo | None = None  # known after the preflight (before the first tick)
-        self.steerer: ReferenceSteerer | None = None
-        self.solver = None
-        if c.mode == "steer":
-            self._setup_solver(solver)
-        elif c.mode in BASELINE_MODES:  # a baseline behind the steering's interface
-            lo, hi = c.reference_bounds()
-            self.policy, self._ahead = baseline_policy(c.mode, getattr(c, c.mode, None), c.rate_hz, self.m, self.hopping,
-                                                       hi - lo)
-        self.gate = make_gate(c, c.mode, self.period, self.solver)  # the last gate on every applied reference
-        if self.hopping:
-            window = hopping_window(self.solver, self.steerer.t_ini) if self.steerer is not None else None
-            self.hop = HoppingLoop(self.ctrl, contact, self.policy if self.steerer is not None else None, window)
+        ctrl_cfg = c.controller or default_controller_config()
+        if abs(ctrl_cfg.dt - self.period) > 1e-9:
+            raise ValueError(f"controller dt {ctrl_cfg.dt} s does not match the rate {c.rate_hz} Hz")
+        self.ctrl = HeightLegAngleController(ctrl_cfg, c.trajectory)
+        hopping = self.ctrl.mode == "hopping"
+        contact = c.contact or ContactConfig(leg_length=ctrl_cfg.leg_length)
+        self.events = EventLog(verbose=c.verbose)
+        self.steering: Steering | None = build_steering(c, self.ctrl, solver) if c.mode == "steer" else None
+        self.stage = build_reference_stage(c, self.ctrl, self.steering, contact)
+        self.hop: HoppingLoop | None = self.stage.hop
         self.link = link or MavLink(c.url, baud=c.baud, source_system=c.sysid, source_component=c.compid,
                                     target_system=c.target_system, target_component=c.target_component)
-        self.tracker = CommandTracker(self.link)
+        profile = make_profile(c.autopilot, prestream=c.prestream)
         # Hopping: the contact flag is read (and logged) whenever the robot sends one; it drives the
         # phases only with source "signal".
-        self.telem = TelemetryState(c.attitude_stream, c.position_stream, contact.signal_name if self.hopping else None)
-        xy0 = (0.0, 0.0) if self.hopping else self.ctrl.trajectory.start_position()[:2]
-        self.frame = TrajectoryFrame(c.frame, anchor=xy0)
-        self.rec = TickRecorder(self.m, self.p, capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
-        self.tilt_max = math.radians(c.max_tilt_deg)
-        self._exc = None
-        if c.mode == "collect":
-            self._exc_amp = np.broadcast_to(np.asarray(c.excitation, dtype=float), (self.m,)).copy()
-            self.prepare_excitation()
+        telem = TelemetryState(c.attitude_stream, c.position_stream, contact.signal_name if hopping else None)
+        self.vehicle = VehicleLink(self.link, profile, telem, self.events, rate_hz=c.rate_hz,
+                                   link_timeout=c.link_timeout, arm_timeout=c.arm_timeout, verbose=c.verbose,
+                                   on_reboot=lambda: self.trigger.restart_samples())
+        self.frame = TrajectoryFrame(c.frame, anchor=(0.0, 0.0) if hopping else self.ctrl.trajectory.start_position()[:2])
+        hover = ctrl_cfg.model_mass * ctrl_cfg.g / ctrl_cfg.max_thrust
+        self.shaping = AttitudeSetpoints(self.frame, profile, hover, c.thrust_min, c.thrust_max)
+        self.gate = _tick_gate(c, self.steering, hover, self.events)
+        self.recorder = FlightRecorder(self.ctrl.m, self.ctrl.p, self.period, self.events.t0, lockstep=c.lockstep,
+                                       capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
+        self.trigger = TickTrigger(self.period, c.lockstep, c.max_gap_fill)
+        self.vehicle_info: VehicleInfo | None = None  # known after the preflight (before the first tick)
         self._stop = False
         self.stop_reason = ""
-        self.events: list[tuple[float, str]] = []
-        self.params: dict[str, float] = {}
-        self.counts: dict[str, int] = {"tilt_clamped": 0, "thrust_clamped": 0, "telemetry_gaps": 0,
-                                       "reboots": 0, "stream_requests": 0, "link_losses": 0}
-        self.t0 = time.monotonic()
-        self._send_times: list[float] = []
-        self._send_stamps: list[float] = []  # vehicle time of each send (the clock that counts in lock-step)
         self.scheduling = "best effort"
         self._rt = RealtimeSetup()
-        self._init_run_state()
+        self._new_run()
 
-    def _reset_steering(self) -> None:
-        """Forget the steering history (hopping: its own (u, y, phase) history too)."""
-        if self.hop is not None:
-            self.hop.reset()
-        elif self.steerer is not None:
-            self.policy.reset()
+    def _new_run(self) -> None:
+        """Everything the loop keeps between ticks, fresh at every :meth:`run`."""
+        c = self.cfg
+        self.vehicle.reset()
+        self.trigger.reset()
+        self.gate.reset()
+        self.stream = SetpointStream(self.vehicle, c.lockstep)
+        self.modes = ModeRequests(self.vehicle, self.stream, arm=c.arm, offboard=c.offboard, land=c.land)
+        self.engagement = _engagement(c, self.events, self.ctrl, self.frame)
+        self._tick_t = math.nan  # control clock of the last tick (grid time / stamp) [s]
+        self.failure: str | None = None
 
     def stop(self, *_args) -> None:
         """Ask the loop to finish (signal handler)."""
         self._stop = True
         if not self.stop_reason:
             self.stop_reason = "signal"
-
-    def _event(self, what: str) -> None:
-        t = time.monotonic() - self.t0
-        self.events.append((round(t, 4), what))
-        if self.cfg.verbose:
-            print(f"[bridge {t:8.3f}] {what}", file=sys.stderr, flush=True)
-
-    # ------------------------------------------------------------------ vehicle state
-    def _init_run_state(self) -> None:
-        """Everything the loop keeps between ticks (fresh at every :meth:`run`)."""
-        self.armed = False
-        self.offboard = False
-        self.mode_name = "?"
-        self.hb_autopilot: int | None = None
-        self.hb_type = 0
-        self.last_hb = -math.inf
-        self.last_heard = -math.inf        # last heartbeat or telemetry sample from the vehicle [s]
-        self.hb_seen = False
-        self._link_lost = False
-        self._t_offset = math.inf          # receive time - vehicle time stamp (clock sync estimate) [s]
-        self._last_seq = (0, 0)            # telemetry sample counts used by the last event tick
-        self.clock = TickClock(self.period)  # real time: the uniform tick grid
-        self._seen_total = 0               # telemetry samples (both streams) up to the last tick
-        self._tick_t = math.nan            # trajectory clock of the last tick (grid time / stamp) [s]
-        self._last_send = -math.inf
-        self._last_msg = None              # last SET_ATTITUDE_TARGET (repeated by hold ticks)
-        self._stream_since = math.inf      # start of the current uninterrupted setpoint stream [s]
-        self._stream_since_stamp = math.nan
-        self._prev_stream_t = -math.inf
-        self._stale_since: float | None = None
-        self._fresh_again = False          # telemetry fresh after a stale stretch: resume bumplessly
-        self._ref_offset = None            # u - y at the last fresh engaged tick
-        self._engaged = False
-        self._traj_t0: float | None = None  # vehicle time at which the trajectory started [s]
-        self._last_stamp = math.nan
-        self._n_activations = 0
-        self._offboard_attempts = 0
-        self._next_offboard_try = 0.0
-        self.arming = ArmingRetry(timeout=self.cfg.arm_timeout)
-        self.approach: Approach | None = None
-        self.approach_result: dict | None = None  # how the take-off approach ended (the summary's "approach")
-        self.blend = RefBlend(tuple(self.cfg.blend_rates or ()))
-        self._flown = False                # the trajectory has started once: frame and clock are fixed
-        self.failure: str | None = None
-        self._last_text = ""
-        self._was_engaged_ever = False
-        self._stale_mode_sent = False
-        self._k_exc = 0
-        self.truth = SimTruth()            # the SITL's true state, when it sends one (logged, not used)
-        self._init_safety()
 
     # ------------------------------------------------------------------ main loop
     def run(self, install_signals: bool = True, interrupted: Sized = ()) -> dict:
@@ -225,52 +186,22 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
         self._rt = setup_realtime(c.rt_priority, cpus=c.cpus, cpu_latency_us=c.cpu_latency_us)
         self.scheduling = self._rt.describe()
         if c.rt_priority or c.cpus:
-            self._event(f"scheduling: {self.scheduling}")
-        self._init_run_state()
+            self.events(f"scheduling: {self.scheduling}")
+        self._new_run()
         if len(interrupted):
             self.stop()
-        next_hb = 0.0
         gc_was = gc.isenabled()
         try:
-            self._wait_for_vehicle()
+            self.vehicle.wait_for_heartbeat(c.wait_heartbeat, lambda: self._stop)
             if not self._stop:  # interrupted while waiting: straight to the log and the summary
                 self._preflight()
-                self._request_streams()
+                self.vehicle.request_streams()
             gc.collect()
             gc.freeze()  # keep the collector's full passes off the tick path (objects made so far are immortal)
             gc.disable()
-            last_gc = time.monotonic()
-            n_gc = 0
-            while not self._stop:
-                now = time.monotonic()
-                timeout = self._wake_in(now)
-                if timeout > 0:
-                    self.link.wait(timeout)
-                for msg, rx in self.link.drain():
-                    self._on_message(msg, rx)
-                now = time.monotonic()
-                kind = self._tick_kind(now)
-                if kind:
-                    self._tick(kind, now)
-                    if kind == "grid":
-                        self.clock.advance(time.monotonic())
-                # ---- housekeeping, after the tick (never delays a setpoint)
-                now = time.monotonic()
-                if now >= next_hb:
-                    next_hb = now + 1.0
-                    self.link.send_heartbeat()
-                self.tracker.poll(now)
-                if self.link.poll(now):
-                    self._event(f"link reopened ({self.link.endpoint})")
-                    self._request_streams()
-                self._supervise(now)
-                if now - last_gc > 1.0 and now - self._last_send < 0.5 * self.period:
-                    # Right after a tick, off the critical path: young generations only (the setup objects
-                    # are frozen), the middle one every ~30 s.
-                    n_gc += 1
-                    gc.collect(1 if n_gc % 30 == 0 else 0)
-                    last_gc = now
-            self._shutdown()
+            self._loop()
+            self.modes.hand_back(self.period)
+            self._stop = True
         except NoVehicleError:
             self.stop_reason = "no vehicle"
             raise
@@ -287,146 +218,191 @@ class Bridge(Supervisor, Reporting, SetpointShaping, TickSafety, SteeringSetup):
             raise FlightError(self.failure)
         return self.summary()
 
-    def _wake_in(self, now: float) -> float:
-        if self.cfg.lockstep or not self.clock.started:
-            return 0.05
-        return self.clock.wait_time(now)
-
-    def _tick_kind(self, now: float) -> str:
-        """"event" (lock-step: every stream advanced), "grid" (real time: the clock's deadline), or ""."""
-        t = self.telem
-        if not t.has_data:
-            return ""
-        if self.cfg.lockstep:
-            return "event" if t.att.seq > self._last_seq[0] and t.pos.seq > self._last_seq[1] else ""
-        if not self.clock.started:
-            self.clock.start(now)  # the grid starts with the first complete telemetry
-        return "grid" if self.clock.due(now) else ""
-
-    def _vehicle_now(self, now: float) -> float:
-        """Vehicle time [s] now: the newest stamp in lockstep, else the clock estimate."""
-        if self.cfg.lockstep or not math.isfinite(self._t_offset):
-            return self.telem.newest_stamp()
-        return now - self._t_offset
+    def _loop(self) -> None:
+        """Wait, fold the messages in, tick when due; housekeeping after the tick (never delays a setpoint)."""
+        link, tel = self.link, self.vehicle.telem
+        next_hb = 0.0
+        last_gc = time.monotonic()
+        n_gc = 0
+        while not self._stop:
+            timeout = self.trigger.wake_in(time.monotonic())
+            if timeout > 0:
+                link.wait(timeout)
+            self.vehicle.pump()
+            now = time.monotonic()
+            kind = self.trigger.due(now, tel)
+            if kind:
+                self._tick(kind, now)
+                self.trigger.done(kind, time.monotonic())
+            now = time.monotonic()
+            beat = now >= next_hb
+            if beat:
+                next_hb = now + 1.0
+            self.vehicle.housekeeping(now, heartbeat=beat)
+            self._supervise(now)
+            if now - last_gc > 1.0 and now - self.stream.last_send < 0.5 * self.period:
+                # Right after a tick, off the critical path: young generations only (the setup objects
+                # are frozen), the middle one every ~30 s.
+                n_gc += 1
+                gc.collect(1 if n_gc % 30 == 0 else 0)
+                last_gc = now
 
     # ------------------------------------------------------------------ one tick
     def _tick(self, kind: str, now: float) -> None:
-        """One control tick: newest telemetry (held, with its age) -> reference -> setpoint -> log."""
-        c = self.cfg
-        tel = self.telem
+        """One control tick: newest telemetry (held, with its age) -> reference -> gate -> setpoint -> log."""
+        c, tel, eng, st = self.cfg, self.vehicle.telem, self.engagement, self.vehicle.status
         event = kind == "event"
-        if c.lockstep:
-            age, tclk = tel.newest_stamp() - tel.oldest_stamp(), tel.newest_stamp()
-        else:
-            age, tclk = now - tel.oldest_rx(), self.clock.time()  # grid time: uniform, no jitter
+        age, t_ctrl, n_new = self.trigger.timing(now, tel)
         fresh = age <= c.max_age
-        hb_ok = self.hb_seen and now - self.last_heard <= c.link_timeout
-        engaged = self.armed and self.offboard and hb_ok
-        n_new = max(tel.seq_total - self._seen_total, 0)
-        self._seen_total = tel.seq_total
-        stalled = self._check_stall(now)  # before the staleness: a quiet tick is still a tick of the clock
-        if not self._check_staleness(now, age, fresh, event):
+        heard = self.vehicle.heard(now)
+        engaged = st.armed and st.offboard and heard
+        stalled = self.gate.stalled(now)  # before the staleness: a quiet tick is still a tick of the clock
+        if stalled:
+            self.stage.reset()
+            eng.stalled()
+        if not eng.telemetry(now, age, fresh):
+            if event:
+                self.trigger.consumed(tel)
+            self.stream.last_send = now  # quiet: the autopilot's own failsafe takes over
             return
-        gap, fill = self._lockstep_gap(tclk) if event else (False, 0)
-        if fresh and not self._flown:
-            # Before the trajectory first starts, the frame follows the vehicle (frozen from then
-            # on: no re-anchoring mid-air) and heights count from where it stood disarmed.
-            self.frame.capture(tel.position, float(tel.euler[2]))
-            if not self.armed:
-                self.frame.z0 = float(tel.position[2])
-                self.truth.capture_ground()
-        state = self.frame.to_trajectory(tel.measured_state(0.0))
-        self._update_engagement(engaged and self.frame.captured, tclk, state)
-        self._tick_t = tclk
-        t_traj = tclk - self._traj_t0 if self._traj_t0 is not None else 0.0
+        gap, fill = self._gap(t_ctrl) if event else (False, 0)
+        state, y = self._measure(fresh)
+        on = engaged and self.frame.captured
+        self._engage(on, t_ctrl, y, state)
+        t_traj = eng.trajectory_time(t_ctrl)
         state = dataclasses.replace(state, t=t_traj)
         if self.hop is not None:
             state = self.hop.observe(state, tel)
-        ref = self._reference(state, t_traj, hb_ok, engaged and self.frame.captured, fresh, fill)
-        flags = self._gate_reference(ref) | (GATE_FLAGS["stall"] if stalled else 0)  # the last gate
-        flags |= self._check_guard_saturation(flags, now)
+        r_nom, hold = eng.reference(self.ctrl.nominal_reference(state), y, t_ctrl, self.period, heard=heard,
+                                    engaged=on, fresh=fresh)
+        ref = self.stage.step(r_nom, y, t_traj, hold, fill)                       # the mode's reference
+        u, flags = self._gate(ref, stalled, now)                                  # the last gate
         if fresh and engaged:
-            self._ref_offset = ref["u"] - ref["y"]  # applied reference - measured output (a stall resumes here)
-        if not fresh and c.stale_action != "reference":
-            q, thrust, field = self._level_setpoint()
-            if c.stale_action == "land":
-                self._request_land()
-        elif not self.armed and not self._flown:
-            q, thrust, field = self._ground_setpoint(float(state.position[2]))
-        else:
-            q, thrust, _ = self._clamp(self.ctrl.track(ref["u"], state))
-            field = self.profile.thrust_field(thrust, float(ref["u"][0]), float(state.position[2]))
-        q, thrust, field, bad = self._gate_setpoint(q, thrust, field)
-        self._safety_events(ref, flags | bad)
-        t_vehicle = tel.newest_stamp() if event else self._vehicle_now(now)
-        sent = self._send_setpoint(q, field, int(round(t_vehicle * 1000.0)) if math.isfinite(t_vehicle) else 0)
+            eng.applied(u - y)  # applied reference - measured output (a stall resumes here)
+        q, thrust, field, bad = self._setpoint(u, state, fresh)                   # controller, clamps
+        self.gate.report(u, ref.r_nom, ref.reason, flags | bad, self.hop.notes if self.hop else _NO_NOTES,
+                         tel.dropped)
+        t_vehicle = tel.newest_stamp() if event else self.vehicle.vehicle_now(now, c.lockstep)
+        sent = self.stream.send(q, field, int(round(t_vehicle * 1000.0)) if math.isfinite(t_vehicle) else 0)
         t_sent = time.monotonic()
-        self._record(ref, state, now=now, t_sent=t_sent, t_vehicle=t_vehicle,
-                     t_traj=t_traj if self._traj_t0 is not None else math.nan, age=age, q=q, thrust=thrust,
-                     field=field, event=event or n_new > 0, engaged=engaged and ref["reason"] not in ("takeoff", "blend"),
-                     fresh=fresh, sent=sent, gap=gap,
-                     n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6, gate=flags | bad)
+        self.recorder.record(
+            ref, u, state, now=now, t_sent=t_sent, t_vehicle=t_vehicle,
+            t_traj=t_traj if eng.traj_t0 is not None else math.nan, age=age, q=q, thrust=thrust, field=field,
+            event=event or n_new > 0, engaged=engaged and ref.reason not in ("takeoff", "blend"), fresh=fresh,
+            sent=sent, gap=gap, n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6, gate=flags | bad,
+            armed=st.armed, offboard=st.offboard, y_des=self.ctrl.y_des, phase=self.ctrl.phase,
+            backdate=self.hop.backdate if self.hop is not None else 0, contact=tel.contact, truth=self.vehicle.truth)
 
-    def _reference(self, state, t_traj: float, hb_ok: bool, engaged: bool, fresh: bool, fill: int) -> dict:
-        """Stage (a) and the mode's reference: steered / passthrough / collect, or why not."""
-        ctrl = self.ctrl
-        r_nom = ctrl.nominal_reference(state)
-        y = ctrl.outputs(state)
-        if engaged and fresh and self.approach is not None:
-            r_nom[0] = self.approach.step(self._tick_t, self.period, float(y[0]))
-        blending = engaged and self.blend.active
-        if blending:
-            r_nom = self.blend.apply(r_nom, self.period)
-        ref = {"r_nom": r_nom, "y": y, "u": r_nom, "u_st": None, "exc": None, "solve_us": math.nan}
-        if engaged and fresh and self.approach is not None:
-            ref["reason"] = "takeoff"
-            if self.approach.done:
-                ap, self.approach = self.approach, None
-                self.approach_result = ap.outcome()
-                if ap.timed_out:  # say so: the steering then starts against that error
-                    self._event(f"WARNING: did not hold the start height within {ap.tolerance:g} m for {ap.hold:g} s "
-                                f"in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle or its "
-                                "height estimate did not settle): trajectory starts anyway")
-                else:
-                    self._event("at the trajectory's start height: trajectory starts")
-            return ref
-        if not hb_ok:
-            ref["reason"] = "no_heartbeat"
-        elif not engaged:
-            ref["reason"] = "inactive"
-        elif not fresh:
-            ref["reason"] = "stale"
-            if self.hop is not None:
-                self.hop.reset()
-            elif self.steerer is not None:
-                self.steerer.reset()
-        elif blending:
-            # The hand-over is the controller's alone: the solver would pull the reference back to the
-            # trajectory faster than the blend allows. The history fills meanwhile (no extra warm-up).
-            ref["reason"] = "blend"
-            if self.steerer is not None:
-                self.policy.observe(r_nom, y)
-                ref["observed"] = True
-        elif self.cfg.mode == "steer" and self.hop is not None:
-            self.hop.lost(fill)
-            ref.update(self.hop.steer(y, r_nom, t_traj, self._ahead))
-        elif self.cfg.mode == "steer":
-            self.policy.lost(fill, y)
-            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
-            ref.update(u=out.u, reason=out.reason, solve_us=out.solve_us, u_st=out.u if out.steered else None,
-                       observed=True)
-            if self.policy.adaptation is not None:
-                ref["adapt"] = adapt_code(self.policy.adaptation.last)
-                ref["adapt_offset"] = self.policy.adaptation.offset_norm
-                ref["adapt_snap"] = self.policy.adaptation.last_snap
-            if out.reason == "step_too_large" and out.result is not None:  # clamped to the guard by the gate
-                ref["candidate"] = np.asarray(out.result.u[0], dtype=float)
-        elif self.cfg.mode in BASELINE_MODES:
-            if self.cfg.mode == "feedforward":  # the row of this trajectory tick (a re-engagement continues it)
-                self.policy.seek(feedforward_row(t_traj, self.period))
-            out = self.policy.decide(y, r_nom, ctrl.desired_outputs(t_traj + self._ahead))
-            ref.update(u=out.u, reason=out.reason)
-        else:  # collect
-            ref["exc"] = self._excitation() if self.hop is None else self.hop.excitation(self._excitation())
-            ref.update(u=r_nom + ref["exc"], reason="collect")
-        return ref
+    def _gap(self, stamp: float) -> tuple[bool, int]:
+        """Lock-step: (a gap, ticks to bridge); a hole too long to bridge refills the steering history."""
+        gap, fill, hole = self.trigger.gap(stamp, self.vehicle.telem)
+        if hole:
+            self.stage.reset()
+        return gap, fill
+
+    def _measure(self, fresh: bool):
+        """The measured state in the trajectory frame and its outputs (p,). Before the trajectory first starts,
+        the frame follows the vehicle (frozen from then on: no re-anchoring mid-air) and heights count from
+        where it stood disarmed."""
+        tel = self.vehicle.telem
+        if fresh and not self.engagement.flown:
+            self.frame.capture(tel.position, float(tel.euler[2]))
+            if not self.vehicle.status.armed:
+                self.frame.z0 = float(tel.position[2])
+                self.vehicle.truth.capture_ground()
+        state = self.frame.to_trajectory(tel.measured_state(0.0))
+        return state, self.ctrl.outputs(state)
+
+    def _engage(self, engaged: bool, t_ctrl: float, y: np.ndarray, state) -> None:
+        """Engagement edges: each forgets the steering history; the first releases a hopping robot."""
+        edge = self.engagement.update(engaged, t_ctrl, y, float(state.position[2]), self.vehicle.status.mode_name)
+        if edge in ("first", "again", "resume"):
+            self.stage.reset()
+        if edge == "first" and self.hop is not None:
+            self.hop.release(state)
+        self._tick_t = t_ctrl
+
+    def _gate(self, ref: TickReference, stalled: bool, now: float) -> tuple[np.ndarray, int]:
+        """The applied reference (m,) and the gate flags; a guard saturation hands the steering back."""
+        u, flags = self.gate.reference(ref)
+        self.stage.applied(ref, u)
+        flags |= GATE_FLAGS["stall"] if stalled else 0
+        sat = self.gate.saturated(flags, now, self._tick_t)
+        if sat:
+            self.stage.reset()
+        return u, flags | sat
+
+    def _setpoint(self, u: np.ndarray, state, fresh: bool) -> tuple[tuple, float, float, int]:
+        """Stage (b) and the clamps: (q NED/FRD, thrust, the thrust field, gate flags); stale: the stale action,
+        disarmed before the first flight: the idle ground setpoint."""
+        c = self.cfg
+        if not fresh and c.stale_action != "reference":
+            q, thrust, field = self.shaping.level()
+            if c.stale_action == "land":
+                self.modes.land_on_stale()
+        elif not self.vehicle.status.armed and not self.engagement.flown:
+            q, thrust, field = self.shaping.ground(float(state.position[2]))
+        else:
+            q_enu, thrust = self.gate.clamp(self.ctrl.track(u, state))
+            q = self.shaping.to_vehicle(q_enu)
+            field = self.vehicle.profile.thrust_field(thrust, float(u[0]), float(state.position[2]))
+        return self.gate.setpoint(q, thrust, field, self.shaping.level)
+
+    # ------------------------------------------------------------------ around the ticks
+    def _preflight(self) -> None:
+        """Before the first tick: the vehicle's preflight, then what the loop adds (solver, hopping timing)."""
+        c, prof = self.cfg, self.vehicle.profile
+        self.vehicle_info = info = self.vehicle.preflight(c.guid_options, c.force_guid_options, lambda: self._stop)
+        for warning in loop_warnings(self.steering, self.hop, prof, c.rate_hz):
+            self.events(f"warning: {warning}")
+        self.events(f"vehicle: {prof.name}, hover thrust {hover_param(prof)}="
+                    + ("?" if info.hover_thrust is None else f"{info.hover_thrust:.3f}")
+                    + f", controller model hover thrust {self.shaping.hover_thrust:.3f}")
+
+    def _supervise(self, now: float) -> None:
+        """Off the tick path: arming and modes, and when to stop (duration flown, timeout, vehicle lost)."""
+        c, eng = self.cfg, self.engagement
+        if not self.vehicle.status.seen:
+            return
+        failure = self.modes.supervise(now, eng.engaged_before)
+        if failure:
+            self.failure, self.stop_reason, self._stop = failure, "arming failed", True
+        if c.duration is not None and eng.engaged and eng.traj_t0 is not None:
+            if self._tick_t - eng.traj_t0 >= c.duration - 1e-9:
+                self.stop_reason = f"duration {c.duration:g} s flown"
+                self._stop = True
+        if c.timeout is not None and now - self.events.t0 > c.timeout:
+            self.stop_reason = self.stop_reason or f"timeout {c.timeout:g} s"
+            self._stop = True
+        if self.vehicle.watch(now, c.vehicle_lost_timeout):
+            # Waiting on for --timeout would hide it: the flight is over, and the exit code says so (7).
+            self.events(f"vehicle lost: nothing heard for {now - self.vehicle.status.last_heard:.1f} s: stopping")
+            self.stop_reason = "vehicle lost"
+            self._stop = True
+
+    def _finish(self) -> None:
+        c = self.cfg
+        if c.log:  # always, even without a tick (interrupted, vehicle lost): the log says what happened
+            self.log_path = self.ticklog().save(c.log)
+        s = self.summary()
+        if c.summary:
+            write_summary(s, c.summary)
+        self.vehicle.close()
+
+    # ------------------------------------------------------------------ results
+    def ticklog(self) -> TickLog:
+        """The tick log with its metadata (config, controller, trajectory, frame, events, solver)."""
+        return self.recorder.ticklog(self.cfg, self.ctrl, self.vehicle, self.frame, self.events, self.gate,
+                                     self.steering.solver if self.steering else None)
+
+    def summary(self) -> dict:
+        """The run's summary (what the summary file holds)."""
+        head = {"mode": self.cfg.mode, "autopilot": self.vehicle.profile.name, "stop_reason": self.stop_reason}
+        out = self.recorder.summary(
+            head, self.cfg, vehicle=self.vehicle, vehicle_info=self.vehicle_info, stream=self.stream,
+            trigger=self.trigger, engagement=self.engagement, gate=self.gate, frame=self.frame, events=self.events,
+            scheduling=self.scheduling)
+        out.update(self.stage.summary())
+        if "feedforward" in out:
+            out["feedforward"] = {"file": str(self.cfg.feedforward), **out["feedforward"]}
+        return out

@@ -19,7 +19,14 @@ import json
 import math
 import signal
 import sys
+from dataclasses import fields, replace
 
+from ddpc_codegen.errors import DDPCError
+from ddpc_codegen.robot.profile import load_profile
+from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
+
+from firmware_bridge.bridge import Bridge, FlightError, NoVehicleError
+from firmware_bridge.bridge_config import BRIDGE_MODES, BridgeConfig
 from firmware_bridge.cli_args import (
     ATTITUDE_STREAMS,
     POSITION_STREAMS,
@@ -29,22 +36,18 @@ from firmware_bridge.cli_args import (
     floats_or_none,
     qos_request,
 )
+from firmware_bridge.link import LinkError
+from firmware_bridge.preflight import PreflightError
 
 __all__ = ["bridge_main", "build_bridge_parser", "main"]
 
 # ----------------------------------------------------------------------------- bridge
 def _bridge_defaults() -> dict:
     """BridgeConfig's field defaults: the flags' defaults are written once, in the dataclass."""
-    from dataclasses import fields
-
-    from firmware_bridge.bridge_config import BridgeConfig
-
     return {f.name: f.default for f in fields(BridgeConfig)}
 
 
 def _bridge_modes() -> tuple[str, ...]:
-    from firmware_bridge.bridge_config import BRIDGE_MODES
-
     return BRIDGE_MODES
 
 
@@ -191,10 +194,6 @@ def _bridge_logging_args(g) -> None:
 def _profile_from_args(a: argparse.Namespace):
     """(ControllerConfig, EllipseTrajectory, ContactConfig, SteeringGuards, Envelope) of the robot profile
     named by --profile / --scenario (all None: the flying default), with --contact / --contact-name applied."""
-    from dataclasses import replace
-
-    from ddpc_codegen.robot.profile import load_profile
-
     name = a.controller or ("pogox_hopping" if a.scenario == "hopping" else None)
     if name is None:
         if a.contact or a.contact_name:
@@ -221,13 +220,9 @@ def _max_step(a: argparse.Namespace, guards) -> tuple | None:
     return _D["max_step"]
 
 
-def bridge_config_from_args(a: argparse.Namespace):
-    from firmware_bridge.bridge import BridgeConfig
-
+def bridge_config_from_args(a: argparse.Namespace) -> BridgeConfig:
     ctrl, traj, contact, guards, envelope = _profile_from_args(a)
     if a.trajectory:
-        from ddpc_codegen.robot.trajectory_files import trajectory_from_arg
-
         traj = trajectory_from_arg(a.trajectory)
     return BridgeConfig(
         url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, prefilter=a.prefilter, feedforward=a.feedforward,
@@ -288,12 +283,6 @@ def bridge_main(argv: list[str] | None = None) -> int:
     6 if interrupted (SIGINT / SIGTERM) before the first tick, 7 if the vehicle was lost (link lost for
     ``--vehicle-lost-timeout``). The log is written in every case that got past the configuration."""
     args = build_bridge_parser().parse_args(argv)
-    from ddpc_codegen.errors import DDPCError
-
-    from firmware_bridge.bridge import Bridge, FlightError, NoVehicleError
-    from firmware_bridge.link import LinkError
-    from firmware_bridge.preflight import PreflightError
-
     # An interrupt while the bridge is being set up (the link may already be open) is an interrupt before
     # the first tick: remembered here, handed to the bridge, which then writes its empty log and exits 6.
     early: list[int] = []

@@ -10,13 +10,19 @@ the tick log contains the telemetry delay it will see when steering.
 
 An overrun longer than one period (the process was not scheduled) skips grid points instead of
 firing a burst of catch-up ticks: the skipped ones are counted, the grid phase is kept.
+
+:class:`TickTrigger` says when a tick is due: on the grid in real time, on every sample of both streams in
+lock-step (the vehicle's stamps are the clock there; a lost sample is a gap, bridged in the history for up to
+``max_gap_fill`` ticks).
 """
 
 from __future__ import annotations
 
 import math
 
-__all__ = ["TickClock"]
+from firmware_bridge.telemetry import TelemetryState
+
+__all__ = ["TickClock", "TickTrigger"]
 
 
 class TickClock:
@@ -68,3 +74,81 @@ class TickClock:
         self.k += n
         self.skipped += n
         return n
+
+
+class TickTrigger:
+    """When the loop ticks, and its control clock.
+
+    Args:
+        period: the tick [s]; lockstep: tick on telemetry (vehicle time) instead of the grid.
+        max_gap_fill: lock-step: lost samples bridged in the history (a longer hole resets it).
+    """
+
+    def __init__(self, period: float, lockstep: bool, max_gap_fill: int) -> None:
+        self.period = period
+        self.lockstep = lockstep
+        self.max_gap_fill = max_gap_fill
+        self.gaps = 0  # lock-step: telemetry gaps seen
+        self.reset()
+
+    def reset(self) -> None:
+        """A new run: the grid not started, no sample used yet."""
+        self.clock = TickClock(self.period)
+        self.last_seq = (0, 0)        # telemetry sample counts used by the last event tick
+        self.seen_total = 0           # telemetry samples (both streams) up to the last tick
+        self.last_stamp = math.nan
+
+    def restart_samples(self) -> None:
+        """The vehicle rebooted: its sample counts start again."""
+        self.last_seq = (0, 0)
+
+    def wake_in(self, now: float) -> float:
+        """Seconds the loop may sleep in the link's wait."""
+        if self.lockstep or not self.clock.started:
+            return 0.05
+        return self.clock.wait_time(now)
+
+    def due(self, now: float, tel: TelemetryState) -> str:
+        """"event" (lock-step: every stream advanced), "grid" (real time: the clock's deadline), or ""."""
+        if not tel.has_data:
+            return ""
+        if self.lockstep:
+            return "event" if tel.att.seq > self.last_seq[0] and tel.pos.seq > self.last_seq[1] else ""
+        if not self.clock.started:
+            self.clock.start(now)  # the grid starts with the first complete telemetry
+        return "grid" if self.clock.due(now) else ""
+
+    def done(self, kind: str, now: float) -> None:
+        """The tick of ``kind`` is done (the grid moves to its next deadline)."""
+        if kind == "grid":
+            self.clock.advance(now)
+
+    def timing(self, now: float, tel: TelemetryState) -> tuple[float, float, int]:
+        """(age of the oldest stream's newest sample [s], control-clock time [s], samples new since the last
+        tick): lock-step on the vehicle's stamps, else on the grid (uniform, no jitter)."""
+        if self.lockstep:
+            age, t = tel.newest_stamp() - tel.oldest_stamp(), tel.newest_stamp()
+        else:
+            age, t = now - tel.oldest_rx(), self.clock.time()
+        n_new = max(tel.seq_total - self.seen_total, 0)
+        self.seen_total = tel.seq_total
+        return age, t, n_new
+
+    def consumed(self, tel: TelemetryState) -> None:
+        """The current samples are used (an event tick that sent nothing)."""
+        self.last_seq = (tel.att.seq, tel.pos.seq)
+
+    def gap(self, stamp: float, tel: TelemetryState) -> tuple[bool, int, bool]:
+        """Lock-step only (stamps are the tick clock there): (a gap, ticks to bridge in the history, a hole
+        too long to bridge or time went backwards: the history must be refilled)."""
+        self.consumed(tel)
+        step = stamp - self.last_stamp
+        self.last_stamp = stamp
+        if not (math.isfinite(step) and abs(step - self.period) > 0.4 * self.period):
+            return False, 0, False
+        self.gaps += 1
+        r = step / self.period
+        n = int(round(r)) - 1
+        if 1 <= n <= self.max_gap_fill and abs(r - round(r)) < 0.4:
+            return True, n, False  # a few samples lost: bridged once this tick's y is known
+        return True, 0, True

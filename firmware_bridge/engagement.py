@@ -10,6 +10,9 @@ bridge's tick and supervisor consult.
   trajectory clock waits; done once the vehicle holds the start height.
 * :class:`RefBlend` -- bumpless (re-)engagement: the applied reference starts at the measured
   output and moves toward the nominal one at bounded rates, then hands over exactly.
+* :class:`Engagement` -- the loop's engagement as a whole: its edges (the first starts the trajectory
+  clock or the take-off ramp; later ones, and a resume after stale telemetry or a stall, continue the same
+  clock with a blend), staleness, and why the nominal reference passes untouched on a tick.
 
 Measured on the SITLs: ArduCopter refused arming ("Arm: Gyros inconsistent", MAV_RESULT_FAILED)
 for 26 s after start and sent no local position before 42 s; PX4 SIH answered
@@ -19,11 +22,14 @@ TEMPORARILY_REJECTED (no text: PX4 reports through EVENT messages) for ~2.5 s.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ArmingRetry", "Approach", "RefBlend"]
+from firmware_bridge.events import EventLog
+
+__all__ = ["ArmingRetry", "Approach", "RefBlend", "Engagement"]
 
 
 @dataclass
@@ -165,3 +171,148 @@ class RefBlend:
         self.offset = np.sign(self.offset) * np.maximum(np.abs(self.offset) - step, 0.0)
         self.current = r + self.offset
         return self.current.copy()
+
+
+class Engagement:
+    """The loop's engagement and its trajectory clock.
+
+    Args:
+        events: where events go.
+        blend_rates: the bumpless blend's rates per reference (empty: no blend).
+        takeoff: ramp the height reference to ``start_height()`` [m] at the first engagement (``climb_rate``
+            [m/s], done within ``tolerance`` [m], giving up ``timeout`` s after the ramp).
+        max_age, stale_action, stale_stream_limit: the staleness limit [s], its fallback (for the events) and
+            how long the setpoints go on while stale [s] (0: for ever).
+        describe: the first engagement's event text after "trajectory starts, " (mode, frame).
+    """
+
+    def __init__(self, events: EventLog, *, blend_rates=(), takeoff: bool = False,
+                 start_height: Callable[[], float] | None = None, climb_rate: float = 0.5,
+                 tolerance: float = 0.05, timeout: float = 5.0, max_age: float = math.inf,
+                 stale_action: str = "reference", stale_stream_limit: float = 0.0,
+                 describe: Callable[[], str] = lambda: "") -> None:
+        self.events = events
+        self.blend_rates = tuple(blend_rates or ())
+        self.takeoff, self.start_height = takeoff, start_height
+        self.climb_rate, self.tolerance, self.timeout = climb_rate, tolerance, timeout
+        self.max_age, self.stale_action, self.stale_stream_limit = max_age, stale_action, stale_stream_limit
+        self.describe = describe
+        self.engaged = False
+        self.flown = False                    # the trajectory has started once: frame and clock are fixed
+        self.engaged_before = False
+        self.activations = 0
+        self.traj_t0: float | None = None     # control-clock time at which the trajectory started [s]
+        self.resume_pending = False           # fresh after a stale stretch or a stall: resume bumplessly
+        self.ref_offset: np.ndarray | None = None  # u - y at the last fresh engaged tick
+        self.stale_since: float | None = None
+        self.approach: Approach | None = None
+        self.approach_result: dict | None = None  # how the take-off approach ended (the summary's "approach")
+        self.blend = RefBlend(self.blend_rates)
+
+    def trajectory_time(self, t: float) -> float:
+        """Trajectory time [s] at control-clock time ``t`` (0 before the trajectory starts)."""
+        return t - self.traj_t0 if self.traj_t0 is not None else 0.0
+
+    def telemetry(self, now: float, age: float, fresh: bool) -> bool:
+        """Staleness bookkeeping; False when the stream limit says to go quiet (no setpoint)."""
+        if fresh:
+            if self.stale_since is not None:
+                self.events(f"telemetry fresh again after {now - self.stale_since:.3f} s")
+                self.resume_pending = True
+            self.stale_since = None
+            return True
+        if self.stale_since is None:
+            self.stale_since = now
+            self.events(f"telemetry stale (age {age * 1e3:.1f} ms > {self.max_age * 1e3:.0f} ms): fallback "
+                        f"'{self.stale_action}'")
+        return not (self.stale_stream_limit > 0 and now - self.stale_since > self.stale_stream_limit)
+
+    def stalled(self) -> None:
+        """The loop's own clock stalled: resume bumplessly (as after stale telemetry) once flying."""
+        if self.flown:
+            self.resume_pending = True
+
+    def update(self, engaged: bool, t: float, y: np.ndarray, z: float, vehicle_mode: str) -> str:
+        """Engagement edges at control-clock time ``t`` [s] with the measured outputs ``y`` (p,) and height
+        ``z`` [m]: "first" (the trajectory, or the take-off ramp, starts), "again" (a re-engagement: same
+        clock and frame), "resume" (fresh again after a stale stretch or a stall), "lost" or "". On "first",
+        "again" and "resume" the owner forgets the steering history; each starts a bumpless blend."""
+        edge = ""
+        if engaged and not self.engaged:
+            edge = "again" if self.flown else "first"
+            self.activations += 1
+            self.engaged_before = True
+            if self.blend_rates:
+                self.blend.start(y)
+            if edge == "first":
+                self._first(t, z, vehicle_mode)
+            else:
+                self.events(f"re-engaged ({vehicle_mode}): trajectory continues at t = {t - self.traj_t0:.3f} s, "
+                            "same frame")
+        elif engaged and self.resume_pending and self.flown:
+            # Still engaged, but the telemetry was stale (a stall): the vehicle moved, or, frozen with
+            # its autopilot, did not, while the trajectory clock ran on. Resume as at a re-engagement
+            # (same clock and frame), the reference rate-limited from where it stood relative to the
+            # measured outputs at the last fresh tick: a frozen vehicle gets its last fresh setpoint
+            # again (no thrust kick from the tracking error it had), a moved one the same offset.
+            edge = "resume"
+            if self.blend_rates and self.approach is None:
+                self.blend.start(y + (0.0 if self.ref_offset is None else self.ref_offset))
+            self.events(f"resumed after stale telemetry: trajectory continues at t = {t - self.traj_t0:.3f} s, "
+                        "same frame")
+        elif not engaged and self.engaged:
+            edge = "lost"
+            self.events("disengaged: vehicle no longer armed + off-board (or link lost)")
+        self.resume_pending = False
+        self.engaged = engaged
+        if engaged and self.approach is not None:
+            self.traj_t0 = t  # the trajectory clock waits at its start until the vehicle is there
+        return edge
+
+    def _first(self, t: float, z: float, vehicle_mode: str) -> None:
+        self.flown = True
+        self.traj_t0 = t
+        if self.takeoff:
+            self.approach = Approach(self.start_height(), climb_rate=self.climb_rate, tolerance=self.tolerance,
+                                     max_extra=self.timeout)
+            self.approach.start(z)
+        self.events(f"engaged ({vehicle_mode}, armed): "
+                    + (f"take-off to z = {self.approach.target:.2f} m at {self.climb_rate:g} m/s, then "
+                       if self.approach else "")
+                    + f"trajectory starts, {self.describe()}")
+
+    def reference(self, r_nom: np.ndarray, y: np.ndarray, t: float, dt: float, *, heard: bool, engaged: bool,
+                  fresh: bool) -> tuple[np.ndarray, str]:
+        """(the nominal reference (m,) after the take-off ramp and the blend, why it passes untouched or "")
+        for this tick at control-clock time ``t`` [s] (``dt``: the tick [s])."""
+        ramping = engaged and fresh and self.approach is not None
+        if ramping:
+            r_nom[0] = self.approach.step(t, dt, float(y[0]))
+        blending = engaged and self.blend.active
+        if blending:
+            r_nom = self.blend.apply(r_nom, dt)
+        if ramping:
+            if self.approach.done:
+                self._approached()
+            return r_nom, "takeoff"
+        if not heard:
+            return r_nom, "no_heartbeat"
+        if not engaged:
+            return r_nom, "inactive"
+        if not fresh:
+            return r_nom, "stale"
+        return r_nom, "blend" if blending else ""
+
+    def _approached(self) -> None:
+        ap, self.approach = self.approach, None
+        self.approach_result = ap.outcome()
+        if ap.timed_out:  # say so: the steering then starts against that error
+            self.events(f"WARNING: did not hold the start height within {ap.tolerance:g} m for {ap.hold:g} s "
+                        f"in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle or its "
+                        "height estimate did not settle): trajectory starts anyway")
+        else:
+            self.events("at the trajectory's start height: trajectory starts")
+
+    def applied(self, offset: np.ndarray) -> None:
+        """A fresh engaged tick applied ``offset`` = u - y (m,): a stall resumes from there."""
+        self.ref_offset = offset

@@ -42,7 +42,7 @@ import time
 
 import numpy as np
 
-from ddpc_codegen.design.phases import DESCENT, GROUND
+from ddpc_codegen.values.phases import DESCENT, GROUND
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
@@ -206,14 +206,15 @@ class HoppingLoop:
         """Collect mode: the PRBS sample in the air, zeros on the ground."""
         return np.zeros_like(exc) if self.ctrl.phase == GROUND else exc
 
-    def steer(self, y: np.ndarray, r_nom: np.ndarray, t_traj: float, ahead: np.ndarray) -> dict:
-        """Steer mode: this tick's reference and why (``u``, ``reason``, ``solve_us``, ``u_st``)."""
+    def steer(self, y: np.ndarray, r_nom: np.ndarray, t_traj: float,
+              ahead: np.ndarray) -> tuple[np.ndarray, str, float, np.ndarray | None]:
+        """Steer mode: this tick's reference (m,), why, the solve time [us] (nan: none) and the steered
+        reference (None unless steered)."""
         y_des, phases = self.ctrl.predict(t_traj + ahead)
         u, out = self.steering.decide(self.ctrl.phase, y, r_nom, y_des, phases)
         if out is None:
-            reason = "ground" if self.ctrl.phase == GROUND else "no_window"
-            return {"u": u, "reason": reason, "solve_us": math.nan, "u_st": None}
-        return {"u": out.u, "reason": out.reason, "solve_us": out.solve_us, "u_st": out.u if out.steered else None}
+            return u, "ground" if self.ctrl.phase == GROUND else "no_window", math.nan, None
+        return out.u, out.reason, out.solve_us, out.u if out.steered else None
 
     def summary(self) -> dict:
         ev = self.estimator.events

@@ -1,103 +1,115 @@
-"""Setpoint shaping of the bridge's tick: collect-mode PRBS on the references, the level hover
-setpoint of the stale action, tilt / thrust clamps, and the SET_ATTITUDE_TARGET send (which also
-marks the continuous stream PX4 wants before it accepts OFFBOARD). A mixin of :class:`Bridge`:
-it reads the bridge's config, frame, profile and link."""
+"""What goes out each tick: the attitude setpoints the loop makes besides the controller's (the level hover
+setpoint of the stale action, the idle ground setpoint), and the SET_ATTITUDE_TARGET stream (send times, the
+last message for repeats, how long the stream has run: PX4 wants a live stream before it accepts OFFBOARD)."""
 
 from __future__ import annotations
 
 import math
 import time
 
-import numpy as np
-
-from ddpc_codegen.robot.frames import quat_from_euler, quat_ned_frd_from_enu_flu
+from ddpc_codegen.robot.frames import quat_ned_frd_from_enu_flu
 
 from firmware_bridge.link import mavlink
+from firmware_bridge.profiles import Profile
+from firmware_bridge.telemetry import TrajectoryFrame
+from firmware_bridge.vehicle_link import VehicleLink
 
-__all__ = ["SetpointShaping"]
+__all__ = ["AttitudeSetpoints", "SetpointStream"]
 
 # Body rates ignored: attitude + thrust (= 7).
 _TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
               | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
               | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
 
+Setpoint = tuple[tuple, float, float]  # (q NED/FRD (w, x, y, z), thrust [0..1], the message's thrust field)
 
-class SetpointShaping:
-    """What goes out each tick, after the controller: excitation, clamps, the message."""
 
-    _EXC_BLOCK = 12000  # samples of PRBS made at once (60 s at 200 Hz)
+class AttitudeSetpoints:
+    """Attitude setpoints in the vehicle's frame.
 
-    def _excitation_block(self, index: int) -> np.ndarray:
-        """Block ``index`` of the collect flight's PRBS, (block, m). The first is made before the tick loop
-        starts (:meth:`prepare_excitation`): making it imports scipy.signal (~1 s), a stall on a tick."""
-        from ddpc_codegen.design.data import prbs
+    Args:
+        frame: the trajectory frame (its heading turns a trajectory-frame attitude into the world's).
+        profile: the autopilot's thrust-field semantics.
+        hover_thrust: the controller model's hover thrust [0..1].
+        thrust_min, thrust_max: the thrust clamps [0..1].
+    """
 
-        return prbs(self._EXC_BLOCK, self.m, amplitude=self._exc_amp, min_hold=self.cfg.excitation_hold,
-                    seed=self.cfg.seed * 1009 + index)
+    def __init__(self, frame: TrajectoryFrame, profile: Profile, hover_thrust: float, thrust_min: float,
+                 thrust_max: float) -> None:
+        self.frame = frame
+        self.profile = profile
+        self.hover_thrust = hover_thrust
+        self.thrust_min, self.thrust_max = thrust_min, thrust_max
 
-    def prepare_excitation(self) -> None:
-        """Make the first PRBS block now (collect mode), off the tick path."""
-        self._exc = self._excitation_block(0)
+    def to_vehicle(self, q_enu) -> tuple:
+        """A trajectory-frame ENU/FLU attitude as the world's NED/FRD quaternion."""
+        return quat_ned_frd_from_enu_flu(self.frame.to_world(q_enu))
 
-    def _excitation(self) -> np.ndarray:
-        j = self._k_exc % self._EXC_BLOCK
-        if self._exc is None or (j == 0 and self._k_exc > 0):
-            self._exc = self._excitation_block(self._k_exc // self._EXC_BLOCK)
-        self._k_exc += 1
-        return self._exc[j]
-
-    def _level_setpoint(self) -> tuple[tuple, float, float]:
+    def level(self) -> Setpoint:
         """Level attitude at the trajectory frame's heading and hover thrust / zero climb rate."""
-        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
-        thrust = min(max(self.hover_thrust, self.cfg.thrust_min), self.cfg.thrust_max)
-        return q, thrust, self.profile.hover_field(thrust)
+        thrust = min(max(self.hover_thrust, self.thrust_min), self.thrust_max)
+        return self.to_vehicle((1.0, 0.0, 0.0, 0.0)), thrust, self.profile.hover_field(thrust)
 
-    def _ground_setpoint(self, z: float) -> tuple[tuple, float, float]:
+    def ground(self, z: float) -> Setpoint:
         """Level, idle thrust (the lower clamp) / zero climb rate: what a disarmed vehicle is sent.
         A vehicle left in OFFBOARD by the previous flight (PX4 returns to it after LAND and disarm)
         flies the streamed setpoint the moment our ARM is accepted, up to a heartbeat (1 s) before
         we know it is armed; the controller's thrust toward the trajectory start then throws it up
         (measured on PX4 SIH: 1.5 m/s, the heights' origin captured 1.2 m in the air)."""
-        q = quat_ned_frd_from_enu_flu(self.frame.to_world((1.0, 0.0, 0.0, 0.0)))
-        thrust = self.cfg.thrust_min
-        return q, thrust, self.profile.thrust_field(thrust, z, z)
+        thrust = self.thrust_min
+        return self.to_vehicle((1.0, 0.0, 0.0, 0.0)), thrust, self.profile.thrust_field(thrust, z, z)
 
-    def _clamp(self, sp) -> tuple[tuple, float, tuple]:
-        roll, pitch, yaw = (float(v) for v in sp.euler)
-        lim = self.tilt_max
-        q_enu = tuple(float(v) for v in sp.q)
-        if abs(roll) > lim or abs(pitch) > lim or not (math.isfinite(roll) and math.isfinite(pitch)):
-            self.counts["tilt_clamped"] += 1
-            roll = max(-lim, min(lim, roll)) if math.isfinite(roll) else 0.0
-            pitch = max(-lim, min(lim, pitch)) if math.isfinite(pitch) else 0.0
-            q_enu = tuple(float(v) for v in quat_from_euler(roll, pitch, yaw if math.isfinite(yaw) else 0.0))
-        thrust = float(sp.thrust)
-        lo, hi = self.cfg.thrust_min, self.cfg.thrust_max
-        if not math.isfinite(thrust):
-            thrust = self.hover_thrust
-            self.counts["thrust_clamped"] += 1
-        if thrust < lo or thrust > hi:
-            self.counts["thrust_clamped"] += 1
-            thrust = min(max(thrust, lo), hi)
-        return quat_ned_frd_from_enu_flu(self.frame.to_world(q_enu)), thrust, (roll, pitch, yaw)
 
-    def _send_setpoint(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
-        lk = self.link
+class SetpointStream:
+    """SET_ATTITUDE_TARGET out, with the stream's times.
+
+    Args:
+        vehicle: the link the setpoints go out on.
+        lockstep: the stream's length counts in vehicle time (a lock-stepped vehicle's clock is not the wall's).
+    """
+
+    def __init__(self, vehicle: VehicleLink, lockstep: bool) -> None:
+        self.vehicle = vehicle
+        self.lockstep = lockstep
+        self.send_times: list[float] = []   # monotonic [s] of each setpoint sent
+        self.send_stamps: list[float] = []  # vehicle time of each (the clock that counts in lock-step) [s]
+        self.last_msg = None                # last SET_ATTITUDE_TARGET (repeated by the hand-back)
+        self.last_send = -math.inf
+        self.since = math.inf               # start of the current uninterrupted stream [s]
+        self.since_stamp = math.nan
+        self.prev_t = -math.inf
+
+    def send(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
+        """Send one setpoint; True when it went out."""
+        lk = self.vehicle.link
         msg = lk.mav.set_attitude_target_encode(
             stamp_ms & 0xFFFFFFFF, lk.target_system or 0, lk.target_component or 0, _TYPE_MASK,
             list(q_ned), 0.0, 0.0, 0.0, float(field))
         ok = lk.send(msg)
-        self._last_msg = msg
-        self._last_send = time.monotonic()
+        self.last_msg = msg
+        self.last_send = t = time.monotonic()
         if ok:
-            self._send_times.append(self._last_send)
-            self._send_stamps.append(self._vehicle_now(self._last_send))
-            self._stream_mark(self._last_send)
+            self.send_times.append(t)
+            self.send_stamps.append(self.vehicle.vehicle_now(t, self.lockstep))
+            # Continuous streaming since when (PX4 wants a live stream before it accepts OFFBOARD).
+            if not math.isfinite(self.since) or t - self.prev_t > 0.5:
+                self.since = t
+                self.since_stamp = self.vehicle.telem.newest_stamp()
+            self.prev_t = t
         return ok
 
-    def _stream_mark(self, t: float) -> None:
-        # Continuous streaming since when (PX4 wants a live stream before it accepts OFFBOARD).
-        if not math.isfinite(self._stream_since) or t - self._prev_stream_t > 0.5:
-            self._stream_since = t
-            self._stream_since_stamp = self.telem.newest_stamp()
-        self._prev_stream_t = t
+    def repeat_if_due(self, now: float, period: float) -> None:
+        """Send the last setpoint again when a period has passed since the last send."""
+        if now - self.last_send >= period and self.last_msg is not None:
+            self.vehicle.link.send(self.last_msg)
+            self.last_send = now
+
+    def streaming(self, now: float) -> bool:
+        """Setpoints flow now (the last within 0.1 s)."""
+        return math.isfinite(self.since) and now - self.prev_t < 0.1
+
+    def streamed(self, now: float) -> float:
+        """How long the current stream has run [s] (lock-step: in vehicle time)."""
+        if self.lockstep:
+            return self.vehicle.telem.newest_stamp() - self.since_stamp
+        return now - self.since

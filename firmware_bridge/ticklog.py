@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.errors import DataError
 
 __all__ = ["TickRecorder", "TickLog", "load_ticklog", "REASONS", "reason_code", "TICK_FIELDS"]
 
@@ -230,8 +231,6 @@ class TickLog:
         meta.update(source="firmware_bridge.ticklog", segments_ticks=[[int(s[0]), int(s[-1]) + 1] for s in segs],
                     dataset_skip=skip, min_segment=min_segment)
         if not segs:
-            from ddpc_codegen.errors import DataError
-
             raise DataError(
                 f"the tick log has no closed-loop segment of >= {min_segment} ticks (armed, off-board, fresh "
                 f"telemetry, after {skip} s); fly longer or check that the vehicle entered off-board")
@@ -256,8 +255,6 @@ class TickLog:
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
-        from ddpc_codegen.errors import DataError
-
         try:
             ds = self.to_dataset(skip=skip, min_segment=min_segment)
             ds = IODataset(list(ds.u), list(ds.y), ds.dt, input_names=ds.input_names, output_names=ds.output_names,

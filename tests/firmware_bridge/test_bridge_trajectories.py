@@ -48,7 +48,7 @@ def test_every_kind_of_trajectory_sets_up_the_steering_solver(tmp_path, flying_s
     for traj in kinds:
         b = _bridge(flying_solver, traj)
         try:
-            assert b.steerer is not None and b.t_f == read_json(flying_solver / "manifest.json")["dims"]["t_f"]
+            assert b.steering is not None and b.steering.t_f == read_json(flying_solver / "manifest.json")["dims"]["t_f"]
             # The frame anchors at the trajectory's own start (x, y): the vehicle maps there.
             np.testing.assert_array_equal(b.frame.anchor, traj.start_position()[:2])
         finally:

@@ -1,0 +1,273 @@
+"""The companion loop's vehicle side: one MAVLink vehicle as the loop sees it.
+
+:class:`VehicleLink` wraps an open :class:`.link.MavLink` and folds every message into typed state:
+telemetry (:class:`.telemetry.TelemetryState`), the simulator's truth, the heartbeat's arming and mode
+(:class:`VehicleStatus`), parameters, command acknowledgements (with the arming retries' refusals), the
+vehicle clock estimate. It requests the telemetry streams, reads the preflight parameters, notices a
+reboot (the vehicle's clock went back: streams asked for again) and a lost link (nothing heard).
+It knows nothing of trajectories or steering: any front end that talks to one vehicle can own one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from firmware_bridge.bridge_config import NoVehicleError
+from firmware_bridge.engagement import ArmingRetry
+from firmware_bridge.events import EventLog
+from firmware_bridge.link import CommandTracker, MavLink, PendingCommand, mavlink
+from firmware_bridge.preflight import VehicleInfo, check_autopilot, decode_param_value, hover_param, \
+    params_to_read, resolve_guid_options
+from firmware_bridge.profiles import ArduPilotProfile, Profile
+from firmware_bridge.telemetry import TelemetryState
+from firmware_bridge.truth import TRUTH_MESSAGES, SimTruth
+
+__all__ = ["VehicleLink", "VehicleStatus"]
+
+_MSG_IDS = {
+    "ATTITUDE": mavlink.MAVLINK_MSG_ID_ATTITUDE,
+    "ATTITUDE_QUATERNION": mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    "LOCAL_POSITION_NED": mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    "ODOMETRY": mavlink.MAVLINK_MSG_ID_ODOMETRY,
+}
+
+
+@dataclass
+class VehicleStatus:
+    """What the vehicle's heartbeats said (times on the bridge's monotonic clock [s])."""
+
+    armed: bool = False
+    offboard: bool = False
+    mode_name: str = "?"
+    autopilot: int | None = None
+    vehicle_type: int = 0
+    last_hb: float = -math.inf
+    last_heard: float = -math.inf  # last heartbeat or telemetry sample
+    seen: bool = False             # a heartbeat arrived
+
+
+class VehicleLink:
+    """One vehicle over MAVLink (see the module docstring).
+
+    Args:
+        link: the open connection; profile: the autopilot's mode and thrust conventions.
+        telem: the telemetry state the samples are folded into.
+        events: where events are recorded.
+        rate_hz: the rate the telemetry streams are asked for [Hz].
+        link_timeout: nothing heard for this long: the link is lost [s].
+        arm_timeout: the arming retries give up after this long [s].
+        verbose: report every acknowledgement and status text.
+        on_reboot: called after a reboot was detected (the telemetry was reset).
+    """
+
+    def __init__(self, link: MavLink, profile: Profile, telem: TelemetryState, events: EventLog, *,
+                 rate_hz: float, link_timeout: float, arm_timeout: float = 120.0, verbose: bool = False,
+                 on_reboot: Callable[[], None] | None = None) -> None:
+        self.link = link
+        self.tracker = CommandTracker(link)
+        self.profile = profile
+        self.telem = telem
+        self.events = events
+        self.rate_hz = rate_hz
+        self.link_timeout = link_timeout
+        self.arm_timeout = arm_timeout
+        self.verbose = verbose
+        self.on_reboot = on_reboot
+        self.params: dict[str, float] = {}
+        self.counts: dict[str, int] = {"reboots": 0, "stream_requests": 0, "link_losses": 0}
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the vehicle's state (a new run)."""
+        self.status = VehicleStatus()
+        self.truth = SimTruth()  # the SITL's true state, when it sends one (logged, not used)
+        self.arming = ArmingRetry(timeout=self.arm_timeout)
+        self.link_lost = False
+        self.t_offset = math.inf  # receive time - vehicle time stamp (clock sync estimate) [s]
+        self.last_text = ""
+
+    # ------------------------------------------------------------------ receive
+    def pump(self) -> None:
+        """Fold every pending message in."""
+        for msg, rx in self.link.drain():
+            self.on_message(msg, rx)
+
+    def on_message(self, msg, rx: float) -> None:
+        """Fold one message received at ``rx`` [s] in."""
+        typ = msg.get_type()
+        if typ in self.telem.wanted:
+            self._on_telemetry(msg, rx)
+        elif typ == "HEARTBEAT":
+            self._on_heartbeat(msg, rx)
+        elif typ == "COMMAND_ACK":
+            pc = self.tracker.on_ack(msg)
+            if pc is not None and pc.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and not pc.accepted:
+                self.events(self.arming.refused(mavlink.enums["MAV_RESULT"][pc.result].name, self.last_text))
+            elif pc is not None and (self.verbose or not pc.accepted):
+                self.events(f"{pc.label}: {mavlink.enums['MAV_RESULT'][pc.result].name}")
+        elif typ == "PARAM_VALUE":
+            name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
+            name = name.rstrip("\x00")
+            self.params[name] = decode_param_value(msg.param_value, msg.param_type, self.status.autopilot or 0)
+            if name == "COM_OF_LOSS_T":
+                self.profile.offboard_loss_timeout = float(msg.param_value)
+        elif typ in ("SIM_STATE", "HIL_STATE_QUATERNION"):
+            self.truth.update(msg, rx)
+        elif typ == "STATUSTEXT":
+            self.last_text = str(msg.text).rstrip("\x00")  # the autopilot's reason for a refusal
+            if self.verbose:
+                self.events(f"vehicle says: {msg.text}")
+
+    def _on_telemetry(self, msg, rx: float) -> None:
+        tel = self.telem
+        before = (tel.att.stamp, tel.pos.stamp)
+        if not tel.update(msg, rx):
+            return  # the contact flag: kept, not a state sample
+        self.status.last_heard = rx
+        if before[0] - tel.att.stamp > 1.0 or before[1] - tel.pos.stamp > 1.0:
+            # Vehicle clock went back: it rebooted. Forget its state and ask for the streams again.
+            self.counts["reboots"] += 1
+            self.events(f"vehicle time went back ({max(before):.3f} s -> {tel.newest_stamp():.3f} s): "
+                        "reboot, re-requesting streams")
+            tel.reset()
+            tel.update(msg, rx)
+            self.t_offset = math.inf
+            if self.on_reboot is not None:
+                self.on_reboot()
+            self.request_streams()
+        off = rx - tel.newest_stamp()
+        # Vehicle clock estimate: minimum of (receive - stamp), slowly forgetting (clock drift).
+        self.t_offset = min(self.t_offset + 1e-5, off) if math.isfinite(self.t_offset) else off
+
+    def _on_heartbeat(self, msg, rx: float) -> None:
+        st = self.status
+        vm = self.profile.decode(msg.base_mode, msg.custom_mode)
+        if not st.seen:
+            st.autopilot, st.vehicle_type = int(msg.autopilot), int(msg.type)
+            self.events(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, autopilot {msg.autopilot}, "
+                        f"{vm.name}, armed={vm.armed}")
+        elif self.link_lost or rx - st.last_heard > self.link_timeout:
+            self.events("vehicle heartbeat back: link restored, re-requesting streams")
+            self.request_streams()
+        if st.seen and (vm.armed != st.armed or vm.name != st.mode_name):
+            self.events(f"vehicle {vm.name}, armed={vm.armed}")
+        st.seen = True
+        st.last_hb = st.last_heard = rx
+        st.armed, st.offboard, st.mode_name = vm.armed, vm.offboard, vm.name
+
+    # ------------------------------------------------------------------ state
+    def heard(self, now: float) -> bool:
+        """A heartbeat arrived and the vehicle was heard within the link timeout."""
+        return self.status.seen and now - self.status.last_heard <= self.link_timeout
+
+    def vehicle_now(self, now: float, lockstep: bool) -> float:
+        """Vehicle time [s] now: the newest stamp in lockstep, else the clock estimate."""
+        if lockstep or not math.isfinite(self.t_offset):
+            return self.telem.newest_stamp()
+        return now - self.t_offset
+
+    def watch(self, now: float, lost_after: float) -> bool:
+        """Link-loss bookkeeping; True when nothing was heard for ``lost_after`` s after the link was lost."""
+        st = self.status
+        # The link lives while the vehicle is heard at all: PX4 sends its heartbeat once a second, so
+        # after a 2 s stall the next one can be 4 s after the last, while telemetry is already back.
+        if st.seen and now - st.last_heard > self.link_timeout and not self.link_lost:
+            self.link_lost = True
+            self.counts["link_losses"] += 1
+            self.events(f"vehicle silent (no heartbeat, no telemetry) for {self.link_timeout:g} s: link lost")
+        elif now - st.last_heard <= self.link_timeout:
+            self.link_lost = False
+        return self.link_lost and now - st.last_heard > lost_after
+
+    # ------------------------------------------------------------------ send
+    def command(self, command: int, params: tuple[float, ...], label: str) -> PendingCommand:
+        """A COMMAND_LONG, retried until acknowledged."""
+        return self.tracker.submit(command, params, label)
+
+    def pending(self, command: int) -> bool:
+        """A command of this kind waits for its acknowledgement."""
+        return bool(self.tracker.queues.get(command))
+
+    def request_streams(self) -> None:
+        """Ask for the telemetry streams (and the simulator's truth) at the loop rate."""
+        us = int(round(1e6 / self.rate_hz))
+        for name in sorted({self.telem.attitude_msg, self.telem.position_msg}):
+            self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(_MSG_IDS[name]), float(us)),
+                         f"SET_MESSAGE_INTERVAL {name} {self.rate_hz:g} Hz")
+        # The simulator's truth, logged beside the EKF (SITL only: a real vehicle refuses it or, PX4 without
+        # ground truth, sends nothing): ArduPilot's SIM_STATE, PX4 SIH's HIL_STATE_QUATERNION.
+        name, msg_id = TRUTH_MESSAGES["ardupilot" if isinstance(self.profile, ArduPilotProfile) else "px4"]
+        self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(us)),
+                     f"SET_MESSAGE_INTERVAL {name} {self.rate_hz:g} Hz (SITL truth)")
+        self.counts["stream_requests"] += 1
+
+    def housekeeping(self, now: float, heartbeat: bool) -> None:
+        """Off the tick path: our heartbeat (when due), command retries, reopening a closed link."""
+        if heartbeat:
+            self.link.send_heartbeat()
+        self.tracker.poll(now)
+        if self.link.poll(now):
+            self.events(f"link reopened ({self.link.endpoint})")
+            self.request_streams()
+
+    # ------------------------------------------------------------------ before the first tick
+    def wait_for_heartbeat(self, timeout: float, stopped: Callable[[], bool]) -> None:
+        """Send our heartbeat once a second until the vehicle's arrives.
+
+        Raises:
+            NoVehicleError: none within ``timeout`` s.
+        """
+        t_end = time.monotonic() + timeout
+        target = self.link.target_system  # as asked for (target 0 locks onto the first system heard)
+        next_hb = 0.0
+        while not self.status.seen and not stopped():
+            now = time.monotonic()
+            if now > t_end:
+                raise NoVehicleError(f"no heartbeat from system {target} on {self.link.endpoint} "
+                                     f"within {timeout:g} s")
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self.link.send_heartbeat()  # udpout: lets a udpin vehicle learn our address
+            self.link.poll(now)
+            self.link.wait(0.05)
+            self.pump()
+
+    def preflight(self, guid_options: int | None, force_guid_options: bool, stopped: Callable[[], bool],
+                  timeout: float = 3.0) -> VehicleInfo:
+        """The heartbeat's autopilot, the parameters, the thrust semantics (ArduPilot's GUID_OPTIONS).
+
+        Raises:
+            PreflightError: wrong autopilot, or a required parameter / a consistent GUID_OPTIONS missing.
+        """
+        check_autopilot(self.status.autopilot, self.profile)
+        wanted = params_to_read(self.profile)
+        t_end = time.monotonic() + timeout
+        next_ask = 0.0
+        while not stopped() and time.monotonic() < t_end and any(n not in self.params for n in wanted):
+            if time.monotonic() >= next_ask:
+                next_ask = time.monotonic() + 0.5
+                for n in wanted:
+                    if n not in self.params:
+                        self.request_param(n)
+            self.link.wait(0.05)
+            self.pump()
+        missing = [n for n, req in wanted.items() if n not in self.params and not req]
+        if missing:
+            self.events(f"parameters not answered within {timeout:g} s: {', '.join(missing)} (not needed)")
+        if isinstance(self.profile, ArduPilotProfile):
+            opt = resolve_guid_options(self.params.get("GUID_OPTIONS"), guid_options, force_guid_options)
+            self.profile.guid_options = opt
+            self.events(f"GUID_OPTIONS={opt}: thrust field is a "
+                        + ("climb rate" if self.profile.climb_rate_thrust else "thrust"))
+        return VehicleInfo(self.status.autopilot, self.status.vehicle_type, dict(self.params),
+                           self.params.get(hover_param(self.profile)))
+
+    def request_param(self, name: str) -> None:
+        self.link.send(self.link.mav.param_request_read_encode(self.link.target_system or 0,
+                                                               self.link.target_component or 0, name.encode(), -1))
+
+    def close(self) -> None:
+        self.link.close()

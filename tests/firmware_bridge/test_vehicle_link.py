@@ -1,0 +1,87 @@
+"""The loop's vehicle side (firmware_bridge/vehicle_link.py), built on a link without a socket: heartbeats to
+status, telemetry with the vehicle clock, reboots, refusals, parameters, link loss, the preflight's wait."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from firmware_bridge.bridge_config import NoVehicleError
+from firmware_bridge.link import mavlink
+from part_fakes import FakeLink, ack, from_vehicle, heartbeat, telemetry, vehicle
+
+
+def test_a_heartbeat_says_armed_offboard_and_the_mode_once_changed():
+    v = vehicle()
+    v.on_message(heartbeat(armed=False, offboard=False), 1.0)
+    assert v.status.seen and not v.status.armed and v.status.autopilot == mavlink.MAV_AUTOPILOT_PX4
+    v.on_message(heartbeat(), 1.2)
+    assert v.status.armed and v.status.offboard and v.status.mode_name == "OFFBOARD" and v.status.last_hb == 1.2
+    said = [e for _, e in v.events.events]
+    assert said[0].startswith("vehicle heartbeat: sysid 1") and said[1] == "vehicle OFFBOARD, armed=True"
+    assert v.heard(1.6) and not v.heard(1.8)
+
+
+def test_telemetry_sets_the_vehicle_clock_and_a_reboot_asks_for_the_streams_again():
+    reboots = []
+    v = vehicle(on_reboot=lambda: reboots.append(1))
+    for t in (10.0, 10.005):
+        for m in telemetry(t):
+            v.on_message(m, 100.0 + t + 0.002)
+    assert v.telem.has_data and v.telem.seq_total == 4
+    assert v.t_offset == pytest.approx(100.002) and v.vehicle_now(120.0, lockstep=False) == pytest.approx(19.998)
+    assert v.vehicle_now(120.0, lockstep=True) == pytest.approx(10.005)  # lock-step: the newest stamp
+    for m in telemetry(0.2):  # the vehicle's clock went back: it rebooted
+        v.on_message(m, 111.0)
+    assert v.counts["reboots"] == 1 and reboots == [1] and v.counts["stream_requests"] == 1
+    assert v.pending(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL)
+    assert v.telem.att.seq == 1 and v.telem.newest_stamp() == pytest.approx(0.2)
+
+
+def test_an_arming_refusal_is_reported_with_the_autopilots_words():
+    v = vehicle()
+    v.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "ARM")
+    v.on_message(from_vehicle(mavlink.MAVLink_statustext_message(3, b"Arm: gyros inconsistent")), 1.0)
+    v.on_message(ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_TEMPORARILY_REJECTED), 1.0)
+    assert v.arming.refusals == ["arming refused (MAV_RESULT_TEMPORARILY_REJECTED): Arm: gyros inconsistent"]
+    assert not v.pending(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+
+
+def test_parameters_are_decoded_and_the_offboard_loss_timeout_kept():
+    v = vehicle()
+    v.on_message(from_vehicle(mavlink.MAVLink_param_value_message(b"COM_OF_LOSS_T", 0.3,
+                                                                  mavlink.MAV_PARAM_TYPE_REAL32, 2, 0)), 1.0)
+    assert v.params["COM_OF_LOSS_T"] == pytest.approx(0.3) and v.profile.offboard_loss_timeout == pytest.approx(0.3)
+
+
+def test_a_silent_vehicle_loses_the_link_then_is_lost():
+    v = vehicle()
+    v.on_message(heartbeat(), 1.0)
+    assert not v.watch(1.2, lost_after=3.0) and not v.link_lost
+    assert not v.watch(1.6, lost_after=3.0) and v.link_lost and v.counts["link_losses"] == 1
+    assert v.watch(4.5, lost_after=3.0) and v.counts["link_losses"] == 1
+    v.on_message(heartbeat(), 4.6)  # back: said, and the streams asked for again
+    assert v.events.events[-1][1] == "vehicle heartbeat back: link restored, re-requesting streams"
+    assert not v.watch(4.7, lost_after=3.0) and not v.link_lost
+
+
+def test_no_heartbeat_within_the_wait_is_no_vehicle():
+    link = FakeLink()
+    v = vehicle(link)
+    with pytest.raises(NoVehicleError, match="no heartbeat from system 1 on fake within 0.05 s"):
+        v.wait_for_heartbeat(0.05, stopped=lambda: False)
+    assert link.heartbeats >= 1  # ours went out meanwhile (a udpin vehicle learns our address from it)
+    link.inbox.append((heartbeat(), 5.0))
+    v.wait_for_heartbeat(1.0, stopped=lambda: False)
+    assert v.status.seen
+
+
+def test_housekeeping_sends_our_heartbeat_and_retries_commands():
+    link = FakeLink()
+    v = vehicle(link)
+    v.command(mavlink.MAV_CMD_DO_SET_MODE, (1.0, 6.0, 0.0), "DO_SET_MODE OFFBOARD")
+    v.housekeeping(10.0, heartbeat=True)
+    v.housekeeping(10.1, heartbeat=False)
+    assert link.heartbeats == 1 and link.commands == [(mavlink.MAV_CMD_DO_SET_MODE, (1.0, 6.0, 0.0))]
+    assert math.isinf(v.t_offset)
