@@ -372,6 +372,52 @@ def test_no_development_history_in_the_docs():
             assert phrase not in text, f"{page.relative_to(ROOT)}: {phrase!r}"
 
 
+def test_the_architecture_page_names_what_the_code_has():
+    """docs/architecture.md: every package of ddpc_codegen is in the layer table, every test marker in the tier
+    table, and every module it names (the companion loop's parts, the backend's files) exists."""
+    page = (ROOT / "docs" / "architecture.md").read_text()
+    packages = sorted(p.name for p in (ROOT / "ddpc_codegen").iterdir() if (p / "__init__.py").is_file())
+    assert [p for p in packages if f"`{p}/`" not in page] == []
+    markers = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["markers"]
+    assert [m for m in (m.split(":")[0] for m in markers) if f"`{m}`" not in page] == []
+    loop = page[page.index("## The companion loop"):page.index("## Import rules")]
+    assert [f for f in re.findall(r"`(\w+\.py)`", loop) if not (ROOT / "firmware_bridge" / f).is_file()] == []
+    named = re.findall(r"`((?:\w+/)+\w+\.py)`", page)
+    assert named and [f for f in named if not (ROOT / "ddpc_codegen" / f).is_file()
+                      and not (ROOT / f).is_file()] == []
+
+
+def _names_code(dotted: str) -> bool:
+    """``a.b.c``: the longest prefix that is a module of the project, and the next name (if any) in its source."""
+    parts = dotted.split(".")
+    for i in range(len(parts), 0, -1):
+        base = ROOT.joinpath(*parts[:i])
+        source = base.with_suffix(".py") if base.with_suffix(".py").is_file() else base / "__init__.py"
+        if source.is_file():
+            return i == len(parts) or re.search(rf"\b{parts[i]}\b", source.read_text()) is not None
+    return False
+
+
+def test_every_module_the_docs_name_exists():
+    """A path (``design/problem.py``), a file name (``bridge.py``) or a dotted name (``ddpc_codegen.runtime.policy``)
+    of the project's code, written in the README or a docs page, names a module that exists: a moved module
+    fails here until the page follows it."""
+    files = {p.relative_to(ROOT).as_posix() for pkg in ("ddpc_codegen", "firmware_bridge", "tests", "examples")
+             for p in (ROOT / pkg).rglob("*.py")}
+    names = {f.rsplit("/", 1)[-1] for f in files}
+    missing = []
+    for page in _doc_pages():
+        text = page.read_text()
+        for f in re.findall(r"(?<![\w/.])((?:[\w-]+/)+[\w-]+\.py)\b", text):
+            if not any(f == k or k.endswith("/" + f) for k in files):
+                missing.append(f"{page.relative_to(ROOT)}: {f}")
+        missing += [f"{page.relative_to(ROOT)}: {f}" for f in re.findall(r"(?<![\w/.-])([a-z_0-9]+\.py)\b", text)
+                    if f not in names]
+        missing += [f"{page.relative_to(ROOT)}: {d}" for d in
+                    re.findall(r"\b((?:ddpc_codegen|firmware_bridge)(?:\.\w+)+)", text) if not _names_code(d)]
+    assert missing == []
+
+
 def _sitl_best(cond: dict, metric: str) -> tuple[str, float]:
     """The closest method of one SITL condition on one metric (None = not flown there)."""
     scores = {k: v for k, v in cond[metric].items() if v is not None}
