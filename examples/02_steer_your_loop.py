@@ -18,6 +18,7 @@ import numpy as np
 from ddpc_codegen import (IODataset, ReferenceSteerer, SteeringConfig, SteeringProblem, fit_predictor, generate,
                           load_solver, prbs)
 
+ROOT = Path(__file__).resolve().parents[1]
 DT = 0.01  # s (100 Hz)
 CONFIG = {"name": "loop", "horizon": {"t_ini": 10, "t_f": 20, "dt": DT},
           "signals": {"inputs": ["z_ref"], "outputs": ["z"]},
@@ -58,7 +59,7 @@ def fly(path: np.ndarray, steerer: ReferenceSteerer | None, t_f: int) -> np.ndar
 
 
 def main(argv: list[str]) -> int:
-    out_dir = Path(argv[0]) if argv else Path("generated") / "example_loop"
+    out_dir = Path(argv[0]) if argv else ROOT / "generated" / "example_loop"  # where examples/03_cpp looks
     cfg = SteeringConfig.from_dict(CONFIG)
     # 1. record: a PRBS around a hover reference, the height measured before each tick's reference is applied
     u = 1.0 + prbs(2000, 1, amplitude=0.2, min_hold=10, seed=1)
