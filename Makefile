@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt clean
+.PHONY: install check test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -21,6 +21,14 @@ $(STAMP): pyproject.toml
 $(LIBS_STAMP): ddpc_codegen/codegen/libs.py | $(STAMP)
 	@$(PY) -c "from ddpc_codegen.codegen.libs import main; raise SystemExit(main(['fetch']))"
 	@touch $(LIBS_STAMP)
+
+# While you work: lint, then the unit tier (no test that compiles C, runs processes over sockets, waits on the
+# wall clock, flies a SITL or was measured slow in tests/durations.json), one xdist worker per core, a file
+# per worker. Under a minute on 2 cores; `make test` before a commit or push runs every tier.
+CHECK_TIERS := e2e or realtime or compiler or sitl or slow
+CHECK_WORKERS ?= $(shell $(PYTHON) -c "import os; print(os.cpu_count() or 1)")
+check: install lint
+	@$(PY) -m pytest -q -n $(CHECK_WORKERS) --dist loadfile -m "not ($(CHECK_TIERS))" $(PYTEST_ARGS)
 
 # Lint first (seconds), then every test tier (markers: e2e, realtime, compiler, sitl, slow; select
 # one with `$(PY) -m pytest -m compiler`) in two phases: what tolerates a second process runs on
@@ -47,12 +55,12 @@ test: install lint
 test-durations: install
 	$(PY) -m pytest -q --record-durations $(PYTEST_ARGS)
 
-lint: install
+lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 # The docs site (mkdocs, warnings are errors) into build/docs; the reference pages are generated from
-# the code while it builds. tests/test_docs.py builds it too, so `make test` checks it.
-docs: install
+# the code while it builds. It needs the venv only, not the solver library sources. tests/test_docs.py builds it too, so `make test` checks it.
+docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict --site-dir build/docs
 
 # Each measuring target ends by rendering its reports/*.json into docs/results/ and the README table.

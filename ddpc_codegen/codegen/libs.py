@@ -57,7 +57,7 @@ def fetch_daqp(log=print) -> Path:
         return dest
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "pip", "download", "-q", "--disable-pip-version-check", "--no-deps",
-               "--no-binary", ":all:", f"daqp=={DAQP_VERSION}", "-d", tmp]
+               "--no-binary", "daqp", f"daqp=={DAQP_VERSION}", "-d", tmp]
         res = subprocess.run(cmd, capture_output=True, text=True)
         archives = list(Path(tmp).glob("daqp-*.tar.gz"))
         if res.returncode != 0 or not archives:
