@@ -4,6 +4,9 @@ nothing is imported from here).
 - ``slow`` is set from ``tests/durations.json`` (:mod:`support.durations`): a test is slow when it, or a
   non-session fixture it uses, was measured at >= 10 s. ``--record-durations`` re-measures what runs.
 - Under pytest-xdist the test files are handed out longest first (recorded totals).
+- One BLAS thread per test process and its children (unless the environment sets one): the tests'
+  matrices are small, and OpenBLAS's spinning threads cost several times the CPU when xdist workers or
+  other processes share the cores.
 - C compiles go through :mod:`support.cc_cache` (``CC`` for the session, its subprocesses included): the
   library sources every generated folder carries are compiled once per run, not once per solver.
   ``DDPC_TEST_CC_CACHE=0`` compiles everything afresh.
@@ -16,6 +19,7 @@ import time
 from collections import defaultdict
 
 import pytest
+from threadpoolctl import threadpool_limits
 
 from support.durations import (
     DISHONEST,
@@ -59,7 +63,18 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                           "(run serially: a second worker inflates the figures)")
 
 
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread() -> None:
+    """BLAS threads for this process (now, numpy being loaded) and its subprocesses: 1 unless set."""
+    for var in BLAS_THREAD_VARS:
+        os.environ.setdefault(var, "1")
+    threadpool_limits(int(os.environ["OPENBLAS_NUM_THREADS"]), user_api="blas")
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    one_blas_thread()
     config.stash[DURATIONS] = Durations.load()
     if config.getoption("record_durations"):
         config.pluginmanager.register(FixtureTimer(), "ddpc-fixture-timer")

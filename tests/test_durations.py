@@ -4,11 +4,13 @@ both phases of ``make test`` build their own module fixtures, and the shared sol
 from __future__ import annotations
 
 import json
+import os
 import threading
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from threadpoolctl import threadpool_info
 
 from support.durations import (
     DISHONEST,
@@ -130,3 +132,10 @@ def test_a_failed_build_leaves_nothing_that_counts_as_built(tmp_path):
         shared_build(tmp_path, {"what": "probe"}, broken)
     folder = shared_build(tmp_path, {"what": "probe"}, lambda f: (f / "whole.txt").write_text("whole"))
     assert sorted(p.name for p in folder.iterdir()) == [".complete", "whole.txt"]
+
+
+
+# ------------------------------------------------------------------------------ the test processes
+def test_blas_runs_one_thread_unless_the_environment_says_otherwise():
+    blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]  # numpy is loaded
+    assert blas and set(blas) == {int(os.environ.get("OPENBLAS_NUM_THREADS", "0"))}

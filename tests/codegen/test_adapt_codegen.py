@@ -18,6 +18,9 @@ from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.values.adapt import REJECTIONS, AdaptSettings
 from support.lti import random_lti
 
+# every test but test_adaptation_needs_the_daqp_backend compiles the generated update (cffi)
+pytestmark = pytest.mark.compiler
+
 
 def _dataset(seed: int, T: int = 400) -> IODataset:
     sys_ = random_lti(4, 2, 2, seed)

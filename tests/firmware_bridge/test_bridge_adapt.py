@@ -29,6 +29,7 @@ def adaptive_solver(tmp_path_factory) -> Path:
     return generate(SteeringProblem(pred, cfg), tmp_path_factory.mktemp("adapt") / "flying", name="bridge_adapt")
 
 
+@pytest.mark.compiler  # flying_solver generates and compiles
 def test_adapt_needs_a_solver_generated_with_adaptation(flying_solver):
     from ddpc_codegen.robot.profile import load_profile
     from firmware_bridge.bridge import Bridge, BridgeConfig

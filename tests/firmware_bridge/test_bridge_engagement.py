@@ -266,6 +266,7 @@ def test_a_stall_in_flight_never_restarts_or_reanchors_the_trajectory(tmp_path, 
         assert step.min() >= 1 and step.max() > 300 and row[0] < 100
 
 
+@pytest.mark.compiler  # flying_solver generates and compiles
 def test_a_trajectory_outside_the_solver_bounds_is_refused_at_start(flying_solver):
     from ddpc_codegen.robot.profile import load_profile
     from ddpc_codegen.robot.trajectory import EllipseTrajectory
