@@ -138,9 +138,10 @@ class TickGate:
     def clamp(self, sp) -> tuple[tuple, float]:
         """The controller's setpoint (``q``, ``euler``, ``thrust``) with roll / pitch within ``max_tilt`` and
         the thrust within its clamps: (q ENU/FLU, thrust)."""
-        roll, pitch, yaw = (float(v) for v in sp.euler)
+        e, q = sp.euler, sp.q
+        roll, pitch, yaw = float(e[0]), float(e[1]), float(e[2])
         lim = self.max_tilt
-        q_enu = tuple(float(v) for v in sp.q)
+        q_enu = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
         if abs(roll) > lim or abs(pitch) > lim or not (math.isfinite(roll) and math.isfinite(pitch)):
             self.counts["tilt_clamped"] += 1
             roll = max(-lim, min(lim, roll)) if math.isfinite(roll) else 0.0
@@ -159,7 +160,9 @@ class TickGate:
     def setpoint(self, q, thrust: float, field: float,
                  fallback: Callable[[], tuple[tuple, float, float]]) -> tuple[tuple, float, float, int]:
         """A setpoint with a non-finite part becomes ``fallback()`` (never sent as is): (q, thrust, field, flags)."""
-        if all(math.isfinite(v) for v in (*q, thrust, field)):
+        isfinite = math.isfinite
+        if (isfinite(q[0]) and isfinite(q[1]) and isfinite(q[2]) and isfinite(q[3]) and isfinite(thrust)
+                and isfinite(field)):
             return q, thrust, field, 0
         q, thrust, field = fallback()
         self.gate.counts["nonfinite_setpoint"] += 1
@@ -171,7 +174,7 @@ class TickGate:
         dropped telemetry (``dropped``: samples dropped so far)."""
         new = flags & ~self.prev_flags
         self.prev_flags = flags
-        names = [k for k in _GATE_EVENTS if new & GATE_FLAGS[k]]
+        names = [k for k in _GATE_EVENTS if new & GATE_FLAGS[k]] if new else None
         if names:
             self.events(f"gate: {', '.join(names)} (reference {np.round(u, 4).tolist()}, "
                         f"nominal {np.round(r_nom, 4).tolist()})")
