@@ -1,16 +1,16 @@
 """Design side of online predictor updates: what a generated solver ships for them.
 
-The runtime update itself (Givens rank-one update of R, re-solve of G, verification) lives in
-:mod:`ddpc_codegen.runtime.adaptation` (numpy, the reference of the generated C); here:
+The update itself (Givens rank-one update of R, re-solve of G, verification) is
+:mod:`ddpc_codegen.design.adapter` (numpy, the reference of the generated C), its settings
+:mod:`ddpc_codegen.values.adapt`; here:
 
 * :func:`fit_statistic` -- the fit's sufficient statistic of a predictor: its data-only R factor (square,
   width x width, zero rows padded) with the layout, scale and fit options it came from;
 * :func:`write_fit_statistic` -- ``<name>_fit_r.npy`` beside the manifest and the manifest's
   ``fit_statistic`` entry (shape, scale, forgetting defaults);
-* :func:`adapt_settings` -- the ``[adapt]`` table of a steering config, checked;
 * :func:`qp_model` -- the steering QP's data (Hessian, linear-term map, output rows, gain) as a function of
   the re-solved G (rebuilt and checked before a swap; knots included);
-* :func:`adapter` -- the interpreted :class:`~ddpc_codegen.runtime.adaptation.Adapter` of a problem;
+* :func:`adapter` -- the interpreted :class:`~ddpc_codegen.design.adapter.Adapter` of a problem;
 * :class:`AdaptiveProblem` -- the interpreted twin of an adaptive generated solver (same API).
 
 For the incremental (offset-free) predictor the statistic is that of the increment fit (Tini - 1 past
@@ -28,10 +28,11 @@ import numpy as np
 
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import ConfigError, DataError
-from ddpc_codegen.runtime.adapt_qp import QPData, QPModel, SampleWindow, steady_state_gain
-from ddpc_codegen.runtime.adaptation import AdaptLayout, Adapter, AdaptSettings
+from ddpc_codegen.design.adapt_qp import QPData, QPModel, steady_state_gain
+from ddpc_codegen.design.adapter import AdaptLayout, Adapter
+from ddpc_codegen.values.adapt import AdaptSettings, SampleWindow
 
-__all__ = ["fit_statistic", "fit_layout", "write_fit_statistic", "ship_fit_statistic", "adapt_settings", "qp_model", "adapter",
+__all__ = ["fit_statistic", "fit_layout", "write_fit_statistic", "ship_fit_statistic", "qp_model", "adapter",
            "AdaptiveProblem", "installed",
            "FIT_FILE"]
 
@@ -91,58 +92,6 @@ def ship_fit_statistic(predictor: Predictor, out_dir: Path, name: str,
     return write_fit_statistic(predictor, out_dir, name, settings or AdaptSettings())
 
 
-_FLOAT_KEYS = {"forgetting": (0.0, 1.0, True), "dither": (0.0, np.inf, False), "max_change": (0.0, np.inf, True),
-               "min_excitation": (0.0, 1.0, False), "min_improvement": (0.0, 1.0, False),
-               "max_gain_change": (0.0, np.inf, True)}
-_INT_KEYS = ("period_ticks", "window")
-
-
-def adapt_settings(table: dict | None, src: str = "config", p: int | None = None) -> AdaptSettings:
-    """The ``[adapt]`` table (enabled, forgetting, period_ticks, dither, window, max_change, min_excitation,
-    min_improvement, max_gain_change, offset, max_offset) -> :class:`AdaptSettings`; None or {} gives the defaults (disabled).
-    ``p``: the number of outputs (checks the length of a ``max_offset`` list).
-
-    Raises:
-        ConfigError: unknown key or a value out of range (the message names both).
-    """
-    table = dict(table or {})
-    known = {f.name for f in dataclasses.fields(AdaptSettings)}
-    unknown = sorted(set(table) - known)
-    if unknown:
-        raise ConfigError(f"{src}: [adapt] unknown key(s) {unknown}; allowed: {sorted(known)}")
-    for key in ("enabled", "offset"):
-        if key in table and not isinstance(table[key], bool):
-            raise ConfigError(f"{src}: [adapt] {key} must be true or false; got {table[key]!r}")
-    if "max_offset" in table:
-        table["max_offset"] = _max_offset_entry(table["max_offset"], src, p)
-    for key, (lo, hi, lo_open) in _FLOAT_KEYS.items():
-        if key in table:
-            v = table[key]
-            num = isinstance(v, (int, float)) and not isinstance(v, bool)
-            ok = num and (np.isfinite(v) or (key == "max_gain_change" and v == np.inf)) and v <= hi  # inf: no check
-            if not ok or (v <= lo if lo_open else v < lo):
-                opening = "(" if lo_open else "["
-                rng = f"in {opening}{lo:g}, {hi:g}]" if np.isfinite(hi) else f"{'>' if lo_open else '>='} {lo:g}"
-                raise ConfigError(f"{src}: [adapt] {key} must be {rng}; got {v!r}")
-            table[key] = float(v)
-    for key in _INT_KEYS:
-        if key in table and (not isinstance(table[key], int) or isinstance(table[key], bool) or table[key] < 1):
-            raise ConfigError(f"{src}: [adapt] {key} must be an integer >= 1; got {table[key]!r}")
-    return AdaptSettings(**table)
-
-
-def _max_offset_entry(v, src: str, p: int | None) -> float | tuple[float, ...]:
-    """[adapt] max_offset: a number > 0 (every output; inf: no bound) or a list of them, one per output."""
-    seq = isinstance(v, (list, tuple))
-    vals = list(v) if seq else [v]
-    num = all(isinstance(x, (int, float)) and not isinstance(x, bool) and not np.isnan(x) and x > 0 for x in vals)
-    if not num or (seq and (not v or (p is not None and len(v) != p))):
-        per = f"{p} of them" if p is not None else "one per output"
-        raise ConfigError(f"{src}: [adapt] max_offset must be a number > 0 or a list of {per} (output units); "
-                          f"got {v!r}")
-    return tuple(float(x) for x in v) if seq else float(v)
-
-
 def _predictor_maps(predictor: Predictor, layout: AdaptLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Lm (n_o, q), Rm (r, n_w + n_u), C0 (n_o, n_w + n_u)) with [Gy_w Gy_u; Gs_w Gs_u] = Lm G Rm + C0 for a
     fit-domain G (q, r): the channel scale (as ``predictor._unscale``) and, for an increment fit, the
@@ -177,7 +126,7 @@ def qp_model(problem, max_gain_change: float = np.inf) -> QPModel:
     """The steering QP's G-dependent data as a function of the fit-domain G (a
     :class:`~ddpc_codegen.design.problem.SteeringProblem`, with or without knots): fixed parts taken from the
     problem itself, so that the shipped G rebuilds the shipped QP. ``max_gain_change``: the bound of the
-    steady-state gain check (:func:`~ddpc_codegen.runtime.adapt_qp.steady_state_gain`; inf: none).
+    steady-state gain check (:func:`~ddpc_codegen.design.adapt_qp.steady_state_gain`; inf: none).
 
     Raises:
         ConfigError: ``[cost] R_de`` is set (not modelled by the rebuild).

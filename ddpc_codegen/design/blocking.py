@@ -12,34 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["knot_positions", "knot_basis", "distinct_rows"]
-
-
-def knot_positions(knots: int | list[int] | tuple[int, ...], t_f: int) -> tuple[int, ...]:
-    """Knot sample indices for ``knots`` (a count, or the indices themselves) over a horizon of ``t_f``.
-
-    A count K spaces the knots quadratically, (Tf-1) (i/(K-1))^2 rounded and made strictly increasing:
-    short segments where the next moves are decided, long ones where the plan is only a preview.
-    Raises ValueError with the reason for a count outside 2..Tf or indices that are not
-    0 = k_0 < ... < k_{K-1} = Tf-1.
-    """
-    if isinstance(knots, (int, np.integer)) and not isinstance(knots, bool):
-        k = int(knots)
-        if not 2 <= k <= t_f:
-            raise ValueError(f"must be between 2 and t_f = {t_f} knots; got {k}")
-        raw = np.rint((t_f - 1) * (np.arange(k) / (k - 1)) ** 2).astype(int)
-        pos = [0]
-        for i in range(1, k):
-            # strictly increasing, and leave room for the knots still to come
-            pos.append(min(max(pos[-1] + 1, int(raw[i])), t_f - 1 - (k - 1 - i)))
-        return tuple(pos)
-    if not isinstance(knots, (list, tuple)) or not all(
-            isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in knots):
-        raise ValueError(f"must be a number of knots or a list of sample indices; got {knots!r}")
-    pos = tuple(int(x) for x in knots)
-    if len(pos) < 2 or pos[0] != 0 or pos[-1] != t_f - 1 or any(b <= a for a, b in zip(pos, pos[1:])):
-        raise ValueError(f"sample indices must increase strictly from 0 to t_f - 1 = {t_f - 1}; got {list(pos)}")
-    return pos
+__all__ = ["knot_basis", "distinct_rows"]
 
 
 def knot_basis(positions: tuple[int, ...], t_f: int, m: int) -> np.ndarray:

@@ -15,11 +15,11 @@ import numpy as np
 import casadi as ca
 import scipy.sparse as sp
 
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.hankel import mosaic_hankel
-from ddpc_codegen.design.solve_result import SteeringResult, nominal_increments, stack_window, within_bounds
+from ddpc_codegen.values.solve_result import SteeringResult, nominal_increments, stack_window, within_bounds
 
 __all__ = ["DeePCProblem"]
 

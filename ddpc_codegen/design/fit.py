@@ -26,12 +26,13 @@ import numpy as np
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import Predictor, fit_predictor
 from ddpc_codegen.errors import ConfigError, DataError
+from ddpc_codegen.values.config_values import incremental_problem
 
-__all__ = ["fit_configured", "fit_incremental", "incremental_problem", "difference_dataset", "compose_increments"]
+__all__ = ["fit_configured", "fit_incremental", "difference_dataset", "compose_increments"]
 
 
 def fit_configured(config, dataset: IODataset) -> Predictor:
-    """The predictor of a :class:`~ddpc_codegen.design.config.SteeringConfig` (its ``[predictor]``
+    """The predictor of a :class:`~ddpc_codegen.values.config.SteeringConfig` (its ``[predictor]``
     table: method, form, slack_weight, ridge, rcond) fitted on ``dataset``."""
     opts = dict(config.predictor)
     method, form = opts.pop("method"), opts.pop("form", "absolute")
@@ -72,16 +73,6 @@ def fit_incremental(dataset: IODataset, t_ini: int, t_f: int, method: str = "lsq
         raise ConfigError(f"[predictor] form = \"incremental\" {why}")
     inc = fit_predictor(difference_dataset(dataset), int(t_ini) - 1, int(t_f), "lsq", **opts)
     return compose_increments(inc)
-
-
-def incremental_problem(method: str, t_ini: int) -> str | None:
-    """Why ``form = "incremental"`` cannot be fitted with this method and Tini, or None (the one rule
-    the config loader and :func:`fit_incremental` both apply)."""
-    if method != "lsq":
-        return f"needs method = \"lsq\"; got method {method!r} (pem's slack on y_ini has no meaning for increments)"
-    if int(t_ini) < 2:
-        return f"needs t_ini >= 2 (one increment); got {t_ini}"
-    return None
 
 
 def compose_increments(inc: Predictor) -> Predictor:

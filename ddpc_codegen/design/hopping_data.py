@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ddpc_codegen.design.artificial_io import ArtificialIO, stitch_hops
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, ground_runs
+from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND, ground_runs
 from ddpc_codegen.errors import DataError
 
 __all__ = ["ArtificialIOSpec", "HoppingData", "split_hopping", "prepare_hopping", "is_hopping_config"]

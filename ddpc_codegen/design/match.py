@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Mapping
 
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import ConfigError
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.solve_result import nominal_increments
+from ddpc_codegen.values.config import SteeringConfig
+from ddpc_codegen.values.solve_result import nominal_increments
 
 __all__ = ["reference_penalties"]
 

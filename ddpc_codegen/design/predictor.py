@@ -34,7 +34,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.errors import DataError, ExcitationError
 from ddpc_codegen.design.hankel import PEReport, channel_stats, near_constant_channels
-from ddpc_codegen.runtime.fit_layout import FitLayout
+from ddpc_codegen.values.fit_layout import FitLayout
 
 __all__ = ["Predictor", "fit_predictor", "min_samples", "FitLayout", "channel_scale", "hankel_r_factor",
            "stack_r_factors", "predictor_from_r"]

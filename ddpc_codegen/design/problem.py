@@ -25,10 +25,10 @@ import scipy.sparse as sp
 
 from ddpc_codegen.design.blocking import distinct_rows, knot_basis
 from ddpc_codegen.design.penalties import reference_penalties
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.predictor import Predictor
-from ddpc_codegen.design.solve_result import BOUND_TOL, SteeringResult, stack_window, within_bounds
+from ddpc_codegen.values.solve_result import BOUND_TOL, SteeringResult, stack_window, within_bounds
 
 __all__ = ["SteeringProblem", "SteeringResult", "SOLVERS", "P_COND_MAX", "DAQP_OPTIONS"]
 

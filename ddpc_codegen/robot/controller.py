@@ -57,7 +57,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ddpc_codegen.design.phases import ASCENT, DESCENT, FLYING, GROUND, PHASE_NAMES
+from ddpc_codegen.values.phases import ASCENT, DESCENT, FLYING, GROUND, PHASE_NAMES
 from ddpc_codegen.robot.controller_config import ControllerConfig
 from ddpc_codegen.robot.frames import quat_from_euler
 from ddpc_codegen.robot.hop_cycle import spring_mass_stance, stance_height

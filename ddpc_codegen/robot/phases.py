@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
+from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND
 
 __all__ = ["ContactConfig", "PhaseEstimator"]
 
@@ -89,7 +89,7 @@ class ContactConfig:
 
 @dataclass
 class PhaseEstimator:
-    """Per-tick phase of a hopping robot (GROUND, ASCENT or DESCENT from design.phases).
+    """Per-tick phase of a hopping robot (GROUND, ASCENT or DESCENT from values.phases).
 
     Call :meth:`update` once per control tick. ``events`` collects (tick, "touchdown" | "liftoff");
     ``backdate`` is, on the tick a touchdown is confirmed, the number of samples just before it

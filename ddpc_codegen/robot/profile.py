@@ -23,7 +23,7 @@ from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.signals import REFERENCES, check_per_reference
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.robot.validate import Range, check_table, read_text_bounded
-from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table
+from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table
 
 __all__ = ["RobotProfile", "SteeringGuards", "Envelope", "load_profile", "shipped_profiles", "PROFILE_DIR",
            "PROFILE_RANGES"]

@@ -41,7 +41,7 @@ import numpy as np
 
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
-from ddpc_codegen.tomlconfig import check_keys, load_toml
+from ddpc_codegen.values.tomlconfig import check_keys, load_toml
 
 __all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS", "OPTIONAL_COLUMNS", "RANGES",
            "MIN_SPACING"]

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ddpc_codegen.errors import ManifestError
-from ddpc_codegen.runtime.adapt_qp import SampleWindow
-from ddpc_codegen.runtime.adaptation import OFFSET_COUNTS, REJECTIONS, AdaptSettings
+from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings, SampleWindow
 
 __all__ = ["GeneratedAdaptation"]
 

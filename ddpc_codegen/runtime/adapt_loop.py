@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ddpc_codegen.runtime.adaptation import REJECTIONS
+from ddpc_codegen.values.adapt import REJECTIONS
 
 __all__ = ["OnlineAdaptation", "AdaptEvent", "ADAPT_CODES", "VERDICT_CODES", "UPDATE_CODES", "adapt_code", "SNAP_TAKEN",
            "SNAP_BUSY"]

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.artificial_io import Completion, check_window
+from ddpc_codegen.values.completion import Completion, check_window
 from ddpc_codegen.errors import DataError, ManifestError
 
 __all__ = ["GeneratedArtificialIO", "ARTIO_STATUS"]

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.baselines import PrefilterModel
+from ddpc_codegen.values.prefilter import PrefilterModel
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.validate import Range, check_number, check_numbers, check_size, load_json_bounded
 from ddpc_codegen.runtime.steerer import SteerOutcome

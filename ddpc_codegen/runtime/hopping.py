@@ -21,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ddpc_codegen.design.phases import GROUND, ground_runs
+from ddpc_codegen.values.phases import GROUND, ground_runs
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import SteerOutcome
 

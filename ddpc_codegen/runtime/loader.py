@@ -14,10 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.solve_result import SteeringResult, stack_window
+from ddpc_codegen.values.config import SteeringConfig
+from ddpc_codegen.values.solve_result import SteeringResult, stack_window
 from ddpc_codegen.errors import DataError, ManifestError
 from ddpc_codegen.runtime.manifest import check_files, read_manifest, sha256_file
+from ddpc_codegen.runtime.adapt_generated import GeneratedAdaptation
+from ddpc_codegen.runtime.artificial_io import GeneratedArtificialIO
 
 __all__ = ["GeneratedSolver", "load_solver"]
 
@@ -105,16 +107,12 @@ class GeneratedSolver:
         self._shape_u = (self.t_f, self.m)
         self.artificial_io = None  # hopping: the generated completion (GeneratedArtificialIO), else None
         if manifest.get("artificial_io") is not None:
-            from ddpc_codegen.runtime.artificial_io import GeneratedArtificialIO
-
             self.artificial_io = GeneratedArtificialIO(folder, manifest, self._lib, self._ffi)
         elif hasattr(self._lib, f"{self.name}_artio_complete"):
             raise ManifestError(f"{folder}: the binary has an artificial-IO completion that manifest.json does not "
                                 "list (edited?); regenerate the solver")
         self.adaptation = None  # online update (generated with [adapt] enabled), else None
         if hasattr(self._lib, f"{self.name}_adapt_init"):
-            from ddpc_codegen.runtime.adapt_generated import GeneratedAdaptation
-
             self.adaptation = GeneratedAdaptation(self)
 
     def __repr__(self) -> str:

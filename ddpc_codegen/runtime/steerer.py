@@ -16,7 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ddpc_codegen.design.solve_result import BOUND_TOL, SteeringResult
+from ddpc_codegen.values.solve_result import BOUND_TOL, SteeringResult
 from ddpc_codegen.stats import percentiles
 
 __all__ = ["ReferenceSteerer", "SteerOutcome", "SolverLike", "solver_input_bounds"]

@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ddpc_codegen.design.data import prbs
-from ddpc_codegen.design.phases import GROUND, PHASE_NAMES
+from ddpc_codegen.values.phases import GROUND, PHASE_NAMES
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.state import AttitudeTarget, MeasuredState
 from ddpc_codegen.robot.frames import euler_from_quat

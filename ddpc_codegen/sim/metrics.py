@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.flight_metrics import flight_metrics, rms
 
 __all__ = ["compute_metrics", "rmse", "hop_apexes", "RunLogs"]

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, PHASE_NAMES
+from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND, PHASE_NAMES
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.frames import euler_from_quat_array

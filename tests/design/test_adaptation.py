@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.adaptation import adapt_settings, fit_statistic, qp_model, write_fit_statistic
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.design.adaptation import fit_statistic, qp_model, write_fit_statistic
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.fit import compose_increments, difference_dataset, fit_incremental
 from ddpc_codegen.design.hankel import channel_stats
@@ -17,7 +17,8 @@ from ddpc_codegen.design.predictor import (FitLayout, _solve_r, _unscale, channe
                                           hankel_r_factor)
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import ConfigError, DataError
-from ddpc_codegen.runtime.adaptation import AdaptSettings, solve_g, with_ridge
+from ddpc_codegen.design.adapter import solve_g, with_ridge
+from ddpc_codegen.values.adapt import AdaptSettings, adapt_settings
 from support.lti import random_lti
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen import IODataset
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.design.hopping_data import split_hopping
 from ddpc_codegen.experiments.pipeline import CollectSpec, build_setup, collect
 from ddpc_codegen.experiments.evaluate import run

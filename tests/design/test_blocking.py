@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from support.lti import random_lti
 from ddpc_codegen import ConfigError, IODataset, SteeringConfig, SteeringProblem, fit_predictor
-from ddpc_codegen.design.blocking import distinct_rows, knot_basis, knot_positions
+from ddpc_codegen.design.blocking import distinct_rows, knot_basis
+from ddpc_codegen.values.config_values import knot_positions
 
 TI, TF, M, P = 6, 24, 2, 2
 

@@ -7,7 +7,7 @@ import pytest
 
 from ddpc_codegen import DataError, IODataset, SteeringConfig
 from ddpc_codegen.design.hopping_data import ArtificialIOSpec, is_hopping_config, prepare_hopping
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
+from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND
 from ddpc_codegen.experiments.pipeline import default_config
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND
+from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND
 from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
 
 

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.design.adaptation import AdaptiveProblem
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
-from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.values.adapt import AdaptSettings
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from support.lti import random_lti

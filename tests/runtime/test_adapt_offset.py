@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from ddpc_codegen.design.adaptation import AdaptiveProblem, adapt_settings, adapter
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.design.adaptation import AdaptiveProblem, adapter
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.fit import fit_incremental
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
-from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.values.adapt import AdaptSettings, adapt_settings
 from support.lti import random_lti
 
 T_F = 4

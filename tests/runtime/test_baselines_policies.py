@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.baselines import PrefilterModel
+from ddpc_codegen.values.prefilter import PrefilterModel
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
 

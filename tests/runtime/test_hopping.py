@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow, _History
 from ddpc_codegen.runtime.policy import SteeringPolicy
@@ -107,7 +107,7 @@ def test_a_lost_sample_resets_the_hopping_history():
 
 
 def test_relabel_changes_only_the_last_samples_phase():
-    from ddpc_codegen.design.phases import DESCENT
+    from ddpc_codegen.values.phases import DESCENT
     from ddpc_codegen.runtime.policy import SteeringPolicy
 
     hop = HoppingSteering(SteeringPolicy(_Steerer()), None, None, 0.005)
@@ -169,7 +169,7 @@ class _Identity:
 def test_window_keeps_t_ini_rows_when_ground_and_ascent_are_short():
     """Tini longer than descent context + ground + ascent (t_ini 40 crashed the hopping loop with
     a 36-row window): the fill then starts Tini samples back and the window has Tini rows."""
-    from ddpc_codegen.design.phases import ASCENT, DESCENT
+    from ddpc_codegen.values.phases import ASCENT, DESCENT
 
     ti, t_d = 40, 10
     ph = np.array([DESCENT] * 60 + [GROUND] * 12 + [ASCENT] * 14, dtype=np.int8)
@@ -202,7 +202,7 @@ class _Residual(_Identity):
 def test_refit_spans_the_samples_since_the_liftoff_only_when_the_short_fit_is_poor():
     """refit_residual: a clean window whose fit leaves more than the threshold is fitted again over
     every sample since the last ground one (at most the depth), and the last Tini rows are kept."""
-    from ddpc_codegen.design.phases import ASCENT, DESCENT
+    from ddpc_codegen.values.phases import ASCENT, DESCENT
 
     ti = 20
     ph = np.array([DESCENT] * 30 + [GROUND] * 10 + [ASCENT] * 50, dtype=np.int8)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.solve_result import SteeringResult
+from ddpc_codegen.values.solve_result import SteeringResult
 from ddpc_codegen.runtime.policy import SteeringPolicy, nominal_horizon
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
@@ -89,7 +89,7 @@ def test_bad_ramp_and_decay_are_refused():
 def test_every_policy_class_is_a_policy_with_the_protocols_signatures():
     import inspect
 
-    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.values.prefilter import PrefilterModel
     from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy, PrefilterPolicy
     from ddpc_codegen.runtime.policy import Policy
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.solve_result import SteeringResult
+from ddpc_codegen.values.solve_result import SteeringResult
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 
 

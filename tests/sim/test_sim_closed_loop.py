@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen import IODataset
-from ddpc_codegen.design.phases import ASCENT, DESCENT, FLYING, GROUND
+from ddpc_codegen.values.phases import ASCENT, DESCENT, FLYING, GROUND
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, Push, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory
 

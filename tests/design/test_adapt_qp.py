@@ -1,4 +1,4 @@
-"""The steady-state gain check of the online update (runtime/adapt_qp.steady_state_gain)."""
+"""The steady-state gain check of the online update (design/adapt_qp.steady_state_gain)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import fit_predictor
-from ddpc_codegen.runtime.adapt_qp import steady_state_gain
+from ddpc_codegen.design.adapt_qp import steady_state_gain
 from support.lti import random_lti
 
 

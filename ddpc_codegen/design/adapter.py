@@ -1,7 +1,7 @@
 """Online predictor updates (numpy reference of the generated ``<name>_adapt*.c``; no casadi).
 
 The fit's sufficient statistic is the upper-triangular R factor of the scaled data matrix
-X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see :class:`.fit_layout.FitLayout`).
+X = [Up; Yp; Uf; Yf (; 0)]^T, one row per Hankel column (see :class:`~ddpc_codegen.values.fit_layout.FitLayout`).
 Online, each new Hankel column x (width,) joins the recent window of ``window`` columns; the column it pushes
 out updates R with exponential forgetting f:
 
@@ -43,59 +43,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.runtime.adapt_qp import QPData, QPModel
-from ddpc_codegen.runtime.fit_layout import FitLayout
+from ddpc_codegen.design.adapt_qp import QPData, QPModel
+from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings
+from ddpc_codegen.values.fit_layout import FitLayout
 
-__all__ = ["AdaptLayout", "AdaptSettings", "Adapter", "givens_update", "slack_rows", "data_trace", "with_ridge",
-           "solve_g", "excitation_ratio", "REJECTIONS", "OFFSET_COUNTS"]
-
-# Reasons a candidate G is rejected (the C code's codes 1..6, in this order). Checked in the order rank, nonfinite,
-# gain, (QP data) nonfinite, hessian, excitation, prediction -- numpy and C alike.
-REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction", "gain")
-
-
-# The output offset's counters (besides offset_norm, the norm of the offset in use, data units).
-OFFSET_COUNTS = ("offset_swaps", "offset_clipped", "offset_rejected")
+__all__ = ["AdaptLayout", "Adapter", "givens_update", "slack_rows", "data_trace", "with_ridge",
+           "solve_g", "excitation_ratio"]
 
 AdaptLayout = FitLayout  # the online update's name for the fit's layout
-
-
-@dataclass(frozen=True)
-class AdaptSettings:
-    """What an update may do (``[adapt]`` of a steering config; defaults in one place).
-
-    forgetting: f in (0, 1], weight of the past per new column (0.999: ~1000 columns, 5 s at 200 Hz).
-    period_ticks: new columns between two re-solves of G.
-    dither: amplitude of the optional dither on the steered references while adapting (their units; 0 = none).
-    window: recent columns kept for the verification (prediction error, excitation), held out of the fit until
-        they leave it (a change reaches a candidate once it is older than the window); >= m (Tini+Tf).
-    max_change: largest ||G_new - G||_F / ||G||_F of one swap (a bigger step is scaled down to it).
-    min_excitation: smallest min/max |diag| of the R factor of the recent window's scaled input rows.
-    min_improvement: the fraction by which a candidate must cut the current G's prediction error on the recent
-        window to be accepted (0: any cut). The window is held out of the candidate's fit, so the cut is out of
-        sample; the margin keeps G through the noise of closed-loop data until they show a change the current
-        one does not predict.
-    max_gain_change: largest ||S_new - S_0||_F / ||S_0||_F of the predictor's steady-state gain S (outputs per
-        constant reference, p x m) against the shipped one. Closed-loop data explain an offset the fit has no
-        term for (a payload, battery sag) by distorting the gains, e.g. height through the pitch reference;
-        the tracking loop's steady-state gains are set by its structure, so a large change is refused.
-    offset: estimate and apply the predictor's output offset b (see the module docstring); off by default (for the
-        incremental form, which is offset-free by construction, it is rarely useful).
-    max_offset: the largest |b| per output (output units; one number for every output or one per output); a
-        larger estimate is clipped to it and counted (``offset_clipped``).
-    """
-
-    enabled: bool = False
-    forgetting: float = 0.999
-    period_ticks: int = 200
-    dither: float = 0.0
-    window: int = 200
-    max_change: float = 0.2
-    min_excitation: float = 1e-3
-    min_improvement: float = 0.1
-    max_gain_change: float = 0.25
-    offset: bool = False
-    max_offset: float | tuple[float, ...] = math.inf
 
 
 def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None:
@@ -194,7 +149,7 @@ class Adapter:
     """The online update of one predictor (the interpreted twin of ``<name>_adapt_*`` in C).
 
     R0: the shipped data-only R factor (k <= width rows; ``R``: it with the ridge rows, as updated); scale
-    (m+p,): the fit's channel scale; slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.runtime.adapt_qp.QPModel`
+    (m+p,): the fit's channel scale; slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.design.adapt_qp.QPModel`
     or None (then no QP data are rebuilt and the Hessian is not checked). ``qp_data``: the QP data of the
     current G (None until the first swap: the shipped data are in use). ``offset`` (p Tf,): the output offset in
     use (data units, time-major; zeros until the first offset swap), ``pending_offset`` the staged one.

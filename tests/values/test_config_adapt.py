@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.values.adapt import AdaptSettings
 
 
 def _raw(adapt) -> dict:

@@ -16,10 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.config_values import channel_bounds, is_number, weight_matrix
+from ddpc_codegen.values.adapt import AdaptSettings, adapt_settings
+from ddpc_codegen.values.config_values import (channel_bounds, incremental_problem, is_number, knot_positions,
+                                               weight_matrix)
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.runtime.adaptation import AdaptSettings
-from ddpc_codegen.tomlconfig import config_error as _err
+from ddpc_codegen.values.tomlconfig import config_error as _err
 
 __all__ = ["SteeringConfig", "R_MODES", "BACKENDS"]
 
@@ -184,8 +185,6 @@ class SteeringConfig:
             raise _err(src, "[horizon] dt", f"must be a positive number of seconds; got {self.dt!r}")
         set_("dt", float(self.dt))
         if self.knots is not None:
-            from ddpc_codegen.design.blocking import knot_positions
-
             try:
                 set_("knots", knot_positions(self.knots, self.t_f))
             except ValueError as e:
@@ -203,8 +202,6 @@ class SteeringConfig:
         if pred["form"] not in _PREDICTOR_FORMS:
             raise _err(src, "[predictor] form", f"must be one of {list(_PREDICTOR_FORMS)}; got {pred['form']!r}")
         if pred["form"] == "incremental":
-            from ddpc_codegen.design.fit import incremental_problem
-
             why = incremental_problem(pred["method"], self.t_ini)
             if why:
                 raise _err(src, "[predictor] form", f"\"incremental\" {why}")
@@ -250,8 +247,6 @@ class SteeringConfig:
             else:
                 raise _err(src, f"[artificial_io] {k}", f"is not a known key; allowed: {list(_SCHEMA['artificial_io'])}")
         set_("artificial_io", art)
-        from ddpc_codegen.design.adaptation import adapt_settings  # lazy: adaptation imports the predictor
-
         if not isinstance(self.adapt, (dict, AdaptSettings, type(None))):
             raise _err(src, "[adapt]", f"must be a table; got {self.adapt!r}")
         set_("adapt", self.adapt if isinstance(self.adapt, AdaptSettings) else adapt_settings(self.adapt, src, self.p))

@@ -1,5 +1,5 @@
 """The row layout of a predictor fit's data matrix (:class:`FitLayout`): one definition for the offline
-TSQR fit (:mod:`ddpc_codegen.design.predictor`) and the online update (:mod:`.adaptation`)."""
+TSQR fit (:mod:`ddpc_codegen.design.predictor`) and the online update (:mod:`ddpc_codegen.design.adapter`)."""
 
 from __future__ import annotations
 

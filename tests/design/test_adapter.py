@@ -1,4 +1,4 @@
-"""Online predictor updates in numpy (runtime/adaptation.py) against the batch fit and numpy's QR."""
+"""Online predictor updates in numpy (design/adapter.py) against the batch fit and numpy's QR."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ from hypothesis import given, settings, strategies as st
 from ddpc_codegen.design.hankel import channel_stats
 from ddpc_codegen.design.predictor import FitLayout, _solve_r, channel_scale, hankel_r_factor
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.runtime.adapt_qp import QPModel, SampleWindow
-from ddpc_codegen.runtime.adaptation import (AdaptLayout, Adapter, AdaptSettings, excitation_ratio, givens_update,
+from ddpc_codegen.design.adapt_qp import QPModel
+from ddpc_codegen.values.adapt import AdaptSettings, SampleWindow
+from ddpc_codegen.design.adapter import (AdaptLayout, Adapter, excitation_ratio, givens_update,
                                              solve_g)
 from support.lti import random_lti
 
@@ -184,7 +185,7 @@ def test_the_held_out_window_does_not_reward_fitting_its_noise(seed):
     candidate, fitted without the recent window, predicts it no better than the current G: rejected. Folded into
     the fit, the same window is predicted 10-25 % better by a candidate that only learnt its noise -- what a
     verification on in-sample data would have accepted."""
-    from ddpc_codegen.runtime.adaptation import _prediction_error
+    from ddpc_codegen.design.adapter import _prediction_error
 
     lay = AdaptLayout(2, 1, 4, 3, "lsq")
     u, y = _data(seed, T=1500, noise=0.05)

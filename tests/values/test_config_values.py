@@ -1,4 +1,4 @@
-"""One config value (design/config_values.py): weights become symmetric PSD matrices, bounds per-channel arrays,
+"""One config value (values/config_values.py): weights become symmetric PSD matrices, bounds per-channel arrays,
 and every other value is refused naming the file and the key."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ddpc_codegen.design.config_values import channel_bounds, is_number, weight_matrix
+from ddpc_codegen.values.config_values import channel_bounds, is_number, weight_matrix
 from ddpc_codegen.errors import ConfigError
 
 finite = st.floats(-1e3, 1e3, allow_nan=False)

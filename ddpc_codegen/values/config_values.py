@@ -1,4 +1,5 @@
-"""One value of a steering config, checked and normalised: a number, a weight matrix, per-channel bounds.
+"""One value of a steering config, checked and normalised: a number, a weight matrix, per-channel bounds,
+the knots of the horizon, the rule of the incremental form.
 Each bad value is a :class:`~ddpc_codegen.errors.ConfigError` naming the file, the key and the value."""
 
 from __future__ import annotations
@@ -7,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.tomlconfig import config_error as _err
+from ddpc_codegen.values.tomlconfig import config_error as _err
 
-__all__ = ["is_number", "weight_matrix", "channel_bounds"]
+__all__ = ["is_number", "weight_matrix", "channel_bounds", "knot_positions", "incremental_problem"]
 
 
 def is_number(v: Any) -> bool:
@@ -58,3 +59,40 @@ def _numbers(value: Any, n: int, key: str, src: str, what: str) -> np.ndarray:
     except (TypeError, ValueError):
         raise _err(src, key, f"must be {what}; got {value!r}") from None
     return np.full(n, float(a)) if a.ndim == 0 else a
+
+
+def knot_positions(knots: int | list[int] | tuple[int, ...], t_f: int) -> tuple[int, ...]:
+    """Knot sample indices for ``knots`` (a count, or the indices themselves) over a horizon of ``t_f``.
+
+    A count K spaces the knots quadratically, (Tf-1) (i/(K-1))^2 rounded and made strictly increasing:
+    short segments where the next moves are decided, long ones where the plan is only a preview.
+    Raises ValueError with the reason for a count outside 2..Tf or indices that are not
+    0 = k_0 < ... < k_{K-1} = Tf-1.
+    """
+    if isinstance(knots, (int, np.integer)) and not isinstance(knots, bool):
+        k = int(knots)
+        if not 2 <= k <= t_f:
+            raise ValueError(f"must be between 2 and t_f = {t_f} knots; got {k}")
+        raw = np.rint((t_f - 1) * (np.arange(k) / (k - 1)) ** 2).astype(int)
+        pos = [0]
+        for i in range(1, k):
+            # strictly increasing, and leave room for the knots still to come
+            pos.append(min(max(pos[-1] + 1, int(raw[i])), t_f - 1 - (k - 1 - i)))
+        return tuple(pos)
+    if not isinstance(knots, (list, tuple)) or not all(
+            isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in knots):
+        raise ValueError(f"must be a number of knots or a list of sample indices; got {knots!r}")
+    pos = tuple(int(x) for x in knots)
+    if len(pos) < 2 or pos[0] != 0 or pos[-1] != t_f - 1 or any(b <= a for a, b in zip(pos, pos[1:])):
+        raise ValueError(f"sample indices must increase strictly from 0 to t_f - 1 = {t_f - 1}; got {list(pos)}")
+    return pos
+
+
+def incremental_problem(method: str, t_ini: int) -> str | None:
+    """Why ``form = "incremental"`` cannot be fitted with this method and Tini, or None (the one rule
+    the config loader and :func:`fit_incremental` both apply)."""
+    if method != "lsq":
+        return f"needs method = \"lsq\"; got method {method!r} (pem's slack on y_ini has no meaning for increments)"
+    if int(t_ini) < 2:
+        return f"needs t_ini >= 2 (one increment); got {t_ini}"
+    return None

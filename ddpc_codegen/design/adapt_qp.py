@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["QPModel", "QPData", "cholesky", "SampleWindow", "steady_state_gain"]
+__all__ = ["QPModel", "QPData", "cholesky", "steady_state_gain"]
 
 
 @dataclass(frozen=True)
@@ -140,28 +140,3 @@ class QPModel:
             if not np.all(np.isfinite(K)):
                 return "nonfinite"
         return QPData(P, F_q, A_g, F_g, K, Gd)
-
-
-class SampleWindow:
-    """Turns one (u, y) sample per tick into the update's windows (depth, m + p): the last ``depth``
-    samples, or for an increment fit (``increments=True``) the last ``depth`` increments (depth + 1 samples).
-    :meth:`push` returns the window once enough samples have arrived, else None; :meth:`clear` forgets them
-    (a gap, a disengagement: a window must not span ticks that were not updates)."""
-
-    def __init__(self, depth: int, m: int, p: int, increments: bool) -> None:
-        self.depth, self.m, self.p, self.increments = depth, m, p, increments
-        self._buf = np.zeros((depth + int(increments), m + p))
-        self._n = 0
-
-    def clear(self) -> None:
-        self._n = 0
-
-    def push(self, u: np.ndarray, y: np.ndarray) -> np.ndarray | None:
-        """Append the sample u (m,), y (p,); the window (depth, m + p) in data units, or None."""
-        self._buf[:-1] = self._buf[1:]
-        self._buf[-1, : self.m] = u
-        self._buf[-1, self.m :] = y
-        self._n = min(self._n + 1, self._buf.shape[0])
-        if self._n < self._buf.shape[0]:
-            return None
-        return np.diff(self._buf, axis=0) if self.increments else self._buf.copy()
