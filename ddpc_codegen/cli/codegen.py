@@ -20,18 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from ddpc_codegen.codegen.emit import BACKENDS
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.match import parse_channel_map
-from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.experiments.solver_build import build_solver, noise_warning
+from ddpc_codegen.pipeline.solver_build import build_solver, noise_warning
 
-__all__ = ["register", "build_from_config", "noise_warning"]
-
-
-def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
-                      log=lambda msg: None, channel_map: dict[str, str] | None = None) -> SteeringProblem:
-    """The SteeringProblem :func:`~ddpc_codegen.experiments.solver_build.build_solver` fits (no solver folder)."""
-    return build_solver(config, dataset, None, channel_map=channel_map, log=log).problem
+__all__ = ["register", "noise_warning"]
 
 
 def _share(text: str) -> float:

@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.pipeline.solver_build import FleetOptions, build_solver
+from ddpc_codegen.values.config import SteeringConfig
 
 __all__ = ["register", "expand_paths"]
 
@@ -36,9 +38,6 @@ def expand_paths(items: list[str]) -> list[Path]:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from ddpc_codegen.design.config import SteeringConfig
-    from ddpc_codegen.experiments.solver_build import FleetOptions, build_solver
-
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     cfg = SteeringConfig.from_toml(args.config)
     paths = expand_paths(args.data)

@@ -19,45 +19,21 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
+from ddpc_codegen.design.front import desired_from_trajectory, front_report
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.pipeline.solver_build import build_from_config
+from ddpc_codegen.robot.trajectory_files import load_trajectory
+from ddpc_codegen.values.config import SteeringConfig
 
-__all__ = ["register", "desired_from_trajectory"]
-
-
-def desired_from_trajectory(cfg, trajectory: str, output: str, duration: float | None) -> tuple[np.ndarray, int]:
-    """Desired outputs (n, p) on the config's tick from a trajectory file's channel ``output`` (the config's
-    output of that name; every other output 0) over ``duration`` s from its start (None: its whole span),
-    and that output's index."""
-    from ddpc_codegen.robot.trajectory_files import load_trajectory
-
-    names = list(cfg.output_names)
-    if output not in names:
-        raise ConfigError(f"--output {output!r} is not one of the config's outputs {names}")
-    traj = load_trajectory(trajectory)
-    t0, t1 = traj.time_span()
-    end = t1 if duration is None else t0 + duration
-    if not np.isfinite(end) or end <= t0:
-        raise ConfigError(f"the trajectory's time span is {t0:g} .. {t1:g} s: give --duration (s, > 0)")
-    t = np.arange(t0, end, cfg.dt)
-    s = traj.sample(t)
-    if output not in s:
-        raise ConfigError(f"the trajectory has no channel {output!r} (it has {sorted(s)})")
-    desired = np.zeros((t.size, cfg.p))
-    desired[:, names.index(output)] = s[output]
-    return desired, names.index(output)
+__all__ = ["register"]
 
 
 def _cmd_front(args: argparse.Namespace) -> int:
-    from ddpc_codegen.cli.codegen import build_from_config
-    from ddpc_codegen.design.config import SteeringConfig
-    from ddpc_codegen.design.front import front_report
-
     say = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
     cfg = SteeringConfig.from_toml(args.config)
     output = args.output or cfg.output_names[0]
-    desired, out_idx = desired_from_trajectory(cfg, args.trajectory, output, args.duration)
+    desired, out_idx = desired_from_trajectory(cfg, load_trajectory(args.trajectory), output, args.duration)
     if desired.shape[0] > 6000:
         raise ConfigError(f"{desired.shape[0]} samples: the front is dense (n x n); give --duration <= "
                           f"{6000 * cfg.dt:g} s")

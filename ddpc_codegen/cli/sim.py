@@ -14,6 +14,10 @@ import sys
 from typing import Any
 
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.design.data import output_path
+from ddpc_codegen.sim.loop import Excitation, Push, default_excitation, simulate
+from ddpc_codegen.sim.params import PogoXParams
+from ddpc_codegen.sim.scenarios import get_scenario
 
 __all__ = ["register"]
 
@@ -69,10 +73,6 @@ def register(subparsers: Any) -> None:
 
 
 def _setup(args: argparse.Namespace, default_duration: float):
-    from ddpc_codegen.sim.loop import Push
-    from ddpc_codegen.sim.params import PogoXParams
-    from ddpc_codegen.sim.scenarios import get_scenario
-
     changes: dict[str, Any] = {"controller_mass_error": float(args.mass_error)}
     if args.twr is not None:
         changes["thrust_to_weight"] = float(args.twr)
@@ -117,8 +117,6 @@ def _print_metrics(m: dict[str, Any], as_json: bool) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from ddpc_codegen.sim.loop import simulate
-
     params, scenario, pushes, duration = _setup(args, 30.0)
     res = simulate(
         scenario, duration, params=params, seed=args.seed, noise=args.noise or None,
@@ -134,10 +132,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_collect(args: argparse.Namespace) -> int:
-    from ddpc_codegen.sim.loop import Excitation, default_excitation, simulate
-
-    from ddpc_codegen.design.data import output_path
-
     output_path(args.out, args.overwrite)  # refused before the simulation, not after it
     params, scenario, pushes, duration = _setup(args, 60.0)
     m_in = 2 if args.scenario == "flying" else 3

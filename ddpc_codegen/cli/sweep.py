@@ -11,14 +11,13 @@ import argparse
 import sys
 from pathlib import Path
 from typing import Any
+from ddpc_codegen.experiments.sweep import run_sweep
+from ddpc_codegen.experiments.sweep_spec import SweepSpec
 
 __all__ = ["register"]
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from ddpc_codegen.experiments.sweep import run_sweep
-    from ddpc_codegen.experiments.sweep_spec import SweepSpec
-
     spec = SweepSpec.from_toml(args.spec)
     out = Path(args.out) if args.out else Path("reports") / "sweeps" / Path(args.spec).stem
     try:

@@ -26,9 +26,10 @@ import scipy.linalg as sl
 
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.step_response import step_response
+from ddpc_codegen.errors import ConfigError
 
 __all__ = ["FrontPoint", "impulse_response", "reference_front", "front_error_at", "fly_on_model", "follow_on_model",
-           "front_report", "operating_point", "point_of"]
+           "front_report", "operating_point", "point_of", "desired_from_trajectory"]
 
 # weights on the rate term relative to trace(T'T) / trace(D'D) (the two terms' scales): the front's span
 RELATIVE_WEIGHTS = tuple(float(w) for w in np.logspace(-2, 8, 31))
@@ -191,3 +192,23 @@ def front_report(problem, desired: np.ndarray, input_index: int, output_index: i
             "front": [{"error_rms": p.error_rms, "rate_ratio": p.rate_ratio, "weight": p.weight} for p in front],
             **{k: {"error_rms": p.error_rms, "rate_ratio": p.rate_ratio,
                    "front_error_at_this_rate": front_error_at(front, p.rate_ratio)} for k, p in pts.items()}}
+
+
+def desired_from_trajectory(cfg, trajectory, output: str, duration: float | None) -> tuple[np.ndarray, int]:
+    """Desired outputs (n, p) on the config's tick from the channel ``output`` of ``trajectory`` (anything with
+    ``time_span()`` and ``sample(t)``, e.g. a loaded trajectory file; the config's output of that name, every
+    other output 0) over ``duration`` s from its start (None: its whole span), and that output's index."""
+    names = list(cfg.output_names)
+    if output not in names:
+        raise ConfigError(f"--output {output!r} is not one of the config's outputs {names}")
+    t0, t1 = trajectory.time_span()
+    end = t1 if duration is None else t0 + duration
+    if not np.isfinite(end) or end <= t0:
+        raise ConfigError(f"the trajectory's time span is {t0:g} .. {t1:g} s: give --duration (s, > 0)")
+    t = np.arange(t0, end, cfg.dt)
+    s = trajectory.sample(t)
+    if output not in s:
+        raise ConfigError(f"the trajectory has no channel {output!r} (it has {sorted(s)})")
+    desired = np.zeros((t.size, cfg.p))
+    desired[:, names.index(output)] = s[output]
+    return desired, names.index(output)

@@ -10,7 +10,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ddpc_codegen.design.front import FrontPoint, desired_from_trajectory, front_error_at, front_report
+from ddpc_codegen.pipeline.solver_build import build_from_config
+from ddpc_codegen.robot.trajectory_files import load_trajectory
 from ddpc_codegen.testbed.sitl_conditions import STEPS_DURATION
+from ddpc_codegen.values.config import SteeringConfig
 
 __all__ = ["steps_front"]
 
@@ -22,17 +26,12 @@ def steps_front(folder: Path, autopilot: str, config: Path, flown_rate_ratio: fl
     steering's points, :func:`~ddpc_codegen.design.front.front_report`), and with the steered flights' mean
     activity ``flown_rate_ratio`` the front's error there (``front_at_flown``; {"skipped": why} without
     the files)."""
-    from ddpc_codegen.cli.codegen import build_from_config
-    from ddpc_codegen.cli.front import desired_from_trajectory
-    from ddpc_codegen.design.config import SteeringConfig
-    from ddpc_codegen.design.front import FrontPoint, front_error_at, front_report
-
     collect, steps = folder / f"{autopilot}_collect.npz", folder / "steps.csv"
     missing = [str(p) for p in (collect, steps) if not p.is_file()]
     if missing:
         return {"skipped": f"not found: {', '.join(missing)}"}
     cfg = SteeringConfig.from_toml(config)
-    desired, out_idx = desired_from_trajectory(cfg, str(steps), cfg.output_names[0], duration)
+    desired, out_idx = desired_from_trajectory(cfg, load_trajectory(steps), cfg.output_names[0], duration)
     model = front_report(build_from_config(cfg, collect), desired, 0, out_idx)
     front = [FrontPoint(**p) for p in model["front"]]
     at = front_error_at(front, flown_rate_ratio) if flown_rate_ratio else None

@@ -8,8 +8,9 @@ import scipy.linalg as sl
 
 from support.lti import LTI, height_loop
 from ddpc_codegen import IODataset, SteeringConfig, SteeringProblem, fit_predictor
-from ddpc_codegen.design.front import (fly_on_model, follow_on_model, front_error_at, impulse_response, operating_point,
-                                       point_of, reference_front)
+from ddpc_codegen.design.front import (desired_from_trajectory, fly_on_model, follow_on_model, front_error_at,
+                                       impulse_response, operating_point, point_of, reference_front)
+from ddpc_codegen.errors import ConfigError
 
 TI, TF = 6, 30
 
@@ -107,3 +108,31 @@ def test_the_predictor_as_plant_follows_given_references_and_an_unsolved_tick_is
                          u_min=[2.0, -5.0], u_max=[5.0, 5.0], du_max=[0.01, 1.0])
     with pytest.raises(RuntimeError, match="not solved at sample 0"):
         fly_on_model(SteeringProblem(pred, cfg), des)
+
+
+class _Ramp:
+    """A trajectory with one channel ``z`` = t over 0..2 s (time_span / sample, as a loaded trajectory file)."""
+
+    def time_span(self) -> tuple[float, float]:
+        return 0.0, 2.0
+
+    def sample(self, t):
+        return {"z": np.asarray(t, float), "x": np.zeros_like(t)}
+
+
+def test_desired_outputs_come_from_the_trajectory_channel_on_the_config_tick():
+    cfg = SteeringConfig(t_ini=TI, t_f=TF, m=2, p=2, Q=[1.0, 1.0], R=[1.0, 1.0], dt=0.5, output_names=("z", "pitch"))
+    desired, index = desired_from_trajectory(cfg, _Ramp(), "z", None)
+    assert index == 0 and desired.shape == (4, 2)
+    np.testing.assert_array_equal(desired[:, 0], [0.0, 0.5, 1.0, 1.5])
+    np.testing.assert_array_equal(desired[:, 1], 0.0)
+    assert desired_from_trajectory(cfg, _Ramp(), "z", 1.0)[0].shape == (2, 2)
+
+
+@pytest.mark.parametrize("output, duration, message", [("yaw", None, "not one of the config's outputs"),
+                                                      ("pitch", None, "has no channel 'pitch'"),
+                                                      ("z", 0.0, "give --duration")])
+def test_desired_outputs_refuse_a_channel_or_span_they_cannot_give(output, duration, message):
+    cfg = SteeringConfig(t_ini=TI, t_f=TF, m=2, p=2, Q=[1.0, 1.0], R=[1.0, 1.0], dt=0.5, output_names=("z", "pitch"))
+    with pytest.raises(ConfigError, match=message):
+        desired_from_trajectory(cfg, _Ramp(), output, duration)

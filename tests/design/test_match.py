@@ -6,7 +6,7 @@ import pytest
 
 from support.lti import random_lti
 from ddpc_codegen import ConfigError, IODataset, SteeringConfig
-from ddpc_codegen.cli.codegen import build_from_config
+from ddpc_codegen.pipeline.solver_build import build_from_config
 from ddpc_codegen.cli.main import main
 from ddpc_codegen.design.match import conform_dataset, parse_channel_map
 

@@ -74,8 +74,8 @@ def test_from_the_ground_to_steered_flight(tmp_path, autopilot):
             (spec, f, _diagnosis(tmp_path, autopilot, (tag,)))
 
     # the steered tick log loads as a dataset and refits
-    from ddpc_codegen.cli.codegen import build_from_config
-    from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.pipeline.solver_build import build_from_config
+    from ddpc_codegen.values.config import SteeringConfig
     from ddpc_codegen.testbed.sitl_demo import CONFIGS, ROOT
 
     prob = build_from_config(SteeringConfig.from_toml(ROOT / "configs" / CONFIGS[autopilot]),

@@ -9,7 +9,7 @@ import pytest
 from support.lti import random_lti
 from ddpc_codegen import IODataset
 from ddpc_codegen.cli.main import main
-from ddpc_codegen.experiments.solver_build import build_solver
+from ddpc_codegen.pipeline.solver_build import build_solver
 
 CONFIG = """name = "sbtest"
 [horizon]

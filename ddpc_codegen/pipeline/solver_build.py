@@ -15,10 +15,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ddpc_codegen.codegen import generate
+from ddpc_codegen.codegen.artio import OnlineCompletion
 from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset, output_noise
 from ddpc_codegen.design.fit import fit_configured
+from ddpc_codegen.design.fleet import fit_files
+from ddpc_codegen.design.holdout import holdout_check
 from ddpc_codegen.design.hopping_data import ArtificialIOSpec, is_hopping_config, prepare_hopping
 from ddpc_codegen.design.match import conform_dataset
 from ddpc_codegen.design.predictor import Predictor
@@ -26,7 +30,7 @@ from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.design.step_response import settling_report
 from ddpc_codegen.errors import ConfigError, DataError
 
-__all__ = ["BuiltSolver", "FleetOptions", "build_solver", "load_checked", "noise_warning", "PROVENANCE_KEYS"]
+__all__ = ["BuiltSolver", "FleetOptions", "build_solver", "build_from_config", "load_checked", "noise_warning", "PROVENANCE_KEYS"]
 
 # What a dataset's metadata says about the loop it was recorded in (bridge tick logs).
 PROVENANCE_KEYS = ("thrust_field", "autopilot")
@@ -110,8 +114,6 @@ def _provenance(config: SteeringConfig, source: Any, raw: IODataset, ds: IODatas
 
 def _fleet_predictor(config: SteeringConfig, paths: Sequence[Path], fleet: FleetOptions, log) -> tuple[Predictor, dict]:
     """Every file checked as one dataset is (one file in memory at a time), then the map/reduce fit."""
-    from ddpc_codegen.design.fleet import fit_files
-
     if config.predictor.get("form", "absolute") != "absolute":
         raise ConfigError(f"{config.source}: [predictor] form = {config.predictor['form']!r}: the fleet fit streams "
                           "samples, not increments; fit this config with `ddpc-codegen codegen` on one dataset")
@@ -132,8 +134,6 @@ def _fleet_predictor(config: SteeringConfig, paths: Sequence[Path], fleet: Fleet
 
 def _holdout(cfg: SteeringConfig, ds: IODataset, fit, share: float, report: dict, built: BuiltSolver, log) -> None:
     """The held-out check's lines logged, its figures into the report and the provenance."""
-    from ddpc_codegen.design.holdout import holdout_check
-
     figs, lines, warnings = holdout_check(cfg, ds, fit, share)
     for line in lines + warnings:
         log("  " + line)
@@ -153,7 +153,7 @@ def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: 
         dataset: an IODataset, an ``.npz`` path, several paths (a fleet: checked one by one, then fitted
             by map/reduce with ``fleet``), or None for the config's ``[data] dataset``.
         out: the solver folder (replaced only once the new solver works); None = fit only.
-        backend, name, march_native: as :func:`ddpc_codegen.codegen.generate.generate`.
+        backend, name, march_native: as :func:`ddpc_codegen.codegen.artifact.generate`.
         channel_map: config channel -> dataset channel where they differ on purpose (one dataset only).
         fit: the predictor fit (default ``fit_configured``; the sweep passes a cached one).
         art_spec: hopping: the artificial-IO settings (default: the config's ``[artificial_io]``).
@@ -190,8 +190,6 @@ def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: 
                 f"depth {rep['depth']}, rank {rep['rank']} from {rep['aerial_segments']} aerial segments")
             ds, built.art = hd.dataset, hd.art
             if out is not None:
-                from ddpc_codegen.codegen.artio import OnlineCompletion
-
                 online = OnlineCompletion.from_spec(hd.art, built.art_spec)
                 online.check()  # refused before the fit
         pred = (fit or fit_configured)(cfg, ds)
@@ -210,10 +208,14 @@ def build_solver(config: SteeringConfig | str | Path, dataset: DatasetArg, out: 
             _holdout(cfg, built.dataset, fit or fit_configured, holdout, report, built, log)
     built.problem, built.report = SteeringProblem(pred, cfg), report
     if out is not None:
-        from ddpc_codegen.codegen import generate
-
         t1 = time.perf_counter()
         built.path = generate(built.problem, out, backend, name=name, march_native=march_native,
                               artificial_io=online, provenance=built.provenance)
         report["codegen_s"] = round(time.perf_counter() - t1, 2)
     return built
+
+
+def build_from_config(config: SteeringConfig, dataset: str | Path | None = None,
+                      log=lambda msg: None, channel_map: dict[str, str] | None = None) -> SteeringProblem:
+    """The SteeringProblem :func:`~ddpc_codegen.pipeline.solver_build.build_solver` fits (no solver folder)."""
+    return build_solver(config, dataset, None, channel_map=channel_map, log=log).problem
