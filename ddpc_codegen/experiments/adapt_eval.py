@@ -27,7 +27,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ddpc_codegen.design.adaptation import adapter
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.experiments.baselines_eval import fit_scenario_prefilter
 from ddpc_codegen.experiments.evaluate import run
@@ -35,8 +35,9 @@ from ddpc_codegen.experiments.pipeline import ROOT, build_setup, default_config
 from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.experiments.report_file import update_report
 from ddpc_codegen.flight_metrics import rms
-from ddpc_codegen.runtime.adapt_qp import SampleWindow, steady_state_gain
-from ddpc_codegen.runtime.adaptation import solve_g
+from ddpc_codegen.design.adapt_qp import steady_state_gain
+from ddpc_codegen.design.adapter import solve_g
+from ddpc_codegen.values.adapt import SampleWindow
 from ddpc_codegen.runtime.baselines import PrefilterPolicy
 from ddpc_codegen.sim import PogoXParams, Push, simulate
 

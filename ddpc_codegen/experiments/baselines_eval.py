@@ -30,9 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.baselines import (ILC_CUTOFF_HZ, PrefilterModel, error_on_grid, fit_prefilter, ilc_step,
+from ddpc_codegen.design.baselines import (ILC_CUTOFF_HZ, error_on_grid, fit_prefilter, ilc_step,
                                            iterations_to_settle)
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.prefilter import PrefilterModel
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.design.hopping_data import split_hopping
 from ddpc_codegen.experiments.pipeline import ROOT, SteeringSetup
 from ddpc_codegen.experiments.evaluate import RunResult, offset_step, run, scenario_metrics

@@ -23,97 +23,15 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from ddpc_codegen.design.config import SteeringConfig
-from ddpc_codegen.design.data import IODataset, prbs
-from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
+from ddpc_codegen.experiments.bench_adapt import adapt_lines, adapt_timing
+from ddpc_codegen.experiments.bench_artio import completion_timing
 from ddpc_codegen.experiments.bench_codegen import aarch64_figures, osqp_accuracy, standalone_figures, table_lines
-
-# preview: a 500 ms horizon (what a PX4 / ArduPilot height loop needs) on 10 piecewise-linear knots
-SIZES = {"flying": dict(m=2, p=2, t_ini=20, t_f=15), "hopping": dict(m=3, p=3, t_ini=20, t_f=25),
-         "preview": dict(m=2, p=2, t_ini=20, t_f=100, knots=10)}
-
-
-def _plant(m: int, seed: int):
-    """Discrete (dt = 5 ms) tracking loop: each output follows its reference through a 2nd-order
-    lag (wn ~ 8-12 rad/s, zeta ~ 0.6-0.8), weakly coupled, with a constant offset (model error)."""
-    rng = np.random.default_rng(seed)
-    dt = 0.005
-    n = 2 * m
-    Ac = np.zeros((n, n))
-    Bc = np.zeros((n, m))
-    for i in range(m):
-        wn, z = rng.uniform(8, 12), rng.uniform(0.6, 0.8)
-        Ac[2 * i, 2 * i + 1] = 1.0
-        Ac[2 * i + 1, 2 * i] = -wn**2
-        Ac[2 * i + 1, 2 * i + 1] = -2 * z * wn
-        Bc[2 * i + 1, i] = wn**2
-    Bc[1::2] += 0.1 * rng.standard_normal((m, m)) * 40
-    from scipy.linalg import expm
-
-    E = expm(np.block([[Ac, Bc], [np.zeros((m, n + m))]]) * dt)
-    A, B = E[:n, :n], E[:n, n:]
-    C = np.zeros((m, n))
-    C[np.arange(m), 2 * np.arange(m)] = 1.0
-    offset = -0.06 * np.ones(m)
-    return A, B, C, offset
-
-
-def _simulate(A, B, C, off, u, x0):
-    x = x0.copy()
-    y = np.empty((u.shape[0], C.shape[0]))
-    for k in range(u.shape[0]):
-        y[k] = C @ x + off
-        x = A @ x + B @ u[k]
-    return y, x
-
-
-def bench_data(size: str, seed: int = 0) -> tuple[SteeringConfig, IODataset, tuple]:
-    """(config, PRBS dataset, plant (A, B, C, offset)) of a benchmark size."""
-    d = SIZES[size]
-    m, ti, tf = d["m"], d["t_ini"], d["t_f"]
-    A, B, C, off = _plant(m, seed)
-    u = prbs(4000, m, amplitude=0.05, min_hold=4, seed=seed)
-    y, _ = _simulate(A, B, C, off, u, np.zeros(A.shape[0]))
-    # An offset makes the IO map affine; data and windows are taken relative to the operating point.
-    ds = IODataset(u, y - off, 0.005)
-    cfg = SteeringConfig(t_ini=ti, t_f=tf, m=m, p=m, Q=[100.0] * m, R=[1.0] * m, R_mode="offset",
-                         lambda_sigma=1e3, u_min=[-0.3] * m, u_max=[0.3] * m, du_max=[0.02] * m,
-                         name=f"bench_{size}", predictor={"method": "lsq"}, knots=d.get("knots"))
-    return cfg, ds, (A, B, C, off)
-
-
-def build_problem(size: str, seed: int = 0) -> tuple[SteeringProblem, tuple]:
-    """(interpreted problem, plant) of a benchmark size (no solver generated)."""
-    cfg, ds, plant = bench_data(size, seed)
-    return SteeringProblem(fit_predictor(ds, cfg.t_ini, cfg.t_f, "lsq"), cfg), plant
-
-
-def theta_stream(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1) -> np.ndarray:
-    """Closed-loop run of ``solver`` on the plant; returns the parameter vectors it saw (n, n_theta)."""
-    A, B, C, off = plant
-    c = problem.config
-    m, ti, tf = c.m, c.t_ini, c.t_f
-    rng = np.random.default_rng(seed)
-    t = np.arange(n + tf) * 0.005
-    steps = np.repeat(rng.uniform(-0.15, 0.15, (len(t) // 300 + 1, m)), 300, axis=0)[: len(t)]
-    y_des_all = 0.1 * np.sin(2 * np.pi * 0.5 * t)[:, None] + steps
-    x = np.zeros(A.shape[0])
-    u_hist = np.zeros((ti, m))
-    y_hist = np.zeros((ti, m))
-    thetas = np.empty((n, problem.n_theta))
-    for k in range(n):
-        y_k = C @ x  # relative to the operating point (offset removed, as in the data)
-        yd = y_des_all[k : k + tf]
-        th = problem.theta(u_hist, y_hist, yd, yd)
-        thetas[k] = th
-        r = solver.solve_theta(th)
-        u_k = r.u[0] if r.ok else yd[0]
-        x = A @ x + B @ u_k
-        u_hist = np.vstack([u_hist[1:], u_k])
-        y_hist = np.vstack([y_hist[1:], y_k])
-    return thetas
-
+from ddpc_codegen.experiments.bench_preview import preview_tracking
+from ddpc_codegen.experiments.bench_problems import SIZES, bench_data, theta_stream
+from ddpc_codegen.experiments.bench_scale import scale_report
+from ddpc_codegen.pipeline.solver_build import build_solver
+from ddpc_codegen.runtime.loader import load_solver
 
 def _time_python(fn, thetas) -> tuple[np.ndarray, list]:
     times = np.empty(len(thetas))
@@ -139,9 +57,6 @@ def _stats(times: np.ndarray, err: float, fast: float | None = None, extra: dict
 
 
 def bench_size(size: str, n: int, workdir: Path, log=print) -> dict:
-    from ddpc_codegen.experiments.solver_build import build_solver
-    from ddpc_codegen.runtime.loader import load_solver
-
     cfg, ds, plant = bench_data(size)
     built = {b: build_solver(cfg, ds, workdir / f"{size}_{b}", backend=b, name=f"bench_{size}_{b}")
              for b in ("daqp", "osqp")}
@@ -218,11 +133,11 @@ def predictor_scaling(samples: int = 10**6) -> dict:
 
     code = f"""
 import json, resource, time, numpy as np
-from ddpc_codegen.experiments.bench import _plant, _simulate
+from ddpc_codegen.experiments.bench_problems import bench_plant, simulate_plant
 from ddpc_codegen import IODataset, prbs, fit_predictor
-A, B, C, off = _plant(2, 0)
+A, B, C, off = bench_plant(2, 0)
 u = prbs({samples}, 2, amplitude=0.05, min_hold=4, seed=0)
-y, _ = _simulate(A, B, C, off, u, np.zeros(4)) if {samples} <= 20000 else (None, None)
+y, _ = simulate_plant(A, B, C, off, u, np.zeros(4)) if {samples} <= 20000 else (None, None)
 if y is None:
     from scipy.signal import dlsim
     _, y, _ = dlsim((A, B, C, np.zeros((2, 2)), 1.0), u)
@@ -243,8 +158,6 @@ print(json.dumps(out))
 def scale_entry(log=print) -> dict:
     """The ``scale`` entry: fleet fit (10^7 samples, 100 files) and a 64-point sweep, serial vs 2 Ray
     workers (:mod:`ddpc_codegen.experiments.bench_scale`; ~10-15 min on a loaded 2-core machine)."""
-    from ddpc_codegen.experiments.bench_scale import scale_report
-
     return scale_report(log)
 
 
@@ -345,18 +258,12 @@ def main(argv: list[str] | None = None) -> int:
             report.setdefault("standalone", {})[size] = {**sa["daqp"], "osqp": sa["osqp"]}
             arm = report[size].pop("aarch64_qemu")
             report["aarch64_qemu"] = None if arm is None else {**(report.get("aarch64_qemu") or {}), size: arm}
-        from ddpc_codegen.experiments.bench_preview import preview_tracking
-
         log("preview tracking (Tf 15 / Tf 100 on 10 knots / Tf 100 free) ...")
         report["preview_tracking"] = preview_tracking(Path(tmp), args.ticks, log)
     if not args.skip_artio:
-        from ddpc_codegen.experiments.bench_artio import completion_timing
-
         log("hopping artificial-IO completion ...")
         report["hopping_completion"] = completion_timing(log)
     if not args.skip_adapt:
-        from ddpc_codegen.experiments.bench_adapt import adapt_timing
-
         log("online predictor update (C) ...")
         # every size, the knot-parameterized preview included (its Hankel block is 4x the flying one's)
         report["adapt"] = {size: adapt_timing(size) for size in SIZES}
@@ -380,8 +287,6 @@ def main(argv: list[str] | None = None) -> int:
               f"pem {p['pem_seconds']:.1f} s, peak RSS {p['peak_rss_mib']:.0f} MiB "
               f"({p['rss_before_fit_mib']:.0f} MiB before fitting)")
     if "adapt" in report:
-        from ddpc_codegen.experiments.bench_adapt import adapt_lines
-
         print("\n" + "\n".join(adapt_lines(list(report["adapt"].values()))))
     print(f"\nwrote {out}")
     return 0

@@ -5,7 +5,7 @@ residual of the recent window, the same re-solves timed in a build without it); 
 timed by a C program cross-compiled for aarch64 under qemu, with its native build as the reference
 (:mod:`ddpc_codegen.experiments.bench_adapt_cross`).
 
-The problems are the benchmark's (``bench.build_problem``) refitted with a relative ridge of 1e-6 (the
+The problems are the benchmark's (``bench_problems.build_problem``) refitted with a relative ridge of 1e-6 (the
 update re-solves G by a triangular solve, which needs a full-rank R11: the configs' ridge gives it).
 Times are wall-clock per call through cffi (~0.2 us of call overhead included).
 """
@@ -20,26 +20,25 @@ import time
 import numpy as np
 
 from ddpc_codegen.codegen import standalone
-from ddpc_codegen.codegen.adapt import compile_alone
+from ddpc_codegen.codegen.artifact import compile_alone
 from ddpc_codegen.design.adaptation import fit_layout
 from ddpc_codegen.design.data import IODataset, prbs
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.errors import CodegenError
 from ddpc_codegen.experiments.bench_adapt_cross import cross_figures, cross_line, native_figures
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.runtime.adaptation import AdaptSettings
+from ddpc_codegen.experiments.bench_problems import build_problem, simulate_plant
+from ddpc_codegen.values.adapt import AdaptSettings
 
 # issue 30: the tick's update <= 5 us, "a full G + QP rebuild <= 2 ms" (the verification after it is timed beside)
 TARGET_UPDATE_US, TARGET_RESOLVE_MS = 5.0, 2.0
 
 
 def _ridge_problem(size: str) -> SteeringProblem:
-    from ddpc_codegen.experiments.bench import _simulate, build_problem
-
     prob, (A, B, C, off) = build_problem(size)
     c = prob.config
     u = prbs(4000, c.m, amplitude=0.05, min_hold=4, seed=0)
-    y, _ = _simulate(A, B, C, off, u, np.zeros(A.shape[0]))
+    y, _ = simulate_plant(A, B, C, off, u, np.zeros(A.shape[0]))
     pred = fit_predictor(IODataset(u, y - off, 0.005), c.t_ini, c.t_f, "lsq", ridge=1e-6)
     return SteeringProblem(pred, c)
 

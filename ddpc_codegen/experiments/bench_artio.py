@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.runtime.hopping import HoppingWindow
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.experiments.pipeline import CollectSpec, collect, default_config
-from ddpc_codegen.experiments.solver_build import build_solver
+from ddpc_codegen.pipeline.solver_build import build_solver
+from ddpc_codegen.runtime.loader import load_solver
 
 
 class _Timed:
@@ -38,8 +39,6 @@ class _Timed:
 def completion_timing(log=print, duration: float = 40.0) -> dict:
     """Median / p99 µs per call of the generated completion (unbounded and bounded calls apart) and of
     the interpreted one, and their largest difference, on the windows of a 20 s noisy hopping run."""
-    from ddpc_codegen.runtime.loader import load_solver
-
     cfg = SteeringConfig.from_toml(default_config("hopping"))
     raw = collect("hopping", CollectSpec(duration=duration, seed=1, amplitude=(0.01, 0.02, 0.02))).to_dataset("none")
     held = collect("hopping", CollectSpec(duration=20.0, seed=5, noise=True, amplitude=(0.01, 0.02, 0.02)))

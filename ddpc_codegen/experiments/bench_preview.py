@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.experiments.bench import build_problem
+from ddpc_codegen.experiments.bench_problems import build_problem
+from ddpc_codegen.codegen import generate
+from ddpc_codegen.runtime.loader import load_solver
 
 __all__ = ["track", "preview_tracking"]
 
@@ -45,9 +47,6 @@ def track(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1,
 
 def preview_tracking(workdir: Path, n: int = 2000, log=print) -> dict:
     """{variant: track(...) | n_z} for Tf 15, Tf 100 on 10 knots and Tf 100 free (generated daqp solvers)."""
-    from ddpc_codegen.codegen.generate import generate
-    from ddpc_codegen.runtime.loader import load_solver
-
     knots, plant = build_problem("preview")
     short, _ = build_problem("flying")
     free = SteeringProblem(knots.predictor, knots.config.replace(knots=None, name="bench_preview_free"))

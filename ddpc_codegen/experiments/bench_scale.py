@@ -22,6 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from ddpc_codegen.experiments.pipeline import ROOT
+from ddpc_codegen.design.data import IODataset, prbs
+from ddpc_codegen.experiments.bench_problems import bench_plant
+from ddpc_codegen.experiments.sweep import TIMING_COLUMNS, _training_data, read_results, run_sweep
+from ddpc_codegen.experiments.sweep_spec import SweepSpec
 
 __all__ = ["sweep_scaling", "fit_scaling", "scale_report", "main"]
 
@@ -48,9 +52,6 @@ noise = true
 
 def sweep_scaling(workers: int = 2, log=print) -> dict[str, Any]:
     """64-point sweep, serial then ``workers`` Ray workers; wall times include Ray's start-up."""
-    from ddpc_codegen.experiments.sweep import TIMING_COLUMNS, _training_data, read_results, run_sweep
-    from ddpc_codegen.experiments.sweep_spec import SweepSpec
-
     with tempfile.TemporaryDirectory() as tmp:
         spec = Path(tmp) / "bench_sweep.toml"
         spec.write_text(_SWEEP)
@@ -110,10 +111,7 @@ def _fleet_files(folder: Path, samples: int, files: int) -> None:
     import numpy as np
     from scipy.signal import dlsim
 
-    from ddpc_codegen.design.data import IODataset, prbs
-    from ddpc_codegen.experiments.bench import _plant
-
-    A, B, C, off = _plant(2, 0)
+    A, B, C, off = bench_plant(2, 0)
     n = samples // files
     for i in range(files):
         u = prbs(n, 2, amplitude=0.05, min_hold=4, seed=i)

@@ -23,13 +23,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.errors import ConfigError, DDPCError
 from ddpc_codegen.experiments.demo_figures import demo_figures
 from ddpc_codegen.experiments.evaluate import RunResult, offset_step, prediction_check, run
 from ddpc_codegen.experiments.report_file import update_report
 from ddpc_codegen.experiments.pipeline import ROOT, CollectSpec, SteeringSetup, build_setup, default_config, say
 from ddpc_codegen.sim import PogoXParams, Push
+from ddpc_codegen.experiments.baselines_eval import evaluate_baselines, reuse_from_summary
+from ddpc_codegen.experiments.baselines_eval import format_baselines
 
 __all__ = ["run_demo", "format_table", "summary_block", "main", "register", "DURATIONS", "ROBUSTNESS"]
 
@@ -197,7 +199,6 @@ def run_demo(
     if baselines:
         # Prefilter, ILC and a non-repeating case beside passthrough and steering (experiments/baselines_eval.py);
         # the runs above that are the same simulations are reused, not repeated.
-        from ddpc_codegen.experiments.baselines_eval import evaluate_baselines, reuse_from_summary
 
         say("baselines: prefilter, ILC, non-repeating trajectories ...", not quiet)
         summary["baselines"] = evaluate_baselines(setups, durations=durations, reuse=reuse_from_summary(summary),
@@ -281,8 +282,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print()
         print(format_robustness(summary["robustness"]))
     if "baselines" in summary:
-        from ddpc_codegen.experiments.baselines_eval import format_baselines
-
         print()
         print(format_baselines(summary["baselines"]))
     print()

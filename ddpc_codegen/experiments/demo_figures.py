@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.experiments.evaluate import RunResult, offset_step
+from ddpc_codegen.sim.metrics import hop_apexes
+from ddpc_codegen.values.phases import GROUND
 
 __all__ = ["demo_figures"]
 
@@ -31,7 +33,6 @@ def demo_figures(out: Path, runs: dict[str, tuple[RunResult, RunResult]],
         plt = _mpl()
         fig, ax = plt.subplots(figsize=(7, 3.2))
         target = s.sim.config.apex_height
-        from ddpc_codegen.sim.metrics import hop_apexes
 
         for r, lab, c in ((b, labels[0], "tab:green"), (s, labels[1], "tab:blue")):
             ta, za = hop_apexes(r.sim)
@@ -52,7 +53,6 @@ def demo_figures(out: Path, runs: dict[str, tuple[RunResult, RunResult]],
 def _hopping_figure(base, steered, labels, t_range):
     """z, roll, pitch vs time; each run against its *own* desired outputs (the hop timing of the
     two runs differs, so one shared desired curve would mislead). Ground phases shaded."""
-    from ddpc_codegen.design.phases import GROUND
     from ddpc_codegen.sim.plots import _mpl
 
     plt = _mpl()
@@ -84,7 +84,6 @@ def _jitter_figure(clean: RunResult, noisy: RunResult, seconds: float = 2.5):
     noise-free and the noisy steered hopping run (each with its own hop timing; ground phases of the
     noisy run shaded), labelled with each run's ``offset_step_rms``: why the noisy hops' velocity
     suffers (README, Results)."""
-    from ddpc_codegen.design.phases import GROUND
     from ddpc_codegen.sim.plots import _mpl
 
     plt = _mpl()

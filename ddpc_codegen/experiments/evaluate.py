@@ -13,9 +13,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from ddpc_codegen.design.adaptation import AdaptiveProblem
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.design.solve_result import SteeringResult
+from ddpc_codegen.values.solve_result import SteeringResult
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.experiments.pipeline import SteeringSetup
 from ddpc_codegen.experiments.policy_hook import PolicyHook
@@ -27,6 +27,7 @@ from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from ddpc_codegen.sim import PogoXParams, Push, SensorNoise, SimResult, simulate
 from ddpc_codegen.sim.scenarios import HoppingScenario, Scenario
 from ddpc_codegen.stats import percentiles
+from ddpc_codegen.runtime.loader import load_solver
 
 __all__ = ["InterpretedSolver", "RunResult", "run", "scenario_metrics", "offset_step",
            "prediction_check"]
@@ -208,7 +209,6 @@ def _adaptive_solver(setup: SteeringSetup, interpreted: bool, method: str):
     settings = dataclasses.replace(setup.config.adapt, enabled=True)
     if interpreted or setup.solver_path is None:
         return AdaptiveProblem(setup.problem, settings, method)
-    from ddpc_codegen.runtime.loader import load_solver
 
     solver = load_solver(setup.solver_path)
     if solver.adaptation is None:

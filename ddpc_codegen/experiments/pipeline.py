@@ -48,15 +48,16 @@ from typing import Any, Callable
 
 
 from ddpc_codegen.design.artificial_io import ArtificialIO
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.hopping_data import ArtificialIOSpec
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import DataError
-from ddpc_codegen.experiments.solver_build import BuiltSolver, build_solver
+from ddpc_codegen.pipeline.solver_build import BuiltSolver, build_solver
 from ddpc_codegen.sim import Excitation, FlyingScenario, PogoXParams, SimResult, simulate
 from ddpc_codegen.sim.scenarios import EllipseTrajectory, HoppingScenario
+from ddpc_codegen.runtime.loader import load_solver
 
 __all__ = [
     "ROOT",
@@ -212,8 +213,6 @@ def build_setup(
     setup = SteeringSetup(scenario, b.config, pred, b.problem, b.dataset, art=b.art, art_spec=b.art_spec, info=info,
                           raw=raw)
     if b.path is not None:
-        from ddpc_codegen.runtime.loader import load_solver
-
         setup.solver = load_solver(b.path)
         setup.solver_path = b.path
         info["codegen_s"] = b.report["codegen_s"]

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.runtime.hopping import HoppingSteering, HoppingWindow
 from ddpc_codegen.runtime.policy import Policy, SteeringPolicy
 from ddpc_codegen.sim import TickContext

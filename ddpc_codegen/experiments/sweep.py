@@ -39,7 +39,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from ddpc_codegen.cluster import engine
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.fit import fit_configured
 from ddpc_codegen.design.predictor import Predictor
@@ -48,6 +48,9 @@ from ddpc_codegen.experiments.pipeline import SteeringSetup, build_setup, collec
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.experiments.sweep_cache import load_predictor, save_predictor
 from ddpc_codegen.experiments.sweep_spec import METRICS, Point, SweepSpec
+from ddpc_codegen.codegen import generate
+from ddpc_codegen.experiments.sweep_report import write_report
+from ddpc_codegen.runtime.loader import load_solver
 
 __all__ = ["SweepContext", "evaluate_point", "run_sweep", "read_results", "columns", "TIMING_COLUMNS"]
 
@@ -119,9 +122,6 @@ def _cached_fit(cfg: SteeringConfig, ds: IODataset, cache_dir: str) -> Predictor
 
 def _attach_solver(setup: SteeringSetup, cache_dir: str) -> None:
     """Load the configuration's generated solver from the cache, or generate + compile it there."""
-    from ddpc_codegen.codegen import generate
-    from ddpc_codegen.runtime.loader import load_solver
-
     folder = Path(cache_dir) / f"sweep_{setup.config.digest[:12]}"
     with _locked(folder.with_suffix(".lock")):
         try:  # the manifest check refuses a folder made from another config or predictor
@@ -275,8 +275,6 @@ def run_sweep(spec: SweepSpec | str | Path, out_dir: str | Path, *, workers: int
         on_row: called with every finished row (after it is appended to the file).
         report: write best.toml, best_data.npz and pareto.png at the end.
     """
-    from ddpc_codegen.experiments.sweep_report import write_report
-
     spec = spec if isinstance(spec, SweepSpec) else SweepSpec.from_toml(spec)
     out = Path(out_dir)
     say = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)

@@ -43,11 +43,11 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.config import _SCHEMA, SteeringConfig
+from ddpc_codegen.values.config import _SCHEMA, SteeringConfig
 from ddpc_codegen.experiments.pipeline import CollectSpec, default_config
 from ddpc_codegen.sim import PogoXParams, Push
-from ddpc_codegen.tomlconfig import check_keys, dataclass_from_table, load_toml
-from ddpc_codegen.tomlconfig import config_error as _err
+from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table, load_toml
+from ddpc_codegen.values.tomlconfig import config_error as _err
 
 __all__ = ["Condition", "Point", "SweepSpec", "METRICS"]
 

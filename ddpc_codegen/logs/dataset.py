@@ -13,6 +13,7 @@ from ddpc_codegen.logs.channels import ChannelSpec
 from ddpc_codegen.logs.notes import Notes
 from ddpc_codegen.logs.resample import RESAMPLING_RULE, Segment
 from ddpc_codegen.logs.series import Series
+from ddpc_codegen.design.data import IODataset
 
 __all__ = ["assemble", "file_meta", "jsonable", "channel_summary"]
 
@@ -47,8 +48,6 @@ def assemble(
     ``per_file`` holds (file metadata, segments, time origin µs) per log file; segment time
     ranges are recorded in seconds since that file's origin.
     """
-    from ddpc_codegen.design.data import IODataset  # local: keep `logs` importable without the data layer loaded
-
     u, y, segs_meta = [], [], []
     for fi, (fmeta, segs, origin) in enumerate(per_file):
         for s in segs:

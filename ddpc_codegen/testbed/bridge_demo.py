@@ -30,11 +30,8 @@ in-process metrics; ``rmse_z_telemetry`` the same from the bridge's telemetry.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
-import signal
-import socket
 import subprocess
 import sys
 import time
@@ -44,101 +41,22 @@ import numpy as np
 
 from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.stats import percentiles
+from ddpc_codegen.testbed.bridge_demo_hopping import run_hopping_demo
+from ddpc_codegen.testbed.bridge_flights import ROOT, child_env, fly, free_udp_port, python_m, write_report, write_toml
 from firmware_bridge.realtime import kernel_preemption
+from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.runtime.loader import load_solver
+from ddpc_codegen.runtime.policy import SteeringPolicy
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from ddpc_codegen.sim import simulate
+from firmware_bridge.realtime import probe_cpus
+from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["main", "run_demo", "free_udp_port", "truth_rmse"]
-
-ROOT = Path(__file__).resolve().parents[2]  # the repository (ddpc_codegen/testbed/ -> .)
-
-
-def free_udp_port(host: str = "127.0.0.1") -> int:
-    """An ephemeral UDP port that is free right now on ``host``."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
-
-
-def _py() -> list[str]:
-    return [sys.executable, "-m"]
-
-
-def _env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    return env
-
-
-def _stop(proc: subprocess.Popen | None, timeout: float = 10.0) -> None:
-    if proc is None or proc.poll() is not None:
-        return
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(5)
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    return repr(v)
-
-
-def write_toml(raw: dict, path: Path) -> Path:
-    """A flat TOML writer for the steering-config layout (top-level scalars, one level of tables)."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in raw.items() if not isinstance(v, dict)]
-    for k, v in raw.items():
-        if isinstance(v, dict):
-            lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed: int, rt_priority: int,
-        cpu_latency_us: int = 0, pin: bool = False, log=print, vehicle_args: list[str] = ()) -> dict:
-    """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths + summary.
-    ``vehicle_args``: more ``ddpc-vehicle`` flags (e.g. --scenario hopping --lockstep)."""
-    port = free_udp_port()
-    truth = work / f"{name}_truth.npz"
-    ticks = work / f"{name}.npz"
-    summ = work / f"{name}_summary.json"
-    for f in (truth, ticks, summ):
-        f.unlink(missing_ok=True)
-    veh = br = None
-    veh_err = open(work / f"{name}_vehicle.log", "w")
-    try:
-        veh = subprocess.Popen(
-            _py() + ["ddpc_codegen.testbed.vehicle_cli", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
-                     "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
-                     "--cpu-latency-us", str(cpu_latency_us)] + _pin_args(pin, "vehicle") + list(vehicle_args),
-            env=_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
-        cmd = _py() + ["firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{port}", "--offboard", "--duration",
-                       str(duration), "--log", str(ticks), "--overwrite", "--summary", str(summ), "--rt-priority", str(rt_priority),
-                       "--cpu-latency-us", str(cpu_latency_us), *_pin_args(pin, "bridge"),
-                       "--wait-heartbeat", "30", "--timeout", str(duration + 60)] + bridge_args
-        log(f"  [{name}] {' '.join(cmd[2:])}")
-        t0 = time.monotonic()
-        br = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=duration + 90)
-        if br.returncode != 0:
-            raise RuntimeError(f"bridge ({name}) failed with {br.returncode}:\n{br.stderr}\n{br.stdout}")
-        log("    " + br.stdout.strip().replace("\n", "\n    ") + f"\n    ({time.monotonic() - t0:.1f} s wall)")
-    finally:
-        _stop(veh)
-        veh_err.close()
-    summary = json.loads(summ.read_text())
-    return {"truth": truth, "ticks": ticks, "summary": summary}
-
 
 def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
     """True height error over the link: vehicle truth at each engaged tick's vehicle time
     (interpolated) minus that tick's desired height, for trajectory time >= settle [m]."""
-    from firmware_bridge.ticklog import load_ticklog
-
     tl = load_ticklog(ticks_path).ticks
     with np.load(truth_path) as z:
         tt, st = z["t"], z["state"]
@@ -156,11 +74,6 @@ def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
 
 def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)) -> dict:
     """Baseline and steered flights in-process (simulate + ReferenceSteerer, the same solver)."""
-    from ddpc_codegen import ReferenceSteerer, load_solver
-    from ddpc_codegen.experiments.policy_hook import PolicyHook
-    from ddpc_codegen.runtime.policy import SteeringPolicy
-    from ddpc_codegen.sim import simulate
-
     solver = load_solver(solver_dir)
     st = ReferenceSteerer.for_solver(solver, max_step=np.asarray(max_step, float))
     res = {}
@@ -204,8 +117,8 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
                               cpu_latency_us=cpu_latency_us, pin=pin, log=log)
         log(f"2. codegen: ddpc-codegen codegen {config} --dataset {runs['collect']['ticks']}")
         gen_root = work / "generated"
-        r = subprocess.run(_py() + ["ddpc_codegen.cli.main", "codegen", str(config), "--dataset", str(runs["collect"]["ticks"]),
-                                    "--out", str(gen_root)], env=_env(), capture_output=True, text=True, timeout=600)
+        r = subprocess.run(python_m() + ["ddpc_codegen.cli.main", "codegen", str(config), "--dataset", str(runs["collect"]["ticks"]),
+                                    "--out", str(gen_root)], env=child_env(), capture_output=True, text=True, timeout=600)
         if r.returncode != 0:
             raise RuntimeError(f"codegen failed:\n{r.stderr}")
         log("    " + r.stderr.strip().replace("\n", "\n    "))
@@ -227,21 +140,8 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     return write_report(report, out, t_start, format_table, log)
 
 
-def write_report(report: dict, out: Path, t_start: float, table, log=print) -> dict:
-    """Finish a demo: its wall time (since ``t_start``, monotonic) into ``report``, the JSON to
-    ``out``, the README table (``table(report)``) to ``log``."""
-    report["wall_s"] = time.monotonic() - t_start
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2, default=str) + "\n")
-    log(table(report))
-    log(f"wrote {out}")
-    return report
-
-
 def _report(runs: dict[str, dict], ip: dict, solver: Path, settings: dict) -> dict:
     """reports/bridge.json from the flights over the link and the in-process reference."""
-    from firmware_bridge.ticklog import load_ticklog
-
     lat, sent, dur, missed, ticks = [], 0, 0.0, 0, 0
     for name, rr in runs.items():
         s = rr["summary"]
@@ -277,18 +177,8 @@ def _report(runs: dict[str, dict], ip: dict, solver: Path, settings: dict) -> di
     }
 
 
-def _pin_args(pin: bool, who: str) -> list[str]:
-    """--cpus for one process: the bridge on the last CPU this process may use, the vehicle on the first."""
-    cpus = sorted(os.sched_getaffinity(0))
-    if not pin or len(cpus) < 2:
-        return []
-    return ["--cpus", str(cpus[-1] if who == "bridge" else cpus[0])]
-
-
 def probe_machine(seconds: float, rt_priority: int, cpu_latency_us: int, log=print) -> list[dict]:
     """Wake-up latency of a 1 kHz SCHED_FIFO sleeper per CPU, without and with the PM QoS request."""
-    from firmware_bridge.realtime import probe_cpus
-
     log(f"0. machine: kernel {os.uname().release}, preemption {kernel_preemption()}")
     log(f"   wake-up latency of a real-time sleeper, {seconds:g} s per CPU, without / with PM QoS")
     return probe_cpus(seconds, priority=rt_priority, cpu_latency_us=None if cpu_latency_us < 0 else cpu_latency_us,
@@ -351,8 +241,6 @@ def main(argv: list[str] | None = None) -> int:
                    help="hopping: the bridge's phases from telemetry alone (default) or the vehicle's contact signal")
     a = p.parse_args(argv)
     if a.scenario == "hopping":
-        from ddpc_codegen.testbed.bridge_demo_hopping import run_hopping_demo
-
         out = Path(a.out) if a.out != _OUT else ROOT / "reports" / "bridge_hopping.json"
         run_hopping_demo(out, Path(a.work), collect_s=a.collect or 120.0, flight_s=a.flight,
                          solver=Path(a.solver) if a.solver else None,

@@ -24,14 +24,30 @@ Writes ``reports/bridge_hopping.json``.
 from __future__ import annotations
 
 import math
+import subprocess
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.phases import DESCENT
+from ddpc_codegen.values.phases import DESCENT
 from ddpc_codegen.robot.frames import euler_from_quat
 from ddpc_codegen.robot.phases import ContactConfig, PhaseEstimator
+from ddpc_codegen.testbed.bridge_flights import ROOT, child_env, fly, python_m, write_report
+from ddpc_codegen.experiments.evaluate import scenario_metrics
+from ddpc_codegen.experiments.policy_hook import PolicyHook
+from ddpc_codegen.robot.controller import ControllerConfig
+from ddpc_codegen.robot.profile import load_profile
+from ddpc_codegen.runtime.loader import load_solver
+from ddpc_codegen.runtime.policy import SteeringPolicy
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from ddpc_codegen.sim import simulate
+from ddpc_codegen.sim.metrics import compute_metrics
+from ddpc_codegen.sim.params import PogoXParams
+from ddpc_codegen.sim.scenarios import HoppingScenario
+from firmware_bridge.hopping_loop import hopping_window
+from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["LinkRun", "link_run", "link_metrics", "detection_delays", "replay_phases"]
 
@@ -69,18 +85,11 @@ class LinkRun:
         return int(self.t.shape[0])
 
     def metrics(self) -> dict:
-        from ddpc_codegen.sim.metrics import compute_metrics
-
         return compute_metrics(self)
 
 
 def link_run(ticks_path: Path, truth_path: Path) -> LinkRun:
     """The engaged part of a hopping flight: vehicle truth per tick + the bridge's y_des / phase at that tick."""
-    from ddpc_codegen.robot.controller import ControllerConfig
-    from ddpc_codegen.sim.params import PogoXParams
-    from ddpc_codegen.sim.scenarios import HoppingScenario
-    from firmware_bridge.ticklog import load_ticklog
-
     log = load_ticklog(ticks_path)
     tl = log.ticks
     act = np.flatnonzero(tl["active"])
@@ -105,8 +114,6 @@ def replay_phases(ticks_path: Path, contact: ContactConfig) -> tuple[np.ndarray,
     """(vehicle times, GROUND flags) of the engaged ticks as the bridge's :class:`PhaseEstimator` with
     ``contact`` sees them from the logged telemetry (trajectory frame) and contact flags, started
     at the release in DESCENT, like the bridge."""
-    from firmware_bridge.ticklog import load_ticklog
-
     tl = load_ticklog(ticks_path).ticks
     act = np.flatnonzero(tl["active"])
     est = PhaseEstimator(contact, phase=DESCENT)
@@ -174,9 +181,6 @@ def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | No
     """The in-process hopping metrics of a flight over the link, plus the phase-detection delays from
     telemetry alone and (if the vehicle sent it) from the contact signal, replayed with ``contact``
     (default: the thresholds the bridge flew with, from the tick log)."""
-    from ddpc_codegen.experiments.evaluate import scenario_metrics
-    from firmware_bridge.ticklog import load_ticklog
-
     run = link_run(ticks_path, truth_path)
     met = scenario_metrics(run)
     log = load_ticklog(ticks_path)
@@ -202,15 +206,6 @@ def link_metrics(ticks_path: Path, truth_path: Path, contact: ContactConfig | No
 def in_process(solver_dir: Path, duration: float, seed: int, noise: bool) -> dict:
     """Baseline and steered hopping in-process (simulate + the simulator's steering hook), the same
     generated solver and artificial-IO operator as over the link."""
-    from ddpc_codegen import ReferenceSteerer, load_solver
-    from ddpc_codegen.experiments.evaluate import scenario_metrics
-    from ddpc_codegen.experiments.policy_hook import PolicyHook
-    from ddpc_codegen.robot.profile import load_profile
-    from ddpc_codegen.runtime.policy import SteeringPolicy
-    from ddpc_codegen.sim import simulate
-
-    from firmware_bridge.hopping_loop import hopping_window
-
     solver = load_solver(solver_dir)
     st = ReferenceSteerer.for_solver(solver)
     cc = load_profile("pogox_hopping").controller
@@ -230,11 +225,6 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
     """collect -> codegen -> baseline -> steered over the link, then the in-process reference (see
     the module docstring). ``lockstep`` False: both processes in real time (SCHED_FIFO if permitted).
     ``contact``: the bridge's phase source ("estimate": telemetry alone; "signal": the leg sensor's flag)."""
-    import subprocess
-    import time
-
-    from ddpc_codegen.testbed.bridge_demo import ROOT, _env, _py, fly, write_report
-
     config = config or ROOT / "configs" / "hopping.toml"
     work.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()
@@ -249,9 +239,9 @@ def run_hopping_demo(out: Path, work: Path, *, collect_s: float = 120.0, flight_
         runs["collect"] = fly("hop_collect", work, br + ["--mode", "collect", "--seed", str(seed)],
                               duration=collect_s, seed=seed, **kw)
         log(f"2. codegen: ddpc-codegen codegen {config} --dataset {runs['collect']['ticks']}")
-        r = subprocess.run(_py() + ["ddpc_codegen.cli.main", "codegen", str(config), "--dataset",
+        r = subprocess.run(python_m() + ["ddpc_codegen.cli.main", "codegen", str(config), "--dataset",
                                     str(runs["collect"]["ticks"]), "--out", str(work / "generated")],
-                           env=_env(), capture_output=True, text=True, timeout=900)
+                           env=child_env(), capture_output=True, text=True, timeout=900)
         if r.returncode != 0:
             raise RuntimeError(f"codegen failed:\n{r.stderr}")
         log("    " + r.stderr.strip().replace("\n", "\n    "))

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, PrefilterModel, error_on_grid, ilc_step
+from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, error_on_grid, ilc_step
+from ddpc_codegen.values.prefilter import PrefilterModel
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy
 
 from firmware_bridge.ticklog import TickLog, load_ticklog

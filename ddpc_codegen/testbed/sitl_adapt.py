@@ -32,7 +32,7 @@ import numpy as np
 
 from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.runtime.adapt_loop import ADAPT_CODES, UPDATE_CODES, VERDICT_CODES
-from ddpc_codegen.runtime.adaptation import REJECTIONS
+from ddpc_codegen.values.adapt import REJECTIONS
 from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
 from ddpc_codegen.testbed.sitl_flight import fly

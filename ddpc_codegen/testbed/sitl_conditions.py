@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpc_codegen.testbed.sitl_flight import ctrl_ff_profile, flight_figures, fly
+
 __all__ = ["CONDITIONS", "METHODS", "STEPS_DURATION", "write_steps_trajectory", "fly_condition", "summarize_rounds",
            "steered_estimator_rms"]
 
@@ -95,9 +97,6 @@ def fly_condition(sitl, autopilot: str, name: str, out: Path, trajectory: Path, 
                   rounds: int, duration: float = STEPS_DURATION, say=_say) -> dict:
     """Apply condition ``name`` (:data:`CONDITIONS`), fly every method ``rounds`` times on ``trajectory``,
     undo the condition; the figures (:func:`summarize_rounds`), or {"skipped": why}."""
-    from ddpc_codegen.testbed.sitl_demo import ctrl_ff_profile
-    from ddpc_codegen.testbed.sitl_flight import flight_figures, fly
-
     spec = CONDITIONS[autopilot][name]
     if isinstance(spec, str):
         return {"skipped": spec}

@@ -26,10 +26,15 @@ from pathlib import Path
 
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
-from ddpc_codegen.testbed.sitl_flight import PROFILES, flight_figures, fly
+from ddpc_codegen.testbed.sitl_flight import ctrl_ff_profile, flight_figures, fly
 from ddpc_codegen.testbed.sitl_conditions import (CONDITIONS, STEPS_DURATION, fly_condition, steered_estimator_rms,
                                                   summarize_rounds, write_steps_trajectory)
 from firmware_bridge.ticklog import load_ticklog
+from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, iterations_to_settle
+from ddpc_codegen.design.baselines import fit_prefilter
+from ddpc_codegen.testbed.ilc import next_table
+from ddpc_codegen.testbed.sitl_front import steps_front
+from ddpc_codegen.values.prefilter import PrefilterModel
 
 __all__ = ["SITL_PARAMS", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "fly_ilc", "run_pipeline", "main", "format_condition"]
 
@@ -48,16 +53,6 @@ COLLECT = {"ardupilot": ("--excitation", "0.05,0.03", "--excitation-hold", "4"),
 ILC_ITERATIONS = 3
 
 
-def ctrl_ff_profile(autopilot: str, out: Path) -> Path:
-    """The autopilot's profile with the controller's own feed-forward of the trajectory velocity
-    (``ref_velocity_gain`` 1, the in-process ``ctrl_ff`` baseline), written to ``out``; its path."""
-    base = PROFILES[autopilot]
-    path = out / f"ctrl_ff_{base}.toml"
-    path.write_text(f'name = "{base}_ctrl_ff"\ndescription = "{base} with the velocity feed-forward of the '
-                    f'trajectory"\nextends = "{base}"\n\n[controller]\nref_velocity_gain = 1.0\n')
-    return path
-
-
 def codegen(config: Path, dataset: Path, out: Path) -> Path:
     """``ddpc-codegen codegen`` on a tick log; the generated solver folder."""
     cmd = [sys.executable, "-m", "ddpc_codegen.cli.main", "codegen", str(config), "--dataset", str(dataset),
@@ -71,8 +66,6 @@ def codegen(config: Path, dataset: Path, out: Path) -> Path:
 def fit_prefilter_from_log(collect: Path, out: Path) -> Path:
     """The ``prefilter`` baseline (per channel gain + offset + lead) fitted on the collect flight's
     tick log as the in-process demo fits it (u and y low-passed at 1 Hz, leads up to 1 s); its JSON."""
-    from ddpc_codegen.design.baselines import fit_prefilter
-
     return fit_prefilter(load_ticklog(collect).to_dataset(), max_lead=200, smooth_hz=1.0).save(out)
 
 
@@ -84,9 +77,6 @@ def fly_ilc(sitl, autopilot: str, out: Path, duration: float, prefilter: Path,
     the table (:func:`ddpc_codegen.testbed.ilc.next_table`, the in-process demo's law with this loop's
     prefilter; ``law``: other ``gain_scale`` / ``cutoff_hz``). The figures per iteration, the
     iteration it settled at, the last one's."""
-    from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, PrefilterModel, iterations_to_settle
-    from ddpc_codegen.testbed.ilc import next_table
-
     if iterations < 1:
         raise ValueError(f"ILC needs at least one iteration after the passthrough flight; got {iterations}")
     t0 = time.monotonic()
@@ -272,8 +262,6 @@ def rescore(out: Path) -> int:
 def add_steps_front(steps: dict, folder: Path, autopilot: str, config: Path) -> None:
     """The steps condition's ``front`` (:func:`~ddpc_codegen.testbed.sitl_front.steps_front`), at the steered
     flights' mean reference activity."""
-    from ddpc_codegen.testbed.sitl_front import steps_front
-
     steps["front"] = steps_front(folder, autopilot, config, (steps.get("ref_rate_ratio") or {}).get("steered"))
 
 

@@ -22,7 +22,7 @@ from ddpc_codegen.flight_metrics import flight_metrics, near_changes, rms, score
 from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
-__all__ = ["PROFILES", "APPROACH_TIMEOUT", "bridge_command", "fly", "ensure_disarmed", "flight_figures"]
+__all__ = ["PROFILES", "APPROACH_TIMEOUT", "ctrl_ff_profile", "bridge_command", "fly", "ensure_disarmed", "flight_figures"]
 
 PROFILES = {"ardupilot": "arducopter_sitl", "px4": "px4_sih"}
 # Seconds each flight waits, after the take-off ramp, for the height to hold at the trajectory's start
@@ -80,6 +80,16 @@ def _keep_attempt(out: Path, name: str, attempt: int) -> None:
         f = out / f"{name}{ext}"
         if f.exists():
             f.rename(out / f"{name}_attempt{attempt}{ext}")
+
+
+def ctrl_ff_profile(autopilot: str, out: Path) -> Path:
+    """The autopilot's profile with the controller's own feed-forward of the trajectory velocity
+    (``ref_velocity_gain`` 1, the in-process ``ctrl_ff`` baseline), written to ``out``; its path."""
+    base = PROFILES[autopilot]
+    path = out / f"ctrl_ff_{base}.toml"
+    path.write_text(f'name = "{base}_ctrl_ff"\ndescription = "{base} with the velocity feed-forward of the '
+                    f'trajectory"\nextends = "{base}"\n\n[controller]\nref_velocity_gain = 1.0\n')
+    return path
 
 
 def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, timeout: float,

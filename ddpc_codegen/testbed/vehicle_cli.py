@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 
 from firmware_bridge.cli_args import add_realtime_args, floats, push_spec, qos_request, time_window
+from ddpc_codegen.testbed.vehicle import SimVehicle, VehicleConfig
+from firmware_bridge.link import LinkError
 
 __all__ = ["build_vehicle_parser", "vehicle_main"]
 
@@ -69,8 +71,6 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
 def vehicle_main(argv: list[str] | None = None) -> int:
     """``ddpc-vehicle``: serve until SIGINT / SIGTERM or --duration; exit 0."""
     a = build_vehicle_parser().parse_args(argv)
-    from firmware_bridge.link import LinkError
-    from ddpc_codegen.testbed.vehicle import SimVehicle, VehicleConfig
 
     try:
         cfg = VehicleConfig(url=a.connection, baud=a.baud, sysid=a.sysid,

@@ -112,7 +112,7 @@ def test_scheduled_apex_changes_per_hop():
 
 def test_long_horizon_flying_config_loads():
     """configs/flying_tf30.toml: the measured alternative for disturbances (see its header)."""
-    from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.values.config import SteeringConfig
     from ddpc_codegen.experiments.pipeline import ROOT
 
     cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying_tf30.toml")

@@ -10,14 +10,14 @@ import pytest
 from ddpc_codegen.codegen import standalone
 from ddpc_codegen.codegen.emit import DEFAULTS, emit_sources
 from ddpc_codegen.design.adaptation import adapter, fit_layout
-from ddpc_codegen.design.config import SteeringConfig
+from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.errors import CodegenError
 from ddpc_codegen.experiments import bench_adapt_cross as cross
 from ddpc_codegen.experiments.bench_adapt import adapt_lines
-from ddpc_codegen.runtime.adaptation import REJECTIONS, AdaptSettings
+from ddpc_codegen.values.adapt import REJECTIONS, AdaptSettings
 from support.lti import random_lti
 
 pytestmark = pytest.mark.compiler
@@ -116,7 +116,7 @@ def test_native_timing_program_stamps_every_phase_of_a_resolve(tmp_path):
 
 
 def test_a_build_without_the_clock_stamps_nothing(tmp_path):
-    from ddpc_codegen.codegen.adapt import compile_alone
+    from ddpc_codegen.codegen.artifact import compile_alone
 
     prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
     ffi, lib = compile_alone(prob, st, tmp_path, "bx_noclock")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen import SteeringProblem
-from ddpc_codegen.experiments.bench import build_problem
+from ddpc_codegen.experiments.bench_problems import build_problem
 from ddpc_codegen.experiments.bench_preview import track
 
 

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ddpc_codegen.design.phases import ASCENT, GROUND
+from ddpc_codegen.values.phases import ASCENT, GROUND
 from ddpc_codegen.experiments.demo_figures import _jitter_figure, demo_figures
 from ddpc_codegen.experiments.evaluate import run
 from ddpc_codegen.stats import step_rms

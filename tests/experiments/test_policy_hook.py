@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.phases import GROUND
+from ddpc_codegen.values.phases import GROUND
 from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy
 from ddpc_codegen.sim import simulate

@@ -128,7 +128,7 @@ def test_bad_point_is_recorded_and_the_sweep_goes_on(serial):
     base, steered = float(rows[0]["rmse_z"]), float(rows[2]["rmse_z"])
     assert steered * 3 < base and rows[2]["solver"] == "generated:daqp" and float(rows[2]["solve_us_p50"]) > 0
     # the best configuration is a codegen-ready TOML next to its dataset
-    from ddpc_codegen.design.config import SteeringConfig
+    from ddpc_codegen.values.config import SteeringConfig
 
     best = SteeringConfig.from_toml(out / "best.toml")
     assert best.R.diagonal().tolist() == [0.3, 0.3] and Path(best.dataset).exists()

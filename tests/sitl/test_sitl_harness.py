@@ -101,7 +101,7 @@ def test_fly_ilc_learns_each_table_from_the_previous_flight(tmp_path, monkeypatc
     the passthrough flight is -Q(e0) and the error left is what the 1 Hz Q-filter does not pass."""
     import numpy as np
 
-    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.values.prefilter import PrefilterModel
     from ddpc_codegen.runtime.baselines import FeedforwardPolicy
     from ddpc_codegen.testbed import sitl_demo
     from firmware_bridge.ticklog import TickRecorder
@@ -149,7 +149,8 @@ def test_ctrl_ff_profile_is_the_autopilot_profile_with_velocity_feed_forward(tmp
     import dataclasses
 
     from ddpc_codegen.robot.profile import load_profile
-    from ddpc_codegen.testbed.sitl_demo import ctrl_ff_profile, format_baselines
+    from ddpc_codegen.testbed.sitl_demo import format_baselines
+    from ddpc_codegen.testbed.sitl_flight import ctrl_ff_profile
     from ddpc_codegen.testbed.sitl_flight import PROFILES
 
     base, ff = load_profile(PROFILES[autopilot]), load_profile(ctrl_ff_profile(autopilot, tmp_path))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.baselines import PrefilterModel, error_on_grid
+from ddpc_codegen.design.baselines import error_on_grid
+from ddpc_codegen.values.prefilter import PrefilterModel
 from ddpc_codegen.runtime.baselines import FeedforwardPolicy
 from ddpc_codegen.testbed.ilc import next_table, table_rows, ticklog_error
 from firmware_bridge.ticklog import TickRecorder

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ddpc_codegen.design.baselines import PrefilterModel
+from ddpc_codegen.values.prefilter import PrefilterModel
 from ddpc_codegen.experiments.evaluate import scenario_metrics
 from ddpc_codegen.experiments.policy_hook import PolicyHook
 from ddpc_codegen.runtime.baselines import PrefilterPolicy
