@@ -1,16 +1,25 @@
 """ddpc-codegen: reference steering via Data-Driven Predictive Control, generated as C.
 
-Data flows one way, and so does the package layout::
+Layers, each importing only layers listed above it (``tests/test_layout.py`` enforces the rules, no import
+circle among modules or packages, and project imports inside functions only where it lists them)::
 
-    design/      IODataset -> Hankel / PE check -> Predictor -> SteeringProblem (CasADi QP)
-    codegen/     SteeringProblem -> generated C + compiled extension + manifest.json
-    runtime/     load_solver -> GeneratedSolver; ReferenceSteerer (per tick, with fallback)
+    errors, stats, ...  small top-level modules
+    values/      numpy only, nothing else of the project: SteeringConfig, SteeringResult, FitLayout,
+                 AdaptSettings, hop phases, PrefilterModel, artificial-IO completion
     robot/       the companion controller, trajectories, frames (no simulator, no CasADi)
-    sim/         the PogoX simulator and its closed loop
+    runtime/     load_solver -> GeneratedSolver; ReferenceSteerer (per tick, with fallback); never design/
+    design/      IODataset -> Hankel / PE check -> Predictor -> SteeringProblem (CasADi QP); never runtime/
+    codegen/     SteeringProblem -> generated C + compiled extension + manifest.json
+    pipeline/    build_solver: config + dataset -> checked data -> predictor -> generated solver
+    sim/         the PogoX simulator and its closed loop (a plant: never generates code)
     logs/        PX4 ULog / MAVLink tlog import
-    experiments/ data collection, demo, benchmarks
-    cli/         the ``ddpc-codegen`` console command
+    experiments/ the simulated pipeline, demo, benchmarks
+    testbed/     the simulated vehicle, SITL and bridge demos
+    cli/         the ``ddpc-codegen`` console command: imported by nothing (but the docs' reference of it)
+    docsgen/     the pages the docs build generates
 
+The companion loop (package ``firmware_bridge``) sits beside them: values/, robot/, runtime/ and the
+dataset type of design/, never the design stack, the simulator or the test bed.
 Public names are imported lazily: ``import ddpc_codegen`` loads neither CasADi nor the simulator.
 """
 
@@ -35,9 +44,9 @@ _EXPORTS: dict[str, str] = {
     "PEReport": "ddpc_codegen.design.hankel",
     "fit_predictor": "ddpc_codegen.design.predictor",
     "Predictor": "ddpc_codegen.design.predictor",
-    "SteeringConfig": "ddpc_codegen.design.config",
+    "SteeringConfig": "ddpc_codegen.values.config",
     "SteeringProblem": "ddpc_codegen.design.problem",
-    "SteeringResult": "ddpc_codegen.design.solve_result",
+    "SteeringResult": "ddpc_codegen.values.solve_result",
     "DeePCProblem": "ddpc_codegen.design.deepc",
     "generate": "ddpc_codegen.codegen",
     "load_solver": "ddpc_codegen.runtime.loader",
