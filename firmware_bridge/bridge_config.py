@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.solve_result import SteeringResult
+from ddpc_codegen.values.solve_result import SteeringResult
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig

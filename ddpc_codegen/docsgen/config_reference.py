@@ -45,7 +45,7 @@ def _collect(messages: list[str], key: str) -> list[str]:
 
 def config_rules() -> dict[str, dict[str, dict[str, Any]]]:
     """Per section and key of the steering config: ``required``, ``default``, ``rules``."""
-    from ddpc_codegen.design.config import _SCHEMA, SteeringConfig  # the loader's own key table
+    from ddpc_codegen.values.config import _SCHEMA, SteeringConfig  # the loader's own key table
 
     defaults = SteeringConfig.from_dict(copy.deepcopy(MINIMAL_CONFIG)).to_dict()
     out: dict[str, dict[str, dict[str, Any]]] = {}

@@ -230,7 +230,7 @@ class HoppingSteering:
         """This tick's reference.
 
         Args:
-            phase: this tick's phase label (design.phases). y (p,): measured outputs. r_nom (m,):
+            phase: this tick's phase label (values.phases). y (p,): measured outputs. r_nom (m,):
             the controller's reference. y_des (Tf, p): desired outputs ahead. phases_ahead (Tf,):
             the predicted phase labels over the horizon (the nominal hop cycle).
         Returns:

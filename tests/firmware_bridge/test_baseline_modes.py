@@ -173,7 +173,7 @@ def test_mutated_feedforward_tables_are_refused_or_finite(tmp_path, key, value, 
 
 @pytest.mark.parametrize("hopping", [False, True])
 def test_every_baseline_mode_is_a_policy_and_only_passthrough_hops(tmp_path, hopping):
-    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.values.prefilter import PrefilterModel
     from ddpc_codegen.runtime.baselines import FeedforwardPolicy, PassthroughPolicy
     from ddpc_codegen.runtime.policy import Policy
     from firmware_bridge.baseline_modes import BASELINE_MODES, baseline_policy

@@ -227,7 +227,7 @@ def test_prefilter_mode_sends_the_prefilter_law_over_the_link(tmp_path):
     """``--mode prefilter``: every engaged tick after the hand-over applies
     u_z = r_nom_z + (y_des_z[k + d] - c) / g - y_des_z[k] (checked against the logged desired heights
     d ticks later), the pitch channel with gain 1 / offset 0 / lead 0 is left alone."""
-    from ddpc_codegen.design.baselines import PrefilterModel
+    from ddpc_codegen.values.prefilter import PrefilterModel
     from firmware_bridge.ticklog import REASONS
 
     g, c, d = 0.9, -0.03, 20

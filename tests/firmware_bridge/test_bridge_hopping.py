@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.design.data import IODataset
-from ddpc_codegen.design.phases import ASCENT, DESCENT, GROUND, ground_runs
+from ddpc_codegen.values.phases import ASCENT, DESCENT, GROUND, ground_runs
 from firmware_bridge.bridge_config import BridgeConfig
 from ddpc_codegen.testbed.bridge_demo_hopping import link_metrics
 

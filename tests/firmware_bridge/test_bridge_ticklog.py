@@ -51,7 +51,7 @@ def test_collect_log_reloads_as_an_iodataset(procs, tmp_path):
     assert np.any(t["reason"] == R["inactive"]) and np.all(np.isfinite(t["latency_us"][t["event"]]))
 
     # ... and the codegen front end fits a steering predictor on it as is.
-    from ddpc_codegen.cli.codegen import build_from_config
+    from ddpc_codegen.pipeline.solver_build import build_from_config
 
     cfg = SteeringConfig.from_toml(ROOT / "configs" / "flying.toml").replace(predictor={"method": "lsq"})
     prob = build_from_config(cfg, log)
@@ -100,7 +100,7 @@ def test_a_log_without_closed_loop_data_still_saves_and_says_so(tmp_path):
 
 
 def test_codegen_refuses_a_log_marked_unfit(tmp_path):
-    from ddpc_codegen.cli.codegen import build_from_config
+    from ddpc_codegen.pipeline.solver_build import build_from_config
     from ddpc_codegen.errors import DataError
 
     path = _log(["inactive"] * 20).save(tmp_path / "idle.npz")
