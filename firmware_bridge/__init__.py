@@ -9,19 +9,28 @@ the SITL harness and the demos live in :mod:`ddpc_codegen.testbed`.
 * :mod:`.profiles` -- PX4 / ArduPilot Copter mode encoding and SET_ATTITUDE_TARGET thrust semantics.
 * :mod:`.telemetry` -- NED/FRD telemetry -> the controller's ENU/FLU state (newest sample, age).
 * :mod:`.truth` -- the simulators' ground truth (ArduCopter SIM_STATE) beside the estimate.
-* :mod:`.clock` -- the bridge's own control clock: a uniform tick grid whatever the telemetry does.
 * :mod:`.preflight` -- before the first tick: the heartbeat's autopilot, parameters, thrust semantics.
-* :mod:`.engagement` -- arming retries, take-off ramp, bumpless (re-)engagement.
-* :mod:`.supervisor` -- modes, arming, failsafe, fallbacks and hand-backs.
-* :mod:`.setpoints` -- setpoint shaping: PRBS in collect mode, clamps, the SET_ATTITUDE_TARGET send.
 * :mod:`.bridge_config` -- the bridge's settings (``BridgeConfig``), checked on construction.
-* :mod:`.bridge` -- the 200 Hz tick loop (``ddpc-bridge``): steer / passthrough / collect, safety.
 * :mod:`.baseline_modes` -- the prefilter and feedforward (ILC table) modes, checked before flying.
-* :mod:`.hopping_loop` -- hopping: phases from telemetry or a contact signal, the hopping steering tick.
+* :mod:`.steering_setup` -- the mode's set-up: the solver, its checks, the steering policy, the reference stage.
 * :mod:`.realtime` -- SCHED_FIFO, mlockall, PM QoS for the loop; wake-up latency probe (``ddpc-rtcheck``).
-* :mod:`.ticklog` -- the per-tick log, an IODataset ``.npz`` (collect -> dataset -> codegen -> steer).
-* :mod:`.report` -- the flight summary.
 * :mod:`.cli`, :mod:`.cli_args` -- the ``ddpc-bridge`` console entry point and its value types.
+
+The companion loop's parts (each a class with one job, built and tested alone; a second front end composes
+the same ones):
+
+* :mod:`.vehicle_link` -- one vehicle as the loop sees it: messages in, heartbeats, streams, parameters,
+  reboots, link loss; :mod:`.mode_requests` -- arming, the off-board mode, LAND, the hand-back at exit.
+* :mod:`.clock` -- the loop's own tick grid, or lock-step on telemetry (:class:`~.clock.TickTrigger`).
+* :mod:`.engagement` -- engagement edges, the trajectory clock, take-off, bumpless blends, staleness.
+* :mod:`.reference_stage` -- nominal reference -> the mode's reference (a frozen ``TickReference``);
+  :mod:`.hopping_loop` -- hopping's phases and ground-phase windows; :mod:`.excitation` -- collect's PRBS.
+* :mod:`.tick_gate` -- the last gate (over :mod:`.gate`): finite, rate-limited, in the envelope; guard
+  clamp and saturation; stalls; tilt / thrust clamps.
+* :mod:`.setpoints` -- the attitude setpoints besides the controller's and the SET_ATTITUDE_TARGET stream.
+* :mod:`.report` -- the record: tick-log rows, the tick log (:mod:`.ticklog`, an IODataset ``.npz``), the
+  summary; :mod:`.events` -- the timestamped events.
+* :mod:`.bridge` -- the 200 Hz loop (``ddpc-bridge``) that owns them: steer / passthrough / collect / baselines.
 """
 
 from __future__ import annotations

@@ -15,6 +15,13 @@ One tick (on the bridge's own clock; lock-step: on every telemetry sample)::
     sp    = controller.track(u, state)                      stage (b): quaternion + thrust
     clamp tilt / thrust, thrust field per autopilot profile, send SET_ATTITUDE_TARGET, log
 
+Parts (owned, each with one job; see :mod:`firmware_bridge`): ``vehicle`` (:class:`.vehicle_link.VehicleLink`),
+``modes`` (:class:`.mode_requests.ModeRequests`), ``stream`` / ``shaping`` (:mod:`.setpoints`), ``trigger``
+(:class:`.clock.TickTrigger`), ``engagement`` (:class:`.engagement.Engagement`), ``stage``
+(:class:`.reference_stage.ReferenceStage`, whose product is a :class:`.reference_stage.TickReference`), ``gate``
+(:class:`.tick_gate.TickGate`), ``recorder`` (:class:`.report.FlightRecorder`), ``events``
+(:class:`.events.EventLog`).
+
 Timing. Real time: the bridge ticks on its own uniform grid at ``rate_hz`` (:mod:`.clock`);
 between ticks it sleeps in ``select`` on the link and folds *every* pending message into the
 telemetry state (each sample is also kept in the log: a burst of two is two samples). A tick uses
@@ -146,12 +153,13 @@ class Bridge:
         hover = ctrl_cfg.model_mass * ctrl_cfg.g / ctrl_cfg.max_thrust
         self.shaping = AttitudeSetpoints(self.frame, profile, hover, c.thrust_min, c.thrust_max)
         self.gate = _tick_gate(c, self.steering, hover, self.events)
-        self.recorder = FlightRecorder(self.ctrl.m, self.ctrl.p, self.period, self.events.t0, lockstep=c.lockstep,
-                                       capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
         self.trigger = TickTrigger(self.period, c.lockstep, c.max_gap_fill)
         self.vehicle_info: VehicleInfo | None = None  # known after the preflight (before the first tick)
         self._stop = False
         self.stop_reason = ""
+        self.events.restart()  # the bridge's times count from here (the solver is loaded, the link open)
+        self.recorder = FlightRecorder(self.ctrl.m, self.ctrl.p, self.period, self.events.t0, lockstep=c.lockstep,
+                                       capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
         self.scheduling = "best effort"
         self._rt = RealtimeSetup()
         self._new_run()
@@ -280,7 +288,7 @@ class Bridge:
         if fresh and engaged:
             eng.applied(u - y)  # applied reference - measured output (a stall resumes here)
         q, thrust, field, bad = self._setpoint(u, state, fresh)                   # controller, clamps
-        self.gate.report(u, ref.r_nom, ref.reason, flags | bad, self.hop.notes if self.hop else _NO_NOTES,
+        self.gate.report(u, ref.r_nom, ref.reason, flags | bad, self.hop.notes if self.hop is not None else _NO_NOTES,
                          tel.dropped)
         t_vehicle = tel.newest_stamp() if event else self.vehicle.vehicle_now(now, c.lockstep)
         sent = self.stream.send(q, field, int(round(t_vehicle * 1000.0)) if math.isfinite(t_vehicle) else 0)

@@ -31,6 +31,10 @@ class EventLog:
         if self.verbose:
             print(f"[{self.name} {t:8.3f}] {what}", file=sys.stderr, flush=True)
 
+    def restart(self) -> None:
+        """Count times from now (the owner's set-up is done)."""
+        self.t0 = time.monotonic()
+
     def since_start(self, now: float) -> float:
         """``now`` [s, monotonic] as seconds since the start."""
         return now - self.t0
