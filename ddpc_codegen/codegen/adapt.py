@@ -76,17 +76,17 @@ def data_arrays(ad, ctx: dict) -> Tables:
     lay, qp = ad.layout, ad.qp
     sp = ctx["_sparse"]
     return {
-        "ADAPT_R0": (_padded(ad.R0, lay.width),
+        "R0": (_padded(ad.R0, lay.width),
                      f"shipped R factor of the scaled fit data (no ridge rows), row-major {lay.width} x {lay.width}"),
-        "ADAPT_SCALE": (ad.scale, "channel scale (u then y) of the fit"),
-        "ADAPT_LM": (sp["lm"], "nonzeros of Lm: data-unit predictor rows of the fit's targets"),
-        "ADAPT_RM": (sp["rm"], "nonzeros of Rm: fit regressors -> data-unit [w; u] columns"),
-        "ADAPT_C0": (sp["c0"], "nonzeros of C0: the constant part of the data-unit predictor"),
-        "ADAPT_B": (sp["b"], "nonzeros of the knot basis u = B z"),
-        "ADAPT_WD": (sp["wd"], "nonzeros of Wd: the cost's weight on the predicted [y; sigma]"),
-        "ADAPT_PFIX": (qp.P_fixed, "the part of P independent of G, row-major n_z x n_z"),
-        "ADAPT_FFIX": (qp.F_fixed.T, "the part of F_q independent of G, column-major n_z x n_theta"),
-        "ADAPT_S0": (qp.S0 if qp.S0 is not None else np.zeros((lay.p, lay.m)),
+        "SCALE": (ad.scale, "channel scale (u then y) of the fit"),
+        "LM": (sp["lm"], "nonzeros of Lm: data-unit predictor rows of the fit's targets"),
+        "RM": (sp["rm"], "nonzeros of Rm: fit regressors -> data-unit [w; u] columns"),
+        "C0": (sp["c0"], "nonzeros of C0: the constant part of the data-unit predictor"),
+        "B": (sp["b"], "nonzeros of the knot basis u = B z"),
+        "WD": (sp["wd"], "nonzeros of Wd: the cost's weight on the predicted [y; sigma]"),
+        "PFIX": (qp.P_fixed, "the part of P independent of G, row-major n_z x n_z"),
+        "FFIX": (qp.F_fixed.T, "the part of F_q independent of G, column-major n_z x n_theta"),
+        "S0": (qp.S0 if qp.S0 is not None else np.zeros((lay.p, lay.m)),
                      "shipped steady-state gain (outputs per constant reference), row-major p x m"),
     }
 

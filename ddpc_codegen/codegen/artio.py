@@ -70,11 +70,11 @@ def data_arrays(oc: OnlineCompletion) -> Tables:
     # noise), so those need no factorization at run time (O(n^2) instead of O(n^3): 5 ms at depth 66).
     chol = np.linalg.cholesky(G + oc.lam * np.eye(G.shape[0]))
     return {
-        "ARTIO_B": (B, f"basis B, row-major {B.shape[0]} x {B.shape[1]} (H = B W^T, W orthonormal)"),
-        "ARTIO_G": (G, f"Gram matrix G = B B^T, row-major {B.shape[0]} x {B.shape[0]}"),
-        "ARTIO_GCHOL": (chol, f"lower Cholesky factor of G + lambda I, row-major {B.shape[0]} x {B.shape[0]}"),
-        "ARTIO_LO": (oc.art.lo, "lower bound per sample entry [u; y] (-INFINITY: none)"),
-        "ARTIO_HI": (oc.art.hi, "upper bound per sample entry [u; y] (INFINITY: none)"),
+        "B": (B, f"basis B, row-major {B.shape[0]} x {B.shape[1]} (H = B W^T, W orthonormal)"),
+        "G": (G, f"Gram matrix G = B B^T, row-major {B.shape[0]} x {B.shape[0]}"),
+        "GCHOL": (chol, f"lower Cholesky factor of G + lambda I, row-major {B.shape[0]} x {B.shape[0]}"),
+        "LO": (oc.art.lo, "lower bound per sample entry [u; y] (-INFINITY: none)"),
+        "HI": (oc.art.hi, "upper bound per sample entry [u; y] (INFINITY: none)"),
     }
 
 

@@ -81,6 +81,20 @@ def test_every_exported_symbol_carries_the_solver_name(made):
         assert undefined - {s for s in undefined if s.startswith(f"{name}_")} <= LIBC_LIBM
 
 
+def test_structs_are_named_and_the_tables_are_one_const_struct(made):
+    """Every struct of the templates' C is named (``typedef struct <name>_workspace {...} <name>_workspace;``) and the
+    constant tables are members of one const struct, ``<name>_data``: the only data symbol they export."""
+    for (size, backend), folder in made.items():
+        name = f"{size}_{backend}"
+        for f in sorted(folder.glob(f"{name}_*.[ch]")):
+            if not f.name.startswith(f"{name}_param_map"):  # CasADi's
+                assert "typedef struct {" not in f.read_text(), f.name
+        nm = subprocess.run(["nm", "-g", "--defined-only", str(folder / "build-make" / f"lib{name}.a")],
+                            capture_output=True, text=True, check=True).stdout
+        data = {ln.split()[-1] for ln in nm.splitlines() if re.match(r"^[0-9a-f]+ [DR] ", ln)}
+        assert f"{name}_data" in data and not any(s.startswith(f"{name}_K") for s in data), sorted(data)
+
+
 def test_public_header_is_cxx_safe_and_includes_no_library_header(generated):
     for (size, backend), folder in generated.items():
         h = (folder / f"{size}_{backend}_solver.h").read_text()
