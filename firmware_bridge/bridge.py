@@ -116,10 +116,7 @@ def _engagement(c: BridgeConfig, events: EventLog, ctrl: HeightLegAngleControlle
 
 
 class Bridge:
-    """The tick loop (see the module docstring), composed of its parts: the vehicle (:class:`VehicleLink`,
-    :class:`ModeRequests`, :class:`SetpointStream`), the tick's trigger (:class:`TickTrigger`), engagement
-    (:class:`Engagement`), the reference stage (:class:`ReferenceStage`), the last gate (:class:`TickGate`) and the
-    record (:class:`FlightRecorder`). ``run()`` returns the summary dict.
+    """The tick loop, owning its parts (see the module docstring). ``run()`` returns the summary dict.
 
     Args:
         config: :class:`BridgeConfig`.
@@ -160,8 +157,7 @@ class Bridge:
         self.events.restart()  # the bridge's times count from here (the solver is loaded, the link open)
         self.recorder = FlightRecorder(self.ctrl.m, self.ctrl.p, self.period, self.events.t0, lockstep=c.lockstep,
                                        capacity=int(c.rate_hz * (c.duration or 60.0) * 1.5) + 1024)
-        self.scheduling = "best effort"
-        self._rt = RealtimeSetup()
+        self._rt = RealtimeSetup()  # best effort until run() asks for more
         self._new_run()
 
     def _new_run(self) -> None:
@@ -192,9 +188,8 @@ class Bridge:
             signal.signal(signal.SIGINT, self.stop)
             signal.signal(signal.SIGTERM, self.stop)
         self._rt = setup_realtime(c.rt_priority, cpus=c.cpus, cpu_latency_us=c.cpu_latency_us)
-        self.scheduling = self._rt.describe()
         if c.rt_priority or c.cpus:
-            self.events(f"scheduling: {self.scheduling}")
+            self.events(f"scheduling: {self._rt.describe()}")
         self._new_run()
         if len(interrupted):
             self.stop()
@@ -409,7 +404,7 @@ class Bridge:
         out = self.recorder.summary(
             head, self.cfg, vehicle=self.vehicle, vehicle_info=self.vehicle_info, stream=self.stream,
             trigger=self.trigger, engagement=self.engagement, gate=self.gate, frame=self.frame, events=self.events,
-            scheduling=self.scheduling)
+            scheduling=self._rt.describe())
         out.update(self.stage.summary())
         if "feedforward" in out:
             out["feedforward"] = {"file": str(self.cfg.feedforward), **out["feedforward"]}
