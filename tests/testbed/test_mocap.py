@@ -1,0 +1,175 @@
+"""The motion-capture stand-in without a SITL: the truth's frame (SIM_STATE / HIL_STATE_QUATERNION -> local
+NED), the latency, the noise, the refinement below the truth's grid, the message fields and the parameter sets."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.testbed.mocap import (MAV_FRAME_LOCAL_NED, Dequantizer, MocapConfig, MocapPose, MocapSampler,
+                                        TruthBuffer, odometry_fields, vision_position_fields)
+from ddpc_codegen.testbed.mocap_params import ARDUPILOT_LAB, PX4_LAB, lab_params
+from firmware_bridge.truth import EARTH_RADIUS_M
+
+LAT0, LON0, ALT0 = -35.363261, 149.165230, 584.09
+_M_PER_DEG = math.radians(1.0) * EARTH_RADIUS_M
+
+
+def sim_state(north: float, east: float, up: float, vn=0.0, ve=0.0, vd=0.0, roll=0.0, pitch=0.0, yaw=0.0,
+              alt_grid: float = 0.0):
+    """An ArduPilot SIM_STATE at (north, east, up) [m] from the test origin; ``alt_grid`` [m]: report the
+    altitude truncated to that grid (the simulator's centimetres)."""
+    lat = LAT0 + north / _M_PER_DEG
+    lon = LON0 + east / (_M_PER_DEG * math.cos(math.radians(LAT0)))
+    alt = ALT0 + up
+    if alt_grid:
+        alt = math.floor(round(alt / alt_grid, 9)) * alt_grid
+    return SimpleNamespace(get_type=lambda: "SIM_STATE", lat=lat, lon=lon, lat_int=0, lon_int=0, alt=alt,
+                           vn=vn, ve=ve, vd=vd, roll=roll, pitch=pitch, yaw=yaw)
+
+
+def hil_state(north: float, east: float, up: float, q=(1.0, 0.0, 0.0, 0.0)):
+    """A PX4 HIL_STATE_QUATERNION at (north, east, up) [m] (degE7, mm, cm/s), attitude ``q`` (w, x, y, z)."""
+    lat = LAT0 + north / _M_PER_DEG
+    lon = LON0 + east / (_M_PER_DEG * math.cos(math.radians(LAT0)))
+    return SimpleNamespace(get_type=lambda: "HIL_STATE_QUATERNION", lat=int(round(lat * 1e7)), lon=int(round(lon * 1e7)),
+                           alt=int((ALT0 + up) * 1e3), vx=0, vy=0, vz=0, attitude_quaternion=list(q))
+
+
+def exact(**kw) -> MocapConfig:
+    return MocapConfig(latency_s=kw.pop("latency_s", 0.0), pos_noise_m=0.0, att_noise_rad=0.0, vel_noise_mps=0.0, **kw)
+
+
+def test_sim_state_becomes_local_ned_from_the_first_sample():
+    s = MocapSampler(exact())
+    s.feed(sim_state(0, 0, 0), 0.0)
+    s.feed(sim_state(2.0, -1.0, 1.5, vn=0.3, ve=-0.2, vd=-0.1, roll=0.1, pitch=-0.2, yaw=2.0), 0.01)
+    p = s.sample(0.01)
+    # exact to the flat-earth model, within the message's grid (the altitude's centimetre cell: its middle)
+    np.testing.assert_allclose(p.position[:2], [2.0, -1.0], atol=1e-6)
+    assert -1.51 < p.position[2] <= -1.5
+    np.testing.assert_allclose(p.velocity, [0.3, -0.2, -0.1], atol=1e-9)
+    np.testing.assert_allclose(p.euler, [0.1, -0.2, 2.0], atol=1e-9)
+    assert s.origin == pytest.approx((LAT0, LON0, ALT0))
+
+
+def test_hil_state_quaternion_becomes_local_ned():
+    s = MocapSampler(exact())
+    s.feed(hil_state(0, 0, 0), 0.0)
+    yaw = math.radians(30.0)
+    s.feed(hil_state(1.0, 0.5, 0.8, q=(math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))), 0.01)
+    p = s.sample(0.01)
+    np.testing.assert_allclose(p.position, [1.0, 0.5, -0.8], atol=0.02)  # degE7 and mm on the wire
+    np.testing.assert_allclose(p.euler, [0.0, 0.0, yaw], atol=1e-9)
+
+
+def test_latency_delays_the_pose_by_the_configured_time():
+    s = MocapSampler(exact(latency_s=0.020))
+    for k in range(201):  # climbing at 0.337 m/s, a sample each 5 ms, on the simulator's centimetre grid
+        t = 0.005 * k
+        s.feed(sim_state(0, 0, 0.337 * t, vd=-0.337, alt_grid=0.01), t)
+    p = s.sample(1.0)
+    assert p.t == pytest.approx(0.98)
+    # 20 ms late = 6.7 mm lower; the grid leaves < 1 mm (each sample moves 1.7 mm across the cell edges)
+    assert -p.position[2] == pytest.approx(0.337 * 0.98, abs=1e-3)
+
+
+def test_a_gap_in_the_truth_sends_nothing_and_short_ones_extrapolate():
+    s = MocapSampler(exact(max_extrapolation_s=0.05))
+    s.feed(sim_state(0, 0, 0), 0.0)
+    s.feed(sim_state(0, 0, 0.01, vd=-1.0), 0.01)
+    climb = s.sample(0.01).position[2] - s.sample(0.04).position[2]
+    assert climb == pytest.approx(0.03, abs=1e-9)  # along the newest velocity
+    assert s.sample(0.2) is None
+    assert MocapSampler(exact()).sample(1.0) is None
+
+
+def test_noise_has_the_configured_spread_and_the_seed_repeats_it():
+    cfg = MocapConfig(latency_s=0.0, pos_noise_m=0.0005, att_noise_rad=0.002, seed=3)
+    draws = []
+    for _ in range(2):
+        s = MocapSampler(cfg)
+        s.feed(sim_state(0, 0, 0), 0.0)
+        s.feed(sim_state(0, 0, 0), 0.005)
+        draws.append(np.array([np.r_[p.position, p.euler] for p in (s.sample(0.005) for _ in range(4000))]))
+    np.testing.assert_array_equal(draws[0], draws[1])
+    std = draws[0].std(axis=0)
+    np.testing.assert_allclose(std[:3], 0.0005, rtol=0.06)
+    np.testing.assert_allclose(std[3:], 0.002, rtol=0.06)
+    assert abs(draws[0][:, 2].mean() + 0.005) < 3e-5  # unbiased around the centimetre cell's middle (standing still)
+
+
+def test_the_centimetre_altitude_is_refined_with_the_velocity():
+    """ArduPilot's SIM_STATE truncates the altitude to centimetres: a hover's millimetres of motion cross
+    the cell edges, and the velocity integral between them gives the height to well under a millimetre."""
+    s = MocapSampler(exact())
+    t = np.arange(0.0, 10.0, 0.005)
+    up = 0.5 + 0.004 * np.sin(2 * np.pi * 0.7 * t) + 0.003 * np.sin(2 * np.pi * 1.9 * t + 1.0)
+    vu = 0.004 * 2 * np.pi * 0.7 * np.cos(2 * np.pi * 0.7 * t) + 0.003 * 2 * np.pi * 1.9 * np.cos(2 * np.pi * 1.9 * t + 1.0)
+    s.feed(sim_state(0, 0, 0), -0.005)
+    err, raw = [], []
+    for ti, u, v in zip(t, up, vu):
+        s.feed(sim_state(0, 0, u, vd=-v, alt_grid=0.01), ti)
+        if ti > 2.0:
+            err.append(-s.sample(ti).position[2] - u)
+            raw.append(s.truth.position[2] - u)
+    assert np.sqrt(np.mean(np.square(raw))) > 0.004  # what the message alone gives: ~cm steps
+    assert np.sqrt(np.mean(np.square(err))) < 0.0005
+
+
+def test_dequantizer_restarts_when_the_cells_contradict_the_integral():
+    d = Dequantizer(0.01, (0.0, 1.0))
+    assert d.update(1.00, 0.0, 0.0) == pytest.approx(1.005)
+    assert d.update(1.50, 0.0, 0.1) == pytest.approx(1.505)  # a jump no rate explains: this cell again
+
+
+def test_truth_buffer_interpolates_and_wraps_the_yaw():
+    b = TruthBuffer()
+    z = np.zeros(3)
+    b.add(MocapPose(0.0, np.array([0.0, 0.0, 0.0]), z, np.array([0.0, 0.0, math.pi - 0.1])))
+    b.add(MocapPose(0.1, np.array([1.0, 0.0, -1.0]), z, np.array([0.0, 0.0, -math.pi + 0.1])))
+    p = b.at(0.05)
+    np.testing.assert_allclose(p.position, [0.5, 0.0, -0.5])
+    assert abs(abs(p.euler[2]) - math.pi) < 1e-9  # across ±pi, not through 0
+    assert b.at(-0.01) is None
+
+
+def test_message_fields_carry_ned_and_the_configured_noise():
+    cfg = MocapConfig(pos_noise_m=0.001, att_noise_rad=0.01)
+    pose = MocapPose(1.0, np.array([1.0, 2.0, -3.0]), np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, math.pi / 2]))
+    v = vision_position_fields(pose, 1_000_000, cfg)
+    assert (v["x"], v["y"], v["z"], v["yaw"]) == (1.0, 2.0, -3.0, math.pi / 2) and v["usec"] == 1_000_000
+    assert v["covariance"][0] == v["covariance"][6] == v["covariance"][11] == pytest.approx(1e-6)
+    assert v["covariance"][20] == pytest.approx(1e-4) and v["covariance"][1] == 0.0
+    o = odometry_fields(pose, 5, cfg, MAV_FRAME_LOCAL_NED)
+    # heading east: the northward velocity is to the body's left (-y in FRD)
+    np.testing.assert_allclose([o["vx"], o["vy"], o["vz"]], [0.0, -0.5, 0.0], atol=1e-12)
+    assert o["frame_id"] == MAV_FRAME_LOCAL_NED and o["child_frame_id"] == 12
+    np.testing.assert_allclose(o["q"], [math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+
+
+def test_parameter_sets_follow_the_stream():
+    cfg = MocapConfig(latency_s=0.008, pos_noise_m=0.0005)
+    ap, px4 = lab_params("ardupilot", cfg), lab_params("px4", cfg)
+    assert set(ARDUPILOT_LAB) <= set(ap) and set(PX4_LAB) <= set(px4)
+    assert ap["VISO_DELAY_MS"] == 8 and px4["EKF2_EV_DELAY"] == 8
+    assert ap["EK3_SRC1_POSZ"] == 6 and ap["GPS1_TYPE"] == 0 and ap["EK3_SRC1_VELZ"] == 0
+    assert px4["EKF2_HGT_REF"] == 3 and px4["EKF2_GPS_CTRL"] == 0 and px4["EKF2_BARO_CTRL"] == 0
+    assert ap["VISO_POS_M_NSE"] == px4["EKF2_EVP_NOISE"] == 0.01  # the EKFs' floor, not 0.5 mm
+    odo = lab_params("ardupilot", MocapConfig(message="odometry"))
+    assert odo["EK3_SRC1_VELXY"] == odo["EK3_SRC1_VELZ"] == 6
+    assert lab_params("px4", MocapConfig(message="odometry"))["EKF2_EV_CTRL"] == 15
+    with pytest.raises(ValueError, match="unknown autopilot"):
+        lab_params("inav")
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError):
+        MocapConfig(rate_hz=0)
+    with pytest.raises(ValueError):
+        MocapConfig(latency_s=-0.001)
+    with pytest.raises(ValueError):
+        MocapConfig(message="vicon")
