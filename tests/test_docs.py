@@ -306,7 +306,8 @@ def test_readme_is_one_screen_and_opens_with_the_two_commands():
     assert len(lines) <= 150
     first_block = README.split("```bash\n", 1)[1].split("```", 1)[0].splitlines()
     assert README.index("```bash") < README.index("\n## ")  # before any section
-    assert first_block[0].startswith("make demo") and first_block[1].startswith("make test")
+    assert first_block[0].startswith("make demo")  # then the fast loop and the full one
+    assert [w.split()[1] for w in first_block[1:3]] == ["check", "test"], first_block
 
 
 def test_readme_has_the_results_markers_once():
