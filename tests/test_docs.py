@@ -383,6 +383,7 @@ def test_the_architecture_page_names_what_the_code_has():
     assert [m for m in (m.split(":")[0] for m in markers) if f"`{m}`" not in page] == []
     loop = page[page.index("## The companion loop"):page.index("## Import rules")]
     assert [f for f in re.findall(r"`(\w+\.py)`", loop) if not (ROOT / "firmware_bridge" / f).is_file()] == []
+    assert "`firmware_bridge.Bridge`" in loop
     named = re.findall(r"`((?:\w+/)+\w+\.py)`", page)
     assert named and [f for f in named if not (ROOT / "ddpc_codegen" / f).is_file()
                       and not (ROOT / f).is_file()] == []
