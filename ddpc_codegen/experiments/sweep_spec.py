@@ -46,7 +46,8 @@ import numpy as np
 from ddpc_codegen.values.config import _SCHEMA, SteeringConfig
 from ddpc_codegen.experiments.pipeline import CollectSpec, default_config
 from ddpc_codegen.sim import PogoXParams, Push
-from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table, load_toml
+from ddpc_codegen.values.files import load_toml_bounded
+from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table
 from ddpc_codegen.values.tomlconfig import config_error as _err
 
 __all__ = ["Condition", "Point", "SweepSpec", "METRICS"]
@@ -165,14 +166,14 @@ class SweepSpec:
         """Load and validate; every error names the file, the key and the value."""
         path = Path(path)
         src = str(path)
-        raw = load_toml(path)
+        raw = load_toml_bounded(path, "sweep spec")
         check_keys(raw, ("sweep", "data", "space", "conditions"), "top-level", src)
         sw = check_keys(raw.get("sweep", {}), _SWEEP_KEYS, "[sweep]", src)
         scenario = sw.get("scenario", "flying")
         if scenario not in METRICS:
             raise _err(src, "[sweep] scenario", f"must be one of {list(METRICS)}; got {scenario!r}")
         cfg_path = (path.parent / sw["config"]).resolve() if "config" in sw else default_config(scenario)
-        base = load_toml(cfg_path)
+        base = load_toml_bounded(cfg_path, "steering config")
         SteeringConfig.from_dict(base, source=str(cfg_path))  # the base must be valid on its own
         objective, pareto = _DEFAULTS[scenario]
         kw: dict[str, Any] = {"objective": sw.get("objective", objective), "pareto": tuple(sw.get("pareto", pareto))}

@@ -11,7 +11,6 @@ Shipped profiles live in ``ddpc_codegen/robot/profiles/`` and are named by their
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -22,7 +21,8 @@ from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.signals import REFERENCES, check_per_reference
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
-from ddpc_codegen.robot.validate import Range, check_table, read_text_bounded
+from ddpc_codegen.robot.validate import Range, check_table
+from ddpc_codegen.values.files import load_toml_bounded
 from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table
 
 __all__ = ["RobotProfile", "SteeringGuards", "Envelope", "load_profile", "shipped_profiles", "PROFILE_DIR",
@@ -30,6 +30,7 @@ __all__ = ["RobotProfile", "SteeringGuards", "Envelope", "load_profile", "shippe
 
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
 _TOP = ("name", "description", "extends", "controller", "trajectory", "contact", "steering", "envelope")
+PROFILE_MAX_BYTES = 256_000  # a profile is about 2 kB; a hundred times that is no profile
 _MAX_EXTENDS = 8  # a chain of profiles longer than this is a mistake, not a design
 _POS = Range(lo=0.0, lo_open=True, hi=1e6)
 _NONNEG = Range(lo=0.0, hi=1e6)
@@ -153,15 +154,6 @@ def _resolve(name_or_path: str | Path) -> Path:
     return shipped
 
 
-def _read(path: Path) -> dict:
-    """Parse a profile after its size and nesting were checked (both would exhaust the parser)."""
-    text = read_text_bounded(path, "robot profile", limit=256_000)
-    try:
-        return tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, RecursionError) as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
-
-
 def _table(raw: dict, key: str, src: str) -> dict:
     """One table, its numbers checked against :data:`PROFILE_RANGES` (unknown keys: the caller's check)."""
     table = raw.get(key, {})
@@ -187,7 +179,7 @@ def load_profile(name_or_path: str | Path, _chain: tuple[str, ...] = ()) -> Robo
         raise ConfigError(f"{src}: extends cycle: {names}")
     if len(_chain) >= _MAX_EXTENDS:
         raise ConfigError(f"{src}: extends chain deeper than {_MAX_EXTENDS} profiles")
-    raw = check_keys(_read(path), _TOP, "top level:", src)
+    raw = check_keys(load_toml_bounded(path, "robot profile", PROFILE_MAX_BYTES), _TOP, "top level:", src)
     base = None
     if "extends" in raw:
         if not isinstance(raw["extends"], str) or not raw["extends"] or Path(raw["extends"]).stem == path.stem:

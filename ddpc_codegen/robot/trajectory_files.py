@@ -41,7 +41,8 @@ import numpy as np
 
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.trajectory import EllipseTrajectory, RandomSmoothTrajectory, SampledTrajectory
-from ddpc_codegen.values.tomlconfig import check_keys, load_toml
+from ddpc_codegen.values.files import MiB, checked_input_path, load_toml_bounded, read_text_bounded
+from ddpc_codegen.values.tomlconfig import check_keys
 
 __all__ = ["load_trajectory", "save_trajectory_csv", "trajectory_from_arg", "COLUMNS", "OPTIONAL_COLUMNS", "RANGES",
            "MIN_SPACING"]
@@ -56,13 +57,12 @@ RANGES = {"t": (0.0, 1e6, "s"), "x": (-1e4, 1e4, "m"), "y": (-1e4, 1e4, "m"), "z
           "vz": (-100.0, 100.0, "m/s")}
 MIN_SPACING = 1e-3
 MAX_SAMPLES = 1_000_000
+MAX_BYTES = 256 * MiB  # MAX_SAMPLES rows of every column at full precision (about 250 bytes a row)
 
 
 def load_trajectory(path: str | Path) -> SampledTrajectory:
     """A :class:`SampledTrajectory` from a ``.csv`` or ``.toml`` file (format: module docstring)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"trajectory file {path} does not exist")
+    path = checked_input_path(path, "trajectory file", MAX_BYTES)
     suffix = path.suffix.lower()
     if suffix == ".csv":
         rows = _read_csv(path)
@@ -119,7 +119,7 @@ def _number(text: object, where: str) -> float:
         raise ConfigError(f"{where}: {text!r} is not a number")
     try:
         v = float(text.strip()) if isinstance(text, str) else float(text)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ConfigError(f"{where}: {text!r} is not a number") from None
     if not math.isfinite(v):
         raise ConfigError(f"{where}: {text!r} is not a finite number")
@@ -128,16 +128,16 @@ def _number(text: object, where: str) -> float:
 
 def _read_csv(path: Path) -> list[tuple[str, dict[str, float]]]:
     """[(where, {column: value})] per data row; ``where`` = 'FILE row N' (N = line number)."""
-    try:
-        lines = path.read_text().splitlines()
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{path}: not a text file ({e})") from None
+    lines = read_text_bounded(path, "trajectory file", MAX_BYTES).splitlines()
     header: list[str] | None = None
     rows = []
     for lineno, line in enumerate(lines, start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        cells = next(csv.reader([line]))
+        try:
+            cells = next(csv.reader([line]))
+        except csv.Error as e:  # a cell longer than csv.field_size_limit() (128 KiB)
+            raise ConfigError(f"{path} row {lineno}: {e}") from None
         if header is None:
             header = [c.strip().lower() for c in cells]
             missing = [c for c in COLUMNS if c not in header]
@@ -162,7 +162,8 @@ def _read_csv(path: Path) -> list[tuple[str, dict[str, float]]]:
 
 def _read_toml(path: Path) -> list[tuple[str, dict[str, float]]]:
     """[(where, {key: value})] per [[point]] table; ``where`` = 'FILE point[i]'."""
-    raw = check_keys(load_toml(path), ("description", "point"), "top level:", str(path))
+    raw = check_keys(load_toml_bounded(path, "trajectory file", MAX_BYTES), ("description", "point"), "top level:",
+                     str(path))
     pts = raw.get("point")
     if not isinstance(pts, list) or not all(isinstance(p, dict) for p in pts):
         raise ConfigError(f"{path}: expected [[point]] tables with keys {list(COLUMNS)}; got point = {pts!r}")

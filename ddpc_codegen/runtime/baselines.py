@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.values.prefilter import PrefilterModel
+from ddpc_codegen.values.prefilter import PrefilterModel, load_prefilter_table
 from ddpc_codegen.errors import ConfigError
-from ddpc_codegen.robot.validate import Range, check_number, check_numbers, check_size, load_json_bounded
+from ddpc_codegen.robot.validate import Range, check_number, check_numbers
+from ddpc_codegen.values.files import checked_input_path
 from ddpc_codegen.runtime.steerer import SteerOutcome
 
 __all__ = ["PassthroughPolicy", "PrefilterPolicy", "FeedforwardPolicy", "check_prefilter_dict", "FF_MAX_ROWS",
@@ -82,10 +83,8 @@ class PrefilterPolicy:
     def load(cls, path: str | Path, **kw) -> "PrefilterPolicy":
         """From a prefilter JSON file (:meth:`PrefilterModel.save`), every field checked
         (:func:`check_prefilter_dict`)."""
-        raw = load_json_bounded(path, "prefilter")
-        if not isinstance(raw, dict) or not isinstance(raw.get("prefilter"), dict):
-            raise ConfigError(f"{path}: not a prefilter JSON file (no 'prefilter' table)")
-        return cls(PrefilterModel.from_dict(check_prefilter_dict(raw["prefilter"], str(path)), str(path)), **kw)
+        table = check_prefilter_dict(load_prefilter_table(path), str(path))
+        return cls(PrefilterModel.from_dict(table, str(path)), **kw)
 
     def reset(self) -> None:
         """Memoryless: nothing to forget."""
@@ -168,7 +167,7 @@ class FeedforwardPolicy:
     def load(cls, path: str | Path) -> "FeedforwardPolicy":
         """From a :meth:`save` npz: the arrays' declared shapes are read before any data (a table of
         at most :data:`FF_MAX_ROWS` x :data:`FF_MAX_COLS` numbers, a scalar dt in (0, 1] s, a clock name)."""
-        p = check_size(path, FF_MAX_BYTES, "feed-forward table")
+        p = checked_input_path(path, "feed-forward table", FF_MAX_BYTES)
         shapes = _npz_shapes(p)
         for key, ok, want in (("delta", lambda s, k: len(s) == 2 and 1 <= s[0] <= FF_MAX_ROWS
                                and 1 <= s[1] <= FF_MAX_COLS and k in "fiu", f"(N, m) numbers with N <= {FF_MAX_ROWS} "

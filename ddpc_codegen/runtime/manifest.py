@@ -7,15 +7,17 @@ mistyped key, listed files missing or edited -- is a ManifestError naming the fi
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 
 from ddpc_codegen.errors import ManifestError
+from ddpc_codegen.values.files import MAX_TEXT_BYTES, MiB, checked_input_path, load_json_bounded
 
 __all__ = ["FORMAT", "VERSION", "read_manifest", "sha256_file", "check_files"]
 
 FORMAT = "ddpc-codegen-solver"
 VERSION = 2  # 2: per-name C symbols, caller-owned workspace, test vectors, self-contained sources
+# a generated source or extension is kilobytes to tens of MiB (the data tables of a large problem)
+ARTIFACT_MAX_BYTES = 4096 * MiB
 
 _DIM_KEYS = ("m", "p", "t_ini", "t_f", "n_u", "n_theta", "n_g", "n_y", "n_sigma")
 _BOUND_KEYS = ("u_min", "u_max", "y_min", "y_max", "du_max")
@@ -31,8 +33,13 @@ _ART_SCHEMA = {"depth": int, "rank": int, "m": int, "p": int, "n_columns": int, 
 
 
 def sha256_file(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """Hex SHA-256 of a file's bytes, read in chunks (a regular file of at most :data:`ARTIFACT_MAX_BYTES`)."""
+    p = checked_input_path(path, "solver file", ARTIFACT_MAX_BYTES, error=ManifestError)
+    h = hashlib.sha256()
+    with open(p, "rb") as f:
+        for chunk in iter(lambda: f.read(MiB), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def _check_schema(path: Path, man: object) -> dict:
@@ -75,13 +82,9 @@ def _check_schema(path: Path, man: object) -> dict:
 def read_manifest(folder: Path) -> dict:
     """manifest.json of a solver folder, structurally checked; ManifestError otherwise."""
     path = Path(folder) / "manifest.json"
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         raise ManifestError(f"{folder} has no manifest.json: not a generated solver (run `ddpc-codegen codegen` first)")
-    try:
-        man = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ManifestError(f"{path} is not valid JSON: {e}") from e
-    return _check_schema(path, man)
+    return _check_schema(path, load_json_bounded(path, "manifest", MAX_TEXT_BYTES, error=ManifestError))
 
 
 def check_files(folder: Path, man: dict) -> Path:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,7 @@ import numpy as np
 from ddpc_codegen.values.adapt import AdaptSettings, adapt_settings
 from ddpc_codegen.values.config_values import (channel_bounds, incremental_problem, is_number, knot_positions,
                                                weight_matrix)
-from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.values.files import load_toml_bounded
 from ddpc_codegen.values.tomlconfig import config_error as _err
 
 __all__ = ["SteeringConfig", "R_MODES", "BACKENDS"]
@@ -295,12 +294,7 @@ class SteeringConfig:
     def from_toml(cls, path: str | Path) -> "SteeringConfig":
         """Load and validate a TOML config; a relative [data] dataset is resolved against its folder."""
         path = Path(path)
-        if not path.exists():
-            raise ConfigError(f"config file {path} does not exist")
-        try:
-            raw = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as e:
-            raise ConfigError(f"{path}: not valid TOML: {e}") from e
+        raw = load_toml_bounded(path, "steering config")
         cfg = cls.from_dict(raw, source=str(path))
         if cfg.dataset and not Path(cfg.dataset).is_absolute():
             object.__setattr__(cfg, "dataset", str((path.parent / cfg.dataset).resolve()))

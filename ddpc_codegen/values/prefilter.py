@@ -11,8 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.values.files import load_json_bounded
 
-__all__ = ["PrefilterModel"]
+__all__ = ["PrefilterModel", "load_prefilter_table", "PREFILTER_MAX_BYTES"]
+
+PREFILTER_MAX_BYTES = 1_000_000  # a model is a few hundred bytes (16 channels with names: about 2 kB)
 
 
 @dataclass(frozen=True)
@@ -72,9 +75,12 @@ class PrefilterModel:
 
     @classmethod
     def load(cls, path: str | Path) -> "PrefilterModel":
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())["prefilter"]
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            raise ConfigError(f"{path}: not a prefilter JSON file ({type(e).__name__}: {e})") from None
-        return cls.from_dict(d, str(path))
+        return cls.from_dict(load_prefilter_table(path), str(path))
+
+
+def load_prefilter_table(path: str | Path) -> dict:
+    """The ``prefilter`` table of a prefilter JSON file (read bounded), its values not yet checked."""
+    raw = load_json_bounded(path, "prefilter", PREFILTER_MAX_BYTES)
+    if not isinstance(raw, dict) or not isinstance(raw.get("prefilter"), dict):
+        raise ConfigError(f"{path}: not a prefilter JSON file (no 'prefilter' table)")
+    return raw["prefilter"]

@@ -1,29 +1,17 @@
-"""The one TOML reader of the package: parse errors, unknown keys and bad values become
-:class:`~ddpc_codegen.errors.ConfigError` messages that name the file, the key and the value."""
+"""The checks of parsed TOML tables: unknown keys and bad values become
+:class:`~ddpc_codegen.errors.ConfigError` messages that name the file, the key and the value (the files
+themselves are read by :func:`ddpc_codegen.values.files.load_toml_bounded`)."""
 
 from __future__ import annotations
 
 import dataclasses
-import tomllib
-from pathlib import Path
 from typing import Any, TypeVar
 
 from ddpc_codegen.errors import ConfigError
 
-__all__ = ["load_toml", "check_keys", "dataclass_from_table", "config_error"]
+__all__ = ["check_keys", "dataclass_from_table", "config_error"]
 
 T = TypeVar("T")
-
-
-def load_toml(path: str | Path) -> dict:
-    """Parse a TOML file; ConfigError when it is missing or not valid TOML."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"config file {path} does not exist")
-    try:
-        return tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from e
 
 
 def check_keys(table: Any, allowed: tuple[str, ...] | list[str], where: str, src: str) -> dict:

@@ -97,7 +97,7 @@ def test_prefilter_json_round_trip_and_bad_files(tmp_path):
     with pytest.raises(ConfigError, match="nonzero gain"):
         PrefilterModel.load(tmp_path / "bad.json")
     (tmp_path / "junk.json").write_text("not json")
-    with pytest.raises(ConfigError, match="junk.json: not a prefilter JSON file"):
+    with pytest.raises(ConfigError, match="junk.json: prefilter: is not valid JSON"):
         PrefilterModel.load(tmp_path / "junk.json")
 
 

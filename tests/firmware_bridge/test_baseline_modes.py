@@ -52,7 +52,7 @@ def test_prefilter_probes_are_refused_precisely(tmp_path, change, msg):
 def test_prefilter_files_that_are_not_one(tmp_path):
     deep = tmp_path / "deep.json"
     deep.write_text("[" * 100_000 + "]" * 100_000)
-    with pytest.raises(ValueError, match=r"deep.json: nested 100000 levels deep, more than a prefilter file may be"):
+    with pytest.raises(ValueError, match=r"deep.json: prefilter: nested 100000 levels deep, more than a prefilter may be \(32\)"):
         load_prefilter(str(deep), 200.0, 2)
     other = tmp_path / "other.json"
     other.write_text("[1, 2]")

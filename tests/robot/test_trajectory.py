@@ -109,7 +109,7 @@ def test_csv_errors_name_file_row_and_value(tmp_path, text, message):
     ("[[point]]\nt = 0\nx = 0\nz = 1\npitch = 0.1\n", r"bad.toml point\[0\]: unknown key\(s\) \['pitch'\]"),
     ("speed = 3\n", r"bad.toml: top level: speed is not a known key"),
     ("point = 3\n", r"bad.toml: expected \[\[point\]\] tables"),
-    ("[[point\n", r"bad.toml: not valid TOML"),
+    ("[[point\n", r"bad.toml: trajectory file: is not valid TOML"),
 ])
 def test_toml_errors_name_file_point_key_and_value(tmp_path, text, message):
     (tmp_path / "bad.toml").write_text(text)
