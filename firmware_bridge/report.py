@@ -60,6 +60,7 @@ class FlightRecorder:
 
     @property
     def n(self) -> int:
+        """Rows recorded."""
         return self.rows.n
 
     def record(self, ref: TickReference, u: np.ndarray, state, *, now: float, t_sent: float, t_vehicle: float,

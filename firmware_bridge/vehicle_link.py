@@ -266,8 +266,10 @@ class VehicleLink:
                            self.params.get(hover_param(self.profile)))
 
     def request_param(self, name: str) -> None:
+        """Ask for one parameter by name (the answer arrives as PARAM_VALUE)."""
         self.link.send(self.link.mav.param_request_read_encode(self.link.target_system or 0,
                                                                self.link.target_component or 0, name.encode(), -1))
 
     def close(self) -> None:
+        """Close the connection."""
         self.link.close()
