@@ -270,12 +270,12 @@ def odometry_fields(pose: MocapPose, usec: int, config: MocapConfig, frame_id: i
 
 @dataclass
 class MocapStats:
-    """What the stand-in did: poses sent, truth samples received, sends skipped for lack of truth."""
+    """What the stand-in did: poses sent, truth samples received, sends skipped for lack of truth, origins sent."""
 
     sent: int = 0
     truth: int = 0
     skipped: int = 0
-    origin_sent: bool = False
+    origin_sent: int = 0
     errors: list[str] = field(default_factory=list)
 
 
@@ -284,14 +284,16 @@ class MocapStandIn(threading.Thread):
     until :meth:`stop`. ``conn``: a pymavlink connection of its own (the thread reads it), MAVLink 2,
     ``target_system`` / ``target_component`` the autopilot's; ``autopilot``: "ardupilot" or "px4" (which
     truth message to ask for). ``set_origin``: send SET_GPS_GLOBAL_ORIGIN at the first truth (the mocap
-    frame's origin), which ArduPilot needs without GPS for its position modes."""
+    frame's origin); None: for ArduPilot only, which needs it without GPS to arm in its position modes (PX4
+    flies OFFBOARD on its local position without one)."""
 
-    def __init__(self, conn: Any, autopilot: str, config: MocapConfig | None = None, *, set_origin: bool = True):
+    def __init__(self, conn: Any, autopilot: str, config: MocapConfig | None = None, *,
+                 set_origin: bool | None = None):
         super().__init__(daemon=True, name=f"mocap-{autopilot}")
         self.conn, self.autopilot = conn, autopilot
         self.config = config or MocapConfig()
         self.sampler = MocapSampler(self.config)
-        self.set_origin = set_origin
+        self.set_origin = autopilot == "ardupilot" if set_origin is None else set_origin
         self.stats = MocapStats()
         self._halt = threading.Event()
         self._admin_ticks = 0
@@ -322,6 +324,8 @@ class MocapStandIn(threading.Thread):
                 if msg is not None:
                     self.sampler.feed(msg, time.monotonic())
                     self.stats.truth += 1
+                    if self.stats.origin_sent == 0:
+                        self._send_origin()  # at the first truth, not a second later
         except Exception as e:  # noqa: BLE001 - a dead link ends the stream; the owner reads why
             self.stats.errors.append(f"{type(e).__name__}: {e}")
 
@@ -332,15 +336,23 @@ class MocapStandIn(threading.Thread):
             mav.command_long_send(self.conn.target_system, self.conn.target_component, 511, 0, msg_id,
                                   _TRUTH_INTERVAL_US, 0, 0, 0, 0, 0)  # MAV_CMD_SET_MESSAGE_INTERVAL
         self._admin_ticks += 1
+        self._send_origin()
+
+    def _send_origin(self) -> None:
+        """SET_GPS_GLOBAL_ORIGIN at the mocap frame's origin: ArduPilot each second for the first minute (an EKF
+        still initialising drops it; it keeps the first it accepts), PX4 once (each one moves its local frame)."""
         origin = self.sampler.origin
-        # repeated: an EKF still initialising drops it; ArduPilot keeps the first it accepts
-        if self.set_origin and origin is not None and self._admin_ticks <= _ORIGIN_REPEATS:
-            lat, lon, alt = origin
+        repeats = _ORIGIN_REPEATS if self.autopilot == "ardupilot" else 1
+        if not self.set_origin or origin is None or self.stats.origin_sent >= repeats:
+            return
+        lat, lon, alt = origin
+        if self.autopilot == "ardupilot":
             # whole metres: ArduPilot keeps the origin's height in centimetres and reads it back through a
-            # float (584.09 m -> 584.08 m), which would shift its local height by a centimetre
-            mav.set_gps_global_origin_send(self.conn.target_system, int(round(lat * 1e7)), int(round(lon * 1e7)),
-                                           int(round(alt)) * 1000)
-            self.stats.origin_sent = True
+            # float (584.09 m -> 584.08 m), which shifts its local height by a centimetre
+            alt = float(round(alt))
+        self.conn.mav.set_gps_global_origin_send(self.conn.target_system, int(round(lat * 1e7)),
+                                                 int(round(lon * 1e7)), int(round(alt * 1e3)))
+        self.stats.origin_sent += 1
 
     def _send(self, now: float) -> None:
         pose = self.sampler.sample(now)

@@ -9,9 +9,11 @@ aiding sources when it starts. The guide ``docs/guides/lab.md`` lists them for a
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ddpc_codegen.testbed.mocap import MocapConfig
 
-__all__ = ["lab_params", "ARDUPILOT_LAB", "PX4_LAB", "EV_NOISE_FLOOR_M"]
+__all__ = ["lab_params", "ARDUPILOT_LAB", "PX4_LAB", "EV_NOISE_FLOOR_M", "px4_has_external_vision"]
 
 # ArduPilot EKF3: ExternalNav (6) for position, height and yaw; velocity too when ODOMETRY carries it.
 ARDUPILOT_LAB: dict[str, float] = {
@@ -66,3 +68,9 @@ def lab_params(autopilot: str, config: MocapConfig | None = None) -> dict[str, f
             p["EKF2_EV_CTRL"] = 15
         return p
     raise ValueError(f"unknown autopilot {autopilot!r}; choose 'ardupilot' or 'px4'")
+
+
+def px4_has_external_vision(folder: str | Path) -> bool:
+    """Whether the PX4 build in ``folder`` (``bin/px4``) has EKF2's external-vision fusion: its parameter
+    table then names EKF2_EV_CTRL (a build with ``CONFIG_EKF2_EXTERNAL_VISION=n`` has none of EKF2_EV_*)."""
+    return b"EKF2_EV_CTRL\0" in (Path(folder) / "bin" / "px4").read_bytes()

@@ -4,14 +4,15 @@ NED), the latency, the noise, the refinement below the truth's grid, the message
 from __future__ import annotations
 
 import math
+import time
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from ddpc_codegen.testbed.mocap import (MAV_FRAME_LOCAL_NED, Dequantizer, MocapConfig, MocapPose, MocapSampler,
-                                        TruthBuffer, odometry_fields, vision_position_fields)
-from ddpc_codegen.testbed.mocap_params import ARDUPILOT_LAB, PX4_LAB, lab_params
+                                        MocapStandIn, TruthBuffer, odometry_fields, vision_position_fields)
+from ddpc_codegen.testbed.mocap_params import ARDUPILOT_LAB, PX4_LAB, lab_params, px4_has_external_vision
 from firmware_bridge.truth import EARTH_RADIUS_M
 
 LAT0, LON0, ALT0 = -35.363261, 149.165230, 584.09
@@ -173,3 +174,58 @@ def test_config_is_checked():
         MocapConfig(latency_s=-0.001)
     with pytest.raises(ValueError):
         MocapConfig(message="vicon")
+
+
+def test_px4_build_without_external_vision_is_recognised(tmp_path):
+    (tmp_path / "bin").mkdir()
+    (tmp_path / "bin" / "px4").write_bytes(b"\x00EKF2_GPS_CTRL\x00EKF2_HGT_REF\x00")
+    assert not px4_has_external_vision(tmp_path)
+    (tmp_path / "bin" / "px4").write_bytes(b"\x00EKF2_EV_CTRL\x00EKF2_HGT_REF\x00")
+    assert px4_has_external_vision(tmp_path)
+
+
+class _FakeLink:
+    """A MAVLink connection that hands out a SIM_STATE each 5 ms (hovering at 1 m) and records what is sent."""
+
+    def __init__(self):
+        self.target_system, self.target_component = 1, 1
+        self.sent: list[tuple[str, dict]] = []
+        self.t0 = time.monotonic()
+        self.n = 0
+        self.mav = SimpleNamespace(**{name: self._recorder(name) for name in (
+            "heartbeat_send", "command_long_send", "set_gps_global_origin_send", "vision_position_estimate_send",
+            "odometry_send")})
+
+    def _recorder(self, name):
+        def send(*args, **kw):
+            self.sent.append((name, kw or {"args": args}))
+        return send
+
+    def recv_match(self, type=None, blocking=True, timeout=None):
+        due = self.t0 + 0.005 * self.n
+        wait = due - time.monotonic()
+        if timeout is not None and wait > timeout:
+            time.sleep(max(0.0, timeout))
+            return None
+        time.sleep(max(0.0, wait))
+        self.n += 1
+        return sim_state(0.0, 0.0, 1.0 if self.n > 1 else 0.0)
+
+
+def test_stand_in_sends_at_its_rate_with_the_origin_and_the_stream_request():
+    link = _FakeLink()
+    m = MocapStandIn(link, "ardupilot", MocapConfig(rate_hz=100.0, latency_s=0.005, seed=0))
+    m.start()
+    time.sleep(1.0)
+    m.stop()
+    names = [n for n, _ in link.sent]
+    poses = [kw for n, kw in link.sent if n == "vision_position_estimate_send"]
+    assert not m.stats.errors and m.stats.truth > 100
+    assert 80 <= len(poses) <= 101  # 100 Hz for 1 s (a few at the start wait for the truth's latency)
+    assert -1.01 < poses[-1]["z"] < -0.99
+    assert "set_gps_global_origin_send" in names and names.count("heartbeat_send") >= 1
+    asked = [kw["args"] for n, kw in link.sent if n == "command_long_send"]
+    assert asked and asked[0][2] == 511 and asked[0][4] == 108  # SET_MESSAGE_INTERVAL of SIM_STATE
+    origin = next(kw["args"] for n, kw in link.sent if n == "set_gps_global_origin_send")
+    assert origin[3] == 584000  # whole metres (ArduPilot reads a centimetre-height origin back a centimetre low)
+    assert not MocapStandIn(_FakeLink(), "px4").set_origin
