@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ddpc_codegen.design.data import IODataset
+from ddpc_codegen.design.data import IODataset, checked_json_entry
 from ddpc_codegen.errors import DataError
 
 __all__ = ["TickRecorder", "TickLog", "load_ticklog", "REASONS", "reason_code", "TICK_FIELDS"]
@@ -303,7 +303,7 @@ def load_ticklog(path: str | Path) -> TickLog:
     with np.load(Path(path), allow_pickle=False) as z:
         if "ticklog_header" not in z.files:
             raise ValueError(f"{path} has no tick arrays (not a bridge tick log)")
-        h = json.loads(bytes(z["ticklog_header"]).decode())
+        h = checked_json_entry(z, "ticklog_header", path, "tick log header")
         ticks = {k[5:]: z[k] for k in z.files if k.startswith("tick_")}
         samples = {k[7:]: z[k] for k in z.files if k.startswith("sample_")}
     return TickLog(ticks, float(h["dt"]), tuple(h["input_names"]), tuple(h["output_names"]),

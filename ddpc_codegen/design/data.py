@@ -17,8 +17,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from ddpc_codegen.errors import DataError
+from ddpc_codegen.values.files import checked_input_path, parse_json
 
-__all__ = ["IODataset", "prbs", "output_noise", "output_path", "checked_entry", "MAX_ARRAY_BYTES"]
+__all__ = ["IODataset", "prbs", "output_noise", "output_path", "checked_entry", "checked_json_entry", "MAX_ARRAY_BYTES",
+           "MAX_HEADER_BYTES"]
 
 
 def _as_signal(x: Any, what: str, index: int) -> np.ndarray:
@@ -236,15 +238,17 @@ class IODataset:
         malformed entries) is a DataError naming the file, never a traceback from zipfile or zlib.
         """
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise DataError(f"dataset file {path} does not exist")
+        checked_input_path(path, "dataset", error=DataError)  # a FIFO or a device is never opened
         try:
             header, u, y, ph = _read_npz(path)
             return cls(u, y, header["dt"], input_names=header["input_names"], output_names=header["output_names"],
                        input_units=header["input_units"], output_units=header["output_units"], phases=ph,
                        metadata=header.get("metadata", {}))
         except DataError as e:
-            raise DataError(f"dataset {path}: {e}") from e
+            msg = str(e)  # a header refused by parse_json names the file already
+            raise DataError(msg if msg.startswith(f"{path}: ") else f"dataset {path}: {msg}") from e
         except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, RecursionError,
                 zipfile.BadZipFile, zlib.error) as e:
             # damaged: BadZipFile / zlib.error / EOFError; foreign: KeyError / TypeError / AttributeError
@@ -294,12 +298,18 @@ def checked_entry(z: Any, key: str, limit: int = MAX_ARRAY_BYTES) -> np.ndarray:
     return z[key]
 
 
+def checked_json_entry(z: Any, key: str, src: str | Path, what: str, limit: int = MAX_HEADER_BYTES) -> Any:
+    """The JSON text stored as uint8 entry ``key`` of an open npz (a header), read after its declared size was
+    checked against ``limit`` and parsed with its nesting and integers bounded (DataError naming ``src``)."""
+    return parse_json(bytes(checked_entry(z, key, limit)), str(src), what, error=DataError)
+
+
 def _read_npz(path: Path) -> tuple[dict, list[np.ndarray], list[np.ndarray], list[np.ndarray] | None]:
     """(header, u trajectories, y trajectories, phases or None) of an IODataset .npz; raises on anything else."""
     with np.load(path, allow_pickle=False) as z:
         if "header" not in z.files:
             raise DataError(f"not an IODataset file (no 'header' entry; entries: {sorted(z.files)[:8]})")
-        header = json.loads(bytes(checked_entry(z, "header", MAX_HEADER_BYTES)).decode())
+        header = checked_json_entry(z, "header", path, "dataset header")
         if not isinstance(header, dict) or header.get("format") != "ddpc-iodataset":
             raise DataError("not an IODataset file (its header is not a ddpc-iodataset header)")
         missing = [k for k in _HEADER_KEYS if k not in header]

@@ -28,7 +28,6 @@ named in ``FleetFit.skipped`` (never merged with another file).
 
 from __future__ import annotations
 
-import json
 import resource
 import time
 import zipfile
@@ -39,9 +38,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from ddpc_codegen.cluster import engine
+from ddpc_codegen.design.data import checked_json_entry
 from ddpc_codegen.design.predictor import (FitLayout, Predictor, channel_scale, hankel_r_factor, predictor_from_r,
                                            stack_r_factors)
 from ddpc_codegen.errors import ConfigError, DataError
+from ddpc_codegen.values.files import checked_input_path
 
 __all__ = ["FileInfo", "Piece", "FleetFit", "scan_files", "plan_pieces", "plan_stat_pieces", "combine_stats",
            "fit_files"]
@@ -99,11 +100,11 @@ def _npy_header(f: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
 
 
 def _file_info(path: str) -> FileInfo:
+    checked_input_path(path, "dataset", error=DataError)  # a FIFO or a device is never opened
     try:
+        with np.load(path, allow_pickle=False) as npz:
+            header = checked_json_entry(npz, "header", path, "dataset header")  # IODataset.save: JSON as uint8
         with zipfile.ZipFile(path) as z:
-            with z.open("header.npy") as f:  # IODataset.save: the JSON header as a uint8 array
-                _npy_header(f)
-                header = json.loads(f.read().decode())
             n = int(header["n_trajectories"])
             lengths, dims = [], set()
             for i in range(n):
@@ -113,6 +114,8 @@ def _file_info(path: str) -> FileInfo:
                     dims.add((name[0], shape[1] if len(shape) > 1 else 1))
                     if name[0] == "u":
                         lengths.append(int(shape[0]))
+    except DataError:
+        raise  # the header refused by name
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as e:
         raise DataError(f"{path} is not a readable IODataset .npz file: {e}") from None
     m = {d for k, d in dims if k == "u"}

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.design.data import checked_entry
+from ddpc_codegen.design.data import checked_entry, checked_json_entry
 from ddpc_codegen.design.hankel import PEReport
 from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import DataError
@@ -70,7 +70,7 @@ def load_predictor(path: Path, key: str) -> Predictor:
     """The Predictor cached in ``path`` under ``key``; DataError when the file is damaged, edited or another's."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(bytes(checked_entry(z, "meta", 2**24)).decode())
+            meta = checked_json_entry(z, "meta", path, "fit cache header")
             arrays = {k: checked_entry(z, k) for k in z.files if k != "meta"}
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise DataError("not a sweep fit cache file")

@@ -10,6 +10,8 @@ import pytest
 
 from ddpc_codegen import DataError, IODataset
 from ddpc_codegen.design.data import MAX_ARRAY_BYTES, output_path
+from ddpc_codegen.design.fleet import _file_info
+from support.bounded import bounded_refusal, make_fifo, needs_dev_zero, needs_fifo
 
 HEADER = {"format": "ddpc-iodataset", "version": 1, "n_trajectories": 1, "dt": 0.005, "input_names": ["a"],
           "output_names": ["b"], "input_units": [""], "output_units": [""], "has_phases": False, "metadata": {}}
@@ -64,7 +66,25 @@ def test_deeply_nested_header_is_a_data_error(tmp_path):
     path = tmp_path / "deep.npz"
     with zipfile.ZipFile(path, "w") as z:
         z.writestr("header.npy", _npy(head.shape, "|u1", head.tobytes()))
-    assert _message(path).startswith(f"dataset {path} is damaged or not an IODataset file (RecursionError")
+    assert _message(path) == f"{path}: dataset header: nested 100000 levels deep, more than a dataset header may be (32)"
+
+
+def test_header_integer_beyond_float_range_is_named(tmp_path):
+    path = _npz(tmp_path / "big.npz", {}, {**HEADER, "dt": 10**400})
+    assert _message(path) == (f"{path}: dt: an integer of 401 digits, beyond the range of any number a dataset header "
+                               "holds (±1.8e308)")
+
+
+@needs_fifo
+@needs_dev_zero
+def test_a_fifo_or_device_is_never_opened(tmp_path):
+    fifo, unblock = make_fifo(tmp_path / "fifo.npz")
+    link = tmp_path / "zero.npz"
+    link.symlink_to("/dev/zero")
+    for p, kind in ((fifo, "a FIFO (named pipe)"), (link, "a character device")):
+        for read in (IODataset.load, _file_info):
+            assert bounded_refusal(read, p, error=DataError, unblock=unblock) == \
+                f"{p}: dataset: is {kind}, not a regular file"
 
 
 def test_nan_data_file_is_a_data_error(tmp_path):

@@ -5,65 +5,16 @@ can hang (a FIFO) or read without end (/dev/zero behind a symlink)."""
 from __future__ import annotations
 
 import json
-import os
-import threading
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ddpc_codegen.errors import ConfigError, ManifestError
+from ddpc_codegen.errors import ManifestError
 from ddpc_codegen.values.files import (MAX_DEPTH, check_nesting, checked_input_path, load_json_bounded,
                                        load_toml_bounded, nesting_depth, parse_json, parse_toml, read_bytes_bounded,
                                        read_text_bounded, text_nesting_depth)
-
-needs_fifo = pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this platform")
-
-
-def within(seconds: float, fn, *args, unblock=None, **kw):
-    """``fn(*args, **kw)`` in a thread that must finish within ``seconds`` (a blocked open fails the test
-    instead of hanging it); returns its result or raises its exception. ``unblock`` frees a stuck thread."""
-    box: dict = {}
-
-    def run():
-        try:
-            box["value"] = fn(*args, **kw)
-        except BaseException as e:  # handed to the test
-            box["error"] = e
-
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    t.join(seconds)
-    if t.is_alive():
-        if unblock:
-            unblock()
-        pytest.fail(f"{getattr(fn, '__name__', fn)} still blocked after {seconds} s")
-    if "error" in box:
-        raise box["error"]
-    return box["value"]
-
-
-def refusal(fn, *args, error=ConfigError, **kw) -> str:
-    """The message of ``fn``'s refusal, checked to be one line."""
-    with pytest.raises(error) as e:
-        fn(*args, **kw)
-    msg = str(e.value)
-    assert "\n" not in msg, msg
-    return msg
-
-
-def fifo(tmp_path, name="pipe.toml"):
-    path = tmp_path / name
-    os.mkfifo(path)
-
-    def unblock():  # a reader blocked in open() returns once a writer opens
-        try:
-            os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
-        except OSError:
-            pass
-
-    return path, unblock
-
+from support.bounded import bounded_refusal, make_fifo, needs_dev_zero, needs_fifo, refusal
 
 # ----------------------------------------------------------------------------- what may be read
 @needs_fifo
@@ -74,16 +25,16 @@ def fifo(tmp_path, name="pipe.toml"):
     lambda p: load_json_bounded(p, "steering config"),
 ])
 def test_a_fifo_is_refused_without_waiting_for_a_writer(tmp_path, reader):
-    path, unblock = fifo(tmp_path)
-    msg = within(5.0, refusal, reader, path, unblock=unblock)
+    path, unblock = make_fifo(tmp_path / "pipe.toml")
+    msg = bounded_refusal(reader, path, unblock=unblock)
     assert msg == f"{path}: steering config: is a FIFO (named pipe), not a regular file"
 
 
-@pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="no /dev/zero")
+@needs_dev_zero
 def test_dev_zero_behind_a_symlink_is_a_device_and_never_read(tmp_path):
     link = tmp_path / "manifest.json"
     link.symlink_to("/dev/zero")
-    msg = within(5.0, refusal, lambda: load_json_bounded(link, "manifest", error=ManifestError), error=ManifestError)
+    msg = bounded_refusal(lambda: load_json_bounded(link, "manifest", error=ManifestError), error=ManifestError)
     assert msg == f"{link}: manifest: is a character device, not a regular file"
 
 
