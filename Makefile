@@ -39,6 +39,7 @@ check: install lint
 # (a SITL test waits on a real-time autopilot; tests/sitl/conftest.py groups them). Every phase runs
 # (unless interrupted) and the target fails if one fails, or if none ran a test (PYTEST_ARGS may
 # narrow them); solvers are built once for all (DDPC_TEST_CACHE, tests/support/solver_cache.py).
+# Each test process runs one BLAS thread (tests/conftest.py), so the workers do not oversubscribe the cores.
 # Two workers per core: about half of that phase's test time is spent waiting (lock-step vehicle and bridge
 # processes, timeouts on the wall clock), measured 7:46 with 4 workers vs 9:05 with 2 on this 2-core machine.
 TEST_WORKERS ?= $(shell $(PYTHON) -c "import os; print(2 * (os.cpu_count() or 1))")
@@ -59,7 +60,8 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 # The docs site (mkdocs, warnings are errors) into build/docs; the reference pages are generated from
-# the code while it builds. It needs the venv only, not the solver library sources. tests/test_docs.py builds it too, so `make test` checks it.
+# the code while it builds. It needs the venv only, not the solver library sources. tests/test_docs.py
+# builds it too, so `make test` checks it.
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict --site-dir build/docs
 
