@@ -133,11 +133,12 @@ def _figures(z: np.ndarray, ground: np.ndarray) -> dict:
             "height": float(-np.nanmean(z[:, 2])), "missing_truth": missing}
 
 
-def mocap_hover(autopilot: str, setup: str = "lab", hover_s: float = HOVER_S, seed: int = 1) -> dict:
-    """Start the SITL (``setup`` "lab": the lab parameters and the mocap stand-in on its second link;
-    "outdoor": stock, no stream), take off to :data:`HOVER_M`, hover ``hover_s`` s; the height figures
-    (:func:`_figures`, [m]) and the stand-in's counts."""
-    cfg = MocapConfig(seed=seed)
+def mocap_hover(autopilot: str, setup: str = "lab", hover_s: float = HOVER_S, seed: int = 1,
+                message: str = "vision_position") -> dict:
+    """Start the SITL (``setup`` "lab": the lab parameters and the mocap stand-in sending ``message`` on its
+    second link; "outdoor": stock, no stream), take off to :data:`HOVER_M`, hover ``hover_s`` s; the height
+    figures (:func:`_figures`, [m]) and the stand-in's counts."""
+    cfg = MocapConfig(seed=seed, message=message)
     lab = setup == "lab"
     sitl = make_sitl(autopilot, params=lab_params(autopilot, cfg) if lab else None)
     mocap = link = None
