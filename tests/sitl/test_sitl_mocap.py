@@ -21,7 +21,7 @@ from ddpc_codegen.testbed.mocap_params import lab_params, px4_has_external_visio
 from ddpc_codegen.testbed.sitl import SitlError, find_px4, make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_adapt import second_link
 
-pytestmark = [pytest.mark.sitl, pytest.mark.slow]  # ~1 min a flight
+pytestmark = pytest.mark.sitl
 
 HOVER_M = 1.0
 HOVER_S = 20.0
@@ -156,6 +156,9 @@ def mocap_hover(autopilot: str, setup: str = "lab", hover_s: float = HOVER_S, se
             if autopilot == "ardupilot":
                 _take_off_ardupilot(rec, timeout=100.0)
             else:
+                t_end = time.monotonic() + 30.0
+                while not math.isfinite(rec.last_down()) and time.monotonic() < t_end:
+                    rec.pump(0.5)  # PX4 sends its local position once its EKF has one (on the mocap: once fused)
                 rec.ground_down = rec.last_down()
                 _take_off_px4(rec, rec.ground_down, timeout=60.0)
             # on the ground before the take-off: the EKF's offset to the truth there
