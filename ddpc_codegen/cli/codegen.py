@@ -23,6 +23,7 @@ from ddpc_codegen.codegen.emit import BACKENDS
 from ddpc_codegen.values.config import SteeringConfig
 from ddpc_codegen.design.match import parse_channel_map
 from ddpc_codegen.pipeline.solver_build import build_solver, noise_warning
+from ddpc_codegen.values.files import checked_output_folder
 
 __all__ = ["register", "noise_warning"]
 
@@ -41,6 +42,7 @@ def _cmd_codegen(args: argparse.Namespace) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     mapping = parse_channel_map(args.map_channels)
     configs = [SteeringConfig.from_toml(p) for p in args.configs]  # every config refused before any fit
+    checked_output_folder(args.out, "--out")
     for cfg_path, cfg in zip(args.configs, configs):
         backend = args.backend or cfg.codegen["backend"]
         say(f"[{cfg.name}] {cfg_path}: m={cfg.m} p={cfg.p} Tini={cfg.t_ini} Tf={cfg.t_f} backend={backend}")

@@ -16,6 +16,7 @@ from typing import Any
 from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.pipeline.solver_build import FleetOptions, build_solver
 from ddpc_codegen.values.config import SteeringConfig
+from ddpc_codegen.values.files import checked_output_folder
 
 __all__ = ["register", "expand_paths"]
 
@@ -40,6 +41,8 @@ def expand_paths(items: list[str]) -> list[Path]:
 def _cmd_fit(args: argparse.Namespace) -> int:
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     cfg = SteeringConfig.from_toml(args.config)
+    if not args.no_codegen:
+        checked_output_folder(args.out, "--out")
     paths = expand_paths(args.data)
     say(f"[{cfg.name}] {len(paths)} files, Tini={cfg.t_ini} Tf={cfg.t_f} {cfg.predictor['method']}, "
         f"{args.workers} worker(s){' on ' + args.address if args.address else ''}")

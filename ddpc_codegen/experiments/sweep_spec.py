@@ -37,6 +37,7 @@ import copy
 import hashlib
 import itertools
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,7 +51,7 @@ from ddpc_codegen.values.files import load_toml_bounded
 from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table
 from ddpc_codegen.values.tomlconfig import config_error as _err
 
-__all__ = ["Condition", "Point", "SweepSpec", "METRICS"]
+__all__ = ["Condition", "Point", "SweepSpec", "METRICS", "MAX_POINTS"]
 
 # Per-run metrics of scenario_metrics (SI units, radians) that a sweep table carries.
 METRICS: dict[str, tuple[str, ...]] = {
@@ -62,6 +63,9 @@ _DEFAULTS = {"flying": ("rmse_z", ["rmse_z", "rmse_pitch"]),
              "hopping": ("apex_error_mean_abs", ["apex_error_mean_abs", "rmse_pitch", "vx_error_mean_abs"])}
 _SWEEP_KEYS = ("scenario", "config", "search", "samples", "seed", "seeds", "duration", "solver", "baseline",
                "objective", "pareto")
+# A point is a closed-loop simulation (seconds of compute each): 10^5 points are days of compute, and the
+# list of points is built in memory; a larger sweep is refused before its grid is expanded.
+MAX_POINTS = 100_000
 _DISTRIBUTIONS = ("uniform", "log_uniform", "int_uniform", "choice")
 _FIXED_SECTIONS = ("signals", "data")  # changing channels or the dataset is not a tuning knob
 
@@ -211,9 +215,11 @@ class SweepSpec:
         for key, values in space.items():
             _space_key(key, src)
             _check_values(key, values, kw["search"], src)
+        conditions = _conditions(raw.get("conditions", {}), src)
+        _check_point_count(src, space, kw.get("samples", cls.samples), kw["search"], len(conditions), len(seeds),
+                           sw.get("baseline", True))
         return cls(src, scenario, str(cfg_path), base, seeds=tuple(seeds), baseline=sw.get("baseline", True),
-                   collect=collect, dataset=dataset, space=dict(space),
-                   conditions=_conditions(raw.get("conditions", {}), src), **kw)
+                   collect=collect, dataset=dataset, space=dict(space), conditions=conditions, **kw)
 
     # ------------------------------------------------------------------ points
     def variants(self) -> list[tuple[tuple[str, Any], ...]]:
@@ -254,6 +260,19 @@ class SweepSpec:
         ctx = {"scenario": self.scenario, "base": self.base, "duration": self.duration, "solver": self.solver,
                "data": asdict(self.collect) if self.collect else self.dataset}
         return hashlib.sha256(json.dumps(ctx, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _check_point_count(src: str, space: dict, samples: int, search: str, n_conditions: int, n_seeds: int,
+                       baseline: bool) -> None:
+    """The number of points, computed from the spec before any list of them is built, at most :data:`MAX_POINTS`."""
+    variants = math.prod(len(v) for v in space.values()) if search == "grid" else samples
+    total = (variants + bool(baseline)) * n_conditions * n_seeds
+    if total > MAX_POINTS:
+        key = "[sweep] seeds" if n_seeds >= max(variants, n_conditions) else \
+            "[conditions]" if n_conditions >= variants else "[space]" if search == "grid" else "[sweep] samples"
+        raise _err(src, key, f"makes {total} points (({variants} configurations{' + the baseline' if baseline else ''}) x "
+                   f"{n_conditions} conditions x {n_seeds} seeds), more than a sweep may have ({MAX_POINTS}); "
+                   "split the sweep or use search = \"random\"")
 
 
 def _check_values(key: str, values: Any, search: str, src: str) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.logs.notes import Notes, fmt_t
+from ddpc_codegen.values.files import MAX_LOG_BYTES, checked_input_path, read_bytes_bounded
 
 __all__ = ["read_tlog", "list_tlog_messages", "load_dialect", "TlogRow"]
 
@@ -99,12 +100,13 @@ def read_tlog(
     """
     notes = notes if notes is not None else Notes()
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise DataError(f"tlog file {path} does not exist")
+    checked_input_path(path, "tlog file", MAX_LOG_BYTES, error=DataError)  # a FIFO or a device is never opened
     mod = load_dialect(dialect)
     ids = _wanted_ids(mod, wanted, dialect)
     mav = mod.MAVLink(None)
-    data = path.read_bytes()
+    data = read_bytes_bounded(path, "tlog file", MAX_LOG_BYTES, error=DataError)
     n = len(data)
     if n < 9:
         raise DataError(f"{path}: not a tlog (only {n} bytes)")

@@ -43,6 +43,7 @@ from ddpc_codegen.logs.intervals import intersect_windows, state_windows
 from ddpc_codegen.logs.notes import Notes, fmt_t
 from ddpc_codegen.logs.options import ImportOptions, check_on_nan, check_time_range, crop_window, gap_rule_text
 from ddpc_codegen.logs.series import Series, clean_series
+from ddpc_codegen.values.files import MAX_LOG_BYTES, checked_input_path
 
 __all__ = ["import_ulog", "list_ulog_topics", "ULOG_PRESETS", "NAV_STATE_NAMES", "NAV_STATE_OFFBOARD"]
 
@@ -102,12 +103,16 @@ def _read(path: Path, topics: Sequence[str] | None, notes: Notes):
     from pyulog import ULog
     from pyulog.exceptions import ULogException
 
-    if not path.is_file():
+    if not path.exists():
         raise DataError(f"ULog file {path} does not exist")
+    checked_input_path(path, "ULog file", MAX_LOG_BYTES, error=DataError)  # a FIFO or a device is never opened
     buf = io.StringIO()
     try:
         with contextlib.redirect_stdout(buf):
             ulog = ULog(str(path), message_name_filter_list=None if topics is None else sorted(set(topics)))
+    except RecursionError:  # pyulog expands nested formats recursively
+        raise DataError(f"{path}: ULog format: a message format contains itself (directly or through others); "
+                        "not a readable ULog file") from None
     except (ULogException, OSError, ValueError, IndexError, KeyError, struct.error) as e:
         raise DataError(f"{path}: not a readable ULog file ({type(e).__name__}: {e})") from e
     for line in buf.getvalue().splitlines():

@@ -20,14 +20,17 @@ from typing import Any
 
 from ddpc_codegen.errors import ConfigError
 
-__all__ = ["checked_input_path", "read_bytes_bounded", "read_text_bounded", "parse_toml", "parse_json",
+__all__ = ["checked_input_path", "checked_output_folder", "read_bytes_bounded", "read_text_bounded", "parse_toml", "parse_json",
            "load_toml_bounded", "load_json_bounded", "check_nesting", "nesting_depth", "text_nesting_depth",
-           "MiB", "MAX_TEXT_BYTES", "MAX_DEPTH"]
+           "MiB", "MAX_TEXT_BYTES", "MAX_LOG_BYTES", "MAX_DEPTH"]
 
 MiB = 2**20
 # A steering config, sweep spec, manifest or trajectory file is kilobytes; 16 MiB is a thousand times that and
 # still parses in about a second, while /dev/zero or a runaway file behind the path is refused before reading.
 MAX_TEXT_BYTES = 16 * MiB
+# A flight log (ULog, tlog): a day of full-rate logging is about 1 GiB; the parsers hold the file and its decoded
+# messages in memory, so a larger file is refused before it is read.
+MAX_LOG_BYTES = 4096 * MiB
 # Our files nest at most four levels (a table, a sub-table, a list of lists); every parser recurses per level.
 MAX_DEPTH = 32
 
@@ -59,6 +62,24 @@ def checked_input_path(path: str | Path, what: str = "input file", max_bytes: in
         raise error(f"{p}: {what}: is {_kind(st.st_mode)}, not a regular file")
     if max_bytes is not None and st.st_size > max_bytes:
         raise error(_too_big(p, what, st.st_size, max_bytes))
+    return p
+
+
+def checked_output_folder(path: str | Path, what: str, error: type[Exception] = ConfigError) -> Path:
+    """``path`` is a folder to write into, or can be made one: it, or its nearest existing ancestor, must be a
+    directory (a file, FIFO or device there would fail the write after all the work)."""
+    p = Path(path)
+    for at in (p, *p.parents):
+        try:
+            mode = at.stat().st_mode
+        except (FileNotFoundError, NotADirectoryError):  # made by the writer, or an ancestor is no folder
+            continue
+        except OSError as e:
+            raise error(f"{p}: {what}: cannot be used ({e.strerror or type(e).__name__})") from None
+        if not stat.S_ISDIR(mode):
+            kind = "a regular file" if stat.S_ISREG(mode) else _kind(mode)
+            raise error(f"{p}: {what}: {'' if at == p else f'{at} '}is {kind}, not a folder")
+        break
     return p
 
 
@@ -111,21 +132,25 @@ def _utf8_fault(data: bytes, e: UnicodeDecodeError) -> str:
 
 
 def text_nesting_depth(text: str) -> int:
-    """Deepest nesting of [ ] / { } brackets outside quoted strings (JSON and TOML alike; what a parser that
-    gave up would have had to recurse)."""
+    """Deepest nesting of [ ] / { } brackets outside quoted strings and # comments (JSON and TOML alike; what
+    a parser that gave up would have had to recurse: only for its message)."""
     depth = best = 0
     quote = ""
-    escaped = False
+    escaped = comment = False
     for ch in text:
-        if quote:
+        if comment:
+            comment = ch != "\n"
+        elif quote:
             if escaped:
                 escaped = False
-            elif ch == "\\":
+            elif ch == "\\" and quote == '"':  # TOML's 'literal strings' have no escapes
                 escaped = True
             elif ch == quote:
                 quote = ""
         elif ch in "\"'":
             quote = ch
+        elif ch == "#":
+            comment = True
         elif ch in "[{":
             depth += 1
             best = max(best, depth)
