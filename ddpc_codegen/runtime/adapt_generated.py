@@ -1,11 +1,17 @@
 """The online update of a generated solver built with ``[adapt] enabled`` (``<name>_adapt_*`` in its
-extension), behind the adaptation API the interpreted twin has too (issue 30)."""
+extension), behind the adaptation API the interpreted twin has too (issue 30).
+
+Threads (the contract in ``<name>_adapt.h``): a re-solve may run in another thread while the tick pushes and
+solves; everything else is the tick's. Two guards, both non-blocking (a call that would share a workspace with
+another thread raises :class:`~ddpc_codegen.runtime.guard.SolverBusyError`): the solver's (push, clear,
+snapshot, swap, and the solver's own calls) and the re-solve's (resolve, snapshot, swap)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ddpc_codegen.errors import ManifestError
+from ddpc_codegen.runtime.guard import Guard
 from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings, SampleWindow
 
 __all__ = ["GeneratedAdaptation"]
@@ -24,6 +30,7 @@ class GeneratedAdaptation:
             raise ManifestError(f"{solver.folder}: the binary has an online update but manifest.json records no "
                                 "fit_statistic / adapt entry (edited?); regenerate the solver")
         self._solver, self._ffi, self._lib, name = solver, solver._ffi, solver._lib, solver.name
+        self._tick, self._resolving = solver._guard, Guard(name)
         self._fn = {f: getattr(self._lib, f"{name}_adapt_{f}") for f in ("init", "push", "snapshot", "resolve", "swap")}
         self.settings = AdaptSettings(**st)
         self._ws = self._ffi.new(f"{name}_adapt_workspace *")
@@ -38,31 +45,38 @@ class GeneratedAdaptation:
     def push(self, u: np.ndarray, y: np.ndarray) -> bool:
         """One (u (m,), y (p,)) sample; True when a column was taken (queued for R: the next re-solve folds it
         in, off the tick path)."""
-        w = self._window.push(np.asarray(u, float), np.asarray(y, float))
-        if w is None:
-            return False
-        self._buf[:] = w.reshape(-1)
-        return bool(self._fn["push"](self._ws, self._pbuf))
+        with self._tick.held("adapt_push"):
+            w = self._window.push(np.asarray(u, float), np.asarray(y, float))
+            if w is None:
+                return False
+            self._buf[:] = w.reshape(-1)
+            return bool(self._fn["push"](self._ws, self._pbuf))
 
     def clear(self) -> None:
-        self._window.clear()
+        with self._tick.held("adapt_clear"):
+            self._window.clear()
 
     def snapshot(self) -> None:
         """Copy the recent columns and hand the queued ones to the next re-solve (in the tick)."""
-        self._fn["snapshot"](self._ws)
+        with self._tick.held("adapt_snapshot"), \
+                self._resolving.held("adapt_snapshot (a re-solve runs)"):
+            self._fn["snapshot"](self._ws)
 
     def resolve(self, snapshot: bool = True) -> str:
         """Re-solve, rebuild and verify: "accepted" or the rejection reason. ``snapshot=False``: from the last
         :meth:`snapshot`, safe in another thread while :meth:`push` and the solver run (cffi releases the GIL
         for the C call; see the contract in ``<name>_adapt.h``)."""
         if snapshot:
-            self._fn["snapshot"](self._ws)
-        code = self._fn["resolve"](self._ws)
+            self.snapshot()
+        with self._resolving.held("adapt_resolve (another re-solve runs)"):
+            code = self._fn["resolve"](self._ws)
         return "accepted" if code == 0 else REJECTIONS[code - 1]
 
     def swap(self) -> bool:
         """Install a verified candidate into the solver's workspace (its warm start is dropped)."""
-        return self._fn["swap"](self._ws, self._solver._ws) == 1
+        with self._tick.held("adapt_swap"), \
+                self._resolving.held("adapt_swap (a re-solve runs)"):
+            return self._fn["swap"](self._ws, self._solver._ws) == 1
 
     def refused(self) -> int:
         """Columns not taken (skipped NaN/inf + dropped on a full queue): counters only push() writes, so safe to
@@ -85,3 +99,4 @@ class GeneratedAdaptation:
             return np.zeros(n)
         half = 1 - self._ws.off_spare  # the swap flipped off_spare away from the half in use
         return np.array([self._ws.yoff[half * n + i] for i in range(n)])
+

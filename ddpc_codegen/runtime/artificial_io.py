@@ -16,6 +16,7 @@ import numpy as np
 
 from ddpc_codegen.values.completion import Completion, check_window
 from ddpc_codegen.errors import DataError, ManifestError
+from ddpc_codegen.runtime.guard import Guard
 
 __all__ = ["GeneratedArtificialIO", "ARTIO_STATUS"]
 
@@ -29,7 +30,8 @@ def _listed(man_values: list) -> np.ndarray:
 
 
 class GeneratedArtificialIO:
-    """One instance of the compiled completion (its own C workspace)."""
+    """One instance of the compiled completion (its own C workspace; one instance per thread: a call while another
+    thread is inside one raises :class:`~ddpc_codegen.runtime.guard.SolverBusyError`)."""
 
     def __init__(self, folder: Path, manifest: dict, lib, ffi) -> None:
         name = manifest["name"]
@@ -41,7 +43,7 @@ class GeneratedArtificialIO:
         except AttributeError as e:
             raise ManifestError(f"{folder}: manifest.json lists an artificial-IO completion but the binary has none "
                                 f"({e}); regenerate the solver") from e
-        self._ffi = ffi
+        self._ffi, self._guard = ffi, Guard(name)
         dims = ffi.new("int[5]")
         self._fn["describe"](dims, ffi.NULL)
         self.depth, self.rank, self.m, self.p, self.n_columns = (int(v) for v in dims)
@@ -102,18 +104,19 @@ class GeneratedArtificialIO:
         flags = np.ascontiguousarray(mask.reshape(-1), dtype=np.uint8)
         out = np.empty_like(w)
         fb = self._ffi.from_buffer
-        st = self._fn["complete"](self._ws, L, fb("double[]", w), fb("unsigned char[]", flags), int(bool(replace_known)),
-                                  fb("double[]", out), self._info)
-        info = self._info
-        status = ARTIO_STATUS.get(st, f"status_{st}")
-        self.counts["calls"] += 1
-        if info.bounded:
-            self.counts["bounded"] += 1
-            if st != 0:
-                self.counts["qp_failed"] += 1
+        with self._guard.held("artificial-IO complete"):  # the info struct is the instance's too
+            st = self._fn["complete"](self._ws, L, fb("double[]", w), fb("unsigned char[]", flags),
+                                      int(bool(replace_known)), fb("double[]", out), self._info)
+            info = self._info
+            status = ARTIO_STATUS.get(st, f"status_{st}")
+            self.counts["calls"] += 1
+            if info.bounded:
+                self.counts["bounded"] += 1
+                if st != 0:
+                    self.counts["qp_failed"] += 1
+            self.last_info = {"solve_time_us": float(info.solve_time_us), "max_violation": float(info.max_violation),
+                              "iterations": int(info.iterations), "raw_status": int(info.raw_status),
+                              "reduced": bool(info.reduced)}
         W = out.reshape(L, self.d)
-        self.last_info = {"solve_time_us": float(info.solve_time_us), "max_violation": float(info.max_violation),
-                          "iterations": int(info.iterations), "raw_status": int(info.raw_status),
-                          "reduced": bool(info.reduced)}
         return Completion(W[:, : self.m].copy(), W[:, self.m :].copy(), float(info.residual), float(info.g_norm),
                           bool(info.bounded), status)

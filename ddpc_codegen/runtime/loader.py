@@ -3,6 +3,12 @@
 The dims, bounds and tolerance the runtime relies on are read from the compiled binary
 (``<name>_describe``) and cross-checked against manifest.json, so editing the manifest cannot change
 a safety check; a binary of another solver, or one that does not load, is a ManifestError.
+
+Threads: one instance per thread. An instance's calls that touch its C workspace (solve, step_u, bench, reset,
+the adaptation's tick-side calls) are refused with :class:`SolverBusyError` while another thread is inside one
+(a non-blocking guard: never a wait in the tick, never a shared workspace). The osqp backend keeps OSQP's
+workspace static in the extension, so there every instance of one folder shares the guard. Load the folder once
+per thread (the daqp backend) for concurrent solves.
 """
 
 from __future__ import annotations
@@ -20,8 +26,9 @@ from ddpc_codegen.errors import DataError, ManifestError
 from ddpc_codegen.runtime.manifest import check_files, read_manifest, sha256_file
 from ddpc_codegen.runtime.adapt_generated import GeneratedAdaptation
 from ddpc_codegen.runtime.artificial_io import GeneratedArtificialIO
+from ddpc_codegen.runtime.guard import SolverBusyError, busy, workspace_guard
 
-__all__ = ["GeneratedSolver", "load_solver"]
+__all__ = ["GeneratedSolver", "SolverBusyError", "load_solver"]
 
 STATUS = {0: "solved", -1: "infeasible", -2: "max_iter", -3: "nonfinite", -4: "solver_error", -5: "unverified"}
 BACKEND_IDS = {0: "daqp", 1: "osqp"}
@@ -76,7 +83,10 @@ def _binary_facts(folder: Path, man: dict, lib, ffi) -> tuple[dict, dict, float]
 
 class GeneratedSolver:
     """A compiled steering solver instance (its own C workspace). ``solve`` has the signature and result
-    of SteeringProblem.solve. Load the same folder twice for two independent instances."""
+    of SteeringProblem.solve. Load the same folder twice for two independent instances.
+
+    One instance per thread: a call while another thread is inside one on the same instance (or, osqp, on any
+    instance of the folder) raises :class:`SolverBusyError` instead of sharing the workspace."""
 
     def __init__(self, folder: Path, manifest: dict, module) -> None:
         self.folder = folder
@@ -84,6 +94,8 @@ class GeneratedSolver:
         self.name = manifest["name"]
         self.backend = manifest["backend"]
         self._ffi, self._lib = module.ffi, module.lib
+        self._guard = workspace_guard(module, self.backend, self.name)  # taken by every call writing the workspace
+        self._take, self._give = self._guard.take, self._guard.give
         try:
             self._fn = {f: getattr(self._lib, f"{self.name}_{f}") for f in _API}
         except AttributeError as e:
@@ -97,7 +109,7 @@ class GeneratedSolver:
             raise ManifestError(f"{folder}: has_nominal={self.has_nominal} in manifest.json does not match the "
                                 f"binary's n_theta={self.n_theta}")
         self._ws = self._ffi.new(f"{self.name}_workspace *")
-        if self._fn["init"](self._ws) != 0:
+        if self._fn["init"](self._ws) != 0:  # the instance's workspace only (osqp: OSQP's static one untouched)
             raise ManifestError(f"{folder}: the solver workspace failed to initialise")
         self._theta = np.empty(self.n_theta)
         self._u = np.empty(self.n_u)
@@ -121,7 +133,8 @@ class GeneratedSolver:
     def reset(self) -> None:
         """Drop the warm start: the workspace returns to exactly its post-init state (an adaptive solver keeps
         the QP data it last swapped in)."""
-        self._fn["reset"](self._ws)
+        with self._guard.held("reset"):
+            self._fn["reset"](self._ws)
 
     # online adaptation (issue 30): the same API as design.adaptation.AdaptiveProblem
     def _adapt(self):
@@ -198,18 +211,22 @@ class GeneratedSolver:
                 raise DataError(f"theta must have shape ({self.n_theta},); got {theta.shape}")
             if not raw and not math.isfinite(theta.sum()):  # any NaN/inf makes the sum non-finite
                 raise DataError("theta contains NaN or inf; refusing to steer on it")
-        self._theta[:] = theta
-        st = self._fn["solve"](self._ws, self._pt, self._pu, self._info)
-        info = self._info
-        u = self._u.reshape(self._shape_u).copy()  # its own data: the buffer is reused next tick
-        if st == 0:
-            predict = _Prediction(self, self._theta.copy(), u)
-        else:
-            predict = _Prediction(self, None, u)
-        extra = {"raw_status": int(info.raw_status), "max_violation": float(info.max_violation),
-                 "refined": bool(info.refined)}
-        return SteeringResult(u, None, None, STATUS.get(st, f"status_{st}"), int(info.iterations),
-                              info.solve_time_us * 1e-6, _NAN, bool(info.fast_path), extra, predict)
+        try:
+            self._take()
+        except IndexError:
+            raise busy(self.name, "solve") from None
+        try:  # theta in, u and info out: the instance's buffers, read back before another call may write them
+            self._theta[:] = theta
+            st = self._fn["solve"](self._ws, self._pt, self._pu, self._info)
+            info = self._info
+            u = self._u.reshape(self._shape_u).copy()  # its own data: the buffer is reused next tick
+            predict = _Prediction(self, self._theta.copy() if st == 0 else None, u)
+            extra = {"raw_status": int(info.raw_status), "max_violation": float(info.max_violation),
+                     "refined": bool(info.refined)}
+            return SteeringResult(u, None, None, STATUS.get(st, f"status_{st}"), int(info.iterations),
+                                  info.solve_time_us * 1e-6, _NAN, bool(info.fast_path), extra, predict)
+        finally:
+            self._give(None)
 
     def _predict(self, theta: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         theta, u = np.ascontiguousarray(theta, dtype=float), np.ascontiguousarray(u, dtype=float)
@@ -228,8 +245,15 @@ class GeneratedSolver:
         theta must be a float64 array of n_theta entries (NaN / inf give the status "nonfinite")."""
         if getattr(theta, "shape", None) != (self.n_theta,):  # no broadcasting of a scalar or a row
             raise DataError(f"theta must have shape ({self.n_theta},); got {np.shape(theta)}")
-        self._theta[:] = theta
-        return self._fn["solve"](self._ws, self._pt, self._pu, self._ffi.NULL), self._u
+        try:
+            self._take()
+        except IndexError:
+            raise busy(self.name, "step_u") from None
+        try:
+            self._theta[:] = theta
+            return self._fn["solve"](self._ws, self._pt, self._pu, self._ffi.NULL), self._u
+        finally:
+            self._give(None)
 
     def bench(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Run every row of ``thetas`` (n, n_theta) in C, each tick timed in C; returns
@@ -240,8 +264,9 @@ class GeneratedSolver:
         n = th.shape[0]
         times, sts, us = np.empty(n), np.empty(n, dtype=np.int32), np.empty((n, self.n_u))
         fb = self._ffi.from_buffer
-        self._fn["bench"](self._ws, fb("double[]", th), n, fb("double[]", us), fb("double[]", times),
-                          fb("int[]", sts))
+        with self._guard.held("bench"):
+            self._fn["bench"](self._ws, fb("double[]", th), n, fb("double[]", us), fb("double[]", times),
+                              fb("int[]", sts))
         return times, sts, us
 
 
@@ -317,7 +342,8 @@ def _import_extension(folder: Path, man: dict, ext: Path):
 def load_solver(path: str | Path, config: SteeringConfig | str | Path | None = None,
                 predictor_hash: str | None = None) -> GeneratedSolver:
     """Load a generated solver folder (checks manifest.json, sources and the binary); each call returns
-    a new, independent instance.
+    a new, independent instance. One instance per thread: a call on an instance another thread is inside raises
+    :class:`SolverBusyError` (osqp: any instance of the folder, its OSQP workspace being static).
 
     Args:
         config: when given (a SteeringConfig or a TOML path), its hash must equal the one the
