@@ -11,6 +11,11 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
+from ddpc_codegen.cli.main import build_parser
+from ddpc_codegen.testbed.vehicle_cli import build_vehicle_parser
+from firmware_bridge.cli import build_bridge_parser
+from firmware_bridge.realtime import main as rtcheck_main
+
 __all__ = ["COMMANDS", "parsers", "parser_of", "flags_of", "cli_page"]
 
 
@@ -37,23 +42,19 @@ def parser_of(main: Callable[[list[str]], Any]) -> argparse.ArgumentParser:
 
 
 def _codegen() -> argparse.ArgumentParser:
-    from ddpc_codegen.cli.main import build_parser
     return build_parser()
 
 
 def _bridge() -> argparse.ArgumentParser:
-    from firmware_bridge.cli import build_bridge_parser
     return build_bridge_parser()
 
 
 def _vehicle() -> argparse.ArgumentParser:
-    from ddpc_codegen.testbed.vehicle_cli import build_vehicle_parser
     return build_vehicle_parser()
 
 
 def _rtcheck() -> argparse.ArgumentParser:
-    from firmware_bridge.realtime import main  # builds its parser inside main
-    return parser_of(main)
+    return parser_of(rtcheck_main)  # builds its parser inside main
 
 
 # console command -> (where it runs, its parser)

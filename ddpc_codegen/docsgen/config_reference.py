@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from ddpc_codegen.errors import ConfigError
+from ddpc_codegen.robot.profile import RobotProfile, load_profile
+from ddpc_codegen.values.config import _SCHEMA, SteeringConfig  # the loader's own key table
 
 __all__ = ["PROBES", "MINIMAL_CONFIG", "config_rules", "profile_rules", "attribute_docs", "config_page"]
 
@@ -45,7 +47,6 @@ def _collect(messages: list[str], key: str) -> list[str]:
 
 def config_rules() -> dict[str, dict[str, dict[str, Any]]]:
     """Per section and key of the steering config: ``required``, ``default``, ``rules``."""
-    from ddpc_codegen.values.config import _SCHEMA, SteeringConfig  # the loader's own key table
 
     defaults = SteeringConfig.from_dict(copy.deepcopy(MINIMAL_CONFIG)).to_dict()
     out: dict[str, dict[str, dict[str, Any]]] = {}
@@ -92,8 +93,6 @@ def attribute_docs(cls: type) -> dict[str, str]:
 
 def profile_rules() -> dict[str, dict[str, dict[str, Any]]]:
     """Per table and key of a robot profile: ``default``, ``doc``, ``rules`` (via ``load_profile``)."""
-    from ddpc_codegen.robot.profile import RobotProfile, load_profile
-
     base = load_profile("pogox")
     out: dict[str, dict[str, dict[str, Any]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
