@@ -162,11 +162,11 @@ def mocap_hover(autopilot: str, setup: str = "lab", hover_s: float = HOVER_S, se
                 rec.ground_down = rec.last_down()
                 _take_off_px4(rec, rec.ground_down, timeout=60.0)
             # on the ground before the take-off: the EKF's offset to the truth there
-            ground = np.array([s for s in rec.z_est if rec.t_up - 1.5 < s[0] < rec.t_up])
+            ground = np.array([s for s in rec.z_est if rec.t_up - 1.5 < s[0] < rec.t_up]).reshape(-1, 3)
             _hold(rec, 8.0)  # the climb and its settling
             n0 = len(rec.z_est)
             _hold(rec, hover_s)
-            z = np.array(rec.z_est[n0:])
+            z = np.array(rec.z_est[n0:]).reshape(-1, 3)
             if mocap is not None:  # the truth in the mocap's frame (each link took its own first sample as origin)
                 shift = mocap.sampler.truth.alt0 - rec.truth.truth.alt0
                 z[:, 2] += shift
