@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from ddpc_codegen.cli.main import main as codegen_main
 from ddpc_codegen.errors import DataError, ManifestError
+from ddpc_codegen.experiments.sweep import read_results
 from ddpc_codegen.experiments.sweep_spec import MAX_POINTS, SweepSpec
 from ddpc_codegen.logs import import_ulog
 from ddpc_codegen.robot.profile import load_profile
@@ -190,6 +191,18 @@ def test_random_sweep_point_count_is_checked_from_the_spec(tmp_path, seeds, samp
         assert refusal(SweepSpec.from_toml, path).startswith(f"{path}: {key} makes {total} points")
 
 
+@needs_fifo
+def test_a_resumed_sweep_reads_its_table_bounded(tmp_path):
+    table = tmp_path / "results.csv"
+    table.write_text("index,variant\n0," + "x" * (128 * 1024 + 1) + "\n")
+    assert refusal(read_results, table) == \
+        f"{table}: sweep results: field larger than field limit (131072); choose another --out"
+    table.unlink()
+    fifo, unblock = make_fifo(table)
+    assert bounded_refusal(read_results, fifo, unblock=unblock) == \
+        f"{fifo}: sweep results: is a FIFO (named pipe), not a regular file"
+
+
 # ----------------------------------------------------------------------------- command lines
 def _cli(args: list[str], capsys) -> tuple[int, str]:
     rc = within(20.0, codegen_main, args)
@@ -206,6 +219,8 @@ def test_ddpc_codegen_refuses_with_exit_2_and_one_line(tmp_path, capsys):
         (2, f"ddpc-codegen codegen: error: {afile}: --out: is a regular file, not a folder")
     assert _cli(["codegen", str(FLYING), "--out", str(afile / "sub")], capsys) == \
         (2, f"ddpc-codegen codegen: error: {afile / 'sub'}: --out: {afile} is a regular file, not a folder")
+    assert _cli(["sweep", str(_spec(tmp_path)), "--out", str(afile)], capsys) == \
+        (2, f"ddpc-codegen sweep: error: {afile}: --out: is a regular file, not a folder")
     zero = _zero(tmp_path / "zero.toml")
     assert _cli(["codegen", str(zero)], capsys) == \
         (2, f"ddpc-codegen codegen: error: {zero}: steering config: is a character device, not a regular file")

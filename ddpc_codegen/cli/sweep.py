@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 from ddpc_codegen.experiments.sweep import run_sweep
+from ddpc_codegen.values.files import checked_output_folder
 from ddpc_codegen.experiments.sweep_spec import SweepSpec
 
 __all__ = ["register"]
@@ -19,7 +20,8 @@ __all__ = ["register"]
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
     spec = SweepSpec.from_toml(args.spec)
-    out = Path(args.out) if args.out else Path("reports") / "sweeps" / Path(args.spec).stem
+    out = checked_output_folder(Path(args.out) if args.out else Path("reports") / "sweeps" / Path(args.spec).stem,
+                                "--out")
     try:
         s = run_sweep(spec, out, workers=args.workers, address=args.address, resume=args.resume,
                       progress=not args.quiet)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 import fcntl
 import hashlib
+import io
 import itertools
 import json
 import sys
@@ -51,8 +52,11 @@ from ddpc_codegen.experiments.sweep_spec import METRICS, Point, SweepSpec
 from ddpc_codegen.codegen import generate
 from ddpc_codegen.experiments.sweep_report import write_report
 from ddpc_codegen.runtime.loader import load_solver
+from ddpc_codegen.values.files import MiB, load_json_bounded, read_text_bounded
 
 __all__ = ["SweepContext", "evaluate_point", "run_sweep", "read_results", "columns", "TIMING_COLUMNS"]
+
+RESULTS_MAX_BYTES = 256 * MiB  # MAX_POINTS rows of a few hundred bytes each, ten times over
 
 # Columns that measure this machine's speed: they differ between any two runs of the same point.
 TIMING_COLUMNS = ("solve_us_p50", "solve_us_p99", "setup_s", "wall_s")
@@ -197,9 +201,12 @@ def _cell(v: Any) -> str:
 
 
 def read_results(path: str | Path) -> list[dict[str, str]]:
-    """Rows of a results.csv (strings, as written)."""
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+    """Rows of a results.csv (strings, as written); read bounded (a resumed sweep reads what is on disk)."""
+    text = read_text_bounded(path, "sweep results", RESULTS_MAX_BYTES)
+    try:
+        return list(csv.DictReader(io.StringIO(text, newline="")))
+    except csv.Error as e:  # a cell longer than csv.field_size_limit() (128 KiB)
+        raise ConfigError(f"{path}: sweep results: {e}; choose another --out") from None
 
 
 def _write_sorted(path: Path, cols: list[str], rows: list[dict[str, str]]) -> None:
@@ -236,7 +243,8 @@ def _prepare(spec: SweepSpec, out: Path, resume: bool) -> tuple[list[dict[str, s
         out.mkdir(parents=True, exist_ok=True)
         meta_path.write_text(json.dumps(meta, indent=2) + "\n")
         return [], meta
-    old = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    old = load_json_bounded(meta_path, "sweep meta") if meta_path.exists() else {}
+    old = old if isinstance(old, dict) else {}
     if old.get("context") != spec.context_digest:
         raise ConfigError(f"{results} was made with another base config, data, duration or solver "
                           f"(context {old.get('context')} vs {spec.context_digest}); choose another --out")
