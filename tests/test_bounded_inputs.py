@@ -264,6 +264,28 @@ def test_ddpc_bridge_refuses_files_that_are_no_file_with_exit_2(tmp_path, flag, 
     assert (res.returncode, res.stderr.strip()) == (2, f"ddpc-bridge: error: {prefix}{where}: {message}")
 
 
+@pytest.mark.parametrize("flag, name, text, message", [
+    ("--prefilter", "big.json", json.dumps(PREFILTER).replace("[1.0, 1.0]", f"[{BIG}, 1.0]", 1),
+     "prefilter.gain[0]: " + FAR.format("prefilter")),
+    ("--profile", "big.toml", f'extends = "pogox"\n[controller]\nkp_z = {BIG}\n',
+     "controller.kp_z: " + FAR.format("robot profile")),
+    ("--trajectory", "cell.csv", "t,x,z\n0,0,0\n0.1,0," + "1" * (128 * 1024 + 1) + "\n",
+     "row 3: field larger than field limit (131072)"),
+    ("--trajectory", "deep.toml", "x = " + "[" * 100_000 + "]" * 100_000,
+     "trajectory file: nested 100000 levels deep, more than a trajectory file may be (32)"),
+])
+def test_ddpc_bridge_refuses_file_contents_with_exit_2_and_one_line(tmp_path, capsys, flag, name, text, message):
+    from firmware_bridge.cli import bridge_main  # the bridge's own entry point, in this (main) thread
+
+    path = tmp_path / name
+    path.write_text(text)
+    mode = ["--mode", "prefilter"] if flag == "--prefilter" else ["--mode", "passthrough"]
+    assert bridge_main(["udpin:127.0.0.1:14999", flag, str(path), *mode, "--wait-heartbeat", "1"]) == 2
+    prefix = f"{flag} " if flag == "--prefilter" else ""
+    sep = " " if message.startswith("row") else ": "
+    assert capsys.readouterr().err.strip() == f"ddpc-bridge: error: {prefix}{path}{sep}{message}"
+
+
 def test_caps_are_generous_for_real_files():
     """The shipped configs and profiles are far inside their caps."""
     for path in [*ROOT.glob("configs/*.toml"), *(ROOT / "ddpc_codegen" / "robot" / "profiles").glob("*.toml")]:
