@@ -11,7 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ddpc_codegen.errors import ManifestError
-from ddpc_codegen.values.files import (MAX_DEPTH, check_nesting, checked_input_path, load_json_bounded,
+from ddpc_codegen.values.files import (MAX_DEPTH, check_nesting, checked_input_path, checked_output_folder,
+                                       load_json_bounded,
                                        load_toml_bounded, nesting_depth, parse_json, parse_toml, read_bytes_bounded,
                                        read_text_bounded, text_nesting_depth)
 from support.bounded import bounded_refusal, make_fifo, needs_dev_zero, needs_fifo, refusal
@@ -143,3 +144,13 @@ def test_ordinary_values_pass_unchanged():
     assert parse_toml('[a]\nb = [[1, 2], [3]]\nc = 1e308\nd = 123456789012345678901234567890\n', "t", "x") == \
         {"a": {"b": [[1, 2], [3]], "c": 1e308, "d": 123456789012345678901234567890}}
     assert parse_json('{"x": NaN}', "j", "x")["x"] != 0
+
+
+@needs_fifo
+def test_an_output_folder_must_be_a_folder_or_makeable(tmp_path):
+    fifo, _ = make_fifo(tmp_path / "out")
+    assert refusal(checked_output_folder, fifo, "--out") == f"{fifo}: --out: is a FIFO (named pipe), not a folder"
+    assert refusal(checked_output_folder, fifo / "a" / "b", "--out") == \
+        f"{fifo / 'a' / 'b'}: --out: {fifo} is a FIFO (named pipe), not a folder"
+    assert checked_output_folder(tmp_path / "new" / "deeper", "--out") == tmp_path / "new" / "deeper"
+    assert checked_output_folder(tmp_path, "--out") == tmp_path
