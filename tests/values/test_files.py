@@ -12,9 +12,8 @@ from hypothesis import strategies as st
 
 from ddpc_codegen.errors import ManifestError
 from ddpc_codegen.values.files import (MAX_DEPTH, check_nesting, checked_input_path, checked_output_folder,
-                                       load_json_bounded,
-                                       load_toml_bounded, nesting_depth, parse_json, parse_toml, read_bytes_bounded,
-                                       read_text_bounded, text_nesting_depth)
+                                       load_json_bounded, load_toml_bounded, nesting_depth, parse_json, parse_toml,
+                                       read_bytes_bounded, read_text_bounded, text_nesting_depth)
 from support.bounded import bounded_refusal, make_fifo, needs_dev_zero, needs_fifo, refusal
 
 # ----------------------------------------------------------------------------- what may be read
