@@ -38,13 +38,11 @@ from ``t_d`` descent and ``t_a`` ascent samples around it; the result is an :cla
 whose trajectories are the hops H_G1..H_Gn (a mosaic Hankel never crosses from one hop to the next).
 
 Online (:class:`ddpc_codegen.runtime.hopping.HoppingWindow`) the same completion fills the ground samples of u_ini / y_ini
-once ``min_ascent`` ascent samples are in. Measured on the simulator, two choices differ from the
-offline stitching: (1) no descent context (``t_d = 0``): joining the real descent to the real
-ascent forces the aerial dynamics to reverse the vertical velocity within the ~0.13 s ground
-phase, an atypical trajectory with a large ||g|| and extreme references (on the recorded hops
-almost every fill meets the reference bounds). That is harmless on clean recorded data but
-amplifies measurement noise online (25-step height errors of 0.1-1 m on noisy windows), while a
-fill conditioned on the ascent alone is a plausible pre-history of the measured state. (2) a small
+once ``min_ascent`` ascent samples are in. Two choices differ from the offline stitching:
+(1) no descent context (``t_d = 0``): joining the real descent to the real ascent forces the
+aerial dynamics to reverse the vertical velocity within the short ground phase, an atypical
+trajectory with a large ||g|| and extreme references. That is harmless on clean recorded data but
+amplifies measurement noise online, while a fill conditioned on the ascent alone is a plausible pre-history of the measured state. (2) a small
 ``noise_level`` (1e-3) with the fitted window returned (``replace_known``), so the predictor sees
 one data-consistent trajectory without a seam.
 """

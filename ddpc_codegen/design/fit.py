@@ -12,9 +12,9 @@ Two forms (``[predictor] form``):
   linear in (u_ini, y_ini, u_f), so the result is an ordinary :class:`Predictor` (lsq, zero slack)
   and every downstream stage (QP, code generation, runtime) is unchanged.
 
-Why: on the PX4 SIH collect flights the absolute lsq predictor (ridge 1e-2) misses the measured
-height by 7 mm one tick ahead and 21 mm at the horizon's end (held-out steered flight); the
-incremental one by 0.2 mm and 6 mm (README: the PX4 section).
+Why: an offset the data never saw (a different hover thrust, a payload) is an input-independent
+term that the absolute predictor must explain with its inputs; the incremental one carries it.
+The held-out check of ``ddpc-codegen codegen`` reports both predictors' errors on a dataset.
 """
 
 from __future__ import annotations

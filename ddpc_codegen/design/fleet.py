@@ -20,7 +20,7 @@ disjoint sets of columns combine by stacking and one more QR. Here:
 Memory per task: the piece's samples (<= ``chunk_columns + Tini+Tf-1`` rows x (m+p) x 8 bytes,
 8 MiB at the default 2^18 columns and m+p = 4) plus one Hankel block (``block_columns`` x width x 8
 bytes times ~4 for copies and the QR's workspace: ~35 MiB at 8192 x 140) plus the worker's Python,
-numpy and Ray (~150-250 MiB); measured peaks per worker are in the returned report.
+numpy and Ray; the measured peak per worker is in the returned report.
 
 Files whose trajectories are all shorter than Tini+Tf hold no Hankel column: they are skipped and
 named in ``FleetFit.skipped`` (never merged with another file).

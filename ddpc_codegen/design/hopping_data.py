@@ -34,8 +34,7 @@ class ArtificialIOSpec:
         t_d_online: descent samples the online fill is conditioned on (0: the ascent alone; a
             descent context makes the fill atypical and noise-sensitive online).
         min_ascent: ascent samples needed before steering starts (fewer leave the aerial state
-            at liftoff under-determined: on noise-free windows the 25-step height prediction
-            error is ~9 cm with 1-4 samples, ~4 mm with 5-9 and ~2 mm with 10-14).
+            at liftoff under-determined, and the completed window's prediction error grows).
         ground_margin: extra samples of depth beyond the longest recorded ground phase.
         noise_level: sigma of the offline completion [m / rad] (0 = exact: clean recordings).
         noise_level_online: sigma of the online completion (measurements are noisy online).

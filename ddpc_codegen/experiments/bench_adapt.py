@@ -7,7 +7,7 @@ timed by a C program cross-compiled for aarch64 under qemu, with its native buil
 
 The problems are the benchmark's (``bench_problems.build_problem``) refitted with a relative ridge of 1e-6 (the
 update re-solves G by a triangular solve, which needs a full-rank R11: the configs' ridge gives it).
-Times are wall-clock per call through cffi (~0.2 us of call overhead included).
+Times are wall-clock per call through cffi (the call overhead included).
 """
 
 from __future__ import annotations

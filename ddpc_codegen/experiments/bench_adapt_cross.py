@@ -84,8 +84,8 @@ def native_figures(folder: Path, windows: np.ndarray, n_resolves: int, verdict: 
     """The timing program built natively for the emitted adaptive ``folder`` and run ``runs`` times on ``windows``
     ((N, DEPTH*(M+P)) time-major data-unit windows, written to ``folder/adapt_bench_windows.bin``): the first run's
     JSON figures with each median (ns) the median of the runs' medians and each max their max, and
-    ``phase_ns_median`` named by :data:`PHASES`. Several processes, because this machine's speed drifts between
-    them (~1.5x) more than within one. ``verdict``: the re-solve's verdict the caller's own build gave, if known
+    ``phase_ns_median`` named by :data:`PHASES`. Several processes, because a machine's speed can drift between
+    processes more than within one. ``verdict``: the re-solve's verdict the caller's own build gave, if known
     (a different one, or runs that disagree, is a CodegenError). ValueError: ``runs`` < 1."""
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise ValueError(f"runs must be an integer >= 1; got {runs!r}")

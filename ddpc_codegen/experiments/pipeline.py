@@ -21,16 +21,16 @@ and the horizon is ticks k..k+Tf-1 (y_des = ``ctx.desired_ahead(Tf)``). The newe
 y[k] is then not used by the decision at tick k (it is predicted): one tick of information
 latency, the price of a window that matches the data pairing without re-indexing the data.
 
-Predictor choice (measured; numbers in ``configs/*.toml`` and the report):
+Predictor choice (the measured figures are in ``configs/*.toml`` and the report):
 
 * Training data are recorded without sensor noise (the paper's motion capture is far more precise
   than the simulator's pessimistic default noise). On such data the SPC least-squares predictor
-  (``lsq``) is exact to 1e-5 m over 15 steps, but its gains on y_ini reach ~1e4 and the loop goes
+  (``lsq``) is exact up to the recording's round-off, but its gains on y_ini are large and the loop goes
   unstable as soon as the measurements are noisy; a small relative ridge (``configs/*.toml``
   document the measured choice) keeps the gains bounded. The paper's ``pem`` at slack_weight = 1
-  is biased (3 mm over 15 steps on the same data).
+  is biased on the same data.
 * Recording *with* noise instead regularises the fit by itself but biases it (errors in
-  variables): on hopping the 25-step height prediction is pulled ~20 mm toward the training
+  variables): on hopping the multi-step height prediction is pulled toward the training
   hops' height. So: clean data, ``lsq`` with a ridge.
 * The constant offset of the loop (gravity against a wrong model mass: the IO map is affine)
   needs no extra handling: a constant is an uncontrollable but observable mode, so it is part of

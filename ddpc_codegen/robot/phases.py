@@ -11,8 +11,8 @@ Two sources, configured in the robot profile (``[contact]``):
   ``+liftoff_margin`` while vz > ``vz_band``. The velocity conditions and the minimum dwell times
   make the estimate hysteretic: noise near h = 0 at rest never switches it. ``liftoff_margin`` may be
   negative: a springy leg still extending when the foot leaves the ground lifts off before it
-  reaches its rest length (PogoX: h = -3.7 mm at the true liftoff, 0 at the touchdown; thresholds
-  placed there detect both on the sample a contact sensor would).
+  reaches its rest length (PogoX's profile sets its thresholds where they detect liftoff and touchdown
+  on the sample a contact sensor would).
 
 In the air, ascent vs descent is the sign of vz with a dead band (``vz_band``), switching to
 descent once per arc (at the apex), never back.

@@ -33,8 +33,9 @@ Rotors: thrust k_F w_i^2, drag torque k_M w_i^2, first-order lag w_i' = (w_cmd,i
 commands clipped to [w_idle, w_max]. X layout, PX4 numbering: 1 front-right (CCW), 2 back-left
 (CCW), 3 front-left (CW), 4 back-right (CW).
 
-Integration: fixed-step classical RK4 (1 ms) in plain Python floats -- ~10x faster than
-scipy's solve_ivp for this size -- with the inputs held over the step (zero-order hold).
+Integration: fixed-step classical RK4 (1 ms) in plain Python floats (for a state this small,
+cheaper than scipy's solve_ivp and its per-call overhead), with the inputs held over the step
+(zero-order hold).
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def rotor_geometry(arm_length: float) -> tuple[tuple[float, ...], tuple[float, .
 
 
 def event_root_finder():
-    """scipy's ``brentq``, imported on the first contact event: scipy.optimize costs ~0.8 s at start-up, which
+    """scipy's ``brentq``, imported on the first contact event: importing scipy.optimize is slow, which
     a vehicle that never touches the ground (every flying run) need not pay. A real-time caller that will hop
     calls this once before its loop."""
     from scipy.optimize import brentq

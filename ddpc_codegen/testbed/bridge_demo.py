@@ -10,7 +10,7 @@ see :mod:`firmware_bridge.realtime`):
    logs every tick; the log *is* the dataset;
 2. codegen: ``ddpc-codegen codegen <config> --dataset <log>`` (unchanged CLI, no glue); the
    config is configs/flying.toml with ``[predictor] method = "lsq"`` (``--predictor config``
-   keeps the file's "pem": on this data it steers far worse, 0.086 vs 0.005 m RMSE in-process);
+   keeps the file's "pem", which is biased on this data);
 3. baseline: the model-based controller alone over the link (``--mode passthrough``), 20 s;
 4. steered: the generated solver in the loop (``--mode steer``), 20 s;
 5. the same baseline / steered flights in-process (:func:`ddpc_codegen.sim.simulate` with the
