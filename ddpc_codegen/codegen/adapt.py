@@ -15,6 +15,7 @@ import numpy as np
 from ddpc_codegen.codegen.render import c_float, render_ctx
 from ddpc_codegen.codegen.tables import Tables, write_tables
 from ddpc_codegen.design.adaptation import adapter
+from ddpc_codegen.design.adapter import OFFSET_MARGIN
 from ddpc_codegen.values.adapt import AdaptSettings
 
 __all__ = ["emit_adapt", "context"]
@@ -42,7 +43,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
     # the held-out window, the period's columns a re-solve folds in, and two more periods of slack (a re-solve still
     # running when the next period comes) before a full queue refuses columns
     ring = s.window + 3 * s.period_ticks
-    ws_words = 2 * w * w + w + lay.r + 1 + 3 * q * lay.r + 2 * ring * w + (3 + 2 * FACTOR_BLOCK) * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 2 * qp.n_y
+    ws_words = 2 * w * w + w + lay.r + 1 + 3 * q * lay.r + 2 * ring * w + (3 + 2 * FACTOR_BLOCK) * w + nu * nu + qp_words + n_z * n_z + n_z * n_th + RES_BLOCK * lay.q_y + 3 * qp.n_y
     sparse = {k: _pairs(M) for k, M in (("lm", qp.Lm), ("rm", qp.Rm), ("c0", qp.C0), ("b", qp.B), ("wd", qp.Wd))}
     return {"banner": banner, "name": name, "NAME": name.upper(), "m": lay.m, "p": lay.p, "t_ini": lay.t_ini,
             "t_f": lay.t_f, "depth": lay.depth, "width": w, "r": lay.r, "q": q, "q_y": lay.q_y, "q_s": lay.q_s,
@@ -55,7 +56,7 @@ def context(ad, problem, name: str, banner: str) -> dict:
             "n_o": n_o, "n_wu": n_wu, "n_gy": int(qp.y_rows.size),
             "y_rows": qp.y_rows.tolist() or [0],
             "check_gain": int(qp.S0 is not None), "max_gain_change": c_float(min(qp.max_gain_change, 1e300)),
-            "offset": int(s.offset), "max_offset": [min(v, 1e300) for v in ad.max_offset],
+            "offset": int(s.offset), "max_offset": ad.max_offset.tolist(), "offset_margin": c_float(OFFSET_MARGIN),
             "p_data": problem.config.p, "t_ini_data": problem.config.t_ini,
             "win_idx": lay.row_order().tolist(),
             "nz2": n_z * n_z, "ngz": n_g1 * n_z, "nzth": n_z * n_th, "ngth": n_g1 * n_th,

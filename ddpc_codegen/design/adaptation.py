@@ -30,7 +30,7 @@ from ddpc_codegen.design.predictor import Predictor
 from ddpc_codegen.errors import ConfigError, DataError
 from ddpc_codegen.design.adapt_qp import QPData, QPModel, steady_state_gain
 from ddpc_codegen.design.adapter import AdaptLayout, Adapter
-from ddpc_codegen.values.adapt import AdaptSettings, SampleWindow
+from ddpc_codegen.values.adapt import AdaptSettings, SampleWindow, Swapped
 
 __all__ = ["fit_statistic", "fit_layout", "write_fit_statistic", "ship_fit_statistic", "qp_model", "adapter",
            "AdaptiveProblem", "installed",
@@ -231,11 +231,12 @@ class AdaptiveProblem:
     def adapt_resolve(self, snapshot: bool = True) -> str:
         return self.adapter.resolve(snapshot)
 
-    def adapt_swap(self) -> bool:
-        if not self.adapter.swap():
-            return False
-        self.problem = installed(self.shipped, self.adapter.qp_data)
-        return True
+    def adapt_swap(self) -> Swapped:
+        """Install what the last re-solve verified (G and its QP data, the output offset); what was installed."""
+        done = self.adapter.swap()
+        if done.g:
+            self.problem = installed(self.shipped, self.adapter.qp_data)
+        return done
 
     def adapt_refused(self) -> int:
         return self.adapter.counts["skipped"] + self.adapter.counts["dropped"]

@@ -31,8 +31,14 @@ Output offset (``[adapt] offset``, the offset-free MPC answer to a change the pr
 a payload or battery sag): closed-loop data explain such a change's constant offset only by distorting G's gains,
 which the gain check refuses. Instead each re-solve stages b (p Tf,), the mean residual y_f - Gy z of the recent
 window in data units, against the G that is current after the swap (the candidate when it was accepted, else
-the current one: offset and G always belong together), clipped per output to ``max_offset``. The steering then
-aims at y_des - b (||Gy z + b - y_des||^2 = ||Gy z - (y_des - b)||^2: the QP data do not change).
+the current one: offset and G always belong together), clipped per output to ``max_offset`` (by default
+:data:`OFFSET_SPAN` fit-domain standard deviations mapped to output units: about the recorded outputs' span).
+It has its own verification, whatever the verdict on G: finite, and a smaller sum of absolute residuals
+|y_f - Gy z - b| on the recent window (each output over its channel scale) than the offset in use -- the mean
+that a few outliers or absurd columns drag away predicts the window's other columns worse, so it is refused
+(``offset_rejected``). The swap installs only what was verified (:class:`~ddpc_codegen.values.adapt.Swapped`).
+The steering then aims at y_des - b (||Gy z + b - y_des||^2 = ||Gy z - (y_des - b)||^2: the QP data do not
+change).
 """
 
 from __future__ import annotations
@@ -44,13 +50,20 @@ import numpy as np
 
 from ddpc_codegen.errors import DataError
 from ddpc_codegen.design.adapt_qp import QPData, QPModel
-from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings
+from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings, Swapped
 from ddpc_codegen.values.fit_layout import FitLayout
 
 __all__ = ["AdaptLayout", "Adapter", "givens_update", "slack_rows", "data_trace", "with_ridge",
-           "solve_g", "excitation_ratio"]
+           "solve_g", "excitation_ratio", "OFFSET_SPAN", "OFFSET_MARGIN"]
 
 AdaptLayout = FitLayout  # the online update's name for the fit's layout
+
+# The default max_offset: this many fit-domain units (the recorded data's standard deviation per channel) per
+# residual entry, in output units: about the span of the recorded outputs (an offset beyond it is no payload)
+OFFSET_SPAN = 4.0
+# The offset check's margin: an estimate must cut the window's error by more than this fraction (a cut within
+# rounding, e.g. of a window dominated by absurd columns, is none; the C and numpy verdicts agree on it)
+OFFSET_MARGIN = 1e-9
 
 
 def givens_update(R: np.ndarray, x: np.ndarray, forgetting: float = 1.0) -> None:
@@ -152,7 +165,8 @@ class Adapter:
     (m+p,): the fit's channel scale; slack_weight, ridge, rcond: the fit's options; qp: the QP's :class:`~ddpc_codegen.design.adapt_qp.QPModel`
     or None (then no QP data are rebuilt and the Hessian is not checked). ``qp_data``: the QP data of the
     current G (None until the first swap: the shipped data are in use). ``offset`` (p Tf,): the output offset in
-    use (data units, time-major; zeros until the first offset swap), ``pending_offset`` the staged one.
+    use (data units, time-major; zeros until the first offset swap), ``offset_estimate`` the last re-solve's
+    (clipped; None when not finite), ``pending_offset`` it once verified, until the swap.
     """
 
     layout: AdaptLayout
@@ -193,19 +207,25 @@ class Adapter:
         self.pending: np.ndarray | None = None
         self.pending_qp: QPData | None = None
         self.qp_data: QPData | None = None
-        self.max_offset = _max_offset(s.max_offset, self.layout.p)
         lay = self.layout
         # fit-domain output residual (q_y,) -> data units (p Tf,): the data-unit predictor's map of G's Yf rows
         self.offset_map = (self.qp.Lm[: self.qp.n_y, : lay.q_y] if self.qp is not None
                            else np.diag(np.tile(self.scale[lay.m :], lay.t_f)))
+        rows = np.abs(self.offset_map).sum(axis=1)  # (a hand-made QP model may predict no output: the scale's)
+        span = OFFSET_SPAN * (rows.reshape(lay.t_f, lay.p).max(axis=0) if rows.size == lay.t_f * lay.p
+                              else self.scale[lay.m :])
+        self.max_offset = _max_offset(s.max_offset, lay.p, span)
+        self.offset_weight = 1.0 / np.tile(self.scale[lay.m :], lay.t_f)  # the verification's per-entry weight
         self.offset = np.zeros(self.offset_map.shape[0])
+        self.offset_estimate: np.ndarray | None = None
         self.pending_offset: np.ndarray | None = None
         # "folded": columns in R (here as they leave the window: the reference has no tick to keep short);
         # "dropped": never here, the C refuses columns only when its bounded queue is full
         self.counts = {"updates": 0, "skipped": 0, "dropped": 0, "folded": 0, "resolves": 0, "accepted": 0, "swaps": 0, "clipped": 0,
                        **{f"rejected_{k}": 0 for k in REJECTIONS},
                        **{k: 0 for k in OFFSET_COUNTS}, "offset_norm": 0.0,
-                       "error_current": 0.0, "error_candidate": 0.0}  # of the last error check
+                       "error_current": 0.0, "error_candidate": 0.0,  # of the last error check
+                       "offset_error_current": 0.0, "offset_error_candidate": 0.0}  # of the last offset check
 
     def push(self, window: np.ndarray) -> bool:
         """One new Hankel column from a time-major window (depth, m+p) in data units: into the recent window;
@@ -259,14 +279,14 @@ class Adapter:
             self.snapshot()
         self.counts["resolves"] += 1
         # a new re-solve replaces any candidate not yet swapped in
-        self.pending, self.pending_qp, self.pending_offset = None, None, None
+        self.pending, self.pending_qp, self.pending_offset, self.offset_estimate = None, None, None, None
         G, _ = solve_g(self._R_snap, self.layout, self.slack_weight, self.rcond)
         reason = self._verify(G)
         if reason is None:
             self.counts["accepted"] += 1
         else:
             self.counts[f"rejected_{reason}"] += 1
-        if self.settings.offset:  # whatever the verdict: against the G current after the swap
+        if self.settings.offset:  # whatever the verdict on G: against the G current after the swap
             self._stage_offset(self.G if self.pending is None else self.pending)
         return reason or "accepted"
 
@@ -280,8 +300,17 @@ class Adapter:
         e = (cols[:, r : r + q_y] - cols[:, :r] @ G[:q_y].T).mean(axis=0)
         return self.offset_map @ e
 
+    def offset_errors(self, G: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+        """(of b, of the offset in use): the sums over the snapshot's recent window of |y_f - Gy z - offset| (data
+        units, each entry over its output's channel scale) under the fit-domain G."""
+        cols, r, q_y = self._recent_snap, self.layout.r, self.layout.q_y
+        d = (cols[:, r : r + q_y] - cols[:, :r] @ G[:q_y].T) @ self.offset_map.T
+        w = self.offset_weight
+        return float(np.sum(np.abs(d - b) * w)), float(np.sum(np.abs(d - self.offset) * w))
+
     def _stage_offset(self, G: np.ndarray) -> None:
-        """Stage the offset of G: refused (counted) when not finite, clipped per output to max_offset (counted)."""
+        """Estimate the offset of G, clipped per output to max_offset (counted), and stage it if verified: finite
+        and predicting the recent window better than the offset in use (else refused, counted)."""
         with np.errstate(all="ignore"):
             b = self.offset_of(G)
         if b is None:
@@ -293,6 +322,13 @@ class Adapter:
         if np.any(np.abs(b) > lim):
             b = np.clip(b, -lim, lim)
             self.counts["offset_clipped"] += 1
+        self.offset_estimate = b
+        with np.errstate(all="ignore"):  # absurd (1e300) columns: inf / NaN sums, refused below
+            e_b, e_0 = self.offset_errors(G, b)
+        self.counts["offset_error_candidate"], self.counts["offset_error_current"] = e_b, e_0
+        if not e_b < (1.0 - OFFSET_MARGIN) * e_0:
+            self.counts["offset_rejected"] += 1
+            return
         self.pending_offset = b
 
     def _verify(self, G: np.ndarray | None) -> str | None:
@@ -311,31 +347,34 @@ class Adapter:
         cols = self._recent_snap
         if excitation_ratio(cols, self.layout) < self.settings.min_excitation:
             return "excitation"
-        e_c, e_g = _prediction_error(G, cols, self.layout), _prediction_error(self.G, cols, self.layout)
+        with np.errstate(over="ignore", invalid="ignore"):  # absurd (1e300) columns: inf, refused below
+            e_c, e_g = _prediction_error(G, cols, self.layout), _prediction_error(self.G, cols, self.layout)
         self.counts["error_candidate"], self.counts["error_current"] = e_c, e_g
         if not e_c < (1.0 - self.settings.min_improvement) * e_g:
             return "prediction"
         self.pending, self.pending_qp = G, data
         return None
 
-    def swap(self) -> bool:
-        """Make the verified candidate G and the staged offset current (call between ticks); True when a G was
-        swapped in (an offset alone is counted in ``offset_swaps``)."""
+    def swap(self) -> Swapped:
+        """Make the verified candidate G and the verified offset current (call between ticks); what was
+        installed."""
         swapped = self.pending is not None
         if swapped:
             self.G, self.pending = self.pending, None
             if self.pending_qp is not None:
                 self.qp_data, self.pending_qp = self.pending_qp, None
             self.counts["swaps"] += 1
-        if self.pending_offset is not None:
+        offset = self.pending_offset is not None
+        if offset:
             self.offset, self.pending_offset = self.pending_offset, None
             self.counts["offset_swaps"] += 1
             self.counts["offset_norm"] = float(np.linalg.norm(self.offset))
-        return swapped
+        return Swapped(swapped, offset)
 
 
-def _max_offset(value, p: int) -> np.ndarray:
-    """[adapt] max_offset as (p,) bounds > 0 (one number for every output, or one per output)."""
+def _max_offset(value, p: int, default: np.ndarray) -> np.ndarray:
+    """[adapt] max_offset as (p,) finite bounds > 0 (one number for every output, or one per output; inf: the
+    output's entry of ``default`` (p,))."""
     try:
         bad = isinstance(value, bool) or any(isinstance(x, bool) for x in np.ravel(np.asarray(value, dtype=object)))
         v = np.array([np.nan]) if bad else np.asarray(value, dtype=float)
@@ -343,4 +382,5 @@ def _max_offset(value, p: int) -> np.ndarray:
         v = np.array([np.nan])
     if v.ndim > 1 or (v.ndim == 1 and v.size != p) or np.any(np.isnan(v)) or np.any(v <= 0):
         raise DataError(f"[adapt] max_offset must be one number > 0 or {p} of them (one per output); got {value!r}")
-    return np.broadcast_to(v, (p,)).astype(float)
+    v = np.broadcast_to(v, (p,)).astype(float)
+    return np.where(np.isinf(v), default, v)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ddpc_codegen.errors import ManifestError
 from ddpc_codegen.runtime.guard import Guard
-from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings, SampleWindow
+from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings, SampleWindow, Swapped
 
 __all__ = ["GeneratedAdaptation"]
 
@@ -72,11 +72,12 @@ class GeneratedAdaptation:
             code = self._fn["resolve"](self._ws)
         return "accepted" if code == 0 else REJECTIONS[code - 1]
 
-    def swap(self) -> bool:
-        """Install a verified candidate into the solver's workspace (its warm start is dropped)."""
+    def swap(self) -> Swapped:
+        """Install a verified candidate G into the solver's workspace (its warm start is dropped) and a verified
+        output offset; what was installed."""
         with self._tick.held("adapt_swap"), \
                 self._resolving.held("adapt_swap (a re-solve runs)"):
-            return self._fn["swap"](self._ws, self._solver._ws) == 1
+            return Swapped.of_code(self._fn["swap"](self._ws, self._solver._ws))
 
     def refused(self) -> int:
         """Columns not taken (skipped NaN/inf + dropped on a full queue): counters only push() writes, so safe to
@@ -89,7 +90,8 @@ class GeneratedAdaptation:
         out = {k: int(getattr(c, k)) for k in _COUNTS}
         out.update({f"rejected_{r}": int(c.rejected[i + 1]) for i, r in enumerate(REJECTIONS)})
         out.update({k: int(getattr(c, k)) for k in OFFSET_COUNTS}, offset_norm=float(c.offset_norm))
-        out.update({k: float(getattr(c, k)) for k in ("error_current", "error_candidate")})  # the last error check
+        out.update({k: float(getattr(c, k)) for k in ("error_current", "error_candidate",  # the last error checks
+                                                      "offset_error_current", "offset_error_candidate")})
         return out
 
     def offset(self) -> np.ndarray:

@@ -10,7 +10,7 @@ generated solver built with ``[adapt] enabled`` or the interpreted
 Guards for closed-loop data: only steered ticks (engaged, fresh, not a fallback) update; any other tick
 breaks the window (the next column needs depth steered ticks in a row). Every ``period_ticks`` updates G
 is re-solved, verified and, if accepted, swapped in before the next tick; with ``[adapt] offset`` the output
-offset staged by every re-solve (accepted or not) is swapped in too.
+offset every re-solve estimates (whatever the verdict on G) is swapped in too once it passed its own check.
 
 ``background=True`` (the bridge): a re-solve takes tens of ms at flight sizes, far more than a 5 ms tick, so
 the tick only queues columns and takes the snapshot (``adapt_snapshot()``; the generated C folds the queued
@@ -63,8 +63,8 @@ class AdaptEvent:
     the norm of the output offset in use after it (data units; 0 without ``[adapt] offset``), the tick of the
     snapshot it read (the same tick when synchronous), in the background its wall time in the worker [ms], and
     for a verdict of the error check ("accepted", "prediction") the candidate's prediction error on the recent
-    window over the current G's (``[adapt] min_improvement`` asks it to be below 1 - min_improvement).
-    Ticks count :meth:`OnlineAdaptation.tick` calls from 0."""
+    window over the current G's (``[adapt] min_improvement`` asks it to be below 1 - min_improvement), and
+    whether a new output offset was swapped in. Ticks count :meth:`OnlineAdaptation.tick` calls from 0."""
 
     tick: int
     verdict: str
@@ -73,6 +73,7 @@ class AdaptEvent:
     snapshot_tick: int = -1
     resolve_ms: float = math.nan
     error_ratio: float = math.nan
+    offset_swapped: bool = False
 
 
 @dataclass
@@ -166,12 +167,12 @@ class OnlineAdaptation:
         return self.last
 
     def _land(self, verdict: str, ms: float, snapshot_tick: int) -> None:
-        """A re-solve's verdict on this tick: swap (always: a refused G may still come with a new offset)."""
-        swapped = bool(self.solver.adapt_swap())
+        """A re-solve's verdict on this tick: swap (always: a refused G may still come with a verified offset)."""
+        done = self.solver.adapt_swap()
         counts = self.solver.adapt_counts()
         self.offset_norm = float(counts.get("offset_norm", 0.0))
-        self.events.append(AdaptEvent(self._tick - 1, verdict, swapped, self.offset_norm, snapshot_tick, ms,
-                                      _error_ratio(verdict, counts)))
+        self.events.append(AdaptEvent(self._tick - 1, verdict, done.g, self.offset_norm, snapshot_tick, ms,
+                                      _error_ratio(verdict, counts), done.offset))
         self.last = verdict
 
     def close(self) -> None:
@@ -190,13 +191,14 @@ class OnlineAdaptation:
 
     def summary(self) -> dict:
         """The solver's counters and the re-solves (tick of the verdict / swap, verdict, G swapped, offset norm
-        after it, tick of the snapshot, re-solve wall time [ms], error ratio); joins a running re-solve first (:meth:`close`)."""
+        after it, tick of the snapshot, re-solve wall time [ms], error ratio, offset swapped); joins a running
+        re-solve first (:meth:`close`)."""
         self.close()
         return {"counts": dict(self.solver.adapt_counts()), "period_ticks": self.period_ticks,
                 "dither": self.dither.tolist(), "background": self.background, "busy": self.busy,
                 "discarded": self.discarded,
-                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm, e.snapshot_tick, e.resolve_ms, e.error_ratio]
-                           for e in self.events]}
+                "events": [[e.tick, e.verdict, e.swapped, e.offset_norm, e.snapshot_tick, e.resolve_ms, e.error_ratio,
+                            e.offset_swapped] for e in self.events]}
 
 
 def _error_ratio(verdict: str, counts: dict) -> float:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.values.config import SteeringConfig
+from ddpc_codegen.values.adapt import Swapped
 from ddpc_codegen.values.solve_result import SteeringResult, stack_window
 from ddpc_codegen.errors import DataError, ManifestError
 from ddpc_codegen.runtime.manifest import check_files, read_manifest, sha256_file
@@ -164,8 +165,9 @@ class GeneratedSolver:
         take the snapshot first; False: from the last :meth:`adapt_snapshot` (may run in another thread)."""
         return self._adapt().resolve(snapshot)
 
-    def adapt_swap(self) -> bool:
-        """Make a verified candidate current (between ticks); False when none is pending."""
+    def adapt_swap(self) -> Swapped:
+        """Make what the last re-solve verified current (between ticks): which of G and the output offset were
+        installed (neither: nothing verified was pending, or the QP backend refused the new data)."""
         return self._adapt().swap()
 
     def adapt_refused(self) -> int:
@@ -175,8 +177,8 @@ class GeneratedSolver:
 
     def adapt_counts(self) -> dict:
         """updates (columns taken), skipped (NaN/inf), dropped (queue full), folded (columns in R), resolves,
-        accepted, swaps, clipped, rejected_<reason>, offset_swaps, offset_clipped, offset_rejected counters and
-        offset_norm (the norm of the output offset in use)."""
+        accepted, swaps, clipped, rejected_<reason>, offset_swaps, offset_clipped, offset_rejected counters,
+        offset_norm (the norm of the output offset in use) and the last verifications' errors."""
         return self._adapt().counts()
 
     def adapt_offset(self) -> np.ndarray:

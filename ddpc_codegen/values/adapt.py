@@ -12,7 +12,7 @@ import numpy as np
 
 from ddpc_codegen.errors import ConfigError
 
-__all__ = ["AdaptSettings", "adapt_settings", "SampleWindow", "REJECTIONS", "OFFSET_COUNTS"]
+__all__ = ["AdaptSettings", "adapt_settings", "SampleWindow", "Swapped", "REJECTIONS", "OFFSET_COUNTS"]
 
 # Reasons a candidate G is rejected (the C code's codes 1..6, in this order). Checked in the order rank, nonfinite,
 # gain, (QP data) nonfinite, hessian, excitation, prediction -- numpy and C alike.
@@ -21,6 +21,28 @@ REJECTIONS = ("rank", "nonfinite", "hessian", "excitation", "prediction", "gain"
 
 # The output offset's counters (besides offset_norm, the norm of the offset in use, data units).
 OFFSET_COUNTS = ("offset_swaps", "offset_clipped", "offset_rejected")
+
+
+@dataclass(frozen=True)
+class Swapped:
+    """What one swap installed: ``g`` the verified candidate G (and its QP data), ``offset`` the verified output
+    offset; true when either was. ``code``: the generated ``<name>_adapt_swap``'s result (1 G, 2 offset, 3 both)."""
+
+    g: bool = False
+    offset: bool = False
+
+    def __bool__(self) -> bool:
+        return self.g or self.offset
+
+    @property
+    def code(self) -> int:
+        return int(self.g) | 2 * int(self.offset)
+
+    @classmethod
+    def of_code(cls, code: int) -> Swapped:
+        """From ``<name>_adapt_swap``'s result (-1, the QP backend refused the data: nothing installed)."""
+        return cls(code > 0 and bool(code & 1), code > 0 and bool(code & 2))
+
 
 @dataclass(frozen=True)
 class AdaptSettings:
@@ -44,7 +66,9 @@ class AdaptSettings:
     offset: estimate and apply the predictor's output offset b (see the module docstring); off by default (for the
         incremental form, which is offset-free by construction, it is rarely useful).
     max_offset: the largest |b| per output (output units; one number for every output or one per output); a
-        larger estimate is clipped to it and counted (``offset_clipped``).
+        larger estimate is clipped to it and counted (``offset_clipped``). inf (the default): derived from the
+        fit's data, a few of its recorded standard deviations per output (about the recorded outputs' span).
+        A staged offset is installed only when finite and better than the one in use on the recent window.
     """
 
     enabled: bool = False

@@ -76,7 +76,7 @@ def test_steered_ticks_update_and_the_tick_log_records_every_update_verdict_and_
     # the offset in use: one per re-solve, as the events record it, unchanged between re-solves
     off = t["adapt_offset"]
     assert np.all(np.isfinite(off[steered])) and np.isnan(off).any()  # nan: ticks the steering did not decide
-    assert s["counts"]["offset_swaps"] == len(resolves)
+    assert s["counts"]["offset_swaps"] == sum(e[7] for e in landed) >= 1  # the verified ones (issue 46)
     np.testing.assert_array_equal(off[resolves], [e[3] for e in landed])
     assert landed[-1][3] == s["counts"]["offset_norm"] > 0.0
     rows = np.nonzero(steered)[0]

@@ -13,7 +13,7 @@ from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import fit_predictor
 from ddpc_codegen.design.problem import SteeringProblem
 from ddpc_codegen.runtime.adapt_loop import OnlineAdaptation
-from ddpc_codegen.values.adapt import AdaptSettings
+from ddpc_codegen.values.adapt import AdaptSettings, Swapped
 from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from support.lti import random_lti
@@ -123,9 +123,9 @@ class _GatedSolver:
         assert self.gate.wait(5.0)
         return "prediction" if len(self.calls) % 2 else "accepted"
 
-    def adapt_swap(self) -> bool:
+    def adapt_swap(self) -> Swapped:
         self.swaps += 1
-        return len(self.calls) % 2 == 0
+        return Swapped(g=len(self.calls) % 2 == 0)
 
     def adapt_refused(self) -> int:
         return 0
@@ -180,7 +180,7 @@ def test_background_schedule_on_the_twin_equals_its_snapshot_semantics():
     verdicts = []
     for k, (u, y) in enumerate(zip(us, ys)):
         if k in lands:
-            verdicts.append((ref.adapt_resolve(False), ref.adapt_swap()))
+            verdicts.append((ref.adapt_resolve(False), ref.adapt_swap().g))
         ref.adapt_push(u, y)
         if k in snaps:
             ref.adapt_snapshot()
