@@ -1,0 +1,296 @@
+"""The transparent MAVLink proxy: several app / ground-station clients on one side, the vehicle on
+the other, every byte forwarded unchanged both ways in arrival order.
+
+- App side: a UDP server (``udpin:HOST:PORT``). Each distinct source address is a client; it is
+  forgotten after ``client_timeout`` seconds of silence (and comes back with its next datagram).
+- Vehicle side: one connection (``udpin:`` -- the first sender is the vehicle, others are counted
+  and dropped --, ``udpout:``, ``tcp:`` client with reconnects, or a serial device), the transports
+  of :mod:`firmware_bridge.transports`.
+- Vehicle -> every client. Client -> vehicle. Client -> the other clients only with
+  ``between_clients`` (off by default: each client then sees the vehicle as if it were alone on a
+  direct link, which is what an autopilot's own UDP port gives it).
+- Datagrams go out whole, as they came (garbage included: the receiver's parser copes as it would
+  without the proxy). From a byte stream, each complete frame goes to the UDP clients as its own
+  datagram; into a byte stream only whole frames are written (garbage cannot desync the stream).
+- Frames are located and their checksums checked (:mod:`.frames`) to count them; only a candidate
+  for rewriting is decoded, and only the rewrite hook (:mod:`.rewrite`) can change bytes.
+"""
+
+from __future__ import annotations
+
+import select
+import time
+from typing import Any, Callable
+
+from firmware_bridge.proxy.frames import STX_V2, split_frames
+from firmware_bridge.proxy.rewrite import SETPOINT_MSGID, SetpointRewrite, decode_frame, has_position
+from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
+from firmware_bridge.transports import LinkError, UdpTransport, open_transport, parse_url
+
+__all__ = ["Proxy"]
+
+_POLL_S = 0.1  # housekeeping period: reconnects, client expiry, the stop check
+
+
+def _msgid(buf: bytes, i: int) -> int:
+    return buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16 if buf[i] == STX_V2 else buf[i + 5]
+
+
+class Proxy:
+    """A transparent MAVLink proxy (see the module docstring).
+
+    Args:
+        app: the app side, ``udpin:HOST:PORT``.
+        vehicle: the vehicle side (``udpin:``/``udpout:``/``tcp:`` or a serial device).
+        rewrite: the setpoint hook; None: pass-through.
+        baud: a serial vehicle's baud rate (default from the string, else 921600).
+        between_clients: also forward each client's datagrams to the other clients.
+        client_timeout: forget a client silent this long [s].
+        reconnect_interval: seconds between attempts to reopen a failed vehicle link.
+    """
+
+    def __init__(self, app: str, vehicle: str, *, rewrite: SetpointRewrite | None = None,
+                 baud: int | None = None, between_clients: bool = False, client_timeout: float = 5.0, reconnect_interval: float = 1.0,
+                 ring_size: int = 1 << 16) -> None:
+        ep = parse_url(app)
+        if ep.kind != "udpin":
+            raise ValueError(f"--app {app!r}: the app side is a UDP server, udpin:HOST:PORT")
+        self.app_url, self.vehicle_url = app, vehicle
+        self.apps = UdpTransport(ep.host, ep.port, listen=True)
+        self.vehicle_ep = parse_url(vehicle, baud)
+        self.vehicle: Any = None
+        self.rewrite = rewrite
+        self.between_clients = between_clients
+        self.client_timeout, self.reconnect_interval = client_timeout, reconnect_interval
+        self.clients: dict[Any, list] = {}  # address -> [last heard (monotonic), datagrams in, datagrams out]
+        self.setpoint_client: Any = None  # the client whose setpoints are the app's (first to send one)
+        self.setpoints = SetpointPeriod()
+        self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
+        self.events = dict.fromkeys(("clients_joined", "clients_expired", "foreign_setpoints", "rewrite_errors",
+                                     "vehicle_foreign", "vehicle_link_errors", "vehicle_reconnects",
+                                     "between_clients"), 0)
+        self.vehicle_peer: Any = None
+        self.last_error = ""
+        self._vbuf = bytearray()  # a byte-stream vehicle's partial frame
+        self._next_open = 0.0
+        self._poll = select.poll()
+        self._vfd: int | None = None
+        self._poll.register(self.apps.fileno(), select.POLLIN)
+        self._t0 = time.monotonic()
+        self._open_vehicle(self._t0)
+
+    # ------------------------------------------------------------------ vehicle link
+    def _open_vehicle(self, now: float) -> None:
+        try:
+            self.vehicle = open_transport(self.vehicle_ep)
+        except (OSError, LinkError) as e:
+            if self.vehicle_ep.kind == "udpin":
+                raise  # a port we cannot bind is a configuration error
+            self.vehicle, self._next_open = None, now + self.reconnect_interval
+            self.events["vehicle_link_errors"] += 1
+            self.last_error = str(e)
+            return
+        self._vbuf.clear()
+        self._vfd = self.vehicle.fileno()
+        self._poll.register(self._vfd, select.POLLIN)
+
+    def _vehicle_down(self, now: float) -> None:
+        self.events["vehicle_link_errors"] += 1
+        if self._vfd is not None:
+            self._poll.unregister(self._vfd)
+            self._vfd = None
+        if self.vehicle is not None:
+            try:
+                self.vehicle.close()
+            except OSError:
+                pass
+        self.vehicle, self._next_open = None, now + self.reconnect_interval
+
+    def _to_vehicle(self, buf: bytes, now: float) -> bool:
+        v = self.vehicle
+        if v is None:
+            return False
+        try:
+            return v.write(buf)
+        except LinkError as e:
+            self.last_error = str(e)
+            self._vehicle_down(now)
+            return False
+
+    # ------------------------------------------------------------------ the loop
+    def run(self, duration: float | None = None, stop: Callable[[], bool] = lambda: False) -> None:
+        """Forward until ``stop()`` is true or ``duration`` seconds have passed."""
+        end = None if duration is None else time.monotonic() + duration
+        apps_fd = self.apps.fileno()
+        while not stop():
+            now = time.monotonic()
+            if end is not None and now >= end:
+                break
+            if self.vehicle is None and now >= self._next_open:
+                self.events["vehicle_reconnects"] += 1
+                self._open_vehicle(now)
+            for fd, _ev in self._poll.poll(_POLL_S * 1000):
+                if fd == apps_fd:
+                    for data, addr, ts in self.apps.read():
+                        self._from_client(data, addr, ts if ts is not None else time.time())
+                elif fd == self._vfd:
+                    self._read_vehicle()
+            self._expire(time.monotonic())
+
+    def _read_vehicle(self) -> None:
+        v = self.vehicle
+        try:
+            chunks = v.read()
+        except LinkError as e:
+            self.last_error = str(e)
+            self._vehicle_down(time.monotonic())
+            return
+        for data, addr, ts in chunks:
+            self._from_vehicle(data, addr, ts if ts is not None else time.time())
+
+    def _expire(self, now: float) -> None:
+        old = [a for a, c in self.clients.items() if now - c[0] > self.client_timeout]
+        for a in old:
+            del self.clients[a]
+            self.events["clients_expired"] += 1
+            if a == self.setpoint_client:
+                self.setpoint_client = None
+
+    # ------------------------------------------------------------------ app -> vehicle
+    def _from_client(self, data: bytes, addr: Any, t_rx: float) -> None:
+        st = self.up.c
+        st["datagrams"] += 1
+        c = self.clients.get(addr)
+        if c is None:
+            c = self.clients[addr] = [0.0, 0, 0]
+            self.events["clients_joined"] += 1
+        c[0] = time.monotonic()
+        c[1] += 1
+        spans, garbage, _ = split_frames(data)
+        st["received"] += len(spans)
+        st["garbage_bytes"] += garbage
+        replaced: dict[int, bytes] = {}
+        for i, n in spans:
+            if _msgid(data, i) == SETPOINT_MSGID:
+                r = self._setpoint(addr, data[i:i + n], t_rx)
+                if r is not None:
+                    replaced[i] = r
+        if self.vehicle is None or self.vehicle.datagram:
+            out = _splice(data, spans, replaced)
+        elif garbage or replaced:  # into a byte stream only whole frames
+            out = b"".join(replaced.get(i) or data[i:i + n] for i, n in spans)
+        else:
+            out = data
+        if out and self._to_vehicle(out, time.monotonic()):
+            st["forwarded"] += len(spans)
+            self.up.latency.add(time.time() - t_rx)
+        else:
+            st["dropped"] += len(spans)
+            v = self.vehicle
+            if out and v is not None and not (v.datagram and v.peer is None):  # not merely "vehicle unheard yet"
+                st["send_errors"] += 1
+        if self.between_clients:
+            for a in self.clients:
+                if a != addr and self._to_client(a, data):
+                    self.events["between_clients"] += 1
+
+    def _setpoint(self, addr: Any, frame: bytes, t_rx: float) -> bytes | None:
+        if self.setpoint_client is None:
+            self.setpoint_client = addr
+        if addr != self.setpoint_client:
+            self.events["foreign_setpoints"] += 1  # not the app's: never steered
+            return None
+        self.setpoints.add(t_rx)
+        if self.rewrite is None:
+            return None
+        msg = decode_frame(frame)
+        if msg is None or not has_position(msg):
+            return None
+        try:
+            r = self.rewrite(msg, frame, t_rx)
+        except Exception:  # any fault of the hook: the app's own setpoint goes out
+            self.events["rewrite_errors"] += 1
+            return None
+        if r is None:
+            return None
+        r = bytes(r)
+        spans, garbage, _ = split_frames(r)
+        if garbage or len(spans) != 1 or _msgid(r, 0) != SETPOINT_MSGID:
+            self.events["rewrite_errors"] += 1
+            return None
+        self.up.c["rewritten"] += 1
+        return r
+
+    # ------------------------------------------------------------------ vehicle -> apps
+    def _from_vehicle(self, data: bytes, addr: Any, t_rx: float) -> None:
+        st = self.down.c
+        st["datagrams"] += 1
+        v = self.vehicle
+        if v.datagram:
+            if addr is not None and v.peer is None:  # udpin: the first sender is the vehicle
+                v.peer = self.vehicle_peer = addr
+            elif addr is not None and v.peer is not None and addr != v.peer:
+                self.events["vehicle_foreign"] += 1
+                return
+            spans, garbage, _ = split_frames(data)
+            outs = [(data, len(spans))]
+        else:
+            self._vbuf += data
+            spans, garbage, used = split_frames(self._vbuf, final=False)
+            outs = [(bytes(self._vbuf[i:i + n]), 1) for i, n in spans]
+            del self._vbuf[:used]
+        st["received"] += len(spans)
+        st["garbage_bytes"] += garbage
+        lat = self.down.latency
+        for buf, frames in outs:
+            if not self.clients:
+                st["dropped"] += frames
+                continue
+            for a in self.clients:
+                if self._to_client(a, buf):
+                    st["forwarded"] += frames
+                    lat.add(time.time() - t_rx)
+                else:
+                    st["dropped"] += frames
+                    st["send_errors"] += 1
+
+    def _to_client(self, addr: Any, buf: bytes) -> bool:
+        try:
+            self.apps.sock.sendto(buf, addr)
+        except OSError:  # full buffer, unreachable: that client misses this datagram
+            return False
+        self.clients[addr][2] += 1
+        return True
+
+    # ------------------------------------------------------------------ results
+    def summary(self) -> dict:
+        """The counters, latencies [us] and the app's setpoint period, JSON-ready."""
+        return {
+            "app": self.app_url, "vehicle": self.vehicle_url, "uptime_s": time.monotonic() - self._t0,
+            "vehicle_peer": list(self.vehicle_peer) if self.vehicle_peer else None,
+            "between_clients": self.between_clients, "rewrite_hook": self.rewrite is not None,
+            "app_to_vehicle": self.up.summary(), "vehicle_to_app": self.down.summary(),
+            "setpoints": {**self.setpoints.summary(),
+                          "client": list(self.setpoint_client) if self.setpoint_client else None},
+            "clients": [{"address": list(a), "datagrams_in": c[1], "datagrams_out": c[2]}
+                        for a, c in self.clients.items()],
+            "events": dict(self.events), "last_vehicle_error": self.last_error,
+        }
+
+    def close(self) -> None:
+        self.apps.close()
+        if self.vehicle is not None:
+            self.vehicle.close()
+
+
+def _splice(data: bytes, spans: list[tuple[int, int]], replaced: dict[int, bytes]) -> bytes:
+    """``data`` with the frames starting at the keys of ``replaced`` swapped for their values."""
+    if not replaced:
+        return data
+    parts, last = [], 0
+    for i, n in spans:
+        if i in replaced:
+            parts += (data[last:i], replaced[i])
+            last = i + n
+    parts.append(data[last:])
+    return b"".join(parts)

@@ -1,0 +1,97 @@
+"""Helpers of the proxy tests: an in-process proxy in a thread, raw loopback sockets that collect what
+they receive, and MAVLink 1 / 2 frames encoded by pymavlink. Every wait is bounded."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+from pymavlink.dialects.v10 import common as mavlink1
+from pymavlink.dialects.v20 import common as mavlink2
+
+from firmware_bridge.proxy import Proxy
+
+from support.bridge_helpers import free_port
+
+
+class RunningProxy:
+    """A :class:`Proxy` running in a daemon thread until :meth:`stop`."""
+
+    def __init__(self, app: str, vehicle: str, **kw) -> None:
+        self.proxy = Proxy(app, vehicle, **kw)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self.proxy.run, kwargs={"stop": self._stop.is_set}, daemon=True)
+        self.thread.start()
+
+    def stop(self) -> dict:
+        self._stop.set()
+        self.thread.join(5)
+        assert not self.thread.is_alive()
+        self.proxy.close()
+        return self.proxy.summary()
+
+
+class Peer(threading.Thread):
+    """A raw UDP socket on 127.0.0.1 that records every datagram it receives (bytes, source)."""
+
+    def __init__(self, port: int = 0) -> None:
+        super().__init__(daemon=True)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.05)
+        self.port = self.sock.getsockname()[1]
+        self.got: list[bytes] = []
+        self.sources: set = set()
+        self._halt = threading.Event()
+        self.start()
+
+    def run(self) -> None:
+        while not self._halt.is_set():
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            self.got.append(data)
+            self.sources.add(addr)
+
+    def send(self, data: bytes, port: int) -> None:
+        self.sock.sendto(data, ("127.0.0.1", port))
+
+    def wait_for(self, n: int, timeout: float = 10.0) -> list[bytes]:
+        end = time.monotonic() + timeout
+        while len(self.got) < n and time.monotonic() < end:
+            time.sleep(0.01)
+        return list(self.got)
+
+    def close(self) -> None:
+        self._halt.set()
+        self.join(2)
+        self.sock.close()
+
+
+def mav(version: int, sysid: int, compid: int):
+    """A pymavlink encoder of MAVLink ``version`` (1 or 2) as (sysid, compid)."""
+    mod = mavlink1 if version == 1 else mavlink2
+    return mod.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+
+
+def frames(m, n: int, start: int = 0) -> list[bytes]:
+    """``n`` distinct frames from encoder ``m`` (heartbeats, attitude, named values), seq counting on."""
+    out = []
+    for k in range(start, start + n):
+        if k % 3 == 0:
+            msg = m.heartbeat_encode(2, 12, 0, k, 4)
+        elif k % 3 == 1:
+            msg = m.attitude_encode(k, 0.1 * k, -0.2, 0.3, 0.0, 0.0, 0.0)
+        else:
+            msg = m.named_value_int_encode(k, b"K", k)
+        out.append(bytes(msg.pack(m)))
+        m.seq = (m.seq + 1) % 256  # pymavlink counts on in send(), not in pack()
+    return out
+
+
+__all__ = ["RunningProxy", "Peer", "mav", "frames", "free_port", "mavlink2"]

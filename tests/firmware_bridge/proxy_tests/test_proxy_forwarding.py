@@ -1,0 +1,147 @@
+"""The transparent proxy in-process over loopback UDP: byte-exact, in-order forwarding both ways with
+two clients (an app and a ground station), MAVLink 1 and 2, garbage, a client that goes away, the
+optional client-to-client forwarding, and the latency / counter statistics."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from proxy_support import Peer, RunningProxy, frames, free_port, mav
+
+
+@pytest.fixture
+def rig():
+    """(proxy, vehicle, app, gcs, app port, vehicle port): both clients registered, the vehicle heard."""
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{vp}", client_timeout=0.5)
+    veh, app, gcs = Peer(), Peer(), Peer()
+    hello = frames(mav(2, 1, 1), 1)[0]
+    veh.send(hello, vp)
+    _until(lambda: rp.proxy.vehicle_peer is not None)
+    app.send(frames(mav(2, 245, 190), 1)[0], ap)
+    gcs.send(frames(mav(1, 255, 190), 1)[0], ap)
+    assert len(veh.wait_for(2, 5)) == 2
+    for p in (app, gcs):
+        p.got.clear()
+    veh.got.clear()
+    yield rp, veh, app, gcs, ap, vp
+    rp.stop()
+    for p in (veh, app, gcs):
+        p.close()
+
+
+def _until(cond, timeout: float = 5.0) -> None:
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+    assert cond()
+
+
+def _paced(send, items, every: int = 40) -> None:
+    for k, f in enumerate(items):
+        send(f)
+        if k % every == every - 1:
+            time.sleep(0.003)  # loopback UDP drops nothing unless a receive buffer overflows
+
+
+def test_vehicle_to_every_client_byte_exact_and_in_order(rig):
+    rp, veh, app, gcs, ap, vp = rig
+    m1, m2 = mav(1, 1, 1), mav(2, 1, 1)
+    sent = [f for k in range(1500) for f in (frames(m2, 1, k)[0], frames(m1, 1, k)[0])]  # seq wraps 11 times
+    _paced(lambda f: veh.send(f, vp), sent)
+    for p in (app, gcs):
+        assert p.wait_for(len(sent)) == sent
+    s = rp.stop()
+    d = s["vehicle_to_app"]
+    assert d["received"] == len(sent) + 1 and d["forwarded"] == 2 * len(sent)
+    assert d["dropped"] == 1 and d["send_errors"] == 0 and d["garbage_bytes"] == 0
+    lat = d["latency_us"]
+    assert lat["count"] == d["forwarded"] and 0 < lat["p50"] <= lat["p99"] <= lat["max"]
+
+
+def test_clients_to_vehicle_byte_exact_each_in_order(rig):
+    rp, veh, app, gcs, ap, vp = rig
+    a, g = frames(mav(2, 245, 190), 2000), frames(mav(1, 255, 190), 2000)
+    _paced(lambda f: (app.send(f[0], ap), gcs.send(f[1], ap)), list(zip(a, g)), every=20)
+    got = veh.wait_for(4000)
+    assert len(got) == 4000
+    assert [f for f in got if f in set(a)] == a and [f for f in got if f in set(g)] == g
+    time.sleep(0.1)
+    assert app.got == [] and gcs.got == []  # clients do not hear each other unless asked
+    s = rp.stop()
+    u = s["app_to_vehicle"]
+    assert u["received"] == u["forwarded"] == 4002 and u["dropped"] == 0
+    assert u["latency_us"]["count"] == 4002
+    assert sorted(c["datagrams_in"] for c in s["clients"]) == [2001, 2001]
+
+
+def test_garbage_is_forwarded_whole_and_counted(rig):
+    rp, veh, app, gcs, ap, vp = rig
+    f = frames(mav(2, 1, 1), 3)
+    junk = [b"\x00\x01\x02", b"\xfd\x05" + f[0][2:], f[1][:-3], b"noise" + f[2]]
+    for d in junk:
+        veh.send(d, vp)
+    assert app.wait_for(4) == junk and gcs.wait_for(4) == junk
+    app.send(b"\xfe\xff garbage", ap)
+    assert veh.wait_for(1) == [b"\xfe\xff garbage"]
+    s = rp.stop()
+    assert s["vehicle_to_app"]["received"] == 1 + 1 and s["vehicle_to_app"]["garbage_bytes"] > 0
+    assert s["app_to_vehicle"]["garbage_bytes"] == len(b"\xfe\xff garbage")
+
+
+def test_a_client_that_disappears_is_forgotten_and_the_others_keep_everything(rig):
+    rp, veh, app, gcs, ap, vp = rig
+    gcs.close()
+    m = mav(2, 1, 1)
+    sent = []
+    t_end = time.monotonic() + 1.2  # the proxy forgets a client after 0.5 s of silence
+    while time.monotonic() < t_end:
+        sent += frames(m, 5, len(sent))
+        for f in sent[-5:]:
+            veh.send(f, vp)
+        app.send(frames(mav(2, 245, 190), 1)[0], ap)  # the app keeps talking (heartbeats)
+        time.sleep(0.01)
+    assert app.wait_for(len(sent)) == sent
+    s = rp.stop()
+    assert s["events"]["clients_expired"] == 1 and len(s["clients"]) == 1
+    assert s["vehicle_to_app"]["send_errors"] == 0
+
+
+def test_between_clients_forwards_each_clients_messages_to_the_others():
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{vp}", between_clients=True)
+    veh, app, gcs = Peer(), Peer(), Peer()
+    try:
+        veh.send(frames(mav(2, 1, 1), 1)[0], vp)
+        _until(lambda: rp.proxy.vehicle_peer is not None)
+        gcs.send(frames(mav(2, 255, 190), 1)[0], ap)
+        time.sleep(0.1)
+        a = frames(mav(2, 245, 190), 3)
+        for f in a:
+            app.send(f, ap)
+        assert gcs.wait_for(3) == a and veh.wait_for(4)[1:] == a
+        assert rp.stop()["events"]["between_clients"] == 3
+    finally:
+        rp.stop()
+        for p in (veh, app, gcs):
+            p.close()
+
+
+def test_nothing_reaches_the_vehicle_before_it_is_heard_and_that_is_not_an_error():
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{vp}")
+    app = Peer()
+    try:
+        app.send(frames(mav(2, 245, 190), 1)[0], ap)
+        time.sleep(0.1)
+    finally:
+        s = rp.stop()
+        app.close()
+    assert s["app_to_vehicle"]["dropped"] == 1 and s["app_to_vehicle"]["send_errors"] == 0
+
+
+def test_the_app_side_must_be_a_udp_server():
+    with pytest.raises(ValueError, match="udpin"):
+        RunningProxy("udpout:127.0.0.1:14541", "udpin:127.0.0.1:14540")
