@@ -4,11 +4,11 @@ the solver fault-injection wrapper used by the tests."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ddpc_codegen.values.files import checked_output_file
 from ddpc_codegen.values.solve_result import SteeringResult
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.signals import check_per_reference
@@ -19,30 +19,25 @@ from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from firmware_bridge.baseline_modes import load_feedforward
 from firmware_bridge.link import mavlink
 from firmware_bridge.arg_checks import check_bridge_values
+from firmware_bridge.ticklog import log_file
 
 BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
 
 
-def check_output_path(path: str, flag: str, overwrite: bool = True) -> None:
-    """Before anything flies: ``path`` must be writable (its folder exists and takes new files), or
-    ValueError naming the flag and the path -- a log discovered unwritable after the flight is lost.
-    With ``overwrite`` False an existing file is refused too (a flight log is never replaced silently)."""
-    p = Path(path)
-    folder = p.parent if str(p.parent) else Path(".")
-    if p.is_dir():
-        raise ValueError(f"{flag} {path}: is a directory, not a file")
-    if not folder.is_dir():
-        raise ValueError(f"{flag} {path}: folder {folder} does not exist")
-    existed = p.exists()
-    if existed and not overwrite:
-        raise ValueError(f"{flag} {path}: exists; pass --overwrite to replace it")
-    try:  # a real open: permission bits say nothing for root or for special filesystems
-        with open(p, "ab"):
-            pass
-    except OSError as e:
-        raise ValueError(f"{flag} {path}: not writable ({e.strerror})") from None
-    if not existed:
-        p.unlink()
+def check_output_paths(log: str | None, summary: str | None, overwrite: bool) -> None:
+    """Before anything connects: the files the run writes -- the tick log where it is saved (``.npz``
+    normalised: ``--log X.log`` writes ``X.npz``) and the summary -- each absent or (with ``overwrite``) a
+    regular file, in a folder that takes new files, and not the same file; ValueError (one line naming the
+    flag) otherwise: a flight log is never replaced silently, nor discovered unwritable after the flight."""
+    written = {}
+    for flag, given, path in (("--log", log, log_file(log) if log else None), ("--summary", summary, summary)):
+        if not given:
+            continue
+        what = flag if str(path) == str(given) else f"{flag} {given}"
+        written[flag] = checked_output_file(path, what, overwrite=overwrite, error=ValueError)
+    if len(written) == 2 and written["--log"] == written["--summary"]:
+        raise ValueError(f"{summary}: --summary: the same file as --log {log} (it would replace the tick log)")
+
 
 __all__ = ["BridgeConfig", "FaultInjectingSolver", "FlightError", "NoVehicleError", "default_controller_config"]
 
@@ -122,8 +117,8 @@ class BridgeConfig:
         duration: stop after this long in off-board [s] (None: until signalled).
         timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
         lockstep: tick only on telemetry, controller time = vehicle time stamps.
-        log: tick log path (.npz; an IODataset); an existing file is refused unless ``overwrite``.
-        summary: JSON summary path.
+        log: tick log path (.npz; an IODataset; another suffix is replaced by ``.npz``).
+        summary: JSON summary path. An existing log or summary file is refused unless ``overwrite``.
         dataset_skip: seconds after each activation left out of the dataset part of the log.
         settle: seconds after activation excluded from the RMSE in the summary.
         excitation, excitation_hold, seed: collect-mode PRBS amplitude per channel, hold [ticks], seed
@@ -207,9 +202,7 @@ class BridgeConfig:
 
     def __post_init__(self) -> None:
         check_bridge_values(self)
-        for key, flag in (("log", "--log"), ("summary", "--summary")):
-            if getattr(self, key):
-                check_output_path(getattr(self, key), flag, overwrite=self.overwrite or key == "summary")
+        check_output_paths(self.log, self.summary, self.overwrite)
         if self.mode not in BRIDGE_MODES:
             raise ValueError(f"mode must be one of {', '.join(BRIDGE_MODES)}; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:

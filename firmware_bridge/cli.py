@@ -177,10 +177,11 @@ def _bridge_safety_args(g) -> None:
 
 
 def _bridge_logging_args(g) -> None:
-    g.add_argument("--log", default=None, help="tick log (.npz, loads as an IODataset); an existing file is refused "
-                                               "unless --overwrite")
-    g.add_argument("--overwrite", action="store_true", help="replace an existing --log file")
-    g.add_argument("--summary", default=None, help="write the summary JSON here")
+    g.add_argument("--log", default=None, help="tick log (.npz, loads as an IODataset; X or X.log writes X.npz); an "
+                                               "existing file is refused unless --overwrite")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing --log or --summary file")
+    g.add_argument("--summary", default=None, help="write the summary JSON here (an existing file is refused unless "
+                                                   "--overwrite; never the --log file)")
     g.add_argument("--dataset-skip", type=float, default=_D["dataset_skip"], help="seconds after activation left out of the dataset")
     g.add_argument("--settle", type=float, default=_D["settle"], help="seconds after activation left out of the RMSE")
     g.add_argument("--excitation", type=floats, default=_D["excitation"], help="collect: PRBS amplitude per reference")

@@ -39,7 +39,7 @@ import numpy as np
 from ddpc_codegen.design.data import IODataset, checked_json_entry
 from ddpc_codegen.errors import DataError
 
-__all__ = ["TickRecorder", "TickLog", "load_ticklog", "REASONS", "reason_code", "TICK_FIELDS"]
+__all__ = ["TickRecorder", "TickLog", "load_ticklog", "log_file", "REASONS", "reason_code", "TICK_FIELDS"]
 
 # Why a tick's reference is what it is (int8 in the log).
 REASONS = (
@@ -66,6 +66,13 @@ REASONS = (
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",
                               "exception", "no_heartbeat"})
+
+
+def log_file(path: str | Path) -> Path:
+    """The file a tick log given as ``path`` is written to: ``.npz`` appended or put in place of another suffix
+    (``X``, ``X.log`` and ``X.NPZ`` all write ``X.npz``)."""
+    path = Path(path)
+    return path if path.suffix == ".npz" else path.with_suffix(".npz")
 
 
 def reason_code(reason: str) -> int:
@@ -252,9 +259,7 @@ class TickLog:
         and the metadata says ``"closed_loop": false, "fit_ok": false`` and why (the file still
         loads for inspection; ``ddpc-codegen codegen`` refuses to fit on it).
         """
-        path = Path(path)
-        if path.suffix != ".npz":
-            path = path.with_suffix(".npz")
+        path = log_file(path)
         try:
             ds = self.to_dataset(skip=skip, min_segment=min_segment)
             ds = IODataset(list(ds.u), list(ds.y), ds.dt, input_names=ds.input_names, output_names=ds.output_names,

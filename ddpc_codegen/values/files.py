@@ -20,7 +20,7 @@ from typing import Any
 
 from ddpc_codegen.errors import ConfigError
 
-__all__ = ["checked_input_path", "checked_output_folder", "read_bytes_bounded", "read_text_bounded", "parse_toml", "parse_json",
+__all__ = ["checked_input_path", "checked_output_folder", "checked_output_file", "read_bytes_bounded", "read_text_bounded", "parse_toml", "parse_json",
            "load_toml_bounded", "load_json_bounded", "check_nesting", "nesting_depth", "text_nesting_depth",
            "MiB", "MAX_TEXT_BYTES", "MAX_LOG_BYTES", "MAX_DEPTH"]
 
@@ -81,6 +81,38 @@ def checked_output_folder(path: str | Path, what: str, error: type[Exception] = 
             raise error(f"{p}: {what}: {'' if at == p else f'{at} '}is {kind}, not a folder")
         break
     return p
+
+
+def checked_output_file(path: str | Path, what: str, overwrite: bool = False,
+                        error: type[Exception] = ConfigError) -> Path:
+    """``path`` (symlinks followed) is a file to write: absent, or an existing regular file and ``overwrite``
+    (a result is never replaced silently), in an existing folder that takes new files (probed with a real
+    create). A directory, FIFO, device or socket is refused from its ``stat`` (a FIFO's open would wait for a
+    reader). Returns the resolved path (two outputs naming one file compare equal)."""
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        mode = None
+    except OSError as e:
+        raise error(f"{p}: {what}: cannot be used ({e.strerror or type(e).__name__})") from None
+    if mode is not None and not stat.S_ISREG(mode):
+        raise error(f"{p}: {what}: is {_kind(mode)}, not a regular file")
+    if mode is not None and not overwrite:
+        raise error(f"{p}: {what}: exists; pass --overwrite to replace it")
+    folder = p.parent
+    if not folder.is_dir():
+        raise error(f"{p}: {what}: folder {folder} does not exist")
+    if mode is None:
+        try:  # a real create: permission bits say nothing for root or for special filesystems
+            with open(p, "xb"):
+                pass
+            p.unlink()
+        except OSError as e:
+            raise error(f"{p}: {what}: not writable ({e.strerror or type(e).__name__})") from None
+    elif not os.access(p, os.W_OK):
+        raise error(f"{p}: {what}: not writable")
+    return p.resolve()
 
 
 def _too_big(p: Path, what: str, size: int | str, max_bytes: int) -> str:

@@ -67,8 +67,8 @@ def test_bridge_flag_defaults_are_the_config_dataclass_defaults():
 
 @pytest.mark.parametrize("args, message", [
     (["udpin:127.0.0.1:99999"], "port 99999 is outside 1..65535"),
-    (["udpin:127.0.0.1:14999", "--log", "/nonexistent-dir/x.npz"], "--log /nonexistent-dir/x.npz: folder /nonexistent-dir does not exist"),
-    (["udpin:127.0.0.1:14999", "--summary", "/proc/x.json"], "--summary /proc/x.json: not writable"),
+    (["udpin:127.0.0.1:14999", "--log", "/nonexistent-dir/x.npz"], "/nonexistent-dir/x.npz: --log: folder /nonexistent-dir does not exist"),
+    (["udpin:127.0.0.1:14999", "--summary", "/proc/x.json"], "/proc/x.json: --summary: not writable"),
     (["/dev/ttyDOES-NOT-EXIST"], "serial device /dev/ttyDOES-NOT-EXIST does not exist"),
     (["udpin:127.0.0.1:14999", "--takeoff", "--approach-tolerance", "0"], "--approach-tolerance must be a finite number in (0, 10]; got 0.0"),
     (["udpin:127.0.0.1:14999", "--takeoff", "--approach-timeout", "-1"], "--approach-timeout must be a finite number in (0, 3600]; got -1.0"),

@@ -11,7 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ddpc_codegen.errors import ManifestError
-from ddpc_codegen.values.files import (MAX_DEPTH, check_nesting, checked_input_path, checked_output_folder,
+from ddpc_codegen.values.files import (MAX_DEPTH, check_nesting, checked_input_path, checked_output_file,
+                                       checked_output_folder,
                                        load_json_bounded, load_toml_bounded, nesting_depth, parse_json, parse_toml,
                                        read_bytes_bounded, read_text_bounded, text_nesting_depth)
 from support.bounded import bounded_refusal, make_fifo, needs_dev_zero, needs_fifo, refusal
@@ -153,3 +154,26 @@ def test_an_output_folder_must_be_a_folder_or_makeable(tmp_path):
         f"{fifo / 'a' / 'b'}: --out: {fifo} is a FIFO (named pipe), not a folder"
     assert checked_output_folder(tmp_path / "new" / "deeper", "--out") == tmp_path / "new" / "deeper"
     assert checked_output_folder(tmp_path, "--out") == tmp_path
+
+
+# ----------------------------------------------------------------------------- what may be written
+@needs_fifo
+def test_an_output_file_is_absent_or_a_regular_file_replaced_only_with_overwrite(tmp_path):
+    """A result file: never a FIFO, device or folder; an existing one only with ``overwrite``; the probe leaves
+    nothing behind; the resolved path comes back (two names of one file compare equal)."""
+    from ddpc_codegen.errors import ConfigError
+
+    new = tmp_path / "new.json"
+    assert checked_output_file(tmp_path / "." / "new.json", "--summary") == new.resolve() and not new.exists()
+    new.write_text("{}")
+    with pytest.raises(ConfigError, match="new.json: --summary: exists; pass --overwrite to replace it"):
+        checked_output_file(new, "--summary")
+    assert checked_output_file(new, "--summary", overwrite=True) == new.resolve()
+    fifo = tmp_path / "p.json"
+    make_fifo(fifo)
+    (tmp_path / "d").mkdir()
+    for path, kind in ((fifo, "a FIFO"), (tmp_path / "d", "a directory"), ("/dev/null", "a character device")):
+        with pytest.raises(ConfigError, match=f"is {kind}"):
+            checked_output_file(path, "--log", overwrite=True)
+    with pytest.raises(ConfigError, match="folder .* does not exist"):
+        checked_output_file(tmp_path / "no" / "x.json", "--log")
