@@ -3,7 +3,10 @@ they receive, and MAVLink 1 / 2 frames encoded by pymavlink. Every wait is bound
 
 from __future__ import annotations
 
+import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -12,7 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from firmware_bridge.proxy import Proxy
 
-from support.bridge_helpers import free_port
+from support.bridge_helpers import ROOT, Procs, free_port
 
 
 class RunningProxy:
@@ -73,6 +76,18 @@ class Peer(threading.Thread):
         self.sock.close()
 
 
+def spawn_proxy(procs: Procs, *args: str, name: str = "proxy") -> subprocess.Popen:
+    """``ddpc-proxy ARGS`` (``python -m firmware_bridge.proxy.cli``) as a child that ``procs`` stops."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    log = procs.tmp / f"{name}.out"
+    p = subprocess.Popen([sys.executable, "-m", "firmware_bridge.proxy.cli", *args], env=env,
+                         stdout=open(log, "w"), stderr=subprocess.STDOUT, cwd=str(procs.tmp))
+    p._log = log  # type: ignore[attr-defined]
+    procs.procs.append(p)
+    return p
+
+
 def mav(version: int, sysid: int, compid: int):
     """A pymavlink encoder of MAVLink ``version`` (1 or 2) as (sysid, compid)."""
     mod = mavlink1 if version == 1 else mavlink2
@@ -94,4 +109,4 @@ def frames(m, n: int, start: int = 0) -> list[bytes]:
     return out
 
 
-__all__ = ["RunningProxy", "Peer", "mav", "frames", "free_port", "mavlink2"]
+__all__ = ["RunningProxy", "Peer", "spawn_proxy", "mav", "frames", "free_port", "mavlink2"]

@@ -1,0 +1,75 @@
+"""A byte-stream vehicle (TCP, as ArduPilot's SITL serves it): the stream is split into frames, each
+sent to the clients as its own datagram; the clients' frames are written into the stream whole; the
+proxy reconnects when the vehicle drops the connection."""
+
+from __future__ import annotations
+
+import random
+import socket
+import time
+
+from proxy_support import Peer, RunningProxy, frames, free_port, mav
+
+
+def _accept(srv: socket.socket) -> socket.socket:
+    srv.settimeout(5)
+    conn, _ = srv.accept()
+    conn.settimeout(0.05)
+    return conn
+
+
+def _read_stream(conn: socket.socket, n: int, timeout: float = 5.0) -> bytes:
+    buf = b""
+    end = time.monotonic() + timeout
+    while len(buf) < n and time.monotonic() < end:
+        try:
+            buf += conn.recv(65536)
+        except (TimeoutError, socket.timeout):
+            pass
+    return buf
+
+
+def test_tcp_vehicle_stream_split_into_frames_both_ways_and_reconnected():
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    ap = free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"tcp:127.0.0.1:{srv.getsockname()[1]}", reconnect_interval=0.2)
+    app = Peer()
+    conn = _accept(srv)
+    try:
+        app.send(frames(mav(2, 245, 190), 1, 99)[0], ap)     # register the client
+        _read_stream(conn, 1)
+        # vehicle -> app: frames of both versions with garbage, cut at random places
+        m1, m2 = mav(1, 1, 1), mav(2, 1, 1)
+        fs = [f for k in range(300) for f in (frames(m1, 1, k)[0], frames(m2, 1, k)[0])]
+        stream = b"".join(b"\x00\xfe\x03zz" + f if k % 9 == 0 else f for k, f in enumerate(fs))
+        rng = random.Random(3)
+        pos = 0
+        while pos < len(stream):
+            step = rng.randint(1, 200)
+            conn.sendall(stream[pos:pos + step])
+            pos += step
+            time.sleep(0.0005)
+        assert app.wait_for(len(fs)) == fs
+        # app -> vehicle: the same bytes into the stream
+        out = frames(mav(2, 245, 190), 200)
+        for f in out:
+            app.send(f, ap)
+        assert _read_stream(conn, sum(map(len, out))) == b"".join(out)
+        # the vehicle drops the link: the proxy connects again and forwarding resumes
+        conn.close()
+        conn = _accept(srv)
+        again = frames(m2, 3, 1000)
+        conn.sendall(b"".join(again))
+        assert app.wait_for(len(fs) + 3)[len(fs):] == again
+    finally:
+        s = rp.stop()
+        conn.close()
+        srv.close()
+        app.close()
+    d = s["vehicle_to_app"]
+    assert d["received"] == d["forwarded"] == len(fs) + 3 and d["garbage_bytes"] == 5 * len(range(0, len(fs), 9))
+    assert s["events"]["vehicle_reconnects"] >= 1 and s["events"]["vehicle_link_errors"] >= 1
+    assert s["app_to_vehicle"]["forwarded"] == 201
