@@ -19,6 +19,7 @@ import json
 import math
 import signal
 import sys
+import textwrap
 from dataclasses import fields, replace
 
 from ddpc_codegen.errors import DDPCError
@@ -36,6 +37,7 @@ from firmware_bridge.cli_args import (
     floats_or_none,
     qos_request,
 )
+from firmware_bridge.exit_status import exit_codes_epilog
 from firmware_bridge.link import LinkError
 from firmware_bridge.preflight import PreflightError
 
@@ -59,10 +61,12 @@ def build_bridge_parser() -> argparse.ArgumentParser:
         prog="ddpc-bridge",
         description="Run the generated steering solver and the height / leg-angle controller in the loop over "
                     "MAVLink: telemetry in, SET_ATTITUDE_TARGET out at 200 Hz.",
-        epilog="Modes: steer (DDPC on), passthrough (model-based controller alone, the baseline), collect (PRBS "
-               "on the references; the --log file is an IODataset for `ddpc-codegen codegen --dataset`), "
-               "prefilter (the static gain + offset + lead baseline fitted from a collect log), feedforward "
-               "(r_nom + a learned ILC table, row = trajectory tick).",
+        epilog=textwrap.fill(
+            "Modes: steer (DDPC on), passthrough (model-based controller alone, the baseline), collect (PRBS "
+            "on the references; the --log file is an IODataset for `ddpc-codegen codegen --dataset`), "
+            "prefilter (the static gain + offset + lead baseline fitted from a collect log), feedforward "
+            "(r_nom + a learned ILC table, row = trajectory tick).", 100) + "\n\n" + exit_codes_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("connection", nargs="?", default=_D["url"],
                    help="pymavlink-style connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
@@ -279,10 +283,10 @@ def format_summary(s: dict) -> str:
 
 
 def bridge_main(argv: list[str] | None = None) -> int:
-    """``ddpc-bridge``: exit 0 on a clean stop, 2 on a configuration error, 3 if no vehicle answered,
-    4 if the vehicle is not what the bridge was told (preflight), 5 if a flight phase failed (arming),
-    6 if interrupted (SIGINT / SIGTERM) before the first tick, 7 if the vehicle was lost (link lost for
-    ``--vehicle-lost-timeout``). The log is written in every case that got past the configuration."""
+    """``ddpc-bridge``: the exit code of :data:`.exit_status.EXIT_CODES` (0: flown; 2: a configuration error;
+    3: no vehicle; 4: preflight; 5: arming failed; 6: interrupted before the first tick; 7: vehicle lost;
+    8: never engaged; 9: the vehicle's own failsafe; 10: --timeout before the --duration was flown), with one
+    line saying why. The log is written in every case that got past the configuration."""
     args = build_bridge_parser().parse_args(argv)
     # An interrupt while the bridge is being set up (the link may already be open) is an interrupt before
     # the first tick: remembered here, handed to the bridge, which then writes its empty log and exits 6.
@@ -306,13 +310,10 @@ def bridge_main(argv: list[str] | None = None) -> int:
         print(f"ddpc-bridge: error: {e}", file=sys.stderr)
         return 5
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary), flush=True)
-    if summary["stop_reason"] == "vehicle lost":
-        print(f"ddpc-bridge: error: vehicle lost: nothing heard for {args.vehicle_lost_timeout:g} s", file=sys.stderr)
-        return 7
-    if summary["ticks"] == 0 and summary["stop_reason"] == "signal":
-        print("ddpc-bridge: interrupted before the first tick (nothing flown)", file=sys.stderr)
-        return 6
-    return 0
+    code, why = summary["exit"]["code"], summary["exit"]["reason"]
+    if code:
+        print(f"ddpc-bridge: error: {why}" if code != 6 else f"ddpc-bridge: {why}", file=sys.stderr)
+    return code
 
 
 def main(argv: list[str] | None = None) -> int:

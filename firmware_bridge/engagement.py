@@ -205,6 +205,8 @@ class Engagement:
         self.resume_pending = False           # fresh after a stale stretch or a stall: resume bumplessly
         self.ref_offset: np.ndarray | None = None  # u - y at the last fresh engaged tick
         self.stale_since: float | None = None
+        self.left_mode = ""                   # the vehicle's mode while out after an engagement ("": engaged / never)
+        self.t_last = math.nan                # control-clock time of the last tick [s]
         self.approach: Approach | None = None
         self.approach_result: dict | None = None  # how the take-off approach ended (the summary's "approach")
         self.blend = RefBlend(self.blend_rates)
@@ -212,6 +214,10 @@ class Engagement:
     def trajectory_time(self, t: float) -> float:
         """Trajectory time [s] at control-clock time ``t`` (0 before the trajectory starts)."""
         return t - self.traj_t0 if self.traj_t0 is not None else 0.0
+
+    def flown_s(self) -> float:
+        """Trajectory time flown by the last tick [s] (0 before the trajectory starts)."""
+        return self.trajectory_time(self.t_last) if math.isfinite(self.t_last) else 0.0
 
     def telemetry(self, now: float, age: float, fresh: bool) -> bool:
         """Staleness bookkeeping; False when the stream limit says to go quiet (no setpoint)."""
@@ -242,6 +248,7 @@ class Engagement:
             edge = "again" if self.flown else "first"
             self.activations += 1
             self.engaged_before = True
+            self.left_mode = ""
             if self.blend_rates:
                 self.blend.start(y)
             if edge == "first":
@@ -264,7 +271,9 @@ class Engagement:
             edge = "lost"
             self.events("disengaged: vehicle no longer armed + off-board (or link lost)")
         self.resume_pending = False
-        self.engaged = engaged
+        self.engaged, self.t_last = engaged, t
+        if not engaged and self.engaged_before:
+            self.left_mode = vehicle_mode or "?"  # the vehicle's newest mode while it is out (its failsafe's)
         if engaged and self.approach is not None:
             self.traj_t0 = t  # the trajectory clock waits at its start until the vehicle is there
         return edge

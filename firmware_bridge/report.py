@@ -18,6 +18,7 @@ from ddpc_codegen.stats import percentiles
 from firmware_bridge.clock import TickTrigger
 from firmware_bridge.engagement import Engagement
 from firmware_bridge.events import EventLog
+from firmware_bridge.exit_status import RunEnd, run_outcome
 from firmware_bridge.preflight import VehicleInfo
 from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.setpoints import SetpointStream
@@ -168,6 +169,9 @@ class FlightRecorder:
         # In lock-step the vehicle's clock is the one that matters: wall-clock gaps only say the
         # machine was busy, not that a tick of the (paused) vehicle went without a setpoint.
         r = self.statistics(stream.send_stamps if c.lockstep else stream.send_times, c.settle)
+        e = engagement
+        code, why = run_outcome(RunEnd(head["stop_reason"], r["ticks"], e.activations, e.engaged, e.left_mode,
+                                       e.flown_s(), c.duration, c.vehicle_lost_timeout))
         return {
             **head, "ticks": r["ticks"], "setpoints_sent": len(stream.send_times), "rate_hz": r["rate_hz"],
             "duration_s": r["duration_s"],
@@ -186,6 +190,8 @@ class FlightRecorder:
             # the last gate: ticks per action (rate_limited, envelope, nonfinite_*, guard_clamped, stall) and its bounds
             "gate": gate.summary(), "stalls": list(gate.stalls),
             "guard_saturations": list(gate.guard_saturations), "telemetry_dropped": vehicle.telem.dropped,
+            # how the run ended: ddpc-bridge's exit code and its one line (exit_status.EXIT_CODES)
+            "flown_s": e.flown_s(), "exit": {"code": code, "reason": why},
         }
 
 

@@ -36,6 +36,11 @@ _STALE = REASONS.index("stale")
 _FORCE_DISARM = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2: disarm even if the autopilot thinks it flies
 
 
+# ddpc-bridge's exits for a run that did not fly its duration (never engaged, the vehicle's own failsafe, timed
+# out): such a flight is kept and flown again, as below.
+_NOT_FLOWN_CODES = (8, 9, 10)
+
+
 def ensure_disarmed(sitl, wait: float = 20.0, timeout: float = 15.0) -> bool:
     """Before a flight from the ground: the vehicle disarmed. One still armed (the last flight's LAND did not
     end in a disarm) gets ``wait`` s to disarm itself, then a forced disarm, which the SITL's heartbeat must
@@ -126,7 +131,7 @@ def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: 
             print(f"[sitl-demo] {name}: the vehicle was still armed after the last flight: disarmed", flush=True)
         with open(out / f"{name}.out", "w") as f:
             rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, timeout=timeout + 90, cwd=out).returncode
-        if rc != 0:
+        if rc not in _NOT_FLOWN_CODES and rc != 0:
             raise RuntimeError(f"{name}: ddpc-bridge exited {rc}:\n{(out / f'{name}.out').read_text()[-3000:]}\n"
                                f"{autopilot} SITL console tail:\n{sitl.log_tail()}")
         summary = json.loads((out / f"{name}.json").read_text())
