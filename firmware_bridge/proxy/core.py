@@ -1,8 +1,11 @@
 """The transparent MAVLink proxy: several app / ground-station clients on one side, the vehicle on
 the other, every byte forwarded unchanged both ways in arrival order.
 
-- App side: a UDP server (``udpin:HOST:PORT``). Each distinct source address is a client; it is
-  forgotten after ``client_timeout`` seconds of silence (and comes back with its next datagram).
+- App side: one or more UDP endpoints. A server (``udpin:HOST:PORT``, where apps and ground stations
+  connect as to an autopilot's port): each distinct source address is a client, forgotten after
+  ``client_timeout`` seconds of silence (it comes back with its next datagram). A client
+  (``udpout:HOST:PORT``, as PX4 sends to an app listening on 14540): that address is a client for
+  as long as the proxy runs.
 - Vehicle side: one connection (``udpin:`` -- the first sender is the vehicle, others are counted
   and dropped --, ``udpout:``, ``tcp:`` client with reconnects, or a serial device), the transports
   of :mod:`firmware_bridge.transports`.
@@ -18,6 +21,7 @@ the other, every byte forwarded unchanged both ways in arrival order.
 
 from __future__ import annotations
 
+import math
 import select
 import time
 from typing import Any, Callable
@@ -40,7 +44,7 @@ class Proxy:
     """A transparent MAVLink proxy (see the module docstring).
 
     Args:
-        app: the app side, ``udpin:HOST:PORT``.
+        apps: the app side: ``udpin:HOST:PORT`` / ``udpout:HOST:PORT`` strings (or one string).
         vehicle: the vehicle side (``udpin:``/``udpout:``/``tcp:`` or a serial device).
         rewrite: the setpoint hook; None: pass-through.
         baud: a serial vehicle's baud rate (default from the string, else 921600).
@@ -49,20 +53,19 @@ class Proxy:
         reconnect_interval: seconds between attempts to reopen a failed vehicle link.
     """
 
-    def __init__(self, app: str, vehicle: str, *, rewrite: SetpointRewrite | None = None,
+    def __init__(self, apps: str | list[str], vehicle: str, *, rewrite: SetpointRewrite | None = None,
                  baud: int | None = None, between_clients: bool = False, client_timeout: float = 5.0, reconnect_interval: float = 1.0,
                  ring_size: int = 1 << 16) -> None:
-        ep = parse_url(app)
-        if ep.kind != "udpin":
-            raise ValueError(f"--app {app!r}: the app side is a UDP server, udpin:HOST:PORT")
-        self.app_url, self.vehicle_url = app, vehicle
-        self.apps = UdpTransport(ep.host, ep.port, listen=True)
+        self.app_urls, self.vehicle_url = [apps] if isinstance(apps, str) else list(apps), vehicle
+        self.apps = [_app_link(u) for u in self.app_urls]
         self.vehicle_ep = parse_url(vehicle, baud)
         self.vehicle: Any = None
         self.rewrite = rewrite
         self.between_clients = between_clients
         self.client_timeout, self.reconnect_interval = client_timeout, reconnect_interval
-        self.clients: dict[Any, list] = {}  # address -> [last heard (monotonic), datagrams in, datagrams out]
+        # (app link index, address) -> [last heard (monotonic; inf: a udpout peer), datagrams in, datagrams out]
+        self.clients: dict[tuple[int, Any], list] = {(k, a.sock.getpeername()): [math.inf, 0, 0]
+                                                     for k, a in enumerate(self.apps) if not a.listen}
         self.setpoint_client: Any = None  # the client whose setpoints are the app's (first to send one)
         self.setpoints = SetpointPeriod()
         self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
@@ -75,7 +78,8 @@ class Proxy:
         self._next_open = 0.0
         self._poll = select.poll()
         self._vfd: int | None = None
-        self._poll.register(self.apps.fileno(), select.POLLIN)
+        for a in self.apps:
+            self._poll.register(a.fileno(), select.POLLIN)
         self._t0 = time.monotonic()
         self._open_vehicle(self._t0)
 
@@ -121,7 +125,7 @@ class Proxy:
     def run(self, duration: float | None = None, stop: Callable[[], bool] = lambda: False) -> None:
         """Forward until ``stop()`` is true or ``duration`` seconds have passed."""
         end = None if duration is None else time.monotonic() + duration
-        apps_fd = self.apps.fileno()
+        app_fds = {a.fileno(): k for k, a in enumerate(self.apps)}
         while not stop():
             now = time.monotonic()
             if end is not None and now >= end:
@@ -130,9 +134,10 @@ class Proxy:
                 self.events["vehicle_reconnects"] += 1
                 self._open_vehicle(now)
             for fd, _ev in self._poll.poll(_POLL_S * 1000):
-                if fd == apps_fd:
-                    for data, addr, ts in self.apps.read():
-                        self._from_client(data, addr, ts if ts is not None else time.time())
+                k = app_fds.get(fd)
+                if k is not None:
+                    for data, addr, ts in self.apps[k].read():
+                        self._from_client((k, addr), data, ts if ts is not None else time.time())
                 elif fd == self._vfd:
                     self._read_vehicle()
             self._expire(time.monotonic())
@@ -157,22 +162,25 @@ class Proxy:
                 self.setpoint_client = None
 
     # ------------------------------------------------------------------ app -> vehicle
-    def _from_client(self, data: bytes, addr: Any, t_rx: float) -> None:
+    def _from_client(self, client: tuple[int, Any], data: bytes, t_rx: float) -> None:
         st = self.up.c
         st["datagrams"] += 1
-        c = self.clients.get(addr)
+        c = self.clients.get(client)
         if c is None:
-            c = self.clients[addr] = [0.0, 0, 0]
+            c = self.clients[client] = [0.0, 0, 0]
             self.events["clients_joined"] += 1
-        c[0] = time.monotonic()
+        if c[0] != math.inf:
+            c[0] = time.monotonic()
         c[1] += 1
         spans, garbage, _ = split_frames(data)
         st["received"] += len(spans)
         st["garbage_bytes"] += garbage
         replaced: dict[int, bytes] = {}
+        see = self.up.see
         for i, n in spans:
+            see(data, i)
             if _msgid(data, i) == SETPOINT_MSGID:
-                r = self._setpoint(addr, data[i:i + n], t_rx)
+                r = self._setpoint(client, data[i:i + n], t_rx)
                 if r is not None:
                     replaced[i] = r
         if self.vehicle is None or self.vehicle.datagram:
@@ -191,13 +199,13 @@ class Proxy:
                 st["send_errors"] += 1
         if self.between_clients:
             for a in self.clients:
-                if a != addr and self._to_client(a, data):
+                if a != client and self._to_client(a, data):
                     self.events["between_clients"] += 1
 
-    def _setpoint(self, addr: Any, frame: bytes, t_rx: float) -> bytes | None:
+    def _setpoint(self, client: tuple[int, Any], frame: bytes, t_rx: float) -> bytes | None:
         if self.setpoint_client is None:
-            self.setpoint_client = addr
-        if addr != self.setpoint_client:
+            self.setpoint_client = client
+        if client != self.setpoint_client:
             self.events["foreign_setpoints"] += 1  # not the app's: never steered
             return None
         self.setpoints.add(t_rx)
@@ -233,54 +241,67 @@ class Proxy:
                 self.events["vehicle_foreign"] += 1
                 return
             spans, garbage, _ = split_frames(data)
-            outs = [(data, len(spans))]
+            buf, outs = data, [(data, len(spans))]
         else:
             self._vbuf += data
             spans, garbage, used = split_frames(self._vbuf, final=False)
-            outs = [(bytes(self._vbuf[i:i + n]), 1) for i, n in spans]
+            buf = bytes(self._vbuf[:used])
             del self._vbuf[:used]
+            outs = [(buf[i:i + n], 1) for i, n in spans]
+        for i, _n in spans:
+            self.down.see(buf, i)
         st["received"] += len(spans)
         st["garbage_bytes"] += garbage
         lat = self.down.latency
-        for buf, frames in outs:
+        for out, frames in outs:
             if not self.clients:
                 st["dropped"] += frames
                 continue
             for a in self.clients:
-                if self._to_client(a, buf):
+                if self._to_client(a, out):
                     st["forwarded"] += frames
                     lat.add(time.time() - t_rx)
                 else:
                     st["dropped"] += frames
                     st["send_errors"] += 1
 
-    def _to_client(self, addr: Any, buf: bytes) -> bool:
+    def _to_client(self, client: tuple[int, Any], buf: bytes) -> bool:
         try:
-            self.apps.sock.sendto(buf, addr)
-        except OSError:  # full buffer, unreachable: that client misses this datagram
+            self.apps[client[0]].sock.sendto(buf, client[1])
+        except OSError:  # full buffer, nobody listening (udpout): that client misses this datagram
             return False
-        self.clients[addr][2] += 1
+        self.clients[client][2] += 1
         return True
 
     # ------------------------------------------------------------------ results
     def summary(self) -> dict:
         """The counters, latencies [us] and the app's setpoint period, JSON-ready."""
         return {
-            "app": self.app_url, "vehicle": self.vehicle_url, "uptime_s": time.monotonic() - self._t0,
+            "apps": self.app_urls, "vehicle": self.vehicle_url, "uptime_s": time.monotonic() - self._t0,
             "vehicle_peer": list(self.vehicle_peer) if self.vehicle_peer else None,
             "between_clients": self.between_clients, "rewrite_hook": self.rewrite is not None,
             "app_to_vehicle": self.up.summary(), "vehicle_to_app": self.down.summary(),
             "setpoints": {**self.setpoints.summary(),
-                          "client": list(self.setpoint_client) if self.setpoint_client else None},
-            "clients": [{"address": list(a), "datagrams_in": c[1], "datagrams_out": c[2]}
-                        for a, c in self.clients.items()],
+                          "client": self._client_json(self.setpoint_client)},
+            "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2]} for a, c in self.clients.items()],
             "events": dict(self.events), "last_vehicle_error": self.last_error,
         }
 
+    def _client_json(self, client: tuple[int, Any] | None) -> dict | None:
+        return None if client is None else {"app": self.app_urls[client[0]], "address": list(client[1])}
+
     def close(self) -> None:
-        self.apps.close()
+        for a in self.apps:
+            a.close()
         if self.vehicle is not None:
             self.vehicle.close()
+
+
+def _app_link(url: str) -> UdpTransport:
+    ep = parse_url(url)
+    if ep.kind not in ("udpin", "udpout"):
+        raise ValueError(f"--app {url!r}: the app side is UDP, udpin:HOST:PORT (a server) or udpout:HOST:PORT")
+    return UdpTransport(ep.host, ep.port, listen=ep.kind == "udpin")
 
 
 def _splice(data: bytes, spans: list[tuple[int, int]], replaced: dict[int, bytes]) -> bytes:

@@ -10,7 +10,9 @@ import numpy as np
 
 __all__ = ["COUNTERS", "Ring", "DirectionStats", "SetpointPeriod"]
 
-COUNTERS = ("datagrams", "received", "forwarded", "rewritten", "dropped", "garbage_bytes", "send_errors")
+_STX_V2 = 0xFD
+
+COUNTERS = ("datagrams", "received", "forwarded", "rewritten", "dropped", "garbage_bytes", "send_errors", "seq_gaps")
 
 
 class Ring:
@@ -48,12 +50,23 @@ class DirectionStats:
     ``received``/``forwarded``/``rewritten``/``dropped`` count MAVLink frames (a datagram may hold
     several); ``forwarded`` counts each frame once per destination it was handed to; ``datagrams``
     counts what was read (datagrams, or stream reads); ``garbage_bytes`` the bytes that were not part
-    of a valid frame.
+    of a valid frame; ``seq_gaps`` the frames whose sequence number does not follow the previous one
+    of the same (system, component) as received: loss or reordering before the proxy.
     """
 
     def __init__(self, ring_size: int = 1 << 16) -> None:
         self.c = dict.fromkeys(COUNTERS, 0)
         self.latency = Ring(ring_size)  # seconds
+        self._last_seq: dict[int, int] = {}  # sysid << 8 | compid -> last sequence number
+
+    def see(self, buf: bytes | bytearray, i: int) -> None:
+        """Check the sequence number of the frame at ``buf[i]`` against its sender's previous one."""
+        o = i + 2 if buf[i] == _STX_V2 else i  # v2 has two flag bytes before seq
+        key, seq = buf[o + 3] << 8 | buf[o + 4], buf[o + 2]
+        last = self._last_seq.get(key)
+        if last is not None and seq != (last + 1) & 0xFF:
+            self.c["seq_gaps"] += 1
+        self._last_seq[key] = seq
 
     def summary(self) -> dict:
         return {**self.c, "latency_us": self.latency.summary(1e6)}

@@ -17,11 +17,11 @@ def rig():
     ap, vp = free_port(), free_port()
     rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{vp}", client_timeout=0.5)
     veh, app, gcs = Peer(), Peer(), Peer()
-    hello = frames(mav(2, 1, 1), 1)[0]
+    hello = frames(mav(2, 1, 9), 1)[0]  # (the tests' own senders each start at sequence 0)
     veh.send(hello, vp)
     _until(lambda: rp.proxy.vehicle_peer is not None)
-    app.send(frames(mav(2, 245, 190), 1)[0], ap)
-    gcs.send(frames(mav(1, 255, 190), 1)[0], ap)
+    app.send(frames(mav(2, 245, 9), 1)[0], ap)
+    gcs.send(frames(mav(1, 255, 9), 1)[0], ap)
     assert len(veh.wait_for(2, 5)) == 2
     for p in (app, gcs):
         p.got.clear()
@@ -48,15 +48,15 @@ def _paced(send, items, every: int = 40) -> None:
 
 def test_vehicle_to_every_client_byte_exact_and_in_order(rig):
     rp, veh, app, gcs, ap, vp = rig
-    m1, m2 = mav(1, 1, 1), mav(2, 1, 1)
-    sent = [f for k in range(1500) for f in (frames(m2, 1, k)[0], frames(m1, 1, k)[0])]  # seq wraps 11 times
+    m1, m2 = mav(1, 1, 2), mav(2, 1, 1)
+    sent = [f for k in range(1500) for f in (frames(m2, 1, k)[0], frames(m1, 1, k)[0])]  # seq wraps 5 times
     _paced(lambda f: veh.send(f, vp), sent)
     for p in (app, gcs):
         assert p.wait_for(len(sent)) == sent
     s = rp.stop()
     d = s["vehicle_to_app"]
     assert d["received"] == len(sent) + 1 and d["forwarded"] == 2 * len(sent)
-    assert d["dropped"] == 1 and d["send_errors"] == 0 and d["garbage_bytes"] == 0
+    assert d["dropped"] == 1 and d["send_errors"] == 0 and d["garbage_bytes"] == 0 and d["seq_gaps"] == 0
     lat = d["latency_us"]
     assert lat["count"] == d["forwarded"] and 0 < lat["p50"] <= lat["p99"] <= lat["max"]
 
@@ -72,7 +72,7 @@ def test_clients_to_vehicle_byte_exact_each_in_order(rig):
     assert app.got == [] and gcs.got == []  # clients do not hear each other unless asked
     s = rp.stop()
     u = s["app_to_vehicle"]
-    assert u["received"] == u["forwarded"] == 4002 and u["dropped"] == 0
+    assert u["received"] == u["forwarded"] == 4002 and u["dropped"] == u["seq_gaps"] == 0
     assert u["latency_us"]["count"] == 4002
     assert sorted(c["datagrams_in"] for c in s["clients"]) == [2001, 2001]
 
@@ -89,6 +89,15 @@ def test_garbage_is_forwarded_whole_and_counted(rig):
     s = rp.stop()
     assert s["vehicle_to_app"]["received"] == 1 + 1 and s["vehicle_to_app"]["garbage_bytes"] > 0
     assert s["app_to_vehicle"]["garbage_bytes"] == len(b"\xfe\xff garbage")
+
+
+def test_frames_lost_before_the_proxy_show_as_sequence_gaps(rig):
+    rp, veh, app, gcs, ap, vp = rig
+    fs = frames(mav(2, 1, 1), 10)
+    for f in fs[:4] + fs[5:]:                               # one lost on the way in
+        veh.send(f, vp)
+    assert app.wait_for(9) == fs[:4] + fs[5:]
+    assert rp.stop()["vehicle_to_app"]["seq_gaps"] == 1
 
 
 def test_a_client_that_disappears_is_forgotten_and_the_others_keep_everything(rig):
@@ -142,6 +151,34 @@ def test_nothing_reaches_the_vehicle_before_it_is_heard_and_that_is_not_an_error
     assert s["app_to_vehicle"]["dropped"] == 1 and s["app_to_vehicle"]["send_errors"] == 0
 
 
-def test_the_app_side_must_be_a_udp_server():
+def test_the_app_side_must_be_udp():
     with pytest.raises(ValueError, match="udpin"):
-        RunningProxy("udpout:127.0.0.1:14541", "udpin:127.0.0.1:14540")
+        RunningProxy("tcp:127.0.0.1:14541", "udpin:127.0.0.1:14540")
+
+
+def test_an_app_that_listens_is_sent_to_like_px4_does_beside_a_server_for_a_ground_station():
+    # An app bound to a port waiting for the autopilot (MAVSDK's udp://:14540) and a ground station
+    # connecting to the proxy's server port, at once.
+    listening, gcs, veh = Peer(), Peer(), Peer()
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy([f"udpout:127.0.0.1:{listening.port}", f"udpin:127.0.0.1:{ap}"], f"udpin:127.0.0.1:{vp}")
+    try:
+        veh.send(frames(mav(2, 1, 9), 1)[0], vp)
+        _until(lambda: rp.proxy.vehicle_peer is not None)
+        gcs.send(frames(mav(2, 255, 9), 1)[0], ap)
+        _until(lambda: len(veh.got) == 1)
+        fs = frames(mav(2, 1, 1), 20)
+        for f in fs:
+            veh.send(f, vp)
+        assert listening.wait_for(21)[1:] == fs and gcs.wait_for(20) == fs  # the listening app heard all
+        out = frames(mav(2, 245, 190), 5)
+        for f in out:
+            listening.sock.sendto(f, ("127.0.0.1", rp.proxy.apps[0].local_address[1]))  # it replies to the sender
+        assert veh.wait_for(6)[1:] == out
+        s = rp.stop()
+    finally:
+        rp.stop()
+        for p in (listening, gcs, veh):
+            p.close()
+    assert [c["app"] for c in s["clients"]] == s["apps"] and s["events"]["clients_expired"] == 0
+    assert s["app_to_vehicle"]["forwarded"] == 6 and s["vehicle_to_app"]["forwarded"] == 1 + 2 * 20
