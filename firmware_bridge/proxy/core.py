@@ -26,18 +26,15 @@ import select
 import time
 from typing import Any, Callable
 
-from firmware_bridge.proxy.frames import STX_V2, split_frames
+from firmware_bridge.proxy.frames import msgid, splice, split_frames
 from firmware_bridge.proxy.rewrite import SETPOINT_MSGID, SetpointRewrite, decode_frame, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
-from firmware_bridge.transports import LinkError, UdpTransport, open_transport, parse_url
+from firmware_bridge.proxy.vehicle_side import VehicleSide
+from firmware_bridge.transports import UdpTransport, parse_url
 
 __all__ = ["Proxy"]
 
 _POLL_S = 0.1  # housekeeping period: reconnects, client expiry, the stop check
-
-
-def _msgid(buf: bytes, i: int) -> int:
-    return buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16 if buf[i] == STX_V2 else buf[i + 5]
 
 
 class Proxy:
@@ -58,11 +55,10 @@ class Proxy:
                  ring_size: int = 1 << 16) -> None:
         self.app_urls, self.vehicle_url = [apps] if isinstance(apps, str) else list(apps), vehicle
         self.apps = [_app_link(u) for u in self.app_urls]
-        self.vehicle_ep = parse_url(vehicle, baud)
-        self.vehicle: Any = None
+        self.vehicle = VehicleSide(vehicle, baud, reconnect_interval)
         self.rewrite = rewrite
         self.between_clients = between_clients
-        self.client_timeout, self.reconnect_interval = client_timeout, reconnect_interval
+        self.client_timeout = client_timeout
         # (app link index, address) -> [last heard (monotonic; inf: a udpout peer), datagrams in, datagrams out]
         self.clients: dict[tuple[int, Any], list] = {(k, a.sock.getpeername()): [math.inf, 0, 0]
                                                      for k, a in enumerate(self.apps) if not a.listen}
@@ -70,56 +66,12 @@ class Proxy:
         self.setpoints = SetpointPeriod()
         self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
         self.events = dict.fromkeys(("clients_joined", "clients_expired", "foreign_setpoints", "rewrite_errors",
-                                     "vehicle_foreign", "vehicle_link_errors", "vehicle_reconnects",
                                      "between_clients"), 0)
-        self.vehicle_peer: Any = None
-        self.last_error = ""
-        self._vbuf = bytearray()  # a byte-stream vehicle's partial frame
-        self._next_open = 0.0
         self._poll = select.poll()
         self._vfd: int | None = None
         for a in self.apps:
             self._poll.register(a.fileno(), select.POLLIN)
         self._t0 = time.monotonic()
-        self._open_vehicle(self._t0)
-
-    # ------------------------------------------------------------------ vehicle link
-    def _open_vehicle(self, now: float) -> None:
-        try:
-            self.vehicle = open_transport(self.vehicle_ep)
-        except (OSError, LinkError) as e:
-            if self.vehicle_ep.kind == "udpin":
-                raise  # a port we cannot bind is a configuration error
-            self.vehicle, self._next_open = None, now + self.reconnect_interval
-            self.events["vehicle_link_errors"] += 1
-            self.last_error = str(e)
-            return
-        self._vbuf.clear()
-        self._vfd = self.vehicle.fileno()
-        self._poll.register(self._vfd, select.POLLIN)
-
-    def _vehicle_down(self, now: float) -> None:
-        self.events["vehicle_link_errors"] += 1
-        if self._vfd is not None:
-            self._poll.unregister(self._vfd)
-            self._vfd = None
-        if self.vehicle is not None:
-            try:
-                self.vehicle.close()
-            except OSError:
-                pass
-        self.vehicle, self._next_open = None, now + self.reconnect_interval
-
-    def _to_vehicle(self, buf: bytes, now: float) -> bool:
-        v = self.vehicle
-        if v is None:
-            return False
-        try:
-            return v.write(buf)
-        except LinkError as e:
-            self.last_error = str(e)
-            self._vehicle_down(now)
-            return False
 
     # ------------------------------------------------------------------ the loop
     def run(self, duration: float | None = None, stop: Callable[[], bool] = lambda: False) -> None:
@@ -130,28 +82,27 @@ class Proxy:
             now = time.monotonic()
             if end is not None and now >= end:
                 break
-            if self.vehicle is None and now >= self._next_open:
-                self.events["vehicle_reconnects"] += 1
-                self._open_vehicle(now)
+            self._watch_vehicle(now)
             for fd, _ev in self._poll.poll(_POLL_S * 1000):
                 k = app_fds.get(fd)
                 if k is not None:
                     for data, addr, ts in self.apps[k].read():
                         self._from_client((k, addr), data, ts if ts is not None else time.time())
                 elif fd == self._vfd:
-                    self._read_vehicle()
+                    for chunk in self.vehicle.read():
+                        self._from_vehicle(*chunk)
             self._expire(time.monotonic())
 
-    def _read_vehicle(self) -> None:
-        v = self.vehicle
-        try:
-            chunks = v.read()
-        except LinkError as e:
-            self.last_error = str(e)
-            self._vehicle_down(time.monotonic())
-            return
-        for data, addr, ts in chunks:
-            self._from_vehicle(data, addr, ts if ts is not None else time.time())
+    def _watch_vehicle(self, now: float) -> None:
+        """Reopen a failed vehicle link; poll whichever descriptor it has now."""
+        self.vehicle.maintain(now)
+        fd = self.vehicle.fileno()
+        if fd != self._vfd:
+            if self._vfd is not None:
+                self._poll.unregister(self._vfd)
+            if fd is not None:
+                self._poll.register(fd, select.POLLIN)
+            self._vfd = fd
 
     def _expire(self, now: float) -> None:
         old = [a for a, c in self.clients.items() if now - c[0] > self.client_timeout]
@@ -179,23 +130,22 @@ class Proxy:
         see = self.up.see
         for i, n in spans:
             see(data, i)
-            if _msgid(data, i) == SETPOINT_MSGID:
+            if msgid(data, i) == SETPOINT_MSGID:
                 r = self._setpoint(client, data[i:i + n], t_rx)
                 if r is not None:
                     replaced[i] = r
-        if self.vehicle is None or self.vehicle.datagram:
-            out = _splice(data, spans, replaced)
+        if self.vehicle.datagram:
+            out = splice(data, spans, replaced)
         elif garbage or replaced:  # into a byte stream only whole frames
             out = b"".join(replaced.get(i) or data[i:i + n] for i, n in spans)
         else:
             out = data
-        if out and self._to_vehicle(out, time.monotonic()):
+        if out and self.vehicle.write(out):
             st["forwarded"] += len(spans)
             self.up.latency.add(time.time() - t_rx)
         else:
             st["dropped"] += len(spans)
-            v = self.vehicle
-            if out and v is not None and not (v.datagram and v.peer is None):  # not merely "vehicle unheard yet"
+            if out and self.vehicle.ready:  # not merely "the vehicle is not heard yet"
                 st["send_errors"] += 1
         if self.between_clients:
             for a in self.clients:
@@ -223,31 +173,17 @@ class Proxy:
             return None
         r = bytes(r)
         spans, garbage, _ = split_frames(r)
-        if garbage or len(spans) != 1 or _msgid(r, 0) != SETPOINT_MSGID:
+        if garbage or len(spans) != 1 or msgid(r, 0) != SETPOINT_MSGID:
             self.events["rewrite_errors"] += 1
             return None
         self.up.c["rewritten"] += 1
         return r
 
     # ------------------------------------------------------------------ vehicle -> apps
-    def _from_vehicle(self, data: bytes, addr: Any, t_rx: float) -> None:
+    def _from_vehicle(self, outs: list[tuple[bytes, int]], spans: list[tuple[int, int]], buf: bytes, garbage: int,
+                      t_rx: float) -> None:
         st = self.down.c
         st["datagrams"] += 1
-        v = self.vehicle
-        if v.datagram:
-            if addr is not None and v.peer is None:  # udpin: the first sender is the vehicle
-                v.peer = self.vehicle_peer = addr
-            elif addr is not None and v.peer is not None and addr != v.peer:
-                self.events["vehicle_foreign"] += 1
-                return
-            spans, garbage, _ = split_frames(data)
-            buf, outs = data, [(data, len(spans))]
-        else:
-            self._vbuf += data
-            spans, garbage, used = split_frames(self._vbuf, final=False)
-            buf = bytes(self._vbuf[:used])
-            del self._vbuf[:used]
-            outs = [(buf[i:i + n], 1) for i, n in spans]
         for i, _n in spans:
             self.down.see(buf, i)
         st["received"] += len(spans)
@@ -278,13 +214,14 @@ class Proxy:
         """The counters, latencies [us] and the app's setpoint period, JSON-ready."""
         return {
             "apps": self.app_urls, "vehicle": self.vehicle_url, "uptime_s": time.monotonic() - self._t0,
-            "vehicle_peer": list(self.vehicle_peer) if self.vehicle_peer else None,
+            "vehicle_peer": list(self.vehicle.peer) if self.vehicle.peer else None,
             "between_clients": self.between_clients, "rewrite_hook": self.rewrite is not None,
             "app_to_vehicle": self.up.summary(), "vehicle_to_app": self.down.summary(),
             "setpoints": {**self.setpoints.summary(),
                           "client": self._client_json(self.setpoint_client)},
             "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2]} for a, c in self.clients.items()],
-            "events": dict(self.events), "last_vehicle_error": self.last_error,
+            "events": {**self.events, **{f"vehicle_{k}": v for k, v in self.vehicle.counts.items()}},
+            "last_vehicle_error": self.vehicle.last_error,
         }
 
     def _client_json(self, client: tuple[int, Any] | None) -> dict | None:
@@ -293,8 +230,7 @@ class Proxy:
     def close(self) -> None:
         for a in self.apps:
             a.close()
-        if self.vehicle is not None:
-            self.vehicle.close()
+        self.vehicle.close()
 
 
 def _app_link(url: str) -> UdpTransport:
@@ -304,14 +240,3 @@ def _app_link(url: str) -> UdpTransport:
     return UdpTransport(ep.host, ep.port, listen=ep.kind == "udpin")
 
 
-def _splice(data: bytes, spans: list[tuple[int, int]], replaced: dict[int, bytes]) -> bytes:
-    """``data`` with the frames starting at the keys of ``replaced`` swapped for their values."""
-    if not replaced:
-        return data
-    parts, last = [], 0
-    for i, n in spans:
-        if i in replaced:
-            parts += (data[last:i], replaced[i])
-            last = i + n
-    parts.append(data[last:])
-    return b"".join(parts)

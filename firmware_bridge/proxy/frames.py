@@ -16,7 +16,8 @@ from typing import NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink
 
-__all__ = ["STX_V1", "STX_V2", "MAX_FRAME", "Header", "frame_size", "header", "checksum_ok", "split_frames"]
+__all__ = ["STX_V1", "STX_V2", "MAX_FRAME", "Header", "frame_size", "header", "msgid", "checksum_ok", "split_frames",
+           "splice"]
 
 STX_V1, STX_V2 = 0xFE, 0xFD
 MAX_FRAME = 12 + 255 + 13  # the longest MAVLink 2 frame (signed)
@@ -54,6 +55,11 @@ def header(buf: bytes | bytearray, i: int = 0) -> Header:
     if buf[i] == STX_V2:
         return Header(2, buf[i + 4], buf[i + 5], buf[i + 6], buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16)
     return Header(1, buf[i + 2], buf[i + 3], buf[i + 4], buf[i + 5])
+
+
+def msgid(buf: bytes | bytearray, i: int) -> int:
+    """The message id of the frame at ``buf[i]``."""
+    return buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16 if buf[i] == STX_V2 else buf[i + 5]
 
 
 def _crc(data: bytes) -> int:
@@ -107,3 +113,16 @@ def split_frames(buf: bytes | bytearray, final: bool = True) -> tuple[list[tuple
             i += 1
             garbage += 1
     return spans, garbage, i
+
+
+def splice(data: bytes, spans: list[tuple[int, int]], replaced: dict[int, bytes]) -> bytes:
+    """``data`` with the frames (of ``spans``) starting at the keys of ``replaced`` swapped for its values."""
+    if not replaced:
+        return data
+    parts, last = [], 0
+    for i, n in spans:
+        if i in replaced:
+            parts += (data[last:i], replaced[i])
+            last = i + n
+    parts.append(data[last:])
+    return b"".join(parts)

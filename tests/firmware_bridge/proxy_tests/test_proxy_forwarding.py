@@ -19,7 +19,7 @@ def rig():
     veh, app, gcs = Peer(), Peer(), Peer()
     hello = frames(mav(2, 1, 9), 1)[0]  # (the tests' own senders each start at sequence 0)
     veh.send(hello, vp)
-    _until(lambda: rp.proxy.vehicle_peer is not None)
+    _until(lambda: rp.proxy.vehicle.peer is not None)
     app.send(frames(mav(2, 245, 9), 1)[0], ap)
     gcs.send(frames(mav(1, 255, 9), 1)[0], ap)
     assert len(veh.wait_for(2, 5)) == 2
@@ -124,7 +124,7 @@ def test_between_clients_forwards_each_clients_messages_to_the_others():
     veh, app, gcs = Peer(), Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 1), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle_peer is not None)
+        _until(lambda: rp.proxy.vehicle.peer is not None)
         gcs.send(frames(mav(2, 255, 190), 1)[0], ap)
         time.sleep(0.1)
         a = frames(mav(2, 245, 190), 3)
@@ -164,7 +164,7 @@ def test_an_app_that_listens_is_sent_to_like_px4_does_beside_a_server_for_a_grou
     rp = RunningProxy([f"udpout:127.0.0.1:{listening.port}", f"udpin:127.0.0.1:{ap}"], f"udpin:127.0.0.1:{vp}")
     try:
         veh.send(frames(mav(2, 1, 9), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle_peer is not None)
+        _until(lambda: rp.proxy.vehicle.peer is not None)
         gcs.send(frames(mav(2, 255, 9), 1)[0], ap)
         _until(lambda: len(veh.got) == 1)
         fs = frames(mav(2, 1, 1), 20)
