@@ -137,8 +137,7 @@ class Bridge:
         self.steering: Steering | None = build_steering(c, self.ctrl, solver) if c.mode == "steer" else None
         self.stage = build_reference_stage(c, self.ctrl, self.steering, contact)
         self.hop: HoppingLoop | None = self.stage.hop
-        self.link = link or MavLink(c.url, baud=c.baud, source_system=c.sysid, source_component=c.compid,
-                                    target_system=c.target_system, target_component=c.target_component)
+        self.link = link or MavLink.for_bridge(c)
         profile = make_profile(c.autopilot, prestream=c.prestream)
         # Hopping: the contact flag is read (and logged) whenever the robot sends one; it drives the
         # phases only with source "signal".

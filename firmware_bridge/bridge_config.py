@@ -3,7 +3,7 @@ the solver fault-injection wrapper used by the tests."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -73,6 +73,8 @@ class BridgeConfig:
         guid_options: ArduPilot GUID_OPTIONS expected (None: the vehicle's value, read before engaging);
             force_guid_options: encode for ``guid_options`` even if the vehicle disagrees.
         sysid, compid: our identity; target_system / target_component: the vehicle (0: first seen).
+        vehicle_address: udpin: the vehicle's (IPv4 address, port); None: pinned to its first heartbeat.
+        signing_key: a 32-byte MAVLink 2 signing key (None: unsigned link).
         rate_hz: control rate (must match the solver's dt and the controller's dt).
         attitude_stream / position_stream: telemetry messages to request.
         max_age: telemetry older than this [s] -> stop steering, stale action.
@@ -152,6 +154,8 @@ class BridgeConfig:
     compid: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
     target_system: int = 1
     target_component: int = 1
+    vehicle_address: tuple[str, int] | None = None
+    signing_key: bytes | None = field(default=None, repr=False)
     rate_hz: float = 200.0
     attitude_stream: str = "ATTITUDE_QUATERNION"
     position_stream: str = "LOCAL_POSITION_NED"

@@ -32,6 +32,8 @@ from firmware_bridge.cli_args import (
     ATTITUDE_STREAMS,
     POSITION_STREAMS,
     add_realtime_args,
+    host_port,
+    signing_key_file,
     fault_spec,
     floats,
     floats_or_none,
@@ -100,6 +102,12 @@ def _bridge_autopilot_args(g) -> None:
     g.add_argument("--compid", type=int, default=_D["compid"], help="our component id (default 191, onboard computer)")
     g.add_argument("--target-system", type=int, default=_D["target_system"], help="vehicle system id (0: the first autopilot heard)")
     g.add_argument("--target-component", type=int, default=_D["target_component"], help="vehicle component id (0: any)")
+    g.add_argument("--vehicle-address", type=host_port, default=None, metavar="HOST:PORT",
+                   help="udpin: only the vehicle at this address counts and is answered (default: the first address "
+                        "whose heartbeat carries the vehicle's ids)")
+    g.add_argument("--signing-key", type=signing_key_file, default=None, metavar="FILE",
+                   help="MAVLink 2 signing key (32 bytes, raw or 64 hex digits): sign what is sent, drop every packet "
+                        "not signed with it")
     g.add_argument("--arm", action="store_true",
                    help="arm the vehicle once its telemetry arrives, retrying while refused (otherwise arming is left "
                         "to the pilot)")
@@ -233,7 +241,8 @@ def bridge_config_from_args(a: argparse.Namespace) -> BridgeConfig:
         url=a.connection, baud=a.baud, mode=a.mode, solver=a.solver, prefilter=a.prefilter, feedforward=a.feedforward,
         autopilot=a.autopilot,
         guid_options=a.guid_options, force_guid_options=a.force_guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
-        target_component=a.target_component, rate_hz=a.rate, attitude_stream=ATTITUDE_STREAMS[a.attitude_stream],
+        target_component=a.target_component, vehicle_address=a.vehicle_address, signing_key=a.signing_key,
+        rate_hz=a.rate, attitude_stream=ATTITUDE_STREAMS[a.attitude_stream],
         position_stream=POSITION_STREAMS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout,
         vehicle_lost_timeout=a.vehicle_lost_timeout, max_tilt_deg=a.max_tilt_deg,

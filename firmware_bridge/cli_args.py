@@ -6,8 +6,11 @@ from __future__ import annotations
 import argparse
 import math
 
+from firmware_bridge.signing import SigningError, load_signing_key
+from firmware_bridge.transports import parse_address
+
 __all__ = ["ATTITUDE_STREAMS", "POSITION_STREAMS", "floats", "floats_or_none", "time_window", "fault_spec", "cpu_list",
-           "push_spec", "qos_request", "add_realtime_args"]
+           "push_spec", "qos_request", "add_realtime_args", "host_port", "signing_key_file"]
 
 ATTITUDE_STREAMS = {"attitude": "ATTITUDE", "quaternion": "ATTITUDE_QUATERNION", "odometry": "ODOMETRY"}
 POSITION_STREAMS = {"local": "LOCAL_POSITION_NED", "odometry": "ODOMETRY"}
@@ -24,6 +27,22 @@ def floats(s: str) -> tuple[float, ...]:
 def floats_or_none(s: str) -> tuple[float, ...] | None:
     """``none`` (any case) or comma-separated numbers."""
     return None if str(s).strip().lower() == "none" else floats(s)
+
+
+def host_port(s: str) -> tuple[str, int]:
+    """HOST:PORT (``--vehicle-address``), resolved to an IPv4 address."""
+    try:
+        return parse_address(s)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def signing_key_file(s: str) -> bytes:
+    """A file holding a 32-byte MAVLink signing key, raw or as 64 hex digits (``--signing-key``)."""
+    try:
+        return load_signing_key(s)
+    except (SigningError, OSError) as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def time_window(s: str) -> tuple[float, float]:

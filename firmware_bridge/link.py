@@ -1,7 +1,7 @@
 """MAVLink I/O for the bridge and the simulated vehicle: transports, framing, filtering, commands.
 
-Connection strings follow pymavlink's: ``udpin:HOST:PORT`` (listen; replies go to the peer that
-sent the last valid message of the target system), ``udpout:HOST:PORT`` (a connected UDP socket:
+Connection strings follow pymavlink's: ``udpin:HOST:PORT`` (listen; replies go to the pinned peer, see
+below), ``udpout:HOST:PORT`` (a connected UDP socket:
 the kernel drops datagrams from anyone else), ``tcp:HOST:PORT`` (client, reconnects), or a serial
 device ``/dev/ttyACM0`` (baud from ``--baud`` or ``/dev/ttyACM0:921600``; POSIX termios, no
 pyserial needed). Messages are encoded / parsed with pymavlink's MAVLink 2 ``common`` dialect
@@ -17,6 +17,15 @@ for longer than a connect timeout, and the receive path drains everything pendin
 Receive times: on Linux UDP the kernel's receive time stamp (SO_TIMESTAMPNS) is used, so a
 message that waited in the socket while the process was busy is not reported younger than it
 is. Times are returned on the ``time.monotonic()`` clock.
+
+The pinned peer (``udpin:`` on the bridge's side, a target system set): the first address whose
+HEARTBEAT carries the expected system / component ids (or the ``vehicle_address`` given) becomes
+the only source whose messages count and the only destination of ours. Packets from any other
+address are counted (``foreign_packets``) and dropped unparsed, so a flood costs a receive call
+each and a peer that copies the vehicle's ids steers nothing. The peer moves only when the pinned
+one has been silent for ``repin_after`` seconds and a heartbeat with the ids comes from the new
+address (a restarted vehicle on a new port), never with a given ``vehicle_address``. With a
+signing key (:mod:`.signing`) every packet must carry a valid MAVLink 2 signature.
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from firmware_bridge.signing import enable_signing
 from firmware_bridge.transports import (
     Endpoint,
     LinkError,
@@ -75,6 +85,12 @@ class MavLink:
             ``target_component=0``: any component of the target system.
         baud: serial baud rate (default from the string, else 921600).
         reconnect_interval: seconds between reopen attempts of a failed transport.
+        vehicle_address: ``udpin:`` only: the vehicle's (host, port); the peer is pinned to it from the
+            start and never moves. None: pinned to the first heartbeat with the target ids.
+        signing_key: a 32-byte MAVLink 2 signing key: sign what we send, drop what is not signed with it.
+        signing_link_id: the link id our signatures carry.
+        repin_after: the pinned peer silent this long [s]: a heartbeat with the ids from a new address
+            may take its place (no ``vehicle_address``).
     """
 
     def __init__(
@@ -87,6 +103,10 @@ class MavLink:
         target_component: int = 1,
         baud: int | None = None,
         reconnect_interval: float = 1.0,
+        vehicle_address: tuple[str, int] | None = None,
+        signing_key: bytes | None = None,
+        signing_link_id: int = 0,
+        repin_after: float = 3.0,
     ) -> None:
         self.endpoint = parse_url(url, baud)
         self.url = url
@@ -97,8 +117,16 @@ class MavLink:
         self.target_system, self.target_component = target_system, target_component
         self.reconnect_interval = reconnect_interval
         self.stats: Counter = Counter({k: 0 for k in ("rx", "tx", "tx_dropped", "bad_data", "parse_errors",
-                                                      "foreign", "link_errors", "reconnects", "peer_changes")})
+                                                      "foreign", "link_errors", "reconnects", "peer_changes",
+                                                      "foreign_packets", "unpinned", "unsigned", "bad_signature")})
         self.foreign_systems: set[int] = set()
+        self.vehicle_address = vehicle_address
+        self.repin_after = repin_after
+        self.signed = signing_key is not None
+        if signing_key is not None:
+            enable_signing(self.mav, signing_key, signing_link_id)
+            enable_signing(self._parser, signing_key, signing_link_id, sign_outgoing=False)
+        self._peer_heard = -math.inf  # when the pinned peer last sent a valid message [s, monotonic]
         self._next_reopen = 0.0
         self.transport: _Transport | None = None
         self.last_error = ""
@@ -112,8 +140,22 @@ class MavLink:
             if self.endpoint.kind == "udpin":
                 raise  # a port we cannot bind is a configuration error, not a link drop
             self._down(str(e), time.monotonic())
+        if self.pinning and vehicle_address is not None and self.transport is not None:
+            self.transport.peer = vehicle_address
+
+    @classmethod
+    def for_bridge(cls, c) -> MavLink:
+        """The bridge's link from its :class:`.bridge_config.BridgeConfig` (``c``)."""
+        return cls(c.url, baud=c.baud, source_system=c.sysid, source_component=c.compid, target_system=c.target_system,
+                   target_component=c.target_component, vehicle_address=c.vehicle_address, signing_key=c.signing_key,
+                   repin_after=c.link_timeout)
 
     # ------------------------------------------------------------------ state
+    @property
+    def pinning(self) -> bool:
+        """A listening UDP link of the bridge (a target system set): replies go to one pinned peer."""
+        return self.endpoint.kind == "udpin" and self.target_system is not None
+
     @property
     def is_open(self) -> bool:
         return self.transport is not None and self.transport.is_open
@@ -189,42 +231,75 @@ class MavLink:
         now_r = time.time()
         now_m = time.monotonic()
         out: list[tuple[Any, float]] = []
-        parser = self._parser
-        stats = self.stats
+        pinning = self.pinning
         for data, addr, kts in chunks:
+            if pinning and addr != t.peer and not self._may_pin(now_m):
+                self.stats["foreign_packets"] += 1  # not the vehicle's address: never parsed, never answered
+                continue
             rx = now_m
             if kts is not None:
                 age = now_r - kts
                 # a kernel stamp a hair "in the future" is clock-read jitter, not a bad stamp
                 if -0.01 <= age < 1.0:
                     rx = now_m - max(age, 0.0)
-            try:
-                msgs = parser.parse_buffer(data)
-            except Exception:  # a malformed packet must never take the loop down
-                stats["parse_errors"] += 1
-                _reset_parser(parser)
-                continue
-            if t.datagram:
-                if len(parser.buf) > parser.buf_index:
-                    stats["bad_data"] += 1  # a truncated packet: dropped with its datagram
-                _reset_parser(parser)
-            if not msgs:
-                continue
+            msgs = self._parse(data, t.datagram)
             for msg in msgs:
-                if msg.get_type() == "BAD_DATA":
-                    stats["bad_data"] += 1
-                    continue
-                if not self._accept(msg):
-                    stats["foreign"] += 1
-                    self.foreign_systems.add(msg.get_srcSystem())
-                    continue
-                stats["rx"] += 1
-                if t.datagram and isinstance(t, UdpTransport) and t.listen and addr is not None and t.peer != addr:
-                    # Pin replies to whoever sends valid messages of the system we talk to.
-                    t.peer = addr
-                    stats["peer_changes"] += 1
-                out.append((msg, rx))
+                if self._filter(msg, addr, now_m, pinning):
+                    out.append((msg, rx))
         return out
+
+    def _parse(self, data: bytes, datagram: bool) -> list:
+        """The messages in one chunk; a datagram's partial packet is dropped with it."""
+        parser, stats = self._parser, self.stats
+        try:
+            msgs = parser.parse_buffer(data)
+        except Exception:  # a malformed packet must never take the loop down
+            stats["parse_errors"] += 1
+            _reset_parser(parser)
+            return []
+        if datagram:
+            if len(parser.buf) > parser.buf_index:
+                stats["bad_data"] += 1  # a truncated packet: dropped with its datagram
+            _reset_parser(parser)
+        if self.signed:
+            sg = parser.signing
+            stats["bad_signature"] = sg.badsig_count
+            stats["unsigned"] = sg.reject_count - sg.badsig_count
+        return msgs or []
+
+    def _filter(self, msg, addr, now: float, pinning: bool) -> bool:
+        """True if ``msg`` (from ``addr``) counts: not bad data, from the target, from the pinned peer."""
+        stats = self.stats
+        if msg.get_type() == "BAD_DATA":
+            if getattr(msg, "reason", "") != "Invalid signature":  # counted as unsigned / bad_signature
+                stats["bad_data"] += 1
+            return False
+        if not self._accept(msg):
+            stats["foreign"] += 1
+            self.foreign_systems.add(msg.get_srcSystem())
+            return False
+        t = self.transport
+        if pinning and addr is not None and addr != t.peer:
+            if msg.get_type() != "HEARTBEAT":
+                stats["unpinned" if t.peer is None else "foreign_packets"] += 1
+                return False
+            # The first heartbeat with the target's ids pins the peer; later, only after the peer fell silent
+            # (drain lets no other address through before that, and none with a given vehicle address).
+            t.peer = addr
+            stats["peer_changes"] += 1
+        elif not pinning and t.datagram and isinstance(t, UdpTransport) and t.listen and addr is not None \
+                and t.peer != addr:
+            t.peer = addr  # the vehicle's side (any sender counts): reply to whoever spoke last
+            stats["peer_changes"] += 1
+        stats["rx"] += 1
+        self._peer_heard = now
+        return True
+
+    def _may_pin(self, now: float) -> bool:
+        """A datagram from another address may carry a heartbeat that (re)pins the peer."""
+        if self.vehicle_address is not None:
+            return False
+        return self.transport.peer is None or now - self._peer_heard > self.repin_after
 
     def _accept(self, msg) -> bool:
         ts = self.target_system

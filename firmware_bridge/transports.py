@@ -13,7 +13,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["LinkError", "Endpoint", "parse_url", "UdpTransport", "TcpTransport", "SerialTransport", "open_transport"]
+__all__ = ["LinkError", "Endpoint", "parse_url", "UdpTransport", "TcpTransport", "SerialTransport", "open_transport",
+           "parse_address"]
 
 _LINUX = sys.platform.startswith("linux")
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # asm-generic value on Linux
@@ -65,6 +66,21 @@ def parse_url(url: str, baud: int | None = None) -> Endpoint:
     if not dev.startswith("/") and not dev.upper().startswith("COM"):
         raise ValueError(f"{url!r} is neither udpin:/udpout:/tcp: nor a serial device path")
     return Endpoint("serial", device=dev, baud=int(b or 921600))
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` as the (IPv4 address, port) a UDP datagram from there carries (names resolved once).
+
+    Raises:
+        ValueError: not HOST:PORT, a port outside 1..65535, or a name that does not resolve.
+    """
+    host, sep, port = text.strip().rpartition(":")
+    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"{text!r}: expected HOST:PORT with a port in 1..65535")
+    try:
+        return socket.gethostbyname(host), int(port)
+    except OSError as e:
+        raise ValueError(f"{text!r}: cannot resolve {host!r} ({e})") from None
 
 
 # ----------------------------------------------------------------------------- transports

@@ -154,7 +154,8 @@ def test_garbage_and_foreign_sysid_are_ignored_and_the_stream_survives_silence(p
         intruder.recv(1000)
     intruder.close()
     assert np.all(np.abs(t["position"][:, 2] - 0.9) < 1e-3)
-    assert s["link"]["foreign"] > 0 and 42 in s["link"]["foreign_systems"]
+    # The intruder's address is not the vehicle's: its packets are counted and dropped unparsed.
+    assert s["link"]["foreign_packets"] > 0
     assert s["link"]["bad_data"] > 0
     assert s["link"]["peer_changes"] == 1     # replies stayed pinned to the vehicle
     assert s["reasons"].get("stale", 0) > 0    # the silence was seen ...
