@@ -85,6 +85,7 @@ from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.report import FlightRecorder, gap_statistics, write_summary
 from firmware_bridge.setpoints import AttitudeSetpoints, SetpointStream
 from firmware_bridge.steering_setup import Steering, build_reference_stage, build_steering, loop_warnings
+from firmware_bridge.plausibility import TelemetryLimits
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.tick_gate import TickGate, make_gate
 from firmware_bridge.ticklog import TickLog
@@ -141,7 +142,8 @@ class Bridge:
         profile = make_profile(c.autopilot, prestream=c.prestream)
         # Hopping: the contact flag is read (and logged) whenever the robot sends one; it drives the
         # phases only with source "signal".
-        telem = TelemetryState(c.attitude_stream, c.position_stream, contact.signal_name if hopping else None)
+        telem = TelemetryState(c.attitude_stream, c.position_stream, contact.signal_name if hopping else None,
+                               limits=TelemetryLimits.from_envelope(c.envelope))
         self.vehicle = VehicleLink(self.link, profile, telem, self.events, rate_hz=c.rate_hz,
                                    link_timeout=c.link_timeout, arm_timeout=c.arm_timeout, verbose=c.verbose,
                                    on_reboot=lambda: self.trigger.restart_samples())

@@ -12,14 +12,17 @@ conversions are :mod:`ddpc_codegen.robot.frames`' scalar path (the MAVROS conven
 
 :class:`TelemetryState` keeps the newest sample of each stream (attitude, position) with its
 sender time stamp and its receive time, so that a tick always uses the newest telemetry and
-knows its age. A sample with a non-finite field (a NaN quaternion or position) or a quaternion far from
-unit norm is dropped and counted (``dropped``): it never reaches the frames or the setpoints; the
-stream's last good sample ages instead, so a flood of them is stale telemetry.
+knows its age. A sample with a non-finite field (a NaN quaternion or position), a quaternion far from
+unit norm, or one that :mod:`.plausibility` finds implausible (out of physical bounds, a jump from the
+last accepted sample, a stamp off the stream's time line) is dropped and counted (``dropped``, by reason
+in ``rejected``): it never reaches the frames or the setpoints; the stream's last good sample ages
+instead, so a flood of them is stale telemetry.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +39,7 @@ from ddpc_codegen.robot.frames import (
     rotate,
     wrap_pi,
 )
+from firmware_bridge.plausibility import REBOOT_SAMPLES, TelemetryLimits, on_timeline
 
 __all__ = [
     "Sample",
@@ -62,6 +66,10 @@ class Sample:
     stamp: float = math.nan
     rx: float = -math.inf
     seq: int = 0
+    # Samples off the time line that agree with each other: (stamp, rx) of the newest, how many.
+    cand_stamp: float = math.nan
+    cand_rx: float = -math.inf
+    cand_n: int = 0
     # Every sample's (stamp, rx), kept across reboots: a burst of two is two rows, none is dropped.
     history: list[tuple[float, float]] = field(default_factory=list)
 
@@ -76,6 +84,7 @@ class TelemetryState:
         contact_name: hopping with a leg sensor: the NAMED_VALUE_INT name carrying foot contact
             (value != 0: on the ground); the newest flag is ``contact`` (None before the first one)
             with its stamp ``contact_stamp`` [s]. None: not read.
+        limits: what a plausible sample satisfies (:class:`.plausibility.TelemetryLimits`).
     """
 
     attitude_msg: str = "ATTITUDE_QUATERNION"
@@ -87,6 +96,7 @@ class TelemetryState:
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     euler: np.ndarray = field(default_factory=lambda: np.zeros(3))
     rates: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    limits: TelemetryLimits = field(default_factory=TelemetryLimits)
 
     def __post_init__(self) -> None:
         if self.attitude_msg not in STREAMS["attitude"]:
@@ -97,7 +107,8 @@ class TelemetryState:
         self.contact: bool | None = None
         self.contact_value: int | None = None  # the flag as sent (0 / 1; anything else is implausible)
         self.contact_stamp = math.nan
-        self.dropped = 0  # samples with a non-finite field or a non-unit quaternion, never used
+        self.dropped = 0  # samples never used (non-finite, non-unit quaternion, implausible)
+        self.rejected: Counter = Counter()  # the dropped samples by reason
         if self.contact_name:
             self.wanted.add("NAMED_VALUE_INT")
 
@@ -117,37 +128,62 @@ class TelemetryState:
                 self.contact_value = int(msg.value)
             return False  # not a state stream: it never triggers a tick
         if not _plausible(msg, typ):
-            self.dropped += 1
-            return False
+            return self._reject("nonfinite")
         if typ == "ODOMETRY":
             stamp = msg.time_usec * 1e-6
-            e = euler_from_quat(quat_enu_flu_from_ned_frd(msg.q))
             vel = (msg.vx, msg.vy, msg.vz)
             if msg.child_frame_id == 12:  # MAV_FRAME_BODY_FRD: velocity in the body frame (PX4 >= 1.14)
                 vel = rotate(msg.q, vel)
-            if self.attitude_msg == "ODOMETRY":
-                self.euler[:] = e
-                self.rates[:] = rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))
-                self._tick(self.att, stamp, rx)
-            if self.position_msg == "ODOMETRY":
-                self.position[:] = enu_from_ned((msg.x, msg.y, msg.z))
-                self.velocity[:] = enu_from_ned(vel)
-                self._tick(self.pos, stamp, rx)
-            return True
-        stamp = msg.time_boot_ms * 1e-3
-        if typ == "LOCAL_POSITION_NED":
-            self.position[:] = enu_from_ned((msg.x, msg.y, msg.z))
-            self.velocity[:] = enu_from_ned((msg.vx, msg.vy, msg.vz))
+            att = (euler_from_quat(quat_enu_flu_from_ned_frd(msg.q)),
+                   rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))) \
+                if self.attitude_msg == "ODOMETRY" else None
+            pos = (enu_from_ned((msg.x, msg.y, msg.z)), enu_from_ned(vel)) if self.position_msg == "ODOMETRY" else None
+        elif typ == "LOCAL_POSITION_NED":
+            stamp, att = msg.time_boot_ms * 1e-3, None
+            pos = (enu_from_ned((msg.x, msg.y, msg.z)), enu_from_ned((msg.vx, msg.vy, msg.vz)))
+        else:
+            stamp, pos = msg.time_boot_ms * 1e-3, None
+            e = euler_enu_from_ned((msg.roll, msg.pitch, msg.yaw)) if typ == "ATTITUDE" else \
+                euler_from_quat(quat_enu_flu_from_ned_frd((msg.q1, msg.q2, msg.q3, msg.q4)))
+            att = (e, rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed)))
+        fault = self._fault(stamp, rx, att, pos)
+        if fault is not None:
+            return self._reject(fault)
+        if att is not None:
+            self.euler[:], self.rates[:] = att
+            self._tick(self.att, stamp, rx)
+        if pos is not None:
+            self.position[:], self.velocity[:] = pos
             self._tick(self.pos, stamp, rx)
-        elif typ == "ATTITUDE":
-            self.euler[:] = euler_enu_from_ned((msg.roll, msg.pitch, msg.yaw))
-            self.rates[:] = rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))
-            self._tick(self.att, stamp, rx)
-        else:  # ATTITUDE_QUATERNION
-            self.euler[:] = euler_from_quat(quat_enu_flu_from_ned_frd((msg.q1, msg.q2, msg.q3, msg.q4)))
-            self.rates[:] = rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed))
-            self._tick(self.att, stamp, rx)
         return True
+
+    def _fault(self, stamp: float, rx: float, att, pos) -> str | None:
+        """Why the decoded sample (its stamp, (euler, rates) and / or (position, velocity)) is implausible."""
+        lim = self.limits
+        streams = ([self.att] if att is not None else []) + ([self.pos] if pos is not None else [])
+        if not all(on_timeline(lim, s.stamp, s.rx, stamp, rx) for s in streams):
+            for s in streams:  # a candidate time line (a reboot, if the heartbeat agrees)
+                agrees = s.cand_n > 0 and on_timeline(lim, s.cand_stamp, s.cand_rx, stamp, rx)
+                s.cand_stamp, s.cand_rx, s.cand_n = stamp, rx, s.cand_n + 1 if agrees else 1
+            return "stamp"
+        for s in streams:
+            s.cand_n = 0
+        if att is not None and (f := lim.rates_fault(att[1])) is not None:
+            return f
+        if pos is not None:
+            s = self.pos
+            last = (self.position, self.velocity) if s.seq > 0 else None
+            return lim.state_fault(pos[0], pos[1], last, max(rx - s.rx, stamp - s.stamp, 0.0))
+        return None
+
+    def _reject(self, reason: str) -> bool:
+        self.dropped += 1
+        self.rejected[reason] += 1
+        return False
+
+    def new_timeline(self) -> bool:
+        """A stream's last :data:`.plausibility.REBOOT_SAMPLES` samples agree on a time line that is not its own."""
+        return max(self.att.cand_n, self.pos.cand_n) >= REBOOT_SAMPLES
 
     @staticmethod
     def _tick(s: Sample, stamp: float, rx: float) -> None:
@@ -177,6 +213,14 @@ class TelemetryState:
         """A copy as the controller's :class:`MeasuredState` at controller time t [s]."""
         return MeasuredState(t=t, position=self.position.copy(), velocity=self.velocity.copy(),
                              euler=self.euler.copy(), body_rates=self.rates.copy(), contact=False)
+
+    def restart(self, msg, rx: float) -> bool:
+        """A reboot: forget the newest samples and fold ``msg`` (the sample that completed the new time line,
+        counted as dropped a moment ago: uncounted) in as the first of the new time line."""
+        self.dropped -= 1
+        self.rejected["stamp"] -= 1
+        self.reset()
+        return self.update(msg, rx)
 
     def reset(self) -> None:
         """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""

@@ -4,7 +4,13 @@
 telemetry (:class:`.telemetry.TelemetryState`), the simulator's truth, the heartbeat's arming and mode
 (:class:`VehicleStatus`), parameters, command acknowledgements (with the arming retries' refusals), the
 vehicle clock estimate. It requests the telemetry streams, reads the preflight parameters, notices a
-reboot (the vehicle's clock went back: streams asked for again) and a lost link (nothing heard).
+reboot and a lost link (nothing heard).
+
+A reboot needs consistent evidence, never one stamp: the telemetry's samples agree on a new time line
+(:meth:`.telemetry.TelemetryState.new_timeline`) *and* the heartbeat says something happened to the
+vehicle since its last accepted sample (it was silent past the link timeout, it moved to a new address,
+or its armed state or mode changed). Then the telemetry is reset and the streams asked for again; a new
+time line without that evidence stays dropped (stale telemetry, one event).
 It knows nothing of trajectories or steering: any front end that talks to one vehicle can own one.
 """
 
@@ -77,7 +83,8 @@ class VehicleLink:
         self.verbose = verbose
         self.on_reboot = on_reboot
         self.params: dict[str, float] = {}
-        self.counts: dict[str, int] = {"reboots": 0, "stream_requests": 0, "link_losses": 0}
+        self.counts: dict = {"reboots": 0, "stream_requests": 0, "link_losses": 0,
+                             "telemetry_rejected": telem.rejected}
         self.reset()
 
     def reset(self) -> None:
@@ -88,6 +95,10 @@ class VehicleLink:
         self.link_lost = False
         self.t_offset = math.inf  # receive time - vehicle time stamp (clock sync estimate) [s]
         self.last_text = ""
+        self.reboot_evidence = ""  # what the heartbeat said since the last accepted sample ("": nothing)
+        self._timeline_said = False
+        self._streams_asked = False  # the streams were asked for since the reboot evidence
+        self._peer_changes = self.link.stats.get("peer_changes", 0)
 
     # ------------------------------------------------------------------ receive
     def pump(self) -> None:
@@ -123,28 +134,48 @@ class VehicleLink:
 
     def _on_telemetry(self, msg, rx: float) -> None:
         tel = self.telem
-        before = (tel.att.stamp, tel.pos.stamp)
         if not tel.update(msg, rx):
-            return  # the contact flag: kept, not a state sample
+            if tel.new_timeline():
+                self._new_timeline(msg, rx)
+            return  # dropped, or the contact flag (kept, not a state sample)
         self.status.last_heard = rx
-        if before[0] - tel.att.stamp > 1.0 or before[1] - tel.pos.stamp > 1.0:
-            # Vehicle clock went back: it rebooted. Forget its state and ask for the streams again.
-            self.counts["reboots"] += 1
-            self.events(f"vehicle time went back ({max(before):.3f} s -> {tel.newest_stamp():.3f} s): "
-                        "reboot, re-requesting streams")
-            tel.reset()
-            tel.update(msg, rx)
-            self.t_offset = math.inf
-            if self.on_reboot is not None:
-                self.on_reboot()
-            self.request_streams()
-        off = rx - tel.newest_stamp()
+        self.reboot_evidence, self._timeline_said = "", False  # the old time line goes on
+        self._clock(rx)
+
+    def _clock(self, rx: float) -> None:
+        off = rx - self.telem.newest_stamp()
         # Vehicle clock estimate: minimum of (receive - stamp), slowly forgetting (clock drift).
         self.t_offset = min(self.t_offset + 1e-5, off) if math.isfinite(self.t_offset) else off
+
+    def _new_timeline(self, msg, rx: float) -> None:
+        """Samples agree on a new vehicle time line: a reboot if the heartbeat agrees, else dropped."""
+        tel = self.telem
+        old = tel.newest_stamp()
+        new = max((s.cand_stamp for s in (tel.att, tel.pos) if s.cand_n), default=math.nan)
+        if not self.reboot_evidence:
+            if not self._timeline_said:
+                self._timeline_said = True
+                self.events(f"vehicle time left its time line ({old:.3f} s -> {new:.3f} s) without a reboot's "
+                            "heartbeat evidence: samples dropped")
+            return
+        self.counts["reboots"] += 1
+        self.events(f"vehicle time went from {old:.3f} s to {new:.3f} s after {self.reboot_evidence}: "
+                    "reboot, re-requesting streams")
+        self.reboot_evidence, self._timeline_said = "", False
+        tel.restart(msg, rx)
+        self.status.last_heard = rx
+        self.t_offset = math.inf
+        if self.on_reboot is not None:
+            self.on_reboot()
+        if not self._streams_asked:  # not yet when its heartbeat came back
+            self.request_streams()
+        if tel.has_data:
+            self._clock(rx)
 
     def _on_heartbeat(self, msg, rx: float) -> None:
         st = self.status
         vm = self.profile.decode(msg.base_mode, msg.custom_mode)
+        self._reboot_evidence(vm, rx)
         if not st.seen:
             st.autopilot, st.vehicle_type = int(msg.autopilot), int(msg.type)
             self.events(f"vehicle heartbeat: sysid {msg.get_srcSystem()}, autopilot {msg.autopilot}, "
@@ -152,13 +183,37 @@ class VehicleLink:
         elif self.link_lost or rx - st.last_heard > self.link_timeout:
             self.events("vehicle heartbeat back: link restored, re-requesting streams")
             self.request_streams()
+            self.link_lost = False  # restored once: the next heartbeats of the same read are no news
         if st.seen and (vm.armed != st.armed or vm.name != st.mode_name):
             self.events(f"vehicle {vm.name}, armed={vm.armed}")
         st.seen = True
         st.last_hb = st.last_heard = rx
         st.armed, st.offboard, st.mode_name = vm.armed, vm.offboard, vm.name
 
+    def _reboot_evidence(self, vm, rx: float) -> None:
+        """Note what in this heartbeat could mean the vehicle restarted (see the module docstring)."""
+        st, changes = self.status, self.link.stats.get("peer_changes", 0)
+        moved, self._peer_changes = changes != self._peer_changes, changes
+        if not st.seen:
+            return
+        if moved:
+            self.reboot_evidence = "a heartbeat from a new address"
+        elif self.link_lost or rx - st.last_heard > self.link_timeout:
+            self.reboot_evidence = "a silence"
+        elif vm.armed != st.armed or vm.name != st.mode_name:
+            self.reboot_evidence = "a change of the heartbeat's state"
+        else:
+            return
+        self._streams_asked = False
+
     # ------------------------------------------------------------------ state
+    def bridge_paused(self, now: float, paused: float) -> None:
+        """The bridge's own process was paused for ``paused`` s until ``now`` (its clock jumped while the vehicle
+        went on talking into the socket): a silence of the bridge, not of the vehicle. Only the silence the
+        bridge was awake for counts toward a link loss (and a restore, and a reboot's evidence)."""
+        if self.status.seen:
+            self.status.last_heard = min(now, self.status.last_heard + paused)
+
     def heard(self, now: float) -> bool:
         """A heartbeat arrived and the vehicle was heard within the link timeout."""
         return self.status.seen and now - self.status.last_heard <= self.link_timeout
@@ -203,6 +258,7 @@ class VehicleLink:
         self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(us)),
                      f"SET_MESSAGE_INTERVAL {name} {self.rate_hz:g} Hz (SITL truth)")
         self.counts["stream_requests"] += 1
+        self._streams_asked = True
 
     def housekeeping(self, now: float, heartbeat: bool) -> None:
         """Off the tick path: our heartbeat (when due), command retries, reopening a closed link."""

@@ -32,11 +32,69 @@ def test_telemetry_sets_the_vehicle_clock_and_a_reboot_asks_for_the_streams_agai
     assert v.telem.has_data and v.telem.seq_total == 4
     assert v.t_offset == pytest.approx(100.002) and v.vehicle_now(120.0, lockstep=False) == pytest.approx(19.998)
     assert v.vehicle_now(120.0, lockstep=True) == pytest.approx(10.005)  # lock-step: the newest stamp
-    for m in telemetry(0.2):  # the vehicle's clock went back: it rebooted
-        v.on_message(m, 111.0)
+    v.on_message(heartbeat(), 110.006)
+    v.on_message(heartbeat(), 111.0)  # the vehicle was silent past the link timeout (it rebooted) ...
+    for k in range(5):                # ... and its clock restarted: five samples agree on the new time line
+        for m in telemetry(0.2 + 0.005 * k):
+            v.on_message(m, 111.0 + 0.005 * k)
+    # The streams were asked for when the heartbeat came back; the reboot needs no second request.
     assert v.counts["reboots"] == 1 and reboots == [1] and v.counts["stream_requests"] == 1
     assert v.pending(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL)
-    assert v.telem.att.seq == 1 and v.telem.newest_stamp() == pytest.approx(0.2)
+    assert v.telem.att.seq == 1 and v.telem.newest_stamp() == pytest.approx(0.22)
+    assert v.telem.rejected["stamp"] == 8  # the four samples per stream before the fifth were not used
+
+
+def _flying(v, t0: float = 10.0, n: int = 20, rx0: float = 100.0) -> float:
+    """Heartbeat, then ``n`` regular samples at 200 Hz from vehicle time ``t0``; returns the next vehicle time."""
+    v.on_message(heartbeat(), rx0)
+    for k in range(n):
+        for m in telemetry(t0 + 0.005 * k):
+            v.on_message(m, rx0 + 0.005 * k)
+    return t0 + 0.005 * n
+
+
+def test_one_stamp_back_or_60_s_ahead_is_dropped_and_no_reboot():
+    v = vehicle()
+    t = _flying(v)
+    for k, stamp in enumerate((t + 60.0, 0.2, t + 60.0, 3.0, t + 0.005)):   # forged stamps, one good one
+        for m in telemetry(stamp):
+            v.on_message(m, 100.1 + 0.005 * k)
+    assert v.counts["reboots"] == 0 and v.counts["stream_requests"] == 0
+    assert v.telem.rejected["stamp"] == 8 and v.telem.newest_stamp() == pytest.approx(t + 0.005)
+
+
+def test_a_steady_60_s_jump_without_heartbeat_evidence_stays_dropped_with_one_event():
+    v = vehicle()
+    t = _flying(v)
+    for k in range(600):  # every sample 60 s ahead of the vehicle's clock, for 3 s
+        for m in telemetry(t + 60.0 + 0.005 * k):
+            v.on_message(m, 100.1 + 0.005 * k)
+        if k % 100 == 0:
+            v.on_message(heartbeat(), 100.1 + 0.005 * k)  # the heartbeat goes on as before
+    assert v.counts["reboots"] == 0 and v.counts["stream_requests"] == 0
+    assert v.telem.rejected["stamp"] == 1200 and v.telem.newest_stamp() == pytest.approx(t - 0.005)
+    said = [e for _, e in v.events.events if "time line" in e]
+    assert len(said) == 1 and "without a reboot's heartbeat evidence" in said[0]
+
+
+def test_absurd_positions_and_velocities_are_dropped_and_counted():
+    v = vehicle()
+    t = _flying(v)
+    tel = v.telem
+    forged = [mavlink.MAVLink_local_position_ned_message(0, 1e30, 0.0, -1.0, 0.0, 0.0, 0.0),
+              mavlink.MAVLink_local_position_ned_message(0, 0.0, 0.0, -1.0, 1e30, 0.0, 0.0),
+              mavlink.MAVLink_local_position_ned_message(0, 0.0, 0.0, -40.0, 0.0, 0.0, 0.0),   # 39 m in 5 ms
+              mavlink.MAVLink_local_position_ned_message(0, 0.0, 0.0, -1.0, 0.0, 0.0, 30.0)]   # 30 m/s in 5 ms
+    for k, m in enumerate(forged):
+        m.time_boot_ms = int(round((t + 0.005 * k) * 1000))
+        v.on_message(from_vehicle(m), 100.1 + 0.005 * k)
+    assert dict(tel.rejected) == {"position_bounds": 1, "velocity_bounds": 1, "position_jump": 1, "velocity_jump": 1}
+    assert tel.dropped == 4 and tel.position[2] == pytest.approx(1.0) and not tel.velocity.any()
+    assert v.counts["telemetry_rejected"] is tel.rejected
+    # A real climb is followed: 0.5 m in 0.1 s after the last accepted sample.
+    m = mavlink.MAVLink_local_position_ned_message(int(round((t + 0.1) * 1000)), 0.0, 0.0, -1.5, 0.0, 0.0, -5.0)
+    v.on_message(from_vehicle(m), 100.2)
+    assert tel.position[2] == pytest.approx(1.5) and tel.velocity[2] == pytest.approx(5.0)
 
 
 def test_an_arming_refusal_is_reported_with_the_autopilots_words():
