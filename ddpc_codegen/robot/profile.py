@@ -2,7 +2,8 @@
 validated TOML file (``[controller]``: :class:`ControllerConfig` fields, ``[trajectory]``:
 :class:`EllipseTrajectory` fields, ``[contact]``: :class:`ContactConfig` fields, hopping phase
 detection, ``[steering]``: :class:`SteeringGuards`, the bridge's guards this robot needs when
-steered, ``[envelope]``: :class:`Envelope`, what the bridge's last gate lets reach the vehicle).
+steered, ``[envelope]``: :class:`Envelope`, where the vehicle may fly and how fast its references may move:
+the bridge's path checks and its last gate; its defaults are PogoX's).
 Shipped profiles live in ``ddpc_codegen/robot/profiles/`` and are named by their file stem
 (``pogox``); any other profile is a path. Every number is checked for type, finiteness and range
 (:mod:`.validate`) before anything is built from it; the file's size and nesting before it is parsed.
@@ -25,8 +26,8 @@ from ddpc_codegen.robot.validate import Range, check_table
 from ddpc_codegen.values.files import load_toml_bounded
 from ddpc_codegen.values.tomlconfig import check_keys, dataclass_from_table
 
-__all__ = ["RobotProfile", "SteeringGuards", "Envelope", "load_profile", "shipped_profiles", "PROFILE_DIR",
-           "PROFILE_RANGES"]
+__all__ = ["RobotProfile", "SteeringGuards", "Envelope", "default_envelope", "load_profile", "shipped_profiles", "PROFILE_DIR",
+           "PROFILE_RANGES", "DEFAULT_REF_RATE"]
 
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
 _TOP = ("name", "description", "extends", "controller", "trajectory", "contact", "steering", "envelope")
@@ -63,10 +64,17 @@ PROFILE_RANGES: dict[str, dict[str, Range]] = {
         "min_air_ticks": Range(lo=0, hi=10_000, integer=True), "backdate_ticks": Range(lo=0, hi=100, integer=True),
     },
     "envelope": {
-        "z_min": Range(lo=-1e3, hi=1e4), "z_max": Range(lo=-1e3, hi=1e4),
-    },  # offset_rate: check_per_reference (one per reference of the loop)
+        "z_min": Range(lo=-10.0, hi=1e4), "z_max": Range(lo=0.0, lo_open=True, hi=1e4),
+        "radius": Range(lo=0.0, lo_open=True, hi=1e5), "max_speed": Range(lo=0.0, lo_open=True, hi=100.0),
+        "max_accel": Range(lo=0.0, lo_open=True, hi=100.0),
+    },  # ref_rate, offset_rate: check_per_reference (one per reference of the loop)
     "steering": {},  # max_step: check_per_reference (one per reference of the loop)
 }
+
+
+# Largest change per second of an applied reference when the profile sets none: a collect flight's PRBS
+# steps (twice its amplitude in one tick) fit at 200 Hz, a hopper's leg angles may turn at lift-off.
+DEFAULT_REF_RATE = {"z_ref": 30.0, "roll_ref": 100.0, "pitch_ref": 100.0}
 
 
 @dataclass(frozen=True)
@@ -85,18 +93,29 @@ class SteeringGuards:
 
 @dataclass(frozen=True)
 class Envelope:
-    """What the bridge's last gate lets reach the vehicle (``[envelope]``), whatever mode produced it.
+    """Where the vehicle may be and how fast its references may move (``[envelope]``), whatever mode
+    produced them: the bridge checks every input that defines the path against it before arming
+    (:mod:`firmware_bridge.path_checks`) and its last gate clamps every applied reference to it.
 
     Attributes:
-        z_min, z_max: the applied height reference's range [m, from the take-off point]. The angle
-            references are bounded by the controller's own ``max_tilt``.
+        z_min, z_max: the height range [m, from the take-off point]: the applied height reference and the
+            path. Flying: ``z_min >= 0`` (never below the ground); hopping: ``z_min >= -leg_length`` (the
+            body over a compressed leg in stance). The angle references are bounded by ``max_tilt``.
+        radius: largest horizontal distance of the path from its start [m].
+        max_speed, max_accel: largest speed [m/s] and acceleration [m/s^2] of the path.
+        ref_rate: largest change per second of each applied reference, whatever the mode (flying: z
+            [m/s], pitch [rad/s]; collect's PRBS steps included); None: :data:`DEFAULT_REF_RATE`.
         offset_rate: largest change per second of the correction on top of the nominal reference
             (applied - nominal), per reference (flying: z [m/s], pitch [rad/s]); None: 5 m/s and
             5 rad/s. A steered solver's own ``du_max`` is the bound when it is tighter.
     """
 
-    z_min: float = -1.0
-    z_max: float = 20.0
+    z_min: float = 0.0
+    z_max: float = 10.0
+    radius: float = 10.0
+    max_speed: float = 3.0
+    max_accel: float = 3.0
+    ref_rate: tuple[float, ...] | None = None
     offset_rate: tuple[float, ...] | None = None
 
     def reference_bounds(self, mode: str, max_tilt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -111,6 +130,12 @@ class Envelope:
         if self.offset_rate is not None:
             return np.array(self.offset_rate, dtype=float)
         return np.full(len(REFERENCES[mode]), 5.0)
+
+    def ref_rates(self, mode: str) -> np.ndarray:
+        """Per-second bound of each applied reference's change on the ``mode`` loop."""
+        if self.ref_rate is not None:
+            return np.array(self.ref_rate, dtype=float)
+        return np.array([DEFAULT_REF_RATE[r] for r in REFERENCES[mode]])
 
 
 @dataclass(frozen=True)
@@ -136,6 +161,12 @@ class RobotProfile:
     steering: SteeringGuards = SteeringGuards()
     envelope: Envelope = Envelope()
     source: str = "<profile>"
+
+
+def default_envelope(mode: str) -> Envelope:
+    """The envelope of the shipped profile of a ``mode`` loop (pogox flying, pogox_hopping): what a bridge
+    given no profile flies in."""
+    return load_profile("pogox" if mode == "flying" else "pogox_hopping").envelope
 
 
 def shipped_profiles() -> list[str]:
@@ -193,7 +224,7 @@ def load_profile(name_or_path: str | Path, _chain: tuple[str, ...] = ()) -> Robo
                                    base.contact if base else None)
     steering = dataclass_from_table(SteeringGuards, raw.get("steering", {}), "[steering]", src,
                                     base.steering if base else None)
-    envelope = _envelope(raw, src, ctrl.mode, base.envelope if base else None)
+    envelope = _envelope(raw, src, ctrl, base.envelope if base else None)
     try:  # one value per reference of this profile's loop: the bridge applies the same check
         steering = replace(steering, max_step=check_per_reference("max_step", steering.max_step, ctrl.mode))
     except ValueError as e:
@@ -206,21 +237,33 @@ def load_profile(name_or_path: str | Path, _chain: tuple[str, ...] = ()) -> Robo
                         source=src)
 
 
-def _envelope(raw: dict, src: str, mode: str, base: Envelope | None) -> Envelope:
-    """``[envelope]`` on top of the base profile's: z_min < z_max, one offset rate per reference."""
+def _envelope(raw: dict, src: str, ctrl: ControllerConfig, base: Envelope | None) -> Envelope:
+    """``[envelope]`` on top of the base profile's: z_min < z_max, the floor above the ground, one rate per
+    reference."""
+    mode = ctrl.mode
     table = dict(_table(raw, "envelope", src))
-    rate = table.get("offset_rate")
-    if rate is not None:
+    for key in ("ref_rate", "offset_rate"):
+        rate = table.get(key)
+        if rate is None:
+            continue
         try:
-            table["offset_rate"] = check_per_reference("offset_rate", rate, mode)
+            table[key] = check_per_reference(key, rate, mode)
         except ValueError as e:
             raise ConfigError(f"{src}: [envelope] {e}") from None
-        if max(table["offset_rate"]) > 1e3:
-            raise ConfigError(f"{src}: [envelope] offset_rate must be at most 1000 per second; got {rate!r}")
+        if max(table[key]) > 1e3:
+            raise ConfigError(f"{src}: [envelope] {key} must be at most 1000 per second; got {rate!r}")
     env = dataclass_from_table(Envelope, table, "[envelope]", src, base)
-    if env.offset_rate is not None and len(env.offset_rate) != len(REFERENCES[mode]):
-        raise ConfigError(f"{src}: [envelope] offset_rate of the base profile has {len(env.offset_rate)} values; "
-                          f"the {mode} loop needs {len(REFERENCES[mode])}: set it here")
+    for key in ("ref_rate", "offset_rate"):
+        v = getattr(env, key)
+        if v is not None and len(v) != len(REFERENCES[mode]):
+            raise ConfigError(f"{src}: [envelope] {key} of the base profile has {len(v)} values; "
+                              f"the {mode} loop needs {len(REFERENCES[mode])}: set it here")
     if not env.z_min < env.z_max:
         raise ConfigError(f"{src}: [envelope] needs z_min < z_max; got z_min {env.z_min!r}, z_max {env.z_max!r}")
+    # Heights count from the take-off point: a flyer's reference below it is in the ground; a hopper's body
+    # sinks in stance, never by more than its leg.
+    floor = 0.0 if mode == "flying" else -ctrl.leg_length
+    if env.z_min < floor:
+        raise ConfigError(f"{src}: [envelope] z_min {env.z_min!r} is below the ground: at least {floor:g} m "
+                          f"from the take-off point on the {mode} loop")
     return env

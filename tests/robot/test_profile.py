@@ -15,6 +15,7 @@ from ddpc_codegen.errors import ConfigError
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import PROFILE_RANGES, Envelope, SteeringGuards, load_profile, shipped_profiles
+from ddpc_codegen.robot.signals import REFERENCES
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 from ddpc_codegen.robot.validate import check_table
 from support.fuzz import fuzz_examples
@@ -65,6 +66,16 @@ def test_extends_overrides_only_given_keys(tmp_path):
     ("[envelope]\noffset_rate = [1.0]\n", r"\[envelope\] offset_rate needs 2 values on the flying loop"),
     ("[envelope]\nz_max = 'high'\n", r"\[envelope\] z_max must be a finite number"),
     ("[envelope]\ncolour = 1\n", r"\[envelope\] colour is not a known key"),
+    # The envelope is physical: never below the ground, positive limits, one rate per reference
+    ("[envelope]\nz_min = -1.0\n", r"\[envelope\] z_min -1.0 is below the ground: at least 0 m from the take-off point "
+                                    r"on the flying loop"),
+    ("extends = 'pogox_hopping'\n[envelope]\nz_min = -0.5\n", r"z_min -0.5 is below the ground: at least -0.4 m"),
+    ("[envelope]\nmax_speed = 0.0\n", r"\[envelope\] max_speed must be a finite number in \(0, 100\]; got 0.0"),
+    ("[envelope]\nradius = inf\n", r"\[envelope\] radius must be a finite number"),
+    ("[envelope]\nref_rate = [1.0]\n", r"\[envelope\] ref_rate needs 2 values on the flying loop"),
+    ("[envelope]\nref_rate = [1.0, 2e3]\n", r"\[envelope\] ref_rate must be at most 1000 per second"),
+    ("extends = 'pogox'\n[controller]\nmode = 'hopping'\n", r"ref_rate of the base profile has 2 values; the hopping "
+                                                           r"loop needs 3: set it here"),
     ("[trajectory]\nradii = 'x'\n", r"\[trajectory\]"),
     ("colour = 'red'\n", r"top level: colour is not a known key"),
     ("controller = 3\n", r"\[controller\] must be a table; got 3"),
@@ -99,6 +110,19 @@ def test_envelope_defaults_and_bounds(tmp_path):
     assert lo.tolist() == [0.2, -prof.controller.max_tilt] and hi.tolist() == [3.0, prof.controller.max_tilt]
     assert prof.envelope.offset_rates("flying").tolist() == [1.0, 2.0]
     assert load_profile("pogox_hopping").envelope.offset_rates("hopping").tolist() == [5.0, 5.0, 5.0]
+
+
+def test_the_default_envelope_is_the_shipped_pogox_one_and_every_profile_keeps_above_the_ground():
+    """A bridge given no profile flies in Envelope()'s defaults: they are pogox.toml's (ref_rate: the same
+    values through DEFAULT_REF_RATE)."""
+    env = load_profile("pogox").envelope
+    assert dataclasses.replace(env, ref_rate=None, offset_rate=None) == Envelope()
+    assert env.ref_rates("flying").tolist() == Envelope().ref_rates("flying").tolist() == [30.0, 100.0]
+    for name in shipped_profiles():
+        prof = load_profile(name)
+        floor = 0.0 if prof.controller.mode == "flying" else -prof.controller.leg_length
+        assert prof.envelope.z_min >= floor and len(prof.envelope.ref_rates(prof.controller.mode)) == \
+            len(REFERENCES[prof.controller.mode])
 
 
 def test_extends_cycle_is_a_precise_error_not_recursion(tmp_path):
