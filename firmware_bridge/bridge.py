@@ -68,6 +68,7 @@ import numpy as np
 
 from ddpc_codegen.robot.controller import HeightLegAngleController
 from ddpc_codegen.robot.phases import ContactConfig
+from ddpc_codegen.robot.profile import Envelope
 
 from firmware_bridge.bridge_config import (BridgeConfig, FaultInjectingSolver, FlightError, NoVehicleError,
                                            default_controller_config)
@@ -78,7 +79,7 @@ from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.hopping_loop import HoppingLoop
 from firmware_bridge.link import MavLink
 from firmware_bridge.mode_requests import ModeRequests
-from firmware_bridge.preflight import PreflightError, VehicleInfo, hover_param
+from firmware_bridge.preflight import PreflightError, VehicleInfo, check_vehicle_thrust, hover_param
 from firmware_bridge.profiles import make_profile
 from firmware_bridge.realtime import RealtimeSetup, setup_realtime
 from firmware_bridge.reference_stage import TickReference
@@ -103,7 +104,8 @@ def _tick_gate(c: BridgeConfig, steering: Steering | None, hover_thrust: float, 
     return TickGate(make_gate(c, c.mode, period, steering.solver if steering is not None else None), events,
                     max_step=steering.steerer.max_step if steering is not None else None,
                     max_tilt=math.radians(c.max_tilt_deg), thrust_min=c.thrust_min, thrust_max=c.thrust_max,
-                    hover_thrust=hover_thrust, max_age=None if c.lockstep else c.max_age, guard_hold=c.guard_hold)
+                    hover_thrust=hover_thrust, max_age=None if c.lockstep else c.max_age, guard_hold=c.guard_hold,
+                    ref_rate=(c.envelope or Envelope()).ref_rates(c.scenario), period=period)
 
 
 def _engagement(c: BridgeConfig, events: EventLog, ctrl: HeightLegAngleController,
@@ -357,6 +359,7 @@ class Bridge:
         """Before the first tick: the vehicle's preflight, then what the loop adds (solver, hopping timing)."""
         c, prof = self.cfg, self.vehicle.profile
         self.vehicle_info = info = self.vehicle.preflight(c.guid_options, c.force_guid_options, lambda: self._stop)
+        check_vehicle_thrust(info, self.shaping.hover_thrust, c.thrust_min, c.thrust_max, prof)
         for warning in loop_warnings(self.steering, self.hop, prof, c.rate_hz):
             self.events(f"warning: {warning}")
         self.events(f"vehicle: {prof.name}, hover thrust {hover_param(prof)}="

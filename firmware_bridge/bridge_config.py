@@ -13,12 +13,12 @@ from ddpc_codegen.values.solve_result import SteeringResult
 from ddpc_codegen.robot.controller import ControllerConfig
 from ddpc_codegen.robot.signals import check_per_reference
 from ddpc_codegen.robot.phases import ContactConfig
-from ddpc_codegen.robot.profile import Envelope, load_profile
+from ddpc_codegen.robot.profile import Envelope, default_envelope, load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
-from firmware_bridge.baseline_modes import load_feedforward
 from firmware_bridge.link import mavlink
 from firmware_bridge.arg_checks import check_bridge_values
+from firmware_bridge.path_checks import check_flight_paths
 from firmware_bridge.ticklog import log_file
 
 BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
@@ -218,9 +218,6 @@ class BridgeConfig:
                 raise ValueError("feedforward mode needs a feed-forward table (--feedforward table.npz)")
             if self.scenario != "flying":
                 raise ValueError("feedforward mode flies the flying scenario (the hopping ILC runs in-process)")
-            # Checked here, before anything connects: the table's clock, tick and columns.
-            lo, hi = self.reference_bounds()
-            load_feedforward(self.feedforward, self.rate_hz, 2, hi - lo)  # the flying loop: z_ref, pitch_ref
         if self.stale_action not in ("reference", "hover", "land"):
             raise ValueError(f"stale_action must be reference, hover or land; got {self.stale_action!r}")
         if not (self.rate_hz > 0 and self.max_age > 0):
@@ -237,6 +234,12 @@ class BridgeConfig:
         if self.scenario == "hopping":
             self._hopping_defaults()
         self._check_channel_values()
+        # Before anything connects: every input that defines the path, as a path (the feed-forward table's
+        # clock, tick and columns too), against the envelope (the profile's, else the shipped one's).
+        if self.envelope is None:
+            self.envelope = default_envelope(self.scenario)
+        check_flight_paths(self, self.controller or default_controller_config(),
+                           (self.trajectory or EllipseTrajectory()) if self.scenario == "flying" else None)
 
     def reference_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) of each applied reference: the envelope's height range, angles within the controller's

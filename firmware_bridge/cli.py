@@ -41,7 +41,7 @@ from firmware_bridge.cli_args import (
 )
 from firmware_bridge.exit_status import exit_codes_epilog
 from firmware_bridge.link import LinkError
-from firmware_bridge.preflight import PreflightError
+from firmware_bridge.preflight import EnvelopeRefusal, PreflightError
 
 __all__ = ["bridge_main", "build_bridge_parser", "main"]
 
@@ -314,7 +314,7 @@ def bridge_main(argv: list[str] | None = None) -> int:
         return 3
     except PreflightError as e:
         print(f"ddpc-bridge: error: {e}", file=sys.stderr)
-        return 4
+        return 2 if isinstance(e, EnvelopeRefusal) else 4
     except FlightError as e:
         print(f"ddpc-bridge: error: {e}", file=sys.stderr)
         return 5

@@ -8,7 +8,9 @@ Run once, after the first heartbeat and before the tick loop sends any mode comm
   ``MPC_THR_HOVER``, ArduPilot ``MOT_THST_HOVER``), PX4's ``COM_OF_LOSS_T``, ArduPilot's
   ``GUID_OPTIONS`` (bit 3: SET_ATTITUDE_TARGET.thrust is a thrust, else a climb rate). PX4 sends
   integer parameters bytewise (the float's bits are the int32), ArduPilot as float values;
-* ``--guid-options`` is accepted only when it agrees with the vehicle, or with ``force``.
+* ``--guid-options`` is accepted only when it agrees with the vehicle, or with ``force``;
+* ``--thrust-min`` / ``--thrust-max`` must bracket the hover thrust the vehicle reports
+  (:func:`check_vehicle_thrust`; refused with :class:`EnvelopeRefusal`, exit 2, before arming).
 
 Measured on the SITLs: six parameters answered within 0.05 s (PX4) / 0.15 s (ArduCopter) of the
 first heartbeat.
@@ -21,11 +23,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from firmware_bridge.path_checks import PathRefused, check_thrust_limits
 from firmware_bridge.profiles import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, Profile
 
 __all__ = [
     "AUTOPILOT_NAMES",
     "PreflightError",
+    "EnvelopeRefusal",
+    "check_vehicle_thrust",
     "VehicleInfo",
     "autopilot_name",
     "check_autopilot",
@@ -44,6 +49,10 @@ _INT_TYPES = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}  # MAV_PARAM
 
 class PreflightError(RuntimeError):
     """The vehicle is not what the bridge was told, or a parameter it needs could not be read."""
+
+
+class EnvelopeRefusal(PreflightError):
+    """A setting that would fly outside the envelope on this vehicle (a configuration error: exit 2)."""
 
 
 @dataclass
@@ -94,6 +103,23 @@ def params_to_read(profile: Profile) -> dict[str, bool]:
 def hover_param(profile: Profile) -> str:
     """The autopilot's hover-thrust parameter name."""
     return "MOT_THST_HOVER" if profile.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA else "MPC_THR_HOVER"
+
+
+def check_vehicle_thrust(info: VehicleInfo, model_hover: float, thrust_min: float, thrust_max: float,
+                         profile: Profile) -> None:
+    """``--thrust-min`` / ``--thrust-max`` around the vehicle's hover thrust (the controller model's when
+    the vehicle did not say), before anything arms.
+
+    Raises:
+        EnvelopeRefusal: one line naming the flag, the hover thrust (whose) and the value.
+    """
+    read = info.hover_thrust is not None and np.isfinite(info.hover_thrust)
+    hover = float(info.hover_thrust) if read else model_hover
+    source = f"the vehicle's {hover_param(profile)}" if read else "the controller model's; the vehicle did not say"
+    try:
+        check_thrust_limits(hover, thrust_min, thrust_max, source)
+    except PathRefused as e:
+        raise EnvelopeRefusal(str(e)) from None
 
 
 def resolve_guid_options(read: float | None, cli: int | None, force: bool) -> int:

@@ -68,7 +68,7 @@ class TickGate:
 
     def __init__(self, gate: SetpointGate, events: EventLog, *, max_step: np.ndarray | None, max_tilt: float,
                  thrust_min: float, thrust_max: float, hover_thrust: float, max_age: float | None,
-                 guard_hold: float) -> None:
+                 guard_hold: float, ref_rate: np.ndarray | None = None, period: float = 0.005) -> None:
         self.gate = gate
         self.events = events
         self.max_step = max_step
@@ -78,6 +78,9 @@ class TickGate:
         self.max_age = max_age
         self.guard_hold = guard_hold
         self.counts = {"tilt_clamped": 0, "thrust_clamped": 0}
+        gate.counts.setdefault("ref_clamped", 0)  # summary["gate"]: ticks the envelope clamp acted on
+        self.ref_step = None if ref_rate is None else np.asarray(ref_rate, dtype=float) * period
+        self.quiet_ticks = max(int(round(1.0 / period)), 1)
         self.reset()
 
     def reset(self) -> None:
@@ -89,6 +92,7 @@ class TickGate:
         self.prev_flags = 0
         self.prev_reason = ""
         self.dropped_seen = 0
+        self.since_clamp = -1  # ticks since the envelope clamp last acted (-1: not yet in this run)
 
     def stalled(self, now: float) -> bool:
         """Real time: True (an event, a stall recorded) when the last tick was more than ``max_age`` ago."""
@@ -112,8 +116,33 @@ class TickGate:
             u = ref.r_nom + np.clip(ref.candidate - ref.r_nom, -self.max_step, self.max_step)
             flags |= GATE_FLAGS["guard_clamped"]
             self.gate.counts["guard_clamped"] += 1
+        prev = self.gate.last_u
         applied, g = self.gate.apply(u, ref.r_nom)
-        return applied, flags | g
+        return self.envelope_clamp(applied, prev, flags | g)
+
+    def envelope_clamp(self, u: np.ndarray, prev: np.ndarray | None, flags: int) -> tuple[np.ndarray, int]:
+        """The envelope's own bound on every applied reference, whatever the mode (collect's PRBS included):
+        at most ``ref_rate`` per second from what was applied on the last tick (``prev``), then inside the box.
+        A clamp sets the ``rate_limited`` flag, is counted (the gate's ``ref_clamped``) and is an event at
+        the first clamp of a run and after each second without one (an episode), never per tick."""
+        if self.ref_step is None or prev is None or self.ref_step.shape != u.shape:
+            return u, flags
+        out = np.clip(np.clip(u, prev - self.ref_step, prev + self.ref_step), self.gate.lo, self.gate.hi)
+        if np.array_equal(out, u):
+            if self.since_clamp >= 0:
+                self.since_clamp += 1
+            return u, flags
+        self.gate.last_u = out.copy()  # the next tick's bounds start from what is applied
+        new = GATE_FLAGS["rate_limited"] & ~flags
+        if new:
+            self.gate.counts["rate_limited"] += 1
+        self.gate.counts["ref_clamped"] += 1
+        if self.since_clamp < 0 or self.since_clamp >= self.quiet_ticks:
+            self.events(f"envelope: reference {np.round(u, 4).tolist()} clamped to {np.round(out, 4).tolist()} "
+                        f"(at most {np.round(self.ref_step, 6).tolist()} per tick from the last applied "
+                        f"{np.round(prev, 4).tolist()}, within {self.gate.lo.tolist()} .. {self.gate.hi.tolist()})")
+        self.since_clamp = 0
+        return out, flags | new
 
     def saturated(self, flags: int, now: float, t_ctrl: float) -> int:
         """The ``guard_saturated`` flag when this tick ends a streak of ``guard_hold`` s of guard-clamped ticks

@@ -108,7 +108,8 @@ def _npy(a) -> bytes:
 
 def test_bridge_config_refuses_the_table_before_connecting(tmp_path):
     f = _npz(tmp_path / "ff.npz", delta=np.full((10, 2), 1e6), dt=0.005, clock="trajectory")
-    with pytest.raises(ValueError, match=r"--feedforward .*ff.npz: delta column 0 reaches 1e\+06"):
+    with pytest.raises(ValueError, match=r"--feedforward .*ff.npz: z_ref on the path reaches 1e\+06 m, outside the "
+                                         r"envelope's upper bound 10 m"):
         BridgeConfig(mode="feedforward", feedforward=f)
 
 
