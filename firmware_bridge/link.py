@@ -1,4 +1,5 @@
-"""MAVLink I/O for the bridge and the simulated vehicle: transports, framing, filtering, commands.
+"""MAVLink I/O for the bridge and the simulated vehicle: transports, framing, filtering (commands with retries:
+:mod:`.commands`).
 
 Connection strings follow pymavlink's: ``udpin:HOST:PORT`` (listen; replies go to the pinned peer, see
 below), ``udpout:HOST:PORT`` (a connected UDP socket:
@@ -30,16 +31,16 @@ signing key (:mod:`.signing`) every packet must carry a valid MAVLink 2 signatur
 
 from __future__ import annotations
 
-import math
 import os
 import select
 import time
-from collections import Counter, deque
-from dataclasses import dataclass, field
-from typing import Any, Callable
+from collections import Counter
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from firmware_bridge.commands import CommandTracker, PendingCommand
+from firmware_bridge.peer import PeerPin
 from firmware_bridge.signing import enable_signing
 from firmware_bridge.transports import (
     Endpoint,
@@ -118,15 +119,14 @@ class MavLink:
         self.reconnect_interval = reconnect_interval
         self.stats: Counter = Counter({k: 0 for k in ("rx", "tx", "tx_dropped", "bad_data", "parse_errors",
                                                       "foreign", "link_errors", "reconnects", "peer_changes",
-                                                      "foreign_packets", "unpinned", "unsigned", "bad_signature")})
+                                                      "foreign_packets", "foreign_heartbeats", "unpinned",
+                                                      "unsigned", "bad_signature")})
         self.foreign_systems: set[int] = set()
-        self.vehicle_address = vehicle_address
-        self.repin_after = repin_after
+        self.pin = PeerPin(self.stats, vehicle_address, repin_after)
         self.signed = signing_key is not None
         if signing_key is not None:
             enable_signing(self.mav, signing_key, signing_link_id)
             enable_signing(self._parser, signing_key, signing_link_id, sign_outgoing=False)
-        self._peer_heard = -math.inf  # when the pinned peer last sent a valid message [s, monotonic]
         self._next_reopen = 0.0
         self.transport: _Transport | None = None
         self.last_error = ""
@@ -233,8 +233,7 @@ class MavLink:
         out: list[tuple[Any, float]] = []
         pinning = self.pinning
         for data, addr, kts in chunks:
-            if pinning and addr != t.peer and not self._may_pin(now_m):
-                self.stats["foreign_packets"] += 1  # not the vehicle's address: never parsed, never answered
+            if pinning and not self.pin.admit(t, data, addr, now_m, self.target_system):
                 continue
             rx = now_m
             if kts is not None:
@@ -279,27 +278,15 @@ class MavLink:
             self.foreign_systems.add(msg.get_srcSystem())
             return False
         t = self.transport
-        if pinning and addr is not None and addr != t.peer:
-            if msg.get_type() != "HEARTBEAT":
-                stats["unpinned" if t.peer is None else "foreign_packets"] += 1
+        if pinning:
+            if not self.pin.counts(t, msg, addr, now):
                 return False
-            # The first heartbeat with the target's ids pins the peer; later, only after the peer fell silent
-            # (drain lets no other address through before that, and none with a given vehicle address).
-            t.peer = addr
-            stats["peer_changes"] += 1
         elif not pinning and t.datagram and isinstance(t, UdpTransport) and t.listen and addr is not None \
                 and t.peer != addr:
             t.peer = addr  # the vehicle's side (any sender counts): reply to whoever spoke last
             stats["peer_changes"] += 1
         stats["rx"] += 1
-        self._peer_heard = now
         return True
-
-    def _may_pin(self, now: float) -> bool:
-        """A datagram from another address may carry a heartbeat that (re)pins the peer."""
-        if self.vehicle_address is not None:
-            return False
-        return self.transport.peer is None or now - self._peer_heard > self.repin_after
 
     def _accept(self, msg) -> bool:
         ts = self.target_system
@@ -370,81 +357,3 @@ class MavLink:
     def close(self) -> None:
         if self.transport is not None:
             self.transport.close()
-
-
-# ----------------------------------------------------------------------------- commands
-@dataclass
-class PendingCommand:
-    """A COMMAND_LONG waiting for its COMMAND_ACK."""
-
-    command: int
-    params: tuple[float, ...]
-    label: str
-    tries: int = 0
-    sent_at: float = -math.inf
-    result: int | None = None  # MAV_RESULT once acked
-    done: bool = False
-    timed_out: bool = False
-    on_done: Callable[["PendingCommand"], None] | None = field(default=None, repr=False)
-
-    @property
-    def accepted(self) -> bool:
-        return self.result == mavlink.MAV_RESULT_ACCEPTED
-
-
-class CommandTracker:
-    """Sends COMMAND_LONGs with retries. COMMAND_ACK names only the command id, so commands with
-    the same id are sent one at a time (queued); different ids run in parallel.
-
-    Args:
-        timeout: seconds to wait for an ACK before resending (confirmation + 1).
-        max_tries: give up (``timed_out``) after this many sends.
-    """
-
-    def __init__(self, link: MavLink, timeout: float = 0.5, max_tries: int = 4) -> None:
-        self.link, self.timeout, self.max_tries = link, timeout, max_tries
-        self.queues: dict[int, deque[PendingCommand]] = {}
-        self.history: list[PendingCommand] = []
-
-    def submit(self, command: int, params: tuple[float, ...], label: str = "",
-               on_done: Callable[[PendingCommand], None] | None = None) -> PendingCommand:
-        pc = PendingCommand(command, tuple(params), label or str(command), on_done=on_done)
-        self.queues.setdefault(command, deque()).append(pc)
-        return pc
-
-    def busy(self) -> bool:
-        return any(self.queues.values())
-
-    def on_ack(self, msg) -> PendingCommand | None:
-        q = self.queues.get(msg.command)
-        if not q:
-            return None
-        if msg.result == mavlink.MAV_RESULT_IN_PROGRESS:
-            q[0].sent_at = time.monotonic()  # still working on it: do not resend yet
-            return None
-        pc = q.popleft()
-        pc.result, pc.done = int(msg.result), True
-        self.history.append(pc)
-        if pc.on_done:
-            pc.on_done(pc)
-        return pc
-
-    def poll(self, now: float) -> None:
-        for q in self.queues.values():
-            if not q:
-                continue
-            pc = q[0]
-            if now - pc.sent_at < self.timeout:
-                continue
-            if pc.tries >= self.max_tries:
-                q.popleft()
-                pc.done, pc.timed_out = True, True
-                self.history.append(pc)
-                if pc.on_done:
-                    pc.on_done(pc)
-                continue
-            if self.link.command_long(pc.command, pc.params, confirmation=pc.tries):
-                pc.tries += 1
-                pc.sent_at = now
-            else:
-                pc.sent_at = now  # link down or no peer yet: try again after the timeout

@@ -97,6 +97,7 @@ class VehicleLink:
         self.last_text = ""
         self.reboot_evidence = ""  # what the heartbeat said since the last accepted sample ("": nothing)
         self._timeline_said = False
+        self._foreign_said = False
         self._streams_asked = False  # the streams were asked for since the reboot evidence
         self._peer_changes = self.link.stats.get("peer_changes", 0)
 
@@ -105,6 +106,10 @@ class VehicleLink:
         """Fold every pending message in."""
         for msg, rx in self.link.drain():
             self.on_message(msg, rx)
+        if self.link.stats.get("foreign_heartbeats", 0) and not self._foreign_said:
+            self._foreign_said = True
+            self.events(f"heartbeat with the vehicle's ids from {self.link.pin.foreign_address} (the link is pinned to "
+                        f"{self.link.peer}): ignored; a second vehicle or a spoofer (--vehicle-address, --signing-key)")
 
     def on_message(self, msg, rx: float) -> None:
         """Fold one message received at ``rx`` [s] in."""

@@ -68,6 +68,7 @@ def test_a_spoofer_with_the_vehicles_ids_on_another_port_is_counted_and_never_an
     got = _drain(bridge)
     assert [(m.get_type(), m.z) for m in got] == [("LOCAL_POSITION_NED", -1.0)]
     assert bridge.stats["foreign_packets"] == 60 and bridge.stats["peer_changes"] == 1
+    assert bridge.stats["foreign_heartbeats"] == 20 and bridge.pin.foreign_address == spoof.local_address()
     bridge.command_long(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (32.0, 5000.0))
     assert [m.get_type() for m in _drain(veh)] == ["COMMAND_LONG"]
     assert _drain(spoof, 0.1) == []
