@@ -228,3 +228,26 @@ def test_a_steered_reference_inside_the_rate_is_never_altered():
         assert u.tolist() == pytest.approx([z + 0.01, 0.0]) and flags == 0
     assert g.gate.counts["ref_clamped"] == 0
 
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_the_sitl_demo_flights_pass_their_profiles_envelope(tmp_path, autopilot):
+    """Every flight command ``make sitl-demo`` builds (collect with its excitation, passthrough, the velocity
+    feed-forward profile, steered on the ellipse, the steps file and a random path) passes the path checks."""
+    from types import SimpleNamespace
+
+    from ddpc_codegen.testbed.sitl_demo import COLLECT
+    from ddpc_codegen.testbed.sitl_conditions import write_steps_trajectory
+    from ddpc_codegen.testbed.sitl_flight import bridge_command, ctrl_ff_profile
+    from firmware_bridge.cli import bridge_config_from_args, build_bridge_parser
+
+    sitl = SimpleNamespace(url="udpin:127.0.0.1:14550", sysid=1)
+    steps = str(write_steps_trajectory(tmp_path / "steps.csv"))
+    ff = str(ctrl_ff_profile(autopilot, tmp_path))
+    flights = [("collect", COLLECT[autopilot]), ("passthrough", ()), ("passthrough", ("--profile", ff)),
+               ("steer", ("--solver", "s")), ("steer", ("--solver", "s", "--trajectory", steps)),
+               ("passthrough", ("--trajectory", steps)), ("steer", ("--solver", "s", "--trajectory", "random:3"))]
+    for mode, extra in flights:
+        cmd = bridge_command(sitl, autopilot, mode, tmp_path, 20.0, 60.0, extra)
+        cfg = bridge_config_from_args(build_bridge_parser().parse_args(cmd[4:]))
+        assert cfg.envelope is not None and cfg.mode == mode
