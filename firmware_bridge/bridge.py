@@ -108,10 +108,14 @@ def _tick_gate(c: BridgeConfig, steering: Steering | None, hover_thrust: float, 
                     ref_rate=(c.envelope or Envelope()).ref_rates(c.scenario), period=period)
 
 
-def _engagement(c: BridgeConfig, events: EventLog, ctrl: HeightLegAngleController,
-                frame: TrajectoryFrame) -> Engagement:
-    """The bridge's engagement, from its config (take-off to the trajectory's start height)."""
-    return Engagement(events, blend_rates=c.blend_rates, takeoff=c.takeoff,
+def _engagement(c: BridgeConfig, events: EventLog, ctrl: HeightLegAngleController, frame: TrajectoryFrame,
+                gate_rate: np.ndarray | None) -> Engagement:
+    """The bridge's engagement, from its config (take-off to the trajectory's start height); its blend moves the
+    reference no faster than the gate's rate bound (``gate_rate`` per tick, None: none)."""
+    blend = c.blend_rates
+    if blend and gate_rate is not None and len(blend) == len(gate_rate):
+        blend = tuple(float(v) for v in np.minimum(blend, np.asarray(gate_rate) * c.rate_hz))
+    return Engagement(events, blend_rates=blend, takeoff=c.takeoff,
                       start_height=lambda: ctrl.trajectory.start_point()[1], climb_rate=c.climb_rate,
                       tolerance=c.approach_tolerance, timeout=c.approach_timeout, max_age=c.max_age,
                       stale_action=c.stale_action, stale_stream_limit=c.stale_stream_limit,
@@ -171,7 +175,7 @@ class Bridge:
         self.gate.reset()
         self.stream = SetpointStream(self.vehicle, c.lockstep)
         self.modes = ModeRequests(self.vehicle, self.stream, arm=c.arm, offboard=c.offboard, land=c.land)
-        self.engagement = _engagement(c, self.events, self.ctrl, self.frame)
+        self.engagement = _engagement(c, self.events, self.ctrl, self.frame, self.gate.gate.rate)
         self._tick_t = math.nan  # control clock of the last tick (grid time / stamp) [s]
         self.failure: str | None = None
 
@@ -259,13 +263,14 @@ class Bridge:
         c, tel, eng, st = self.cfg, self.vehicle.telem, self.engagement, self.vehicle.status
         event = kind == "event"
         age, t_ctrl, n_new = self.trigger.timing(now, tel)
+        stalled = self.gate.stalled(now)  # first: a quiet tick is still a tick, and a pause is no vehicle silence
+        if stalled:
+            self.vehicle.bridge_paused(now, self.gate.stalls[-1]["gap_s"])
+            self.stage.reset()
+            eng.stalled()
         fresh = age <= c.max_age
         heard = self.vehicle.heard(now)
         engaged = st.armed and st.offboard and heard
-        stalled = self.gate.stalled(now)  # before the staleness: a quiet tick is still a tick of the clock
-        if stalled:
-            self.stage.reset()
-            eng.stalled()
         if not eng.telemetry(now, age, fresh):
             if event:
                 self.trigger.consumed(tel)
@@ -283,8 +288,7 @@ class Bridge:
                                     engaged=on, fresh=fresh)
         ref = self.stage.step(r_nom, y, t_traj, hold, fill)                       # the mode's reference
         u, flags = self._gate(ref, stalled, now)                                  # the last gate
-        if fresh and engaged:
-            eng.applied(u - y)  # applied reference - measured output (a stall resumes here)
+        eng.applied(u)  # what the vehicle is sent: a resume continues from it
         q, thrust, field, bad = self._setpoint(u, state, fresh)                   # controller, clamps
         self.gate.report(u, ref.r_nom, ref.reason, flags | bad, self.hop.notes if self.hop is not None else _NO_NOTES,
                          tel.dropped)
@@ -330,7 +334,7 @@ class Bridge:
 
     def _gate(self, ref: TickReference, stalled: bool, now: float) -> tuple[np.ndarray, int]:
         """The applied reference (m,) and the gate flags; a guard saturation hands the steering back."""
-        u, flags = self.gate.reference(ref)
+        u, flags = self.gate.reference(ref, reanchored=self.engagement.edge == "resume")
         self.stage.applied(ref, u)
         flags |= GATE_FLAGS["stall"] if stalled else 0
         sat = self.gate.saturated(flags, now, self._tick_t)

@@ -12,7 +12,9 @@ bridge's tick and supervisor consult.
   output and moves toward the nominal one at bounded rates, then hands over exactly.
 * :class:`Engagement` -- the loop's engagement as a whole: its edges (the first starts the trajectory
   clock or the take-off ramp; later ones, and a resume after stale telemetry or a stall, continue the same
-  clock with a blend), staleness, and why the nominal reference passes untouched on a tick.
+  clock with a blend: a (re-)engagement's from the measured outputs, a resume's from the reference last
+  applied, which the vehicle flew on meanwhile), staleness, and why the nominal reference passes untouched
+  on a tick.
 
 Measured on the SITLs: ArduCopter refused arming ("Arm: Gyros inconsistent", MAV_RESULT_FAILED)
 for 26 s after start and sent no local position before 42 s; PX4 SIH answered
@@ -203,7 +205,8 @@ class Engagement:
         self.activations = 0
         self.traj_t0: float | None = None     # control-clock time at which the trajectory started [s]
         self.resume_pending = False           # fresh after a stale stretch or a stall: resume bumplessly
-        self.ref_offset: np.ndarray | None = None  # u - y at the last fresh engaged tick
+        self.last_applied: np.ndarray | None = None  # the reference the last tick applied (a resume starts there)
+        self.edge = ""                        # the last tick's edge (see :meth:`update`)
         self.stale_since: float | None = None
         self.left_mode = ""                   # the vehicle's mode while out after an engagement ("": engaged / never)
         self.t_last = math.nan                # control-clock time of the last tick [s]
@@ -257,21 +260,20 @@ class Engagement:
                 self.events(f"re-engaged ({vehicle_mode}): trajectory continues at t = {t - self.traj_t0:.3f} s, "
                             "same frame")
         elif engaged and self.resume_pending and self.flown:
-            # Still engaged, but the telemetry was stale (a stall): the vehicle moved, or, frozen with
-            # its autopilot, did not, while the trajectory clock ran on. Resume as at a re-engagement
-            # (same clock and frame), the reference rate-limited from where it stood relative to the
-            # measured outputs at the last fresh tick: a frozen vehicle gets its last fresh setpoint
-            # again (no thrust kick from the tracking error it had), a moved one the same offset.
+            # Still engaged, but the telemetry was stale or the bridge stalled: the vehicle flew on what it
+            # was last sent while the trajectory clock ran on. Resume as at a re-engagement (same clock and
+            # frame), the reference rate-limited from that last applied reference: never re-anchored to the
+            # measured outputs, which moved meanwhile (a step of the vehicle's drift in one tick).
             edge = "resume"
             if self.blend_rates and self.approach is None:
-                self.blend.start(y + (0.0 if self.ref_offset is None else self.ref_offset))
+                self.blend.start(y if self.last_applied is None else self.last_applied)
             self.events(f"resumed after stale telemetry: trajectory continues at t = {t - self.traj_t0:.3f} s, "
                         "same frame")
         elif not engaged and self.engaged:
             edge = "lost"
             self.events("disengaged: vehicle no longer armed + off-board (or link lost)")
         self.resume_pending = False
-        self.engaged, self.t_last = engaged, t
+        self.engaged, self.t_last, self.edge = engaged, t, edge
         if not engaged and self.engaged_before:
             self.left_mode = vehicle_mode or "?"  # the vehicle's newest mode while it is out (its failsafe's)
         if engaged and self.approach is not None:
@@ -322,6 +324,6 @@ class Engagement:
         else:
             self.events("at the trajectory's start height: trajectory starts")
 
-    def applied(self, offset: np.ndarray) -> None:
-        """A fresh engaged tick applied ``offset`` = u - y (m,): a stall resumes from there."""
-        self.ref_offset = offset
+    def applied(self, u: np.ndarray) -> None:
+        """This tick applied the reference ``u`` (m,): a resume starts from there."""
+        self.last_applied = np.array(u, dtype=float)

@@ -77,6 +77,12 @@ class SetpointGate:
             flags |= GATE_FLAGS["envelope"]
         return self._done(out, r, flags)
 
+    def hold_nominal(self, r_nom: np.ndarray) -> None:
+        """This tick's nominal reference ``r_nom`` (m,) was re-anchored (a resume's blend starts): its jump is no
+        motion of the path, so the applied reference may move only ``rate`` from where it stood this tick."""
+        if self.last_u is not None:
+            self.last_r = np.array(r_nom, dtype=float)
+
     def _done(self, out: np.ndarray, r: np.ndarray, flags: int) -> tuple[np.ndarray, int]:
         self.last_u, self.last_r = out.copy(), np.array(r, dtype=float)
         for k, bit in GATE_FLAGS.items():

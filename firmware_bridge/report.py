@@ -19,6 +19,7 @@ from firmware_bridge.clock import TickTrigger
 from firmware_bridge.engagement import Engagement
 from firmware_bridge.events import EventLog
 from firmware_bridge.exit_status import RunEnd, run_outcome
+from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.preflight import VehicleInfo
 from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.setpoints import SetpointStream
@@ -29,6 +30,8 @@ from firmware_bridge.truth import SimTruth
 from firmware_bridge.vehicle_link import VehicleLink
 
 __all__ = ["FlightRecorder", "gap_statistics", "describe_trajectory", "telemetry_summary", "write_summary"]
+
+_GUARD_CLAMPED = reason_code("guard_clamped")
 
 
 def gap_statistics(send_times: np.ndarray, period: float) -> dict:
@@ -86,11 +89,14 @@ class FlightRecorder:
         A["u"][i] = u
         if ref.u_steered is not None:
             A["u_steered"][i] = ref.u_steered
+        clamped = gate & GATE_FLAGS["guard_clamped"]
+        if clamped and ref.candidate is not None:
+            A["u_proposed"][i] = ref.candidate
         A["excitation"][i] = ref.excitation if ref.excitation is not None else 0.0
         A["sp_q"][i] = q
         A["sp_thrust"][i] = thrust
         A["sp_field"][i] = field
-        A["reason"][i] = reason_code(ref.reason)
+        A["reason"][i] = _GUARD_CLAMPED if clamped else reason_code(ref.reason)
         A["solve_us"][i] = ref.solve_us
         A["latency_us"][i] = latency
         A["compute_us"][i] = (t_sent - now) * 1e6

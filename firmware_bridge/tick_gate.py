@@ -7,16 +7,21 @@ Stalls. A gap in the bridge's own control clock longer than ``max_age`` (the pro
 SIGSTOP, CPU starvation, a GC pause) is a stall even when the newest telemetry is fresh again when it
 wakes up: the vehicle flew on its last setpoint meanwhile, and the steering window has a hole. The owner
 treats it like stale telemetry: the steering history is forgotten and refilled, the reference resumes
-bumplessly from where it stood (:meth:`.engagement.Engagement.resume`), and the stall is an event (time,
-length) in the summary, the tick log's ``gate`` column (bit ``stall``) and ``summary["stalls"]``.
+bumplessly from the one last applied -- what the vehicle flew on meanwhile, never a nominal re-anchored to the
+measured outputs: the resume tick's applied reference moves at most the rate bound -- and the stall is an event
+(time, length) in the summary, the tick log's ``gate`` column (bit ``stall``) and ``summary["stalls"]``. The
+pause is the bridge's, not the vehicle's: it is no link loss (:meth:`.vehicle_link.VehicleLink.bridge_paused`).
 
-Guard saturation. A steered correction beyond the ``max_step`` guard is clamped to it, tick by tick. Clamped on
-every tick for ``guard_hold`` seconds, the steering is no longer a correction the predictor can stand behind (an
-unseen change it cannot absorb, a vehicle that stopped following its references): holding the reference at the
-guard indefinitely would be confidently wrong. The owner forgets the steering (its warm-up hands the
-reference back toward the nominal one at the gate's rate bound), and the saturation is an event (time, length),
-bit ``guard_saturated`` of the tick log's ``gate`` column and an entry of ``summary["guard_saturations"]``; it
-steers again once its window is full.
+Guard clamps. A steered correction beyond the ``max_step`` guard is clamped to it, tick by tick: the reason
+``guard_clamped`` (not a fallback), bit ``guard_clamped`` of the ``gate`` column, the solver's proposal in the
+tick log's ``u_proposed`` and an event at the start of each streak.
+
+Guard saturation. Clamped on every tick for ``guard_hold`` seconds, the steering is no longer a correction the
+predictor can stand behind (an unseen change it cannot absorb, a vehicle that stopped following its references):
+holding the reference at the guard indefinitely would be confidently wrong. The owner forgets the steering (its
+warm-up hands the reference back toward the nominal one at the gate's rate bound), and the saturation is an event
+(time, length), bit ``guard_saturated`` of the tick log's ``gate`` column and an entry of
+``summary["guard_saturations"]``; it steers again once its window is full.
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ from firmware_bridge.ticklog import FALLBACK_REASONS
 
 __all__ = ["TickGate", "make_gate"]
 
-_GATE_EVENTS = ("rate_limited", "envelope", "nonfinite_reference", "nonfinite_setpoint", "guard_clamped")
+_GATE_EVENTS = ("rate_limited", "envelope", "nonfinite_reference", "nonfinite_setpoint")  # guard clamps: their own
 
 
 def make_gate(cfg, mode: str, period: float, solver=None) -> SetpointGate:
@@ -92,6 +97,7 @@ class TickGate:
         self.prev_flags = 0
         self.prev_reason = ""
         self.dropped_seen = 0
+        self.proposal: np.ndarray | None = None  # the solver's reference the guard clamped on this tick
         self.since_clamp = -1  # ticks since the envelope clamp last acted (-1: not yet in this run)
 
     def stalled(self, now: float) -> bool:
@@ -107,12 +113,18 @@ class TickGate:
                     "steering history refilled, reference resumes from where it stood")
         return True
 
-    def reference(self, ref: TickReference) -> tuple[np.ndarray, int]:
-        """(the reference to apply (m,), the gate flags): a guard trip (``ref.candidate``) clamps the steered
-        offset to the guard instead of dropping it; then the gate."""
+    def reference(self, ref: TickReference, reanchored: bool = False) -> tuple[np.ndarray, int]:
+        """(the reference to apply (m,), the gate flags): a guard trip (``ref.candidate``, the solver's proposal)
+        clamps the steered offset to the guard instead of dropping it (a clamp, not a fallback); then the gate.
+        ``reanchored``: this tick's nominal reference was re-anchored (a resume): the applied one moves at most
+        the rate bound from where it stood, whatever the nominal's jump."""
         flags = 0
         u = ref.u
+        if reanchored:
+            self.gate.hold_nominal(ref.r_nom)
+        self.proposal = None
         if ref.candidate is not None and self.max_step is not None:
+            self.proposal = ref.candidate
             u = ref.r_nom + np.clip(ref.candidate - ref.r_nom, -self.max_step, self.max_step)
             flags |= GATE_FLAGS["guard_clamped"]
             self.gate.counts["guard_clamped"] += 1
@@ -207,6 +219,12 @@ class TickGate:
         if names:
             self.events(f"gate: {', '.join(names)} (reference {np.round(u, 4).tolist()}, "
                         f"nominal {np.round(r_nom, 4).tolist()})")
+        if flags & GATE_FLAGS["guard_clamped"]:
+            reason = "guard_clamped"  # the correction held at the guard: a clamp, not a fallback
+            if new & GATE_FLAGS["guard_clamped"] and self.proposal is not None:
+                self.events(f"guard: steered correction clamped at the {self.max_step.tolist()} guard (solver "
+                            f"proposed {np.round(self.proposal, 4).tolist()}, applied {np.round(u, 4).tolist()}, "
+                            f"nominal {np.round(r_nom, 4).tolist()})")
         own = reason in ("stale", "no_heartbeat")  # their own events (staleness, link)
         if reason != self.prev_reason and not own and (reason in FALLBACK_REASONS
                                                        or reason.startswith(("solver_", "nonfinite", "exception"))):

@@ -62,6 +62,7 @@ REASONS = (
     "no_window",      # 16 hopping steer mode, in the air without a window yet (history, early ascent)
     "prefilter",      # 17 mode prefilter: the static gain + offset + lead baseline
     "feedforward",    # 18 mode feedforward: r_nom + a learned (ILC) table row of this trajectory tick
+    "guard_clamped",  # 19 steered, the correction held at the --max-step guard (the proposal in u_proposed)
 )
 _CODE = {r: i for i, r in enumerate(REASONS)}
 FALLBACK_REASONS = frozenset({"stale", "solver_failed", "nonfinite", "out_of_bounds", "step_too_large",
@@ -106,6 +107,7 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "r_nom": (m, float),        # nominal references (stage a)
         "u": (m, float),            # references applied (sent to stage b)
         "u_steered": (m, float),    # solver's u[0] (nan when not solved)
+        "u_proposed": (m, float),   # solver's u[0] the step guard clamped (reason guard_clamped; else nan)
         "excitation": (m, float),   # PRBS part of u
         "sp_q": (4, float),         # SET_ATTITUDE_TARGET quaternion (w, x, y, z), FRD -> NED
         "sp_thrust": (0, float),    # normalized thrust after clamping

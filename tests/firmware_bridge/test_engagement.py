@@ -62,16 +62,17 @@ def test_an_engagement_blends_from_the_measured_outputs():
     assert why == "blend" and r[0] == 0.8 + 0.5 * DT
 
 
-def test_stale_telemetry_goes_quiet_after_the_limit_and_resumes_from_the_last_offset():
+def test_stale_telemetry_goes_quiet_after_the_limit_and_resumes_from_the_reference_last_applied():
     e = _eng(blend_rates=(0.5, 1.0), max_age=0.05, stale_action="hold", stale_stream_limit=1.0)
     e.update(True, 0.0, np.array([1.0, 0.0]), 1.0, "OFFBOARD")
-    e.applied(np.array([0.1, 0.0]))
+    e.applied(np.array([1.1, 0.0]))
     assert e.telemetry(1.0, 0.01, True)
     assert e.telemetry(2.0, 0.2, False) and e.telemetry(2.9, 1.1, False)
     assert not e.telemetry(3.01, 1.2, False)  # past the stream limit: quiet
     assert e.telemetry(3.5, 0.01, True) and e.resume_pending
     assert e.update(True, 3.5, np.array([1.2, 0.0]), 1.2, "OFFBOARD") == "resume" and not e.resume_pending
-    assert np.allclose(e.blend.current, [1.3, 0.0])  # measured + the offset it had
+    # what the vehicle flew on meanwhile, not the measured outputs (1.2) plus an offset: no step of its drift
+    assert np.allclose(e.blend.current, [1.1, 0.0])
     said = [w for _, w in e.events.events]
     assert said[-3:] == ["telemetry stale (age 200.0 ms > 50 ms): fallback 'hold'", "telemetry fresh again after 1.500 s",
                          "resumed after stale telemetry: trajectory continues at t = 3.500 s, same frame"]
