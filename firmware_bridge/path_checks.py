@@ -6,6 +6,7 @@ feed-forward table of 20 m, a 63 km/s ellipse, a 1000 m step in a trajectory fil
 * the trajectory (profile ellipse, random, file): its largest speed and acceleration sampled at the
   control rate over its time span (an endless one: its first :data:`SPAN_CAP` s), its extent (every
   height it takes, the horizontal distance from its start);
+* a hopper's apex height and target speed;
 * a prefilter: the references it would produce on that path (its gain, offset and lead applied) inside
   the envelope and its rate limits;
 * a feed-forward table: the nominal path plus each row inside the envelope;
@@ -33,7 +34,7 @@ from ddpc_codegen.robot.trajectory import RandomSmoothTrajectory
 from firmware_bridge.baseline_modes import load_feedforward, load_prefilter
 
 __all__ = ["PathRefused", "SPAN_CAP", "path_times", "path_limits", "check_trajectory_path", "nominal_path",
-           "check_references", "check_prefilter_path", "check_feedforward_path", "check_excitation",
+           "check_references", "check_prefilter_path", "check_feedforward_path", "check_excitation", "check_hopping_path",
            "check_thrust_limits", "check_flight_paths"]
 
 SPAN_CAP = 600.0  # s of an endless path that are sampled
@@ -193,6 +194,19 @@ def check_excitation(amplitude, nominal: np.ndarray | None, env: Envelope, mode:
             check_references(nominal + sign * amp, env, mode, max_tilt, None, "--excitation")
 
 
+def check_hopping_path(ctrl: ControllerConfig, env: Envelope, what: str = "the profile's [controller]") -> None:
+    """A hopper's path: its apex height inside the envelope's heights, its target speed within ``max_speed``.
+
+    Raises:
+        PathRefused: naming the key, the limit and the value.
+    """
+    if ctrl.apex_height > env.z_max:
+        _refuse(what, "apex_height", ctrl.apex_height, f"z_max {env.z_max:g} m", " m")
+    speed = math.hypot(*ctrl.target_velocity)
+    if speed > env.max_speed:
+        _refuse(what, "target_velocity speed", speed, f"max_speed {env.max_speed:g} m/s", " m/s")
+
+
 def check_thrust_limits(hover: float, thrust_min: float, thrust_max: float, source: str) -> None:
     """``--thrust-min`` below and ``--thrust-max`` above the hover thrust (``source`` says whose, e.g. the
     vehicle's MPC_THR_HOVER): otherwise the clamp alone climbs or sinks the vehicle whatever it is sent.
@@ -238,5 +252,7 @@ def check_flight_paths(cfg, ctrl: ControllerConfig, trajectory) -> None:
             check_prefilter_path(cfg.prefilter, trajectory, ctrl, env, rate)
         if cfg.mode == "feedforward" and cfg.feedforward:
             check_feedforward_path(cfg.feedforward, trajectory, ctrl, env, rate)
+    else:
+        check_hopping_path(ctrl, env)
     if cfg.mode == "collect" and cfg.excitation is not None:
         check_excitation(cfg.excitation, nominal, env, cfg.scenario, ctrl.max_tilt, rate)

@@ -251,3 +251,36 @@ def test_the_sitl_demo_flights_pass_their_profiles_envelope(tmp_path, autopilot)
         cmd = bridge_command(sitl, autopilot, mode, tmp_path, 20.0, 60.0, extra)
         cfg = bridge_config_from_args(build_bridge_parser().parse_args(cmd[4:]))
         assert cfg.envelope is not None and cfg.mode == mode
+
+
+def test_a_hopper_above_the_envelope_or_too_fast_and_a_takeoff_too_fast_are_refused(tmp_path, capsys):
+    prof = tmp_path / "hop.toml"
+    prof.write_text('extends = "pogox_hopping"\n[controller]\napex_height = 8.0\n')
+    err = _refused(capsys, "--mode", "passthrough", "--profile", str(prof))
+    assert err == ("ddpc-bridge: error: the profile's [controller]: apex_height 8 m, outside the envelope's z_max 5 m")
+    prof.write_text('extends = "pogox_hopping"\n[controller]\ntarget_velocity = [4.0, 3.0]\n')
+    err = _refused(capsys, "--mode", "passthrough", "--profile", str(prof))
+    assert err == ("ddpc-bridge: error: the profile's [controller]: target_velocity speed 5 m/s, outside the "
+                   "envelope's max_speed 3 m/s")
+    err = _refused(capsys, "--mode", "passthrough", "--takeoff", "--climb-rate", "5")
+    assert err == "ddpc-bridge: error: --climb-rate: take-off speed 5 m/s, outside the envelope's max_speed 3 m/s"
+
+
+@settings(max_examples=30, deadline=None)
+@given(gain=st.floats(0.05, 3.0), offset=st.floats(-2.0, 2.0))
+def test_a_prefilter_passes_exactly_when_its_references_on_the_path_stay_inside(tmp_path_factory, gain, offset):
+    """The default ellipse spans z 0.9 .. 1.5 m: the prefilter's z_ref (z - offset) / gain spans
+    (0.9 - offset) / gain .. (1.5 - offset) / gain, which must lie in [0, 10] m; refusals name that bound."""
+    f = tmp_path_factory.mktemp("pf") / "pf.json"
+    PrefilterModel(gain=(gain, 1.0), offset=(offset, 0.0), lead=(5, 0), dt=0.005).save(f)
+    lo, hi = sorted(((0.9 - offset) / gain, (1.5 - offset) / gain))
+    inside = lo >= -1e-9 and hi <= 10.0 + 1e-9
+    margin = min(abs(lo), abs(hi - 10.0))
+    if margin < 1e-3:
+        return  # on the bound: sampling decides
+    if inside:
+        BridgeConfig(mode="prefilter", prefilter=str(f))
+    else:
+        with pytest.raises(PathRefused, match=rf"^--prefilter {re.escape(str(f))}: z_ref on the path reaches \S+ m, "
+                                              r"outside the envelope's (lower bound 0|upper bound 10) m$"):
+            BridgeConfig(mode="prefilter", prefilter=str(f))
