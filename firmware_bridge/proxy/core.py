@@ -46,16 +46,17 @@ class Proxy:
         rewrite: the setpoint hook; None: pass-through.
         baud: a serial vehicle's baud rate (default from the string, else 921600).
         between_clients: also forward each client's datagrams to the other clients.
-        client_timeout: forget a client silent this long [s].
+        client_timeout: forget a client silent this long [s]; a ``udpin`` vehicle silent this long is
+            replaced by the next sender (a restarted autopilot).
         reconnect_interval: seconds between attempts to reopen a failed vehicle link.
     """
 
     def __init__(self, apps: str | list[str], vehicle: str, *, rewrite: SetpointRewrite | None = None,
-                 baud: int | None = None, between_clients: bool = False, client_timeout: float = 5.0, reconnect_interval: float = 1.0,
-                 ring_size: int = 1 << 16) -> None:
+                 baud: int | None = None, between_clients: bool = False, client_timeout: float = 5.0,
+                 reconnect_interval: float = 1.0, ring_size: int = 1 << 16) -> None:
         self.app_urls, self.vehicle_url = [apps] if isinstance(apps, str) else list(apps), vehicle
         self.apps = [_app_link(u) for u in self.app_urls]
-        self.vehicle = VehicleSide(vehicle, baud, reconnect_interval)
+        self.vehicle = VehicleSide(vehicle, baud, reconnect_interval, repin_after=client_timeout)
         self.rewrite = rewrite
         self.between_clients = between_clients
         self.client_timeout = client_timeout

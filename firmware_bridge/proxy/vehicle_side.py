@@ -1,6 +1,8 @@
 """The proxy's vehicle side: one connection (the transports of :mod:`firmware_bridge.transports`),
 reopened after a failure at most once per ``reconnect_interval``; a ``udpin:`` link pins the first
-sender as the vehicle; a byte stream is cut into frames. Bytes are never changed here."""
+sender as the vehicle (another sender takes its place only after the pinned one has been silent for
+``repin_after`` seconds: a restarted autopilot or SITL comes back from a new port); a byte stream is cut
+into frames. Bytes are never changed here."""
 
 from __future__ import annotations
 
@@ -23,15 +25,18 @@ class VehicleSide:
     Args:
         url: ``udpin:``/``udpout:``/``tcp:`` or a serial device; baud: a serial device's rate.
         reconnect_interval: seconds between attempts to reopen a failed link.
+        repin_after: a udpin link accepts a new vehicle address after this much silence of the old one [s].
     """
 
-    def __init__(self, url: str, baud: int | None = None, reconnect_interval: float = 1.0) -> None:
+    def __init__(self, url: str, baud: int | None = None, reconnect_interval: float = 1.0,
+                 repin_after: float = 5.0) -> None:
         self.endpoint = parse_url(url, baud)
-        self.reconnect_interval = reconnect_interval
+        self.reconnect_interval, self.repin_after = reconnect_interval, repin_after
         self.transport: Any = None
         self.peer: Any = None  # a udpin link's vehicle address, once heard
         self.last_error = ""
-        self.counts = dict.fromkeys(("foreign", "link_errors", "reconnects"), 0)
+        self.counts = dict.fromkeys(("foreign", "peer_changes", "link_errors", "reconnects"), 0)
+        self._heard = 0.0  # when the pinned peer was last heard (monotonic)
         self._buf = bytearray()  # a byte stream's partial frame
         self._next_open = 0.0
         self._open(time.monotonic())
@@ -97,14 +102,14 @@ class VehicleSide:
             self._down(str(e), time.monotonic())
             return []
         out: list[Chunk] = []
+        now = time.monotonic()
         for data, addr, ts in reads:
             t_rx = ts if ts is not None else time.time()
             if t.datagram:
-                if addr is not None and t.peer is None:  # udpin: the first sender is the vehicle
-                    t.peer = self.peer = addr
-                elif addr is not None and t.peer is not None and addr != t.peer:
+                if t.listen and addr != t.peer and not self._pin(t, addr, now):
                     self.counts["foreign"] += 1
                     continue
+                self._heard = now
                 spans, garbage, _ = split_frames(data)
                 out.append(([(data, len(spans))], spans, data, garbage, t_rx))
             else:
@@ -114,6 +119,17 @@ class VehicleSide:
                 del self._buf[:used]
                 out.append(([(buf[i:i + n], 1) for i, n in spans], spans, buf, garbage, t_rx))
         return out
+
+    def _pin(self, t: Any, addr: Any, now: float) -> bool:
+        """Whether ``addr`` (not the pinned peer) becomes the vehicle of a udpin link: the first sender, or a
+        new one after the pinned one fell silent. (A udpout link's peer is fixed: the kernel filters.)"""
+        if t.peer is not None:
+            if now - self._heard < self.repin_after:
+                return False
+            self.counts["peer_changes"] += 1
+        t.peer = self.peer = addr
+        self._heard = now
+        return True
 
     def close(self) -> None:
         if self.transport is not None:

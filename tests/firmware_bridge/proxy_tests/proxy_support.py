@@ -94,6 +94,19 @@ def mav(version: int, sysid: int, compid: int):
     return mod.MAVLink(None, srcSystem=sysid, srcComponent=compid)
 
 
+POS_ONLY = 0b0000_1111_1111_1000        # x, y, z used; velocity, acceleration, yaw ignored
+VEL_ONLY = 0b0000_1111_1100_0111        # x, y, z ignored
+
+
+def setpoint(m, k: int, mask: int) -> bytes:
+    """A SET_POSITION_TARGET_LOCAL_NED frame from encoder ``m`` (x = 0.1 k, z = -1 - 0.01 k [m])."""
+    msg = m.set_position_target_local_ned_encode(k, 1, 1, mavlink2.MAV_FRAME_LOCAL_NED, mask,
+                                                  0.1 * k, 0.2, -1.0 - 0.01 * k, 0.5, 0, 0, 0, 0, 0, 0.3, 0)
+    f = bytes(msg.pack(m))
+    m.seq = (m.seq + 1) % 256
+    return f
+
+
 def frames(m, n: int, start: int = 0) -> list[bytes]:
     """``n`` distinct frames from encoder ``m`` (heartbeats, attitude, named values), seq counting on."""
     out = []
@@ -109,4 +122,5 @@ def frames(m, n: int, start: int = 0) -> list[bytes]:
     return out
 
 
-__all__ = ["RunningProxy", "Peer", "spawn_proxy", "mav", "frames", "free_port", "mavlink2"]
+__all__ = ["RunningProxy", "Peer", "spawn_proxy", "mav", "frames", "setpoint", "POS_ONLY", "VEL_ONLY", "free_port",
+           "mavlink2"]

@@ -92,12 +92,15 @@ def test_ddpc_bridge_flies_through_the_proxy_as_it_does_directly(procs, tmp_path
     for b in (direct, proxied):
         assert b["stop_reason"].startswith("duration") and b["activations"] == 1 and b["missed_ticks"] == 0
         assert b["link"]["bad_data"] == 0
-    assert proxied["ticks"] == direct["ticks"] == proxied["setpoints_sent"]
-    # lock-step and seeded: the same flight, to the stamps' rounding
-    assert proxied["rmse_z_measured"] == pytest.approx(direct["rmse_z_measured"], rel=1e-3)
+        assert b["setpoints_sent"] == b["ticks"]
+    # lock-step and seeded: the same flight, to the stamps' rounding (when the bridge engages is set by wall-clock
+    # heartbeats, so the flight may be a tick longer or shorter)
+    assert abs(proxied["ticks"] - direct["ticks"]) <= 2, (proxied["ticks"], direct["ticks"])
+    assert proxied["rmse_z_measured"] == pytest.approx(direct["rmse_z_measured"], rel=5e-3)
     up, down = s["app_to_vehicle"], s["vehicle_to_app"]
     assert up["forwarded"] == up["received"] == proxied["link"]["tx"] and up["dropped"] == 0
-    assert down["forwarded"] == proxied["link"]["rx"]    # all but what came before the bridge was heard
+    # every message the bridge received came through; a heartbeat may follow between its exit and the vehicle's
+    assert 0 <= down["forwarded"] - proxied["link"]["rx"] <= 3, (down, proxied["link"])
     assert up["latency_us"]["count"] == up["datagrams"] and up["latency_us"]["p50"] > 0
 
 

@@ -74,7 +74,7 @@ def test_clients_to_vehicle_byte_exact_each_in_order(rig):
     u = s["app_to_vehicle"]
     assert u["received"] == u["forwarded"] == 4002 and u["dropped"] == u["seq_gaps"] == 0
     assert u["latency_us"]["count"] == 4002
-    assert sorted(c["datagrams_in"] for c in s["clients"]) == [2001, 2001]
+    assert s["app_to_vehicle"]["datagrams"] == 4002 and s["events"]["clients_joined"] == 2
 
 
 def test_garbage_is_forwarded_whole_and_counted(rig):
@@ -182,3 +182,24 @@ def test_an_app_that_listens_is_sent_to_like_px4_does_beside_a_server_for_a_grou
             p.close()
     assert [c["app"] for c in s["clients"]] == s["apps"] and s["events"]["clients_expired"] == 0
     assert s["app_to_vehicle"]["forwarded"] == 6 and s["vehicle_to_app"]["forwarded"] == 1 + 2 * 20
+
+
+def test_a_restarted_vehicle_on_a_new_port_is_taken_after_the_old_one_fell_silent():
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{vp}", client_timeout=0.3)
+    old, new, app = Peer(), Peer(), Peer()
+    try:
+        old.send(frames(mav(2, 1, 1), 1)[0], vp)
+        _until(lambda: rp.proxy.vehicle.peer is not None)
+        new.send(frames(mav(2, 1, 1), 1)[0], vp)            # a second sender while the first is alive: foreign
+        _until(lambda: rp.proxy.vehicle.counts["foreign"] == 1)
+        time.sleep(0.4)                                     # the first falls silent ...
+        new.send(frames(mav(2, 1, 1), 1)[0], vp)            # ... and the new one becomes the vehicle
+        _until(lambda: rp.proxy.vehicle.counts["peer_changes"] == 1)
+        app.send(frames(mav(2, 245, 190), 1)[0], ap)
+        assert len(new.wait_for(1)) == 1 and old.got == []
+    finally:
+        s = rp.stop()
+        for p in (old, new, app):
+            p.close()
+    assert s["vehicle_peer"][1] == new.port and s["events"]["vehicle_peer_changes"] == 1

@@ -12,19 +12,7 @@ from firmware_bridge.proxy import PROXY_COMPONENT, SetpointEncoder
 from firmware_bridge.proxy.frames import header
 from firmware_bridge.proxy.rewrite import decode_frame
 
-from proxy_support import Peer, RunningProxy, frames, free_port, mav, mavlink2
-
-POS_ONLY = 0b0000_1111_1111_1000        # x, y, z used; velocity, acceleration, yaw ignored
-VEL_ONLY = 0b0000_1111_1100_0111        # x, y, z ignored
-
-
-def _setpoint(m, k: int, mask: int) -> bytes:
-    msg = m.set_position_target_local_ned_encode(k, 1, 1, mavlink2.MAV_FRAME_LOCAL_NED, mask,
-                                                  0.1 * k, 0.2, -1.0 - 0.01 * k, 0.5, 0, 0, 0, 0, 0, 0.3, 0)
-    f = bytes(msg.pack(m))
-    m.seq = (m.seq + 1) % 256
-    return f
-
+from proxy_support import POS_ONLY, VEL_ONLY, Peer, RunningProxy, frames, free_port, mav, setpoint
 
 def _fly(hook, n: int = 200):
     """The app streams n setpoints (every 2nd position, every 4th velocity only) among heartbeats at
@@ -38,12 +26,12 @@ def _fly(hook, n: int = 200):
         a, g = mav(2, 245, 190), mav(2, 255, 190)
         sent = []
         for k in range(n):
-            f = _setpoint(a, k, POS_ONLY) if k % 2 == 0 else (_setpoint(a, k, VEL_ONLY) if k % 4 == 1
+            f = setpoint(a, k, POS_ONLY) if k % 2 == 0 else (setpoint(a, k, VEL_ONLY) if k % 4 == 1
                                                                else frames(a, 1, k)[0])
             sent.append(f)
             app.send(f, ap)
             time.sleep(0.005)
-        gs = [_setpoint(g, 7, POS_ONLY)]
+        gs = [setpoint(g, 7, POS_ONLY)]
         gcs.send(gs[0], ap)
         got = veh.wait_for(n + 1)
         return sent, gs, got, rp.stop()
@@ -88,7 +76,7 @@ def test_the_hook_replaces_exactly_the_apps_position_setpoints():
 
 
 @pytest.mark.parametrize("bad", ["raise", "junk", "other_message"])
-def test_a_faulty_hook_forwards_the_apps_own_setpoint(bad):
+def test_a_faulty_hook_forwards_the_apps_ownsetpoint(bad):
     def hook(msg, frame, t_rx):
         if bad == "raise":
             raise RuntimeError("solver failed")

@@ -8,7 +8,12 @@ import random
 import socket
 import time
 
-from proxy_support import Peer, RunningProxy, frames, free_port, mav
+import pytest
+
+from firmware_bridge.proxy.rewrite import decode_frame
+
+from firmware_bridge.proxy import SetpointEncoder
+from proxy_support import POS_ONLY, Peer, RunningProxy, frames, free_port, mav, setpoint
 
 
 def _accept(srv: socket.socket) -> socket.socket:
@@ -73,3 +78,30 @@ def test_tcp_vehicle_stream_split_into_frames_both_ways_and_reconnected():
     assert d["received"] == d["forwarded"] == len(fs) + 3 and d["garbage_bytes"] == 5 * len(range(0, len(fs), 9))
     assert s["events"]["vehicle_reconnects"] >= 1 and s["events"]["vehicle_link_errors"] >= 1
     assert s["app_to_vehicle"]["forwarded"] == 201
+
+
+def test_into_a_stream_go_whole_frames_with_the_hooks_replacement():
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    enc = SetpointEncoder()
+    ap = free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"tcp:127.0.0.1:{srv.getsockname()[1]}",
+                      rewrite=lambda msg, frame, t: enc.encode(msg, (msg.x, msg.y, msg.z - 1.0)))
+    app = Peer()
+    conn = _accept(srv)
+    try:
+        a = mav(2, 245, 190)
+        hb, sp = frames(a, 1)[0], setpoint(a, 1, POS_ONLY)
+        app.send(b"junk" + hb + sp + b"\xfd\x01", ap)          # one datagram: garbage, two frames, a stub
+        want = hb + enc.encode(decode_frame(sp), (0.1, 0.2, -1.01 - 1.0))
+        got = _read_stream(conn, len(want))
+    finally:
+        s = rp.stop()
+        conn.close()
+        srv.close()
+        app.close()
+    assert len(got) == len(want) and got[:len(hb)] == hb
+    assert decode_frame(got[len(hb):]).z == pytest.approx(-2.01, abs=1e-6)
+    assert s["app_to_vehicle"]["rewritten"] == 1 and s["app_to_vehicle"]["garbage_bytes"] == 6
