@@ -4,6 +4,7 @@ the solver fault-injection wrapper used by the tests."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,11 +25,13 @@ from firmware_bridge.ticklog import log_file
 BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
 
 
-def check_output_paths(log: str | None, summary: str | None, overwrite: bool) -> None:
+def check_output_paths(log: str | None, summary: str | None, overwrite: bool,
+                       inputs: dict[str, str | None] | None = None) -> None:
     """Before anything connects: the files the run writes -- the tick log where it is saved (``.npz``
     normalised: ``--log X.log`` writes ``X.npz``) and the summary -- each absent or (with ``overwrite``) a
-    regular file, in a folder that takes new files, and not the same file; ValueError (one line naming the
-    flag) otherwise: a flight log is never replaced silently, nor discovered unwritable after the flight."""
+    regular file, in a folder that takes new files, not the same file and none of the run's ``inputs`` (flag ->
+    path); ValueError (one line naming the flag) otherwise: a flight log is never replaced silently, nor
+    discovered unwritable after the flight."""
     written = {}
     for flag, given, path in (("--log", log, log_file(log) if log else None), ("--summary", summary, summary)):
         if not given:
@@ -37,6 +40,10 @@ def check_output_paths(log: str | None, summary: str | None, overwrite: bool) ->
         written[flag] = checked_output_file(path, what, overwrite=overwrite, error=ValueError)
     if len(written) == 2 and written["--log"] == written["--summary"]:
         raise ValueError(f"{summary}: --summary: the same file as --log {log} (it would replace the tick log)")
+    for flag, path in written.items():
+        for source, given in (inputs or {}).items():
+            if given and Path(given).resolve() == path:
+                raise ValueError(f"{path}: {flag}: the {source} file (the run's input would be replaced)")
 
 
 __all__ = ["BridgeConfig", "FaultInjectingSolver", "FlightError", "NoVehicleError", "default_controller_config"]
@@ -206,7 +213,8 @@ class BridgeConfig:
 
     def __post_init__(self) -> None:
         check_bridge_values(self)
-        check_output_paths(self.log, self.summary, self.overwrite)
+        check_output_paths(self.log, self.summary, self.overwrite,
+                           {"--prefilter": self.prefilter, "--feedforward": self.feedforward})
         if self.mode not in BRIDGE_MODES:
             raise ValueError(f"mode must be one of {', '.join(BRIDGE_MODES)}; got {self.mode!r}")
         if self.mode == "steer" and not self.solver:

@@ -5,8 +5,8 @@ passthrough, hopping, a fallback, a stall's hand-back), before the controller tu
 * rate-limited from where it stood: ``|u[k] - u[k-1]| <= rate + |r_nom[k] - r_nom[k-1]|`` per reference,
   i.e. the correction on top of the model-based controller moves at most ``rate`` per tick while the
   nominal reference itself moves freely. A fallback that would step by the whole steering offset (a
-  ``step_too_large`` guard trip, a solver failure, a disengagement, stale telemetry) is blended back at
-  that rate instead. ``rate`` is the steering solver's own ``du_max`` (the bound its solutions keep, so a
+  solver failure, a disengagement, stale telemetry, a guard saturation's hand-back) is blended back at
+  that rate instead; a resume's re-anchored nominal is no motion of the path (:meth:`hold_nominal`). ``rate`` is the steering solver's own ``du_max`` (the bound its solutions keep, so a
   steered tick is never altered) or tighter, the profile's ``[envelope] offset_rate``;
 * inside the envelope: each reference within [lo, hi] (height range, +-max_tilt).
 

@@ -231,7 +231,8 @@ def test_prefilter_mode_sends_the_prefilter_law_over_the_link(tmp_path):
     from firmware_bridge.ticklog import REASONS
 
     g, c, d = 0.9, -0.03, 20
-    pf = PrefilterModel((g, 1.0), (c, 0.0), (d, 0), 0.005, ("z_ref", "pitch_ref")).save(tmp_path / "pf.json")
+    pf = PrefilterModel((g, 1.0), (c, 0.0), (d, 0), 0.005, ("z_ref", "pitch_ref"))
+    pf = pf.save(tmp_path / "prefilter_model.json")  # not pf.json: the flight's summary is named after "pf"
     s, t = _fly_once(tmp_path, "pf", ["--mode", "prefilter", "--prefilter", str(pf)])
     k = np.flatnonzero(t["reason"] == REASONS.index("prefilter"))
     k = k[k + d < len(t["reason"])]

@@ -87,6 +87,7 @@ def test_a_run_the_vehicle_never_lets_engage_exits_8(tmp_path):
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_a_flight_that_ends_in_the_vehicles_failsafe_exits_9(tmp_path):
     """ddpc-vehicle goes silent for 1.5 s (simulated 6..7.5 s); the bridge, stale, stops streaming after 0.2 s, the
     vehicle's off-board loss (0.5 s) holds it: the flight ends at --timeout with the vehicle in its own mode."""

@@ -10,15 +10,21 @@ import os
 import pytest
 
 import firmware_bridge.bridge as bridge_module
+from ddpc_codegen.values.prefilter import PrefilterModel
 from firmware_bridge.cli import bridge_main
 
 
 @pytest.fixture
 def no_link(monkeypatch):
     """Opening the link fails the test: every refusal below must come first."""
-    def refuse(*_a, **_k):
-        raise AssertionError("the link was opened")
-    monkeypatch.setattr(bridge_module, "MavLink", refuse)
+    class Refuse:
+        def __init__(self, *_a, **_k):
+            raise AssertionError("the link was opened")
+
+        @classmethod
+        def for_bridge(cls, *_a, **_k):
+            raise AssertionError("the link was opened")
+    monkeypatch.setattr(bridge_module, "MavLink", Refuse)
 
 
 def _refused(capsys, *args: str) -> str:
@@ -72,3 +78,11 @@ def test_a_fresh_log_and_summary_pass_and_leave_nothing_behind(tmp_path):
 
     check_output_paths(str(tmp_path / "x.log"), str(tmp_path / "x.json"), overwrite=False)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_input_is_never_an_output(tmp_path, capsys, no_link):
+    """``--summary pf.json`` beside ``--prefilter pf.json`` would replace the run's own input, --overwrite or not."""
+    pf = PrefilterModel((1.0, 1.0), (0.0, 0.0), (0, 0), 0.005, ("z_ref", "pitch_ref")).save(tmp_path / "pf.json")
+    before = pf.read_bytes()
+    line = _refused(capsys, "--mode", "prefilter", "--prefilter", str(pf), "--summary", str(pf), "--overwrite")
+    assert f"{pf}: --summary: the --prefilter file" in line and pf.read_bytes() == before
