@@ -246,8 +246,10 @@ def check_flight_paths(cfg, ctrl: ControllerConfig, trajectory) -> None:
         _refuse("--climb-rate", "take-off speed", cfg.climb_rate, f"max_speed {env.max_speed:g} m/s", " m/s")
     nominal = None
     if trajectory is not None:
-        check_trajectory_path(trajectory, env, rate, _trajectory_name(trajectory))
+        name = _trajectory_name(trajectory)
+        check_trajectory_path(trajectory, env, rate, name)
         nominal = nominal_path(trajectory, ctrl, path_times(trajectory, rate))
+        check_references(nominal, env, "flying", ctrl.max_tilt, rate, name)  # the nominal path within ref_rate
         if cfg.mode == "prefilter" and cfg.prefilter:
             check_prefilter_path(cfg.prefilter, trajectory, ctrl, env, rate)
         if cfg.mode == "feedforward" and cfg.feedforward:

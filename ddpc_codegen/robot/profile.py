@@ -264,6 +264,7 @@ def _envelope(raw: dict, src: str, ctrl: ControllerConfig, base: Envelope | None
     # sinks in stance, never by more than its leg.
     floor = 0.0 if mode == "flying" else -ctrl.leg_length
     if env.z_min < floor:
+        leg = "" if mode == "flying" else f" (a [controller] leg_length of {ctrl.leg_length:g} m)"
         raise ConfigError(f"{src}: [envelope] z_min {env.z_min!r} is below the ground: at least {floor:g} m "
-                          f"from the take-off point on the {mode} loop")
+                          f"from the take-off point on the {mode} loop{leg}")
     return env
