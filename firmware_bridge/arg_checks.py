@@ -2,7 +2,9 @@
 finiteness and ranges, with a message naming the flag -- ``--sysid 300`` is refused here, not as a
 ``struct.error`` when the first message is packed; ``--max-tilt-deg 400`` and ``--duration -1`` likewise.
 The files the bridge flies on are checked by their loaders (:mod:`ddpc_codegen.robot.validate`): robot
-profiles, prefilter models, feed-forward tables.
+profiles, prefilter models, feed-forward tables. What each value *does* to the flown path (a prefilter gain
+of 0.001, an excitation of 1e308, a thrust floor above the hover thrust) is checked against the robot's
+envelope by :mod:`firmware_bridge.path_checks`.
 """
 
 from __future__ import annotations
