@@ -1,5 +1,5 @@
 """The bridge's safety glue (firmware_bridge/safety.py) against the simulated vehicle (``ddpc_codegen.testbed``)
-in real time, as separate processes over UDP: a bridge stopped by SIGSTOP for 2 s mid-steer (what CPU
+in real time, as separate processes over UDP: a bridge stopped by SIGSTOP for 4 s mid-steer (what CPU
 starvation or a GC pause does) is a stall -- an event, a refilled window, a bumpless resume -- and no
 applied reference ever steps by more than the gate's rate bound, through injected solver failures, guard
 trips, the stall and the hand-back at the end. Also: the exit codes and logs of an interrupted or
@@ -34,7 +34,7 @@ def _wait_for(path_text, what: str, timeout: float) -> None:
 def stalled(tmp_path_factory, flying_solver):
     """Steer the simulated PX4 (real time); solver calls 600..639 fail, the step guard is tight (0.02 m:
     guard trips), the correction may move 1 mm per tick ([envelope] offset_rate 0.2 m/s); 5 s after
-    engaging the bridge is SIGSTOPped for 2 s."""
+    engaging the bridge is SIGSTOPped for 4 s (issue 46's stall: the socket overflows meanwhile)."""
     tmp = tmp_path_factory.mktemp("stall")
     prof = tmp / "slow_gate.toml"
     prof.write_text('extends = "pogox"\n[envelope]\noffset_rate = [0.2, 0.2]\n')
@@ -44,13 +44,13 @@ def stalled(tmp_path_factory, flying_solver):
         # the autopilot keeps OFFBOARD through the stall (its loss timeout 5 s): the bridge must resume itself
         veh = pr.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--seed", "3", "--com-of-loss-t", "5", name="vehicle")
         br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "steer", "--solver", str(flying_solver),
-                      "--profile", str(prof), "--offboard", "--duration", "14", "--timeout", "60",
+                      "--profile", str(prof), "--offboard", "--duration", "20", "--timeout", "60",
                       "--max-step", "0.02,0.5", "--inject-solver-failure", "600:40", "--verbose",
                       "--log", str(tmp / "ticks.npz"), "--summary", str(tmp / "summary.json"), name="bridge")
         _wait_for(lambda: pr.log(br), "engaged (", 40)
         time.sleep(5.0)
         br.send_signal(signal.SIGSTOP)
-        time.sleep(2.0)
+        time.sleep(4.0)
         br.send_signal(signal.SIGCONT)
         rc = pr.wait(br, 60)
         out = pr.log(br)
@@ -63,13 +63,13 @@ def stalled(tmp_path_factory, flying_solver):
 def test_a_sigstop_is_a_stall_with_an_event_and_a_refilled_window(stalled):
     assert stalled["rc"] == 0, stalled["out"]
     s, t = stalled["s"], stalled["log"].ticks
-    # one stall of the SIGSTOP's 2 s; a loaded CI machine may hold the bridge off for tens of ms besides: real
+    # one stall of the SIGSTOP's 4 s; a loaded CI machine may hold the bridge off for tens of ms besides: real
     # stalls too, detected and recorded the same way, but never long
-    big = [i for i, x in enumerate(s["stalls"]) if x["gap_s"] >= 1.9]
-    assert len(big) == 1 and s["stalls"][big[0]]["gap_s"] <= 3.0, s["stalls"]
+    big = [i for i, x in enumerate(s["stalls"]) if x["gap_s"] >= 3.9]
+    assert len(big) == 1 and s["stalls"][big[0]]["gap_s"] <= 5.0, s["stalls"]
     assert all(x["gap_s"] < 0.5 for i, x in enumerate(s["stalls"]) if i != big[0]), s["stalls"]
     ev = [e for _, e in s["events"]]
-    assert any(e.startswith("bridge stalled: no tick for 2.") for e in ev), ev
+    assert any(e.startswith("bridge stalled: no tick for 4.") for e in ev), ev
     # the bridge's pause, not the vehicle's silence: no link loss, no restore, no extra stream requests
     assert not [e for e in ev if "link lost" in e or "link restored" in e], ev
     assert s["link_losses"] == 0 and s["stream_requests"] == 1
@@ -80,8 +80,9 @@ def test_a_sigstop_is_a_stall_with_an_event_and_a_refilled_window(stalled):
     # refilled: never steered on the window with the hole; (after the backlog of telemetry that arrived
     # stale is drained) blended back in, then steered again
     assert after[after != R["stale"]][0] in (R["blend"], R["warmup"]), after[:20]
-    first_steered = np.argmax(after == R["steered"])
-    assert first_steered > 0 and np.all(after[:first_steered] != R["steered"])
+    steering = (after == R["steered"]) | (after == R["guard_clamped"])  # a clamped tick is steered too
+    first_steered = np.argmax(steering)
+    assert first_steered > 0 and not np.any(steering[:first_steered]), np.unique(after, return_counts=True)
 
 
 def test_no_applied_reference_steps_beyond_the_rate_bound(stalled):
