@@ -24,8 +24,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "added latency are reported at the end. (Steering of the app's setpoints comes next.)")
     p.add_argument("--app", action="append", default=None, metavar="URL",
                    help="where apps and ground stations connect (repeat for several): udpin:HOST:PORT, a UDP "
-                        "server where each sender address is one client, or udpout:HOST:PORT, an app listening "
-                        "there (as PX4 sends to 14540) (default udpin:127.0.0.1:14541)")
+                        "server where each sender address is one client; udpout:HOST:PORT, an app listening "
+                        "there (as PX4 sends to 14540); tcpin:HOST:PORT, a TCP server, one client per connection "
+                        "(default udpin:127.0.0.1:14541)")
     p.add_argument("--vehicle", default="udpin:0.0.0.0:14540",
                    help="the vehicle link, as for ddpc-bridge: udpin:HOST:PORT (PX4 sends to 14540), "
                         "udpout:HOST:PORT, tcp:HOST:PORT (ArduPilot SITL 5760) or a serial device "

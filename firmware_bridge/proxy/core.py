@@ -26,11 +26,11 @@ import select
 import time
 from typing import Any, Callable
 
+from firmware_bridge.proxy.app_side import open_app_side
 from firmware_bridge.proxy.frames import msgid, splice, split_frames
 from firmware_bridge.proxy.rewrite import SETPOINT_MSGID, SetpointRewrite, decode_frame, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
 from firmware_bridge.proxy.vehicle_side import VehicleSide
-from firmware_bridge.transports import UdpTransport, parse_url
 
 __all__ = ["Proxy"]
 
@@ -55,63 +55,88 @@ class Proxy:
                  baud: int | None = None, between_clients: bool = False, client_timeout: float = 5.0,
                  reconnect_interval: float = 1.0, ring_size: int = 1 << 16) -> None:
         self.app_urls, self.vehicle_url = [apps] if isinstance(apps, str) else list(apps), vehicle
-        self.apps = [_app_link(u) for u in self.app_urls]
+        self.apps = [open_app_side(u) for u in self.app_urls]
         self.vehicle = VehicleSide(vehicle, baud, reconnect_interval, repin_after=client_timeout)
         self.rewrite = rewrite
         self.between_clients = between_clients
         self.client_timeout = client_timeout
-        # (app link index, address) -> [last heard (monotonic; inf: a udpout peer), datagrams in, datagrams out]
-        self.clients: dict[tuple[int, Any], list] = {(k, a.sock.getpeername()): [math.inf, 0, 0]
-                                                     for k, a in enumerate(self.apps) if not a.listen}
+        # (app endpoint index, address) -> [last heard (monotonic; inf: never expires), datagrams in, datagrams out]
+        self.clients: dict[tuple[int, Any], list] = {}
         self.setpoint_client: Any = None  # the client whose setpoints are the app's (first to send one)
         self.setpoints = SetpointPeriod()
         self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
-        self.events = dict.fromkeys(("clients_joined", "clients_expired", "foreign_setpoints", "rewrite_errors",
+        self.events = dict.fromkeys(("clients_joined", "clients_expired", "clients_left", "foreign_setpoints",
+                                     "rewrite_errors",
                                      "between_clients"), 0)
         self._poll = select.poll()
-        self._vfd: int | None = None
-        for a in self.apps:
-            self._poll.register(a.fileno(), select.POLLIN)
+        self._fds: dict[int, int] = {}  # polled descriptor -> app endpoint index (-1: the vehicle)
         self._t0 = time.monotonic()
+        self._membership()
 
     # ------------------------------------------------------------------ the loop
     def run(self, duration: float | None = None, stop: Callable[[], bool] = lambda: False) -> None:
-        """Forward until ``stop()`` is true or ``duration`` seconds have passed."""
+        """Forward until ``stop()`` is true or ``duration`` seconds have passed; what had arrived by then
+        is still forwarded (a stop loses nothing that was received)."""
         end = None if duration is None else time.monotonic() + duration
-        app_fds = {a.fileno(): k for k, a in enumerate(self.apps)}
         while not stop():
             now = time.monotonic()
             if end is not None and now >= end:
                 break
-            self._watch_vehicle(now)
-            for fd, _ev in self._poll.poll(_POLL_S * 1000):
-                k = app_fds.get(fd)
-                if k is not None:
-                    for data, addr, ts in self.apps[k].read():
-                        self._from_client((k, addr), data, ts if ts is not None else time.time())
-                elif fd == self._vfd:
-                    for chunk in self.vehicle.read():
-                        self._from_vehicle(*chunk)
+            self.vehicle.maintain(now)
+            self._watch_fds()
+            self._forward(_POLL_S)
             self._expire(time.monotonic())
+        self._forward(0.0)
 
-    def _watch_vehicle(self, now: float) -> None:
-        """Reopen a failed vehicle link; poll whichever descriptor it has now."""
-        self.vehicle.maintain(now)
-        fd = self.vehicle.fileno()
-        if fd != self._vfd:
-            if self._vfd is not None:
-                self._poll.unregister(self._vfd)
-            if fd is not None:
+    def _forward(self, timeout: float) -> None:
+        """Wait up to ``timeout`` [s] for input and forward everything pending."""
+        for fd, _ev in self._poll.poll(timeout * 1000):
+            k = self._fds.get(fd)
+            if k is None:
+                continue
+            if k < 0:
+                for chunk in self.vehicle.read():
+                    self._from_vehicle(*chunk)
+                continue
+            for addr, data, t_rx in self.apps[k].read(fd):
+                self._from_client((k, addr), data, t_rx)
+            if self.apps[k].joined or self.apps[k].gone:
+                self._membership()
+
+    def _watch_fds(self) -> None:
+        """Poll exactly the descriptors the endpoints have now (a reopened vehicle, TCP connections)."""
+        want = {fd: k for k, a in enumerate(self.apps) for fd in a.fds()}
+        vfd = self.vehicle.fileno()
+        if vfd is not None:
+            want[vfd] = -1
+        if want != self._fds:
+            for fd in self._fds.keys() - want.keys():
+                self._poll.unregister(fd)
+            for fd in want.keys() - self._fds.keys():
                 self._poll.register(fd, select.POLLIN)
-            self._vfd = fd
+            self._fds = want
+
+    def _membership(self) -> None:
+        """Clients that an endpoint added (a udpout app, a TCP connection) or closed."""
+        for k, a in enumerate(self.apps):
+            for addr in a.joined:
+                self.clients[(k, addr)] = [math.inf, 0, 0]
+                self.events["clients_joined"] += 1
+            for addr in a.gone:
+                self._forget((k, addr), "clients_left")
+            a.joined.clear()
+            a.gone.clear()
 
     def _expire(self, now: float) -> None:
         old = [a for a, c in self.clients.items() if now - c[0] > self.client_timeout]
         for a in old:
-            del self.clients[a]
-            self.events["clients_expired"] += 1
-            if a == self.setpoint_client:
-                self.setpoint_client = None
+            self._forget(a, "clients_expired")
+
+    def _forget(self, client: tuple[int, Any], why: str) -> None:
+        if self.clients.pop(client, None) is not None:
+            self.events[why] += 1
+        if client == self.setpoint_client:
+            self.setpoint_client = None
 
     # ------------------------------------------------------------------ app -> vehicle
     def _from_client(self, client: tuple[int, Any], data: bytes, t_rx: float) -> None:
@@ -149,8 +174,9 @@ class Proxy:
             if out and self.vehicle.ready:  # not merely "the vehicle is not heard yet"
                 st["send_errors"] += 1
         if self.between_clients:
-            for a in self.clients:
-                if a != client and self._to_client(a, data):
+            clean = data if not garbage else b"".join(data[i:i + n] for i, n in spans)
+            for a in list(self.clients):
+                if a != client and self._to_client(a, data, clean):
                     self.events["between_clients"] += 1
 
     def _setpoint(self, client: tuple[int, Any], frame: bytes, t_rx: float) -> bytes | None:
@@ -194,30 +220,34 @@ class Proxy:
             if not self.clients:
                 st["dropped"] += frames
                 continue
-            for a in self.clients:
-                if self._to_client(a, out):
+            # a stream client gets whole frames only (a stream vehicle's outs are single frames already)
+            clean = out if not garbage or len(outs) > 1 else b"".join(buf[i:i + n] for i, n in spans)
+            for a in list(self.clients):
+                if self._to_client(a, out, clean):
                     st["forwarded"] += frames
                     lat.add(time.time() - t_rx)
                 else:
                     st["dropped"] += frames
                     st["send_errors"] += 1
 
-    def _to_client(self, client: tuple[int, Any], buf: bytes) -> bool:
-        try:
-            self.apps[client[0]].sock.sendto(buf, client[1])
-        except OSError:  # full buffer, nobody listening (udpout): that client misses this datagram
+    def _to_client(self, client: tuple[int, Any], buf: bytes, frames: bytes) -> bool:
+        if not self.apps[client[0]].send(client[1], buf, frames):
             return False
-        self.clients[client][2] += 1
+        c = self.clients.get(client)
+        if c is not None:  # (a TCP client whose send failed is gone)
+            c[2] += 1
         return True
 
     # ------------------------------------------------------------------ results
     def summary(self) -> dict:
         """The counters, latencies [us] and the app's setpoint period, JSON-ready."""
+        up = self.up.summary()
+        up["garbage_bytes"] += sum(a.garbage for a in self.apps)  # what TCP clients sent between frames
         return {
             "apps": self.app_urls, "vehicle": self.vehicle_url, "uptime_s": time.monotonic() - self._t0,
             "vehicle_peer": list(self.vehicle.peer) if self.vehicle.peer else None,
             "between_clients": self.between_clients, "rewrite_hook": self.rewrite is not None,
-            "app_to_vehicle": self.up.summary(), "vehicle_to_app": self.down.summary(),
+            "app_to_vehicle": up, "vehicle_to_app": self.down.summary(),
             "setpoints": {**self.setpoints.summary(),
                           "client": self._client_json(self.setpoint_client)},
             "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2]} for a, c in self.clients.items()],
@@ -232,12 +262,5 @@ class Proxy:
         for a in self.apps:
             a.close()
         self.vehicle.close()
-
-
-def _app_link(url: str) -> UdpTransport:
-    ep = parse_url(url)
-    if ep.kind not in ("udpin", "udpout"):
-        raise ValueError(f"--app {url!r}: the app side is UDP, udpin:HOST:PORT (a server) or udpout:HOST:PORT")
-    return UdpTransport(ep.host, ep.port, listen=ep.kind == "udpin")
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from firmware_bridge.proxy.app_side import deep_receive_buffer
 from firmware_bridge.proxy.frames import split_frames
 from firmware_bridge.transports import LinkError, open_transport, parse_url
 
@@ -69,6 +70,7 @@ class VehicleSide:
                 raise  # a port we cannot bind is a configuration error, not a link drop
             self._down(str(e), now)
             return
+        deep_receive_buffer(getattr(self.transport, "sock", None))
         self._buf.clear()
 
     def _down(self, why: str, now: float) -> None:

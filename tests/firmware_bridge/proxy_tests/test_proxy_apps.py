@@ -1,5 +1,5 @@
 """``ddpc-proxy`` as a process between real MAVLink programs and ``ddpc-vehicle``: a plain pymavlink app
-and a ground station at once, ``ddpc-bridge`` flying lock-step exactly as it does directly, the
+(UDP) and a ground station (TCP) at once, ``ddpc-bridge`` flying lock-step exactly as it does directly, the
 statistics written on SIGTERM, and the command line's exit codes."""
 
 from __future__ import annotations
@@ -20,17 +20,17 @@ pytestmark = [pytest.mark.e2e]
 OFFBOARD, PX4_MAIN_MODE = px4_custom_mode(6), 0xFF << 16
 
 
-def _proxy(procs, tmp_path, ap: int, vp: int, name: str = "proxy"):
-    return spawn_proxy(procs, "--app", f"udpin:127.0.0.1:{ap}", "--vehicle", f"udpin:127.0.0.1:{vp}",
+def _proxy(procs, tmp_path, ap: int, vp: int, *more: str, name: str = "proxy"):
+    return spawn_proxy(procs, "--app", f"udpin:127.0.0.1:{ap}", *more, "--vehicle", f"udpin:127.0.0.1:{vp}",
                        "--stats", str(tmp_path / f"{name}.json"), name=name)
 
 
 def test_a_pymavlink_app_and_a_ground_station_fly_through_the_proxy(procs, tmp_path):
-    ap, vp = free_port(), free_port()
-    px = _proxy(procs, tmp_path, ap, vp)
+    ap, vp, tp = free_port(), free_port(), free_port()
+    px = _proxy(procs, tmp_path, ap, vp, "--app", f"tcpin:127.0.0.1:{tp}")
     veh = procs.spawn("vehicle", f"udpout:127.0.0.1:{vp}", name="vehicle")
     app = connect(f"udpout:127.0.0.1:{ap}", 245)
-    gcs = connect(f"udpout:127.0.0.1:{ap}", 255)
+    gcs = connect(f"tcp:127.0.0.1:{tp}", 255)                # a ground station over TCP
     try:
         hover = read_param(app, "MPC_THR_HOVER")
         loss_t = read_param(gcs, "COM_OF_LOSS_T")            # both clients' requests answered to each
@@ -66,7 +66,8 @@ def test_a_pymavlink_app_and_a_ground_station_fly_through_the_proxy(procs, tmp_p
     assert s["stop_reason"] == "SIGTERM" and s["events"]["clients_joined"] == 2
     for d in ("app_to_vehicle", "vehicle_to_app"):
         assert s[d]["send_errors"] == 0 and s[d]["garbage_bytes"] == 0 and s[d]["latency_us"]["p99"] > 0
-    assert s["app_to_vehicle"]["dropped"] == 0 and s["app_to_vehicle"]["forwarded"] == s["app_to_vehicle"]["received"]
+    up = s["app_to_vehicle"]  # (the clients' first heartbeats may come before the vehicle is heard: dropped)
+    assert up["forwarded"] + up["dropped"] == up["received"] and up["dropped"] <= 4
 
 
 def _bridge_flight(procs, tmp_path, name: str, through_proxy: bool) -> tuple[dict, dict | None]:
@@ -92,13 +93,15 @@ def test_ddpc_bridge_flies_through_the_proxy_as_it_does_directly(procs, tmp_path
     for b in (direct, proxied):
         assert b["stop_reason"].startswith("duration") and b["activations"] == 1 and b["missed_ticks"] == 0
         assert b["link"]["bad_data"] == 0
-        assert b["setpoints_sent"] == b["ticks"]
+        assert b["setpoints_sent"] == b["ticks"], b
     # lock-step and seeded: the same flight, to the stamps' rounding (when the bridge engages is set by wall-clock
     # heartbeats, so the flight may be a tick longer or shorter)
     assert abs(proxied["ticks"] - direct["ticks"]) <= 2, (proxied["ticks"], direct["ticks"])
     assert proxied["rmse_z_measured"] == pytest.approx(direct["rmse_z_measured"], rel=5e-3)
     up, down = s["app_to_vehicle"], s["vehicle_to_app"]
-    assert up["forwarded"] == up["received"] == proxied["link"]["tx"] and up["dropped"] == 0
+    # all the bridge sent, but what came before the vehicle was heard (its first heartbeats, if it started first)
+    assert up["received"] == proxied["link"]["tx"] and up["send_errors"] == 0, (up, proxied["link"])
+    assert up["forwarded"] + up["dropped"] == up["received"] and up["dropped"] <= 3, up
     # every message the bridge received came through; a heartbeat may follow between its exit and the vehicle's
     assert 0 <= down["forwarded"] - proxied["link"]["rx"] <= 3, (down, proxied["link"])
     assert up["latency_us"]["count"] == up["datagrams"] and up["latency_us"]["p50"] > 0

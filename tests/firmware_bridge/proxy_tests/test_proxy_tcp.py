@@ -105,3 +105,50 @@ def test_into_a_stream_go_whole_frames_with_the_hooks_replacement():
     assert len(got) == len(want) and got[:len(hb)] == hb
     assert decode_frame(got[len(hb):]).z == pytest.approx(-2.01, abs=1e-6)
     assert s["app_to_vehicle"]["rewritten"] == 1 and s["app_to_vehicle"]["garbage_bytes"] == 6
+
+
+def test_tcp_clients_get_whole_frames_and_their_frames_reach_the_vehicle():
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy([f"tcpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{free_port()}"], f"udpin:127.0.0.1:{vp}")
+    veh = Peer()
+    veh.send(frames(mav(2, 1, 9), 1)[0], vp)
+    end = time.monotonic() + 5
+    while rp.proxy.vehicle.peer is None and time.monotonic() < end:
+        time.sleep(0.01)
+    a, b = (socket.create_connection(("127.0.0.1", ap), timeout=5) for _ in range(2))
+    try:
+        end = time.monotonic() + 5
+        while (rp.proxy.events["clients_joined"] < 2 or rp.proxy.vehicle.peer is None) and time.monotonic() < end:
+            time.sleep(0.01)
+        fs = frames(mav(2, 1, 1), 300)
+        for k, f in enumerate(fs):                                  # garbage around some datagrams
+            veh.send(b"\x00zz" + f if k % 10 == 0 else f, vp)
+            if k % 40 == 39:
+                time.sleep(0.003)
+        want = b"".join(fs)
+        for c in (a, b):
+            c.settimeout(0.05)
+            assert _read_stream(c, len(want)) == want                 # whole frames, no garbage, in order
+        out = frames(mav(2, 255, 190), 100)
+        stream = b"".join(b"\xfe\x07noise" + f if k % 7 == 0 else f for k, f in enumerate(out))
+        for k in range(0, len(stream), 37):                           # cut anywhere
+            a.sendall(stream[k:k + 37])
+        got = b""
+        end = time.monotonic() + 5
+        while len(got) < len(b"".join(out)) and time.monotonic() < end:
+            got = b"".join(veh.got)
+            time.sleep(0.01)
+        assert got == b"".join(out)
+        b.close()
+        end = time.monotonic() + 5
+        while rp.proxy.events["clients_left"] < 1 and time.monotonic() < end:
+            veh.send(frames(mav(2, 1, 1), 1, 500)[0], vp)              # the proxy notices on its next read / write
+            time.sleep(0.02)
+    finally:
+        s = rp.stop()
+        for c in (a, b):
+            c.close()
+        veh.close()
+    assert s["events"]["clients_left"] == 1 and s["app_to_vehicle"]["received"] == 100
+    assert s["app_to_vehicle"]["garbage_bytes"] == 7 * len(range(0, 100, 7))
+    assert s["vehicle_to_app"]["garbage_bytes"] == 3 * 30
