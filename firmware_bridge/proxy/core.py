@@ -1,14 +1,13 @@
 """The transparent MAVLink proxy: several app / ground-station clients on one side, the vehicle on
 the other, every byte forwarded unchanged both ways in arrival order.
 
-- App side: one or more UDP endpoints. A server (``udpin:HOST:PORT``, where apps and ground stations
-  connect as to an autopilot's port): each distinct source address is a client, forgotten after
-  ``client_timeout`` seconds of silence (it comes back with its next datagram). A client
-  (``udpout:HOST:PORT``, as PX4 sends to an app listening on 14540): that address is a client for
-  as long as the proxy runs.
-- Vehicle side: one connection (``udpin:`` -- the first sender is the vehicle, others are counted
-  and dropped --, ``udpout:``, ``tcp:`` client with reconnects, or a serial device), the transports
-  of :mod:`firmware_bridge.transports`.
+- App side: one or more endpoints (:mod:`.app_side`). A UDP server (``udpin:HOST:PORT``, where apps
+  and ground stations connect as to an autopilot's port): each distinct source address is a client,
+  forgotten after ``client_timeout`` seconds of silence (it comes back with its next datagram). A
+  UDP client (``udpout:HOST:PORT``, as PX4 sends to an app listening on 14540): that address is a
+  client for as long as the proxy runs. A TCP server (``tcpin:HOST:PORT``): one client per connection.
+- Vehicle side: one connection (:mod:`.vehicle_side`: ``udpin:`` -- the first sender is the vehicle,
+  others are counted and dropped --, ``udpout:``, ``tcp:`` client with reconnects, or a serial device).
 - Vehicle -> every client. Client -> vehicle. Client -> the other clients only with
   ``between_clients`` (off by default: each client then sees the vehicle as if it were alone on a
   direct link, which is what an autopilot's own UDP port gives it).
@@ -41,7 +40,7 @@ class Proxy:
     """A transparent MAVLink proxy (see the module docstring).
 
     Args:
-        apps: the app side: ``udpin:HOST:PORT`` / ``udpout:HOST:PORT`` strings (or one string).
+        apps: the app side: ``udpin:``/``udpout:``/``tcpin:HOST:PORT`` strings (or one string).
         vehicle: the vehicle side (``udpin:``/``udpout:``/``tcp:`` or a serial device).
         rewrite: the setpoint hook; None: pass-through.
         baud: a serial vehicle's baud rate (default from the string, else 921600).
@@ -66,8 +65,7 @@ class Proxy:
         self.setpoints = SetpointPeriod()
         self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
         self.events = dict.fromkeys(("clients_joined", "clients_expired", "clients_left", "foreign_setpoints",
-                                     "rewrite_errors",
-                                     "between_clients"), 0)
+                                     "rewrite_errors", "between_clients"), 0)
         self._poll = select.poll()
         self._fds: dict[int, int] = {}  # polled descriptor -> app endpoint index (-1: the vehicle)
         self._t0 = time.monotonic()
@@ -85,6 +83,7 @@ class Proxy:
             self.vehicle.maintain(now)
             self._watch_fds()
             self._forward(_POLL_S)
+            self._membership()
             self._expire(time.monotonic())
         self._forward(0.0)
 
@@ -100,7 +99,7 @@ class Proxy:
                 continue
             for addr, data, t_rx in self.apps[k].read(fd):
                 self._from_client((k, addr), data, t_rx)
-            if self.apps[k].joined or self.apps[k].gone:
+            if self.apps[k].joined:  # a new TCP client hears the vehicle from now on
                 self._membership()
 
     def _watch_fds(self) -> None:
@@ -250,7 +249,8 @@ class Proxy:
             "app_to_vehicle": up, "vehicle_to_app": self.down.summary(),
             "setpoints": {**self.setpoints.summary(),
                           "client": self._client_json(self.setpoint_client)},
-            "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2]} for a, c in self.clients.items()],
+            "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2]}
+                        for a, c in self.clients.items()],
             "events": {**self.events, **{f"vehicle_{k}": v for k, v in self.vehicle.counts.items()}},
             "last_vehicle_error": self.vehicle.last_error,
         }
