@@ -105,6 +105,8 @@ def test_a_spoofer_from_start_up_on_steers_nothing_and_takes_no_stream_request(p
     s = read_json(tmp_path / "s.json")
     t = load_ticklog(tmp_path / "t.npz").ticks
     assert spoof.received == 0                                     # nothing ever went to the spoofer
+    # ... every setpoint went to the vehicle (the last few may still be in its socket when it stops reading)
+    assert s["setpoints_sent"] - 5 <= len(veh.setpoints) <= s["setpoints_sent"]
     assert mavlink.MAV_CMD_SET_MESSAGE_INTERVAL in veh.commands    # the stream request reached the vehicle
     assert np.all(np.abs(t["position"][:, 2] - 0.9) < 1e-3)        # no forged sample reached the controller
     link = s["link"]
