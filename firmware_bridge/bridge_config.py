@@ -114,9 +114,9 @@ class BridgeConfig:
             where the vehicle is to the trajectory's start height, then start the trajectory once the
             height held within ``approach_tolerance`` [m] for 1 s, or ``approach_timeout`` s after the
             ramp ended (then with a warning: the vehicle, or its height estimate, did not settle).
-            The default tolerance, 0.1 m, is twice the passthrough controller's steady-state height
-            error measured at the start on ArduCopter SITL (+0.054 to +0.069 m; PX4 SIH -0.05 to +0.05 m), so
-            a hovering vehicle starts after its 1 s hold instead of on the timeout.
+            The default tolerance, 0.1 m, is above the passthrough controller's steady-state height
+            error at the start on the SITLs, so a hovering vehicle starts after its 1 s hold instead
+            of on the timeout.
         land: at exit hand the vehicle back with LAND (and wait up to 60 s for it to disarm)
             instead of HOLD.
         blend_rates: bumpless (re-)engagement: the applied references start at the measured

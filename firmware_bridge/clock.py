@@ -1,7 +1,7 @@
 """The bridge's own control clock: ticks on a uniform grid, whatever the telemetry does.
 
 Real autopilots do not deliver telemetry on the control period: PX4 SIH stamps step 4/8/12 ms
-(about 125 distinct samples per second when 200 Hz is requested), ArduCopter over TCP delivers
+(fewer distinct samples per second than the 200 Hz requested), ArduCopter over TCP delivers
 200 Hz in bursts of two. A loop that waits for "every stream advanced by one period" never gets
 going there. Like the paper's 200 Hz ROS loop, the bridge ticks at ``t0 + k * period`` on its
 monotonic clock and each tick uses the newest telemetry with its age (zero-order hold, see

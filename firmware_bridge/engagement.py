@@ -2,7 +2,7 @@
 bridge's tick and supervisor consult.
 
 * :class:`ArmingRetry` -- arm once the vehicle can be armed: not before both telemetry streams
-  arrive (ArduCopter accepts arming ~16 s before it sends any LOCAL_POSITION_NED, and a
+  arrive (ArduCopter accepts arming well before it sends any LOCAL_POSITION_NED, and a
   setpoint computed without a position is garbage), then retry every ``interval`` while refused
   (each refusal reported with the autopilot's words), give up after ``timeout``.
 * :class:`Approach` -- take-off / approach: the height reference ramps at ``climb_rate`` from
@@ -16,9 +16,9 @@ bridge's tick and supervisor consult.
   applied, which the vehicle flew on meanwhile), staleness, and why the nominal reference passes untouched
   on a tick.
 
-Measured on the SITLs: ArduCopter refused arming ("Arm: Gyros inconsistent", MAV_RESULT_FAILED)
-for 26 s after start and sent no local position before 42 s; PX4 SIH answered
-TEMPORARILY_REJECTED (no text: PX4 reports through EVENT messages) for ~2.5 s.
+After boot the SITLs refuse arming for a while: ArduCopter with a reason ("Arm: Gyros
+inconsistent", MAV_RESULT_FAILED), before its first local position; PX4 SIH with
+TEMPORARILY_REJECTED and no text (PX4 reports through EVENT messages).
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ step opt-in, each refusal reported, never raised):
 
 None of this removes latency the kernel itself adds: with preemption model "none" or
 "voluntary" (:func:`kernel_preemption`), kernel code runs on until it yields, whatever the task's
-priority. On the 2-vCPU development VM (non-preemptible guest kernel) the PM QoS request cut the
-bridge demo's missed ticks from ~19 to 1-7 per 122 s, not to zero (README, "Real time").
+priority. On a non-preemptible guest kernel the PM QoS request cuts the bridge demo's missed
+ticks, not to zero (README, "Real time").
 ``ddpc-rtcheck`` measures the machine at hand.
 """
 

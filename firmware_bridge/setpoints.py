@@ -55,7 +55,7 @@ class AttitudeSetpoints:
         A vehicle left in OFFBOARD by the previous flight (PX4 returns to it after LAND and disarm)
         flies the streamed setpoint the moment our ARM is accepted, up to a heartbeat (1 s) before
         we know it is armed; the controller's thrust toward the trajectory start then throws it up
-        (measured on PX4 SIH: 1.5 m/s, the heights' origin captured 1.2 m in the air)."""
+        (seen on PX4 SIH, with the heights' origin captured in the air)."""
         thrust = self.thrust_min
         return self.to_vehicle((1.0, 0.0, 0.0, 0.0)), thrust, self.profile.thrust_field(thrust, z, z)
 

@@ -12,7 +12,7 @@ breaks the window (the next column needs depth steered ticks in a row). Every ``
 is re-solved, verified and, if accepted, swapped in before the next tick; with ``[adapt] offset`` the output
 offset every re-solve estimates (whatever the verdict on G) is swapped in too once it passed its own check.
 
-``background=True`` (the bridge): a re-solve takes tens of ms at flight sizes, far more than a 5 ms tick, so
+``background=True`` (the bridge): a re-solve takes far longer than a tick at flight sizes, so
 the tick only queues columns and takes the snapshot (``adapt_snapshot()``; the generated C folds the queued
 columns into R in the re-solve) and a worker thread runs ``adapt_resolve(False)``
 (C: cffi releases the GIL for the call) while later ticks keep pushing and solving. The first update tick

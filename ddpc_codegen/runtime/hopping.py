@@ -54,16 +54,16 @@ class HoppingWindow:
         smooth: return the fitted window (known samples too) when sigma > 0 (see
             :meth:`ArtificialIO.complete`, ``replace_known``).
         denoise: also replace a window without ground samples by its fit (sigma > 0): the nearest
-            trajectory of the data's dynamics. Measured on the simulator with sensor noise (position
-            2 mm): the steering's gain on the noisy window otherwise jitters z_ref by ~15 mm per
-            tick, which through the tilted thrust moves the hop's horizontal velocity.
+            trajectory of the data's dynamics. With sensor noise the steering's gain on the noisy
+            window otherwise jitters z_ref from tick to tick, which through the tilted thrust moves
+            the hop's horizontal velocity.
         refit_residual: when a denoised window's fit leaves a residual above this [m / rad], fit
             again over every aerial sample since the last ground phase (up to the operator's depth)
             and keep the last ``t_ini`` samples (0: never). Why: a 20-sample fit of a noisy window
             still passes much of the noise on; a longer fit averages it, but on noise-free windows it
-            also fits the aerial loop's nonlinearity (nominal apex error 0.6 -> up to 4 mm), so it
-            is used only when the short fit says the window is noisy (simulated PogoX: noise-free
-            windows p99 4.6 mm, 2 mm / 4 mrad sensor noise p50 8.9 mm).
+            also fits the aerial loop's nonlinearity (a larger nominal apex error), so it is used
+            only when the short fit says the window is noisy (the profiles set the threshold between
+            the residuals of noise-free and noisy windows).
     """
 
     art: Completer
