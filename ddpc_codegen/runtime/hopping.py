@@ -62,8 +62,8 @@ class HoppingWindow:
             and keep the last ``t_ini`` samples (0: never). Why: a 20-sample fit of a noisy window
             still passes much of the noise on; a longer fit averages it, but on noise-free windows it
             also fits the aerial loop's nonlinearity (a larger nominal apex error), so it is used
-            only when the short fit says the window is noisy (the profiles set the threshold between
-            the residuals of noise-free and noisy windows).
+            only when the short fit says the window is noisy (the steering config's
+            ``refit_residual`` lies between the residuals of noise-free and noisy windows).
     """
 
     art: Completer
