@@ -5,6 +5,7 @@ statistics written on SIGTERM, and the command line's exit codes."""
 from __future__ import annotations
 
 import json
+import signal
 import time
 
 import pytest
@@ -117,3 +118,14 @@ def test_the_command_line(procs, tmp_path):
     s = read_json(tmp_path / "s.json")
     assert s["stop_reason"] == "duration" and s["app_to_vehicle"]["received"] == 0
     assert json.loads(procs.log(p)[procs.log(p).index("{"):]) == s     # the same summary on stdout
+
+
+def test_sigint_stops_it_cleanly_with_its_summary(procs, tmp_path):
+    ap, vp = free_port(), free_port()
+    p = _proxy(procs, tmp_path, ap, vp, name="interrupted")
+    end = time.monotonic() + 20
+    while "ddpc-proxy: apps on" not in procs.log(p) and time.monotonic() < end:  # its handlers are set by then
+        time.sleep(0.05)
+    p.send_signal(signal.SIGINT)
+    assert procs.wait(p, 20) == 0, procs.log(p)
+    assert read_json(tmp_path / "interrupted.json")["stop_reason"] == "SIGINT"
