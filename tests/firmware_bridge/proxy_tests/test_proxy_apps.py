@@ -105,7 +105,7 @@ def test_ddpc_bridge_flies_through_the_proxy_as_it_does_directly(procs, tmp_path
     assert up["forwarded"] + up["dropped"] == up["received"] and up["dropped"] <= 3, up
     # every message the bridge received came through; a heartbeat may follow between its exit and the vehicle's
     assert 0 <= down["forwarded"] - proxied["link"]["rx"] <= 3, (down, proxied["link"])
-    assert up["latency_us"]["count"] == up["datagrams"] and up["latency_us"]["p50"] > 0
+    assert up["latency_us"]["count"] == up["forwarded"] and up["latency_us"]["p50"] > 0  # one message a datagram
 
 
 def test_the_command_line(procs, tmp_path):
