@@ -13,10 +13,10 @@ from firmware_bridge.cli_args import add_realtime_args, qos_request
 from firmware_bridge.proxy.core import Proxy
 from firmware_bridge.realtime import setup_realtime
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_proxy_parser", "main"]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_proxy_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="ddpc-proxy",
         description="A transparent MAVLink proxy between your own app(s) / ground station and the vehicle: "
@@ -43,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_proxy_parser().parse_args(argv)
     vehicle, apps = args.vehicle, args.app or ["udpin:127.0.0.1:14541"]
     try:
         proxy = Proxy(apps, vehicle, baud=args.baud, between_clients=args.between_clients,
