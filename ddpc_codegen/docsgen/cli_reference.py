@@ -14,6 +14,7 @@ from typing import Any
 from ddpc_codegen.cli.main import build_parser
 from ddpc_codegen.testbed.vehicle_cli import build_vehicle_parser
 from firmware_bridge.cli import build_bridge_parser
+from firmware_bridge.proxy.cli import build_proxy_parser
 from firmware_bridge.realtime import main as rtcheck_main
 
 __all__ = ["COMMANDS", "parsers", "parser_of", "flags_of", "cli_page"]
@@ -53,6 +54,10 @@ def _vehicle() -> argparse.ArgumentParser:
     return build_vehicle_parser()
 
 
+def _proxy() -> argparse.ArgumentParser:
+    return build_proxy_parser()
+
+
 def _rtcheck() -> argparse.ArgumentParser:
     return parser_of(rtcheck_main)  # builds its parser inside main
 
@@ -62,6 +67,7 @@ COMMANDS: dict[str, tuple[str, Callable[[], argparse.ArgumentParser]]] = {
     "ddpc-codegen": ("the workstation: simulate, import logs, fit, generate, sweep, demo", _codegen),
     "ddpc-bridge": ("the companion computer: the steering loop over MAVLink", _bridge),
     "ddpc-vehicle": ("the test bed: the simulated PX4-like vehicle endpoint", _vehicle),
+    "ddpc-proxy": ("the companion computer: a transparent MAVLink proxy between your app and the vehicle", _proxy),
     "ddpc-rtcheck": ("the companion computer: can this machine hold 200 Hz?", _rtcheck),
 }
 
