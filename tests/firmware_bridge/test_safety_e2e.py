@@ -1,5 +1,5 @@
 """The bridge's safety glue (firmware_bridge/safety.py) against the simulated vehicle (``ddpc_codegen.testbed``)
-in real time, as separate processes over UDP: a bridge stopped by SIGSTOP for 4 s mid-steer (what CPU
+in real time, as separate processes over UDP: a bridge stopped by SIGSTOP for 2 s mid-steer (what CPU
 starvation or a GC pause does) is a stall -- an event, a refilled window, a bumpless resume -- and no
 applied reference ever steps by more than the gate's rate bound, through injected solver failures, guard
 trips, the stall and the hand-back at the end. Also: the exit codes and logs of an interrupted or
@@ -34,7 +34,9 @@ def _wait_for(path_text, what: str, timeout: float) -> None:
 def stalled(tmp_path_factory, flying_solver):
     """Steer the simulated PX4 (real time); solver calls 600..639 fail, the step guard is tight (0.02 m:
     guard trips), the correction may move 1 mm per tick ([envelope] offset_rate 0.2 m/s); 5 s after
-    engaging the bridge is SIGSTOPped for 4 s (issue 46's stall: the socket overflows meanwhile)."""
+    engaging the bridge is SIGSTOPped for 2 s. (Not 4 s as in issue 46's ArduCopter probe: this vehicle takes
+    attitude and thrust setpoints and holds the last one through the stall, so after 4 s it has fallen and
+    tilted beyond anything a resume can be judged on; ArduCopter's guided mode holds its position.)"""
     tmp = tmp_path_factory.mktemp("stall")
     prof = tmp / "slow_gate.toml"
     prof.write_text('extends = "pogox"\n[envelope]\noffset_rate = [0.2, 0.2]\n')
@@ -50,7 +52,7 @@ def stalled(tmp_path_factory, flying_solver):
         _wait_for(lambda: pr.log(br), "engaged (", 40)
         time.sleep(5.0)
         br.send_signal(signal.SIGSTOP)
-        time.sleep(4.0)
+        time.sleep(2.0)
         br.send_signal(signal.SIGCONT)
         rc = pr.wait(br, 60)
         out = pr.log(br)
@@ -63,13 +65,13 @@ def stalled(tmp_path_factory, flying_solver):
 def test_a_sigstop_is_a_stall_with_an_event_and_a_refilled_window(stalled):
     assert stalled["rc"] == 0, stalled["out"]
     s, t = stalled["s"], stalled["log"].ticks
-    # one stall of the SIGSTOP's 4 s; a loaded CI machine may hold the bridge off for tens of ms besides: real
+    # one stall of the SIGSTOP's 2 s; a loaded CI machine may hold the bridge off for tens of ms besides: real
     # stalls too, detected and recorded the same way, but never long
-    big = [i for i, x in enumerate(s["stalls"]) if x["gap_s"] >= 3.9]
-    assert len(big) == 1 and s["stalls"][big[0]]["gap_s"] <= 5.0, s["stalls"]
+    big = [i for i, x in enumerate(s["stalls"]) if x["gap_s"] >= 1.9]
+    assert len(big) == 1 and s["stalls"][big[0]]["gap_s"] <= 3.0, s["stalls"]
     assert all(x["gap_s"] < 0.5 for i, x in enumerate(s["stalls"]) if i != big[0]), s["stalls"]
     ev = [e for _, e in s["events"]]
-    assert any(e.startswith("bridge stalled: no tick for 4.") for e in ev), ev
+    assert any(e.startswith("bridge stalled: no tick for 2.") for e in ev), ev
     # the bridge's pause, not the vehicle's silence: no link loss, no restore, no extra stream requests
     assert not [e for e in ev if "link lost" in e or "link restored" in e], ev
     assert s["link_losses"] == 0 and s["stream_requests"] == 1
