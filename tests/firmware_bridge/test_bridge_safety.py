@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
+from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json, wait_until
 
 from firmware_bridge.gate import GATE_FLAGS
 from firmware_bridge.link import mavlink
@@ -19,14 +19,6 @@ pytestmark = [pytest.mark.e2e, pytest.mark.compiler]
 
 R = {r: i for i, r in enumerate(REASONS)}
 MAX_AGE_MS = 50.0
-
-
-def _wait(cond, timeout: float, what: str) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > t_end:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)
 
 
 @pytest.fixture(scope="module")
@@ -43,14 +35,14 @@ def stale_run(tmp_path_factory, flying_solver):
                       "--max-age-ms", str(MAX_AGE_MS), "--inject-solver-failure", "40:5",
                       "--log", str(tmp / "ticks.npz"), "--summary", str(tmp / "summary.json"), "--timeout", "60",
                       name="bridge")
-        _wait(veh.first_setpoint.is_set, 30, "the first setpoint")
-        _wait(lambda: len(veh.setpoints) > 300, 20, "1.5 s of setpoints")
+        wait_until(veh.first_setpoint.is_set, 30, "the first setpoint")
+        wait_until(lambda: len(veh.setpoints) > 300, 20, "1.5 s of setpoints")
         veh.telemetry = False
         t_off = time.monotonic()
         time.sleep(0.5)
         n_silent = len([t for t in veh.setpoint_times() if t > t_off + 0.1])
         veh.telemetry = True
-        _wait(lambda: len(veh.setpoints) > 300 + 100 + 200, 20, "setpoints after telemetry returned")
+        wait_until(lambda: len(veh.setpoints) > 300 + 100 + 200, 20, "setpoints after telemetry returned")
         rc = pr.terminate(br)
         out = pr.log(br)
     finally:
@@ -131,7 +123,7 @@ def test_garbage_and_foreign_sysid_are_ignored_and_the_stream_survives_silence(p
                      "--summary", str(tmp_path / "s.json"), "--timeout", "60", "--stale-stream-limit", "2",
                      name="bridge")
     try:
-        _wait(veh.first_setpoint.is_set, 30, "the first setpoint")
+        wait_until(veh.first_setpoint.is_set, 30, "the first setpoint")
         time.sleep(1.0)
         # The vehicle goes completely silent (no telemetry, no heartbeat) for 0.6 s.
         veh.telemetry = veh.heartbeat = False
@@ -171,13 +163,13 @@ def test_a_restarted_vehicle_is_picked_up_again(procs, tmp_path, fake_vehicle_fa
     br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--summary",
                      str(tmp_path / "s.json"), "--timeout", "60", name="bridge")
     try:
-        _wait(v1.first_setpoint.is_set, 30, "the first setpoint")
-        _wait(lambda: v1.k * 0.005 > 1.5, 10, "1.5 s of vehicle time")
+        wait_until(v1.first_setpoint.is_set, 30, "the first setpoint")
+        wait_until(lambda: v1.k * 0.005 > 1.5, 10, "1.5 s of vehicle time")
         v1.close()
         time.sleep(0.2)
         v2 = fake_vehicle_factory(port)
         v2.start()
-        _wait(lambda: len(v2.setpoints) > 100, 20, "setpoints to the restarted vehicle")
+        wait_until(lambda: len(v2.setpoints) > 100, 20, "setpoints to the restarted vehicle")
         assert procs.terminate(br) == 0, procs.log(br)
     finally:
         v1.close()
@@ -196,8 +188,8 @@ def _steer_a_vehicle_that_does_not_follow(procs, tmp_path, fake_vehicle_factory,
                      "--max-step", "0.05,0.5", "--guard-hold", hold, "--log", str(tmp_path / f"{name}.npz"),
                      "--summary", str(tmp_path / f"{name}.json"), "--timeout", "60", name=name)
     try:
-        _wait(veh.first_setpoint.is_set, 30, "the first setpoint")
-        _wait(lambda: len(veh.setpoints) > 800, 30, "4 s of setpoints")
+        wait_until(veh.first_setpoint.is_set, 30, "the first setpoint")
+        wait_until(lambda: len(veh.setpoints) > 800, 30, "4 s of setpoints")
         assert procs.terminate(br) == 0, procs.log(br)
     finally:
         veh.close()

@@ -11,20 +11,12 @@ import time
 
 import numpy as np
 import pytest
-from support.bridge_helpers import Procs, free_port, read_json
+from support.bridge_helpers import Procs, free_port, read_json, wait_until
 
 from firmware_bridge.link import mavlink
 from firmware_bridge.ticklog import load_ticklog
 
 pytestmark = [pytest.mark.e2e]
-
-
-def _wait(cond, timeout: float, what: str) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > t_end:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)
 
 
 class Spoofer(threading.Thread):
@@ -95,9 +87,9 @@ def test_a_spoofer_from_start_up_on_steers_nothing_and_takes_no_stream_request(p
     try:
         time.sleep(1.0)
         veh.start()
-        _wait(veh.first_setpoint.is_set, 30, "the first setpoint")
+        wait_until(veh.first_setpoint.is_set, 30, "the first setpoint")
         spoof.heartbeats = True        # now heartbeats with the vehicle's ids too
-        _wait(lambda: len(veh.setpoints) > 400, 30, "2 s of setpoints")
+        wait_until(lambda: len(veh.setpoints) > 400, 30, "2 s of setpoints")
         assert procs.terminate(br) == 0, procs.log(br)
     finally:
         spoof.close()
@@ -134,8 +126,8 @@ def test_forged_telemetry_from_the_vehicles_address_is_dropped_and_counted(procs
     br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--log", str(tmp_path / "t.npz"),
                      "--summary", str(tmp_path / "s.json"), "--timeout", "60", name="bridge")
     try:
-        _wait(veh.first_setpoint.is_set, 30, "the first setpoint")
-        _wait(lambda: veh.k > 200 + 600, 30, "3 s of forged samples")
+        wait_until(veh.first_setpoint.is_set, 30, "the first setpoint")
+        wait_until(lambda: veh.k > 200 + 600, 30, "3 s of forged samples")
         assert procs.terminate(br) == 0, procs.log(br)
     finally:
         veh.close()
@@ -161,7 +153,7 @@ def _fly_realtime(pr: Procs, tmp, name: str, flood_hz: float | None) -> dict:
     flood = None
     try:
         if flood_hz:
-            _wait(lambda: "vehicle heartbeat" in pr.log(br), 30, "the vehicle's heartbeat at the bridge")
+            wait_until(lambda: "vehicle heartbeat" in pr.log(br), 30, "the vehicle's heartbeat at the bridge")
             time.sleep(1.0)
             flood = Spoofer(port, rate_hz=flood_hz, heartbeats=True)
             flood.start()

@@ -78,6 +78,15 @@ class Procs:
                     pass
 
 
+def wait_until(cond, timeout: float, what: str) -> None:
+    """Poll ``cond()`` every 10 ms until it holds; AssertionError naming ``what`` after ``timeout`` s."""
+    t_end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > t_end:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.01)
+
+
 def read_json(path: Path) -> dict:
     return json.loads(Path(path).read_text())
 
