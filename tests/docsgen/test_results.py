@@ -1,0 +1,178 @@
+"""The results pages and the README table, rendered from reports/*.json: what each page says of a small
+report, what it says of a missing one, and that the committed pages are the render of the stored reports."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from ddpc_codegen.docsgen import results, results_format, results_sitl
+
+ROOT = Path(__file__).resolve().parents[2]
+README = (ROOT / "README.md").read_text()
+
+SUMMARY = {"flying": {"baseline": {"rmse_z": 0.09, "rmse_pitch": 0.002}, "steered": {"rmse_z": 0.0017, "rmse_pitch": 0.0021},
+                      "solve_us": {"median": 9.5, "p99": 20.25}, "fallbacks": 0},
+           "meta": {"wall_time_s": 12.5, "machine": "x86_64", "python": "3.11", "mass_error_kg": -0.2,
+                    "figures": ["reports/flying.png"]}}
+# one flying condition against the simple fixes, in summary.json's layout (the steering is summary.json's "ddpc")
+BASELINES = {"flying": {"metric": "rmse_z", "ilc": {"metric_per_iteration": [0.09, 0.002], "iterations_to_settle": 1},
+                        "conditions": {"push": {"passthrough": {"rmse_z": 0.09}, "ctrl_ff": {"rmse_z": 0.06},
+                                                "prefilter": {"rmse_z": 0.012}, "ilc": {"rmse_z": 0.0117},
+                                                "ddpc": {"rmse_z": 0.008}, "ilc_learned_here": False}}}}
+# one SITL condition where a simple fix beats the steering on the true height, one where the steering wins
+SITL_COND = {"rmse_z": {"passthrough": 0.054, "ctrl_ff": 0.056, "prefilter": 0.053, "ilc": None, "steered": 0.0092},
+             "rmse_z_truth": {"passthrough": 0.0796, "ctrl_ff": 0.1212, "prefilter": 0.107, "ilc": None, "steered": 0.1131},
+             "estimator_rms": {"steered": 0.1119}}
+
+
+def test_every_results_page_says_what_is_not_measured_yet():
+    pages = results.pages({})
+    assert set(pages) == set(results.PAGES)
+    for name, target in results.REPORTS.items():
+        assert f"Not measured yet -- run `{target}` (it writes `reports/{name}`" in pages["index.md"]
+    assert "Not measured yet -- run `make adapt-eval`" in pages["adaptation.md"]
+    assert "Not measured yet -- run `make sitl-adapt`" in pages["adaptation.md"]
+
+
+def test_the_simulator_page_and_the_readme_block_render_a_small_summary():
+    page = results.pages({"summary.json": SUMMARY})["simulator.md"]
+    assert "| RMSE z [mm] | 90.0 | 1.7 | 52.94 |" in page and "| solver call median / p99 [µs] | -- | 9.5 / 20.2 | -- |" in page
+    assert "![flying](../figures/flying.png)" in page and "```" not in page  # no console text
+    block = results.readme_block({"summary.json": SUMMARY})
+    assert block.startswith(results.BEGIN) and block.endswith(results.END)
+    assert "| flying | nominal | RMSE z [mm] | 90.00 | -- | 1.70 | -- |" in block  # no baselines: nothing judged
+    judged = results.readme_block({"summary.json": {**SUMMARY, "baselines": BASELINES}})
+    assert "| flying | push | RMSE z [mm] | 90.00 | 11.70 (ILC) | 8.00 | 0.68 |" in judged
+    assert "below 1 (the steering better than every simple fix) in 1 of 1 conditions" in judged
+    sim = results.pages({"summary.json": {**SUMMARY, "baselines": BASELINES}})["simulator.md"]
+    assert "| push | 90.00 | 60.00 | 12.00 | 11.70* | 8.00 | ILC | 0.68 |" in sim  # *: ILC learned elsewhere
+    assert "ILC on the periodic flying case: 90.00, 2.00 mm per iteration" in sim
+
+
+def test_the_headline_names_steered_over_the_best_simple_fix_on_the_true_height():
+    won = {**SITL_COND, "rmse_z_truth": {**SITL_COND["rmse_z_truth"], "steered": 0.0097}}
+    sitl = {"px4": {"conditions": {"steps": SITL_COND, "wind": {"skipped": "no wind parameter"}}},
+            "ardupilot": {"conditions": {"steps": won}}}
+    index = results.index_page({"sitl.json": sitl})
+    # PX4 steps: 113.1 mm steered against the prefilter's 107.0: 1.06, the steering worse, said so
+    assert "| steps | 79.6 | 107.0 (prefilter) | 113.1 | 1.06 | 1.01 |" in index
+    assert "below 1 (the steering better than every simple fix) in 0 of 1 conditions" in index
+    assert "| steps | 79.6 | 107.0 (prefilter) | 9.7 | 0.09 | 0.09 |" in index
+    assert "[SITL page](sitl.md#px4)" in index and "[SITL page](sitl.md#ardupilot)" in index
+
+
+def test_the_bench_page_and_headline_render_a_small_report():
+    daqp = {"median_us": 7.0, "p99_us": 30.0, "c_median_us": 1.0, "max_err": 1e-14, "fast_path_fraction": 0.8,
+            "speedup_vs_osqp_interp_1e-6": 11.4}
+    bench = {"flying": {"daqp": daqp, "cvxpygen": {"median_us": 518.0, "p99_us": 2000.0, "max_err": 0.38},
+                        "osqp": {"skipped": "no osqp"}, "active_fraction": {"value": 0.17}},
+             "meta": {"ticks": 100, "machine": "x86_64", "date": "2026-12-04"}}
+    index = results.index_page({"bench.json": bench})
+    assert "| flying | 7.0 / 30.0 | 1.0 | 74 | 11 | 1.0e-14 |" in index  # CVXPYgen 518 / 7.0 µs
+    page = results.pages({"bench.json": bench})["bench.md"]
+    assert "| daqp | 7.0 | 30.0 | 1.0 | 1.0e-14 | 80 |" in page and "| osqp | skipped: no osqp |" in page
+    assert "```" not in page and "## Online adaptation" not in page  # no console text; nothing not measured
+
+
+def test_the_sitl_page_renders_each_autopilots_conditions():
+    cond = {"rmse_z": {"passthrough": 0.07, "ctrl_ff": 0.05, "prefilter": 0.016, "ilc": None, "steered": 0.008},
+            "rmse_z_truth": {"passthrough": 0.07, "ctrl_ff": 0.054, "prefilter": 0.0168, "ilc": None, "steered": 0.0084},
+            "estimator_rms": {"passthrough": 0.009, "steered": 0.0056},
+            "thrust_step_rms": {"passthrough": 0.0002, "steered": 0.0005},
+            "max_ref_step": {"steered": 0.006}, "fallbacks": {"steered": 0.0}, "solve_us_p99": {"steered": 612.0}}
+    ap = {"conditions": {"steps": cond, "wind": {"skipped": "no wind parameter"}}}
+    truth = results_sitl._methods_table(ap, "rmse_z_truth", judged=True)
+    assert "| steps | 70.0 | 54.0 | 16.8 | -- | 8.4 | prefilter | 0.50 |" in truth.splitlines()
+    assert "| steps | 5.6 | -- | 1.50 |" in results_sitl._estimator_table(ap)  # no constant part recorded
+    assert results_sitl._split_table(ap) == ""  # a report from before the split near path changes / steady
+    assert "| steps | 6.0 | 2.5 | 0 | -- | -- | 0.61 |" in results_sitl._loop_activity_table(ap)
+    cond["rmse_z_truth_changing"] = {"steered": 0.0107, "prefilter": 0.0219}
+    cond["rmse_z_truth_steady"] = {"steered": 0.0009, "prefilter": 0.0057}
+    assert "| steps | 10.7 | 0.9 | 21.9 | 5.7 |" in results_sitl._split_table(ap)
+    del cond["solve_us_p99"]  # a report from before the figure
+    cond["estimator_bias_rms"] = {"steered": 0.0049}
+    cond["stalls"], cond["guard_saturations"] = {"steered": 1.5}, {"steered": 0.0}
+    assert "| steps | 6.0 | 2.5 | 0 | 1.5 | 0 | -- |" in results_sitl._loop_activity_table(ap)
+    assert "| steps | 5.6 | 4.9 | 1.50 |" in results_sitl._estimator_table(ap)
+    assert "- wind: no wind parameter" in results_sitl._autopilot_section("px4", ap)
+
+
+def test_the_adaptation_page_renders_adapt_eval():
+    adaptation = {"scenario": "flying", "duration_s": 25.0, "t_change_s": 10.0, "window_s": 10.0, "adapt": {"forgetting": 0.999},
+                  "conditions": {"mass": {"what": "+0.4 kg", "static": 0.0134, "adapted": 0.0067, "offset_only": 0.0061,
+                                          "prefilter": 0.104, "adapted_crashed": False, "adapted_over_static": 0.5,
+                                          "adaptation": {"swaps": 10, "rejected_gain": 14, "offset_swaps": 24}}}}
+    page = results.pages({"summary.json": {**SUMMARY, "adaptation": adaptation}})["adaptation.md"]
+    assert "| mass | +0.4 kg | 13.4 | 6.7 | 6.1 | 104.0 | 2.00 |" in page and "| mass | 10 | 14 | 24 |" in page
+    assert "Not measured yet -- run `make adapt-eval`" in results.pages({"summary.json": SUMMARY})["adaptation.md"]
+
+
+def test_the_sitl_page_renders_the_steps_against_the_front():
+    model = {"passthrough": {"error_rms": 0.048, "rate_ratio": 1.0, "front_error_at_this_rate": 0.0131},
+             "steered": {"error_rms": 0.0065, "rate_ratio": 1.923, "front_error_at_this_rate": 0.0064}}
+    front = {"config": "sitl_ardupilot.toml", "model": model, "flown_rate_ratio": 1.87, "front_at_flown": 0.0066}
+    table = results_sitl.front_table([("ardupilot", front, {"rmse_z": {"steered": 0.0071}})])
+    assert "| ArduPilot | 48.0 (13.1) | 6.5 at 1.92x | 6.4 | 1.87x, 6.6, 7.1 | -- |" in table.splitlines()
+    model["step_gain"] = {"chained": 0.596, "predicted": 0.869}
+    no_flight = results_sitl.front_table([("px4", {**front, "flown_rate_ratio": None}, {"rmse_z": {}})])
+    assert no_flight.splitlines()[-1].endswith("| 6.4 | -- | 0.60 / 0.87 |")
+    assert results_sitl.front_table([]) == ""
+
+
+def test_a_table_escapes_pipes_inside_cells():
+    assert results_format.table(["a", "mean |apex err| [mm]"], [["x", "1"]]) == (
+        "| a | mean \\|apex err\\| [mm] |\n|---|---|\n| x | 1 |\n")
+
+
+def test_the_committed_results_pages_and_readme_table_are_the_rendered_reports():
+    """docs/results/*.md and the README's table are exactly what the stored reports render: a hand-edited
+    figure (or a report re-measured without re-rendering) fails here."""
+    reports = results.load_reports(ROOT / "reports")
+    for name, text in results.pages(reports).items():
+        assert (ROOT / "docs" / "results" / name).read_text() == text, f"docs/results/{name}: run {results.__name__}"
+    assert results.replace_block(README, results.readme_block(reports)) == README
+    assert not (ROOT / "docs" / "results.md").exists()
+
+
+def test_replace_block_and_its_error():
+    text = f"intro\n{results.BEGIN}\nold\n{results.END}\noutro\n"
+    assert results.replace_block(text, "NEW") == "intro\nNEW\noutro\n"
+    with pytest.raises(ValueError, match=re.escape("no results markers in the text: expected")):
+        results.replace_block("no markers", "NEW")
+
+
+def test_load_reports_names_a_broken_report(tmp_path):
+    (tmp_path / "bench.json").write_text("{not json")
+    (tmp_path / "summary.json").write_text(json.dumps(SUMMARY))
+    with pytest.raises(ValueError, match=re.escape(f"{tmp_path / 'bench.json'}: not valid JSON (")):
+        results.load_reports(tmp_path)
+    (tmp_path / "bench.json").unlink()
+    assert results.load_reports(tmp_path) == {"summary.json": SUMMARY}
+
+
+def test_main_rewrites_pages_readme_and_figures(tmp_path):
+    reports, docs = tmp_path / "reports", tmp_path / "docs"
+    reports.mkdir()
+    (reports / "flying.png").write_bytes(b"png")
+    summary = {**SUMMARY, "meta": {**SUMMARY["meta"], "figures": [str(reports / "flying.png")]}}
+    (reports / "summary.json").write_text(json.dumps(summary))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"top\n{results.BEGIN}\nstale\n{results.END}\nbottom\n")
+    assert results.main(["--reports", str(reports), "--docs", str(docs), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert "stale" not in text and "| flying | nominal | RMSE z [mm] | 90.00 |" in text and text.endswith("bottom\n")
+    assert (docs / "figures" / "flying.png").read_bytes() == b"png"
+    assert sorted(p.name for p in (docs / "results").iterdir()) == sorted(results.PAGES)
+    assert "# Simulator" in (docs / "results" / "simulator.md").read_text()
+    readme.write_text("no markers")
+    assert results.main(["--reports", str(reports), "--docs", str(docs), "--readme", str(readme)]) == 2
+    (reports / "summary.json").unlink()  # make bench / make sitl-demo alone: the README's table is left as it is
+    assert results.main(["--reports", str(reports), "--docs", str(docs), "--readme", str(readme)]) == 0
+    assert readme.read_text() == "no markers"
+    assert "Not measured yet -- run `make demo`" in (docs / "results" / "index.md").read_text()
+
+
