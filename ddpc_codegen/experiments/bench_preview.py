@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.design.problem import SteeringProblem
-from ddpc_codegen.experiments.bench_problems import build_problem
+from ddpc_codegen.experiments.bench_problems import build_problem, closed_loop
 from ddpc_codegen.codegen import generate
 from ddpc_codegen.runtime.loader import load_solver
 
@@ -22,25 +22,10 @@ __all__ = ["track", "preview_tracking"]
 def track(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1, settle: int = 200) -> dict:
     """Closed loop of ``solver`` (anything with ``solve_theta``) on the plant for n ticks: per-output tracking
     RMSE [m] after ``settle`` ticks, and the solver's own tick time [µs] (median, p99)."""
-    A, B, C, _ = plant
-    c = problem.config
-    m, ti, tf = c.m, c.t_ini, c.t_f
-    rng = np.random.default_rng(seed)
-    t = np.arange(n + tf) * 0.005
-    steps = np.repeat(rng.uniform(-0.15, 0.15, (len(t) // 300 + 1, m)), 300, axis=0)[: len(t)]
-    y_des = 0.1 * np.sin(2 * np.pi * 0.5 * t)[:, None] + steps
-    x, u_hist, y_hist = np.zeros(A.shape[0]), np.zeros((ti, m)), np.zeros((ti, m))
-    err, times = np.empty((n, m)), np.empty(n)
-    for k in range(n):
-        y_k = C @ x
-        err[k] = y_k - y_des[k]
-        yd = y_des[k : k + tf]
-        r = solver.solve_theta(problem.theta(u_hist, y_hist, yd, yd))
+    err, times = np.empty((n, problem.config.m)), np.empty(n)
+    for k, (_, r, y_k, y_des_k) in enumerate(closed_loop(problem, plant, solver, n, seed)):
+        err[k] = y_k - y_des_k
         times[k] = r.solve_time * 1e6
-        u_k = r.u[0] if r.ok else yd[0]
-        x = A @ x + B @ u_k
-        u_hist = np.vstack([u_hist[1:], u_k])
-        y_hist = np.vstack([y_hist[1:], y_k])
     return {"rmse": np.sqrt((err[settle:] ** 2).mean(axis=0)).tolist(), "tick_median_us": float(np.median(times)),
             "tick_p99_us": float(np.percentile(times, 99))}
 

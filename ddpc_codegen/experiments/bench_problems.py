@@ -73,27 +73,29 @@ def build_problem(size: str, seed: int = 0) -> tuple[SteeringProblem, tuple]:
     return SteeringProblem(fit_predictor(ds, cfg.t_ini, cfg.t_f, "lsq"), cfg), plant
 
 
-def theta_stream(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1) -> np.ndarray:
-    """Closed-loop run of ``solver`` on the plant; returns the parameter vectors it saw (n, n_theta)."""
-    A, B, C, off = plant
+def closed_loop(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1):
+    """Closed loop of ``solver`` (anything with ``solve_theta``) on the plant for n ticks, tracking a sine plus
+    random steps; yields per tick (theta (n_theta,), its result, y_k (m,), y_des_k (m,))."""
+    A, B, C, _ = plant
     c = problem.config
     m, ti, tf = c.m, c.t_ini, c.t_f
     rng = np.random.default_rng(seed)
     t = np.arange(n + tf) * 0.005
     steps = np.repeat(rng.uniform(-0.15, 0.15, (len(t) // 300 + 1, m)), 300, axis=0)[: len(t)]
-    y_des_all = 0.1 * np.sin(2 * np.pi * 0.5 * t)[:, None] + steps
-    x = np.zeros(A.shape[0])
-    u_hist = np.zeros((ti, m))
-    y_hist = np.zeros((ti, m))
-    thetas = np.empty((n, problem.n_theta))
+    y_des = 0.1 * np.sin(2 * np.pi * 0.5 * t)[:, None] + steps
+    x, u_hist, y_hist = np.zeros(A.shape[0]), np.zeros((ti, m)), np.zeros((ti, m))
     for k in range(n):
         y_k = C @ x  # relative to the operating point (offset removed, as in the data)
-        yd = y_des_all[k : k + tf]
+        yd = y_des[k : k + tf]
         th = problem.theta(u_hist, y_hist, yd, yd)
-        thetas[k] = th
         r = solver.solve_theta(th)
+        yield th, r, y_k, y_des[k]
         u_k = r.u[0] if r.ok else yd[0]
         x = A @ x + B @ u_k
         u_hist = np.vstack([u_hist[1:], u_k])
         y_hist = np.vstack([y_hist[1:], y_k])
-    return thetas
+
+
+def theta_stream(problem: SteeringProblem, plant: tuple, solver, n: int, seed: int = 1) -> np.ndarray:
+    """The parameter vectors ``solver`` saw in :func:`closed_loop` (n, n_theta)."""
+    return np.array([th for th, *_ in closed_loop(problem, plant, solver, n, seed)]).reshape(n, problem.n_theta)
