@@ -259,15 +259,20 @@ def _recursion(src: str, what: str, text: str, max_depth: int, error: type[Excep
                  f"({max_depth})")
 
 
-def parse_toml(text: str, src: str, what: str, max_depth: int = MAX_DEPTH, error: type[Exception] = ConfigError) -> dict:
-    """TOML text -> tables, checked by :func:`check_nesting`; ``src`` names the file in errors."""
+def _parsed(loads, kind: str, text: str, src: str, what: str, max_depth: int, error: type[Exception]) -> Any:
+    """``loads(text)`` with its failures as one line each, then :func:`check_nesting`."""
     try:
-        raw = tomllib.loads(text)
+        raw = loads(text)
     except RecursionError:
         raise _recursion(src, what, text, max_depth, error) from None
-    except ValueError as e:  # TOMLDecodeError, or an integer of more than 4300 digits
-        raise error(f"{src}: {what}: is not valid TOML: {e}") from None
+    except ValueError as e:  # the decoder's error, or an integer of more than 4300 digits
+        raise error(f"{src}: {what}: is not valid {kind}: {e}") from None
     return check_nesting(raw, src, what, max_depth, error)
+
+
+def parse_toml(text: str, src: str, what: str, max_depth: int = MAX_DEPTH, error: type[Exception] = ConfigError) -> dict:
+    """TOML text -> tables, checked by :func:`check_nesting`; ``src`` names the file in errors."""
+    return _parsed(tomllib.loads, "TOML", text, src, what, max_depth, error)
 
 
 def parse_json(text: str | bytes, src: str, what: str, max_depth: int = MAX_DEPTH,
@@ -279,13 +284,7 @@ def parse_json(text: str | bytes, src: str, what: str, max_depth: int = MAX_DEPT
             text = bytes(text).decode("utf-8")
         except UnicodeDecodeError as e:
             raise error(f"{src}: {what}: is not valid JSON (not UTF-8: {_utf8_fault(bytes(text), e)})") from None
-    try:
-        raw = json.loads(text)
-    except RecursionError:
-        raise _recursion(src, what, text, max_depth, error) from None
-    except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
-        raise error(f"{src}: {what}: is not valid JSON: {e}") from None
-    return check_nesting(raw, src, what, max_depth, error)
+    return _parsed(json.loads, "JSON", text, src, what, max_depth, error)
 
 
 def load_toml_bounded(path: str | Path, what: str, max_bytes: int = MAX_TEXT_BYTES, max_depth: int = MAX_DEPTH,
