@@ -187,3 +187,13 @@ def test_the_bridge_flags_reach_the_config_and_a_bad_key_is_one_line_exit_2(tmp_
         build_bridge_parser().parse_args(["udpin:127.0.0.1:14540", "--signing-key", str(tmp_path / "bad")])
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert e.value.code == 2 and "--signing-key" in err and "bad: signing key must be 32 raw bytes" in err
+
+
+@pytest.mark.parametrize("value", ["127.0.0.1", "127.0.0.1:0", "127.0.0.1:70000", "127.0.0.1:port", ":14540"])
+def test_a_bad_vehicle_address_is_one_line_exit_2(value, capsys):
+    from firmware_bridge.cli import build_bridge_parser
+
+    with pytest.raises(SystemExit) as e:
+        build_bridge_parser().parse_args(["udpin:127.0.0.1:14540", "--vehicle-address", value])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and "--vehicle-address" in err[-1] and "expected HOST:PORT" in err[-1], err[-1]
