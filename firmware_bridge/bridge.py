@@ -87,6 +87,7 @@ from firmware_bridge.report import FlightRecorder, gap_statistics, write_summary
 from firmware_bridge.setpoints import AttitudeSetpoints, SetpointStream
 from firmware_bridge.steering_setup import Steering, build_reference_stage, build_steering, loop_warnings
 from firmware_bridge.plausibility import TelemetryLimits
+from firmware_bridge.position_source import PositionSource
 from firmware_bridge.telemetry import TelemetryState, TrajectoryFrame
 from firmware_bridge.tick_gate import TickGate, make_gate
 from firmware_bridge.ticklog import TickLog
@@ -154,6 +155,7 @@ class Bridge:
                                    link_timeout=c.link_timeout, arm_timeout=c.arm_timeout, verbose=c.verbose,
                                    on_reboot=lambda: self.trigger.restart_samples())
         self.frame = TrajectoryFrame(c.frame, anchor=(0.0, 0.0) if hopping else self.ctrl.trajectory.start_position()[:2])
+        self.source = PositionSource.for_bridge(c, self.frame, self.events, telem.limits)  # the measured position
         hover = ctrl_cfg.model_mass * ctrl_cfg.g / ctrl_cfg.max_thrust
         self.shaping = AttitudeSetpoints(self.frame, profile, hover, c.thrust_min, c.thrust_max)
         self.gate = _tick_gate(c, self.steering, hover, self.events)
@@ -239,6 +241,7 @@ class Bridge:
             if timeout > 0:
                 link.wait(timeout)
             self.vehicle.pump()
+            self.source.pump()
             now = time.monotonic()
             kind = self.trigger.due(now, tel)
             if kind:
@@ -268,17 +271,17 @@ class Bridge:
             self.vehicle.bridge_paused(now, self.gate.stalls[-1]["gap_s"])
             self.stage.reset()
             eng.stalled()
-        fresh = age <= c.max_age
+        fresh = (tick_age := self.source.age(now, age)) <= c.max_age  # --position-source mocap: the pose's age too
         heard = self.vehicle.heard(now)
         engaged = st.armed and st.offboard and heard
-        if not eng.telemetry(now, age, fresh):
+        if not eng.telemetry(now, tick_age, fresh):
             if event:
                 self.trigger.consumed(tel)
             self.stream.last_send = now  # quiet: the autopilot's own failsafe takes over
             return
         gap, fill = self._gap(t_ctrl) if event else (False, 0)
         state, y = self._measure(fresh)
-        on = engaged and self.frame.captured
+        on = engaged and self.frame.captured and self.source.captured
         self._engage(on, t_ctrl, y, state)
         t_traj = eng.trajectory_time(t_ctrl)
         state = dataclasses.replace(state, t=t_traj)
@@ -302,6 +305,7 @@ class Bridge:
             sent=sent, gap=gap, n_new=n_new, latency=(t_sent - tel.newest_rx()) * 1e6, gate=flags | bad,
             armed=st.armed, offboard=st.offboard, y_des=self.ctrl.y_des, phase=self.ctrl.phase,
             backdate=self.hop.backdate if self.hop is not None else 0, contact=tel.contact, truth=self.vehicle.truth)
+        self.recorder.rows.set_last(self.source.columns(now))
 
     def _gap(self, stamp: float) -> tuple[bool, int]:
         """Lock-step: (a gap, ticks to bridge); a hole too long to bridge refills the steering history."""
@@ -317,10 +321,11 @@ class Bridge:
         tel = self.vehicle.telem
         if fresh and not self.engagement.flown:
             self.frame.capture(tel.position, float(tel.euler[2]))
+            self.source.capture(self.vehicle.status.armed)  # the mocap's frame at the same ticks
             if not self.vehicle.status.armed:
                 self.frame.z0 = float(tel.position[2])
                 self.vehicle.truth.capture_ground()
-        state = self.frame.to_trajectory(tel.measured_state(0.0))
+        state = self.source.measure(self.frame.to_trajectory(tel.measured_state(0.0)))
         return state, self.ctrl.outputs(state)
 
     def _engage(self, engaged: bool, t_ctrl: float, y: np.ndarray, state) -> None:
@@ -398,13 +403,14 @@ class Bridge:
         s = self.summary()
         if c.summary:
             write_summary(s, c.summary)
-        self.vehicle.close()
+        for part in (self.vehicle, self.source):
+            part.close()
 
     # ------------------------------------------------------------------ results
     def ticklog(self) -> TickLog:
         """The tick log with its metadata (config, controller, trajectory, frame, events, solver)."""
-        return self.recorder.ticklog(self.cfg, self.ctrl, self.vehicle, self.frame, self.events, self.gate,
-                                     self.steering.solver if self.steering else None)
+        return self.source.annotate(self.recorder.ticklog(self.cfg, self.ctrl, self.vehicle, self.frame, self.events,
+                                    self.gate, self.steering.solver if self.steering else None), self.recorder.t0)
 
     def summary(self) -> dict:
         """The run's summary (what the summary file holds)."""
@@ -413,7 +419,7 @@ class Bridge:
             head, self.cfg, vehicle=self.vehicle, vehicle_info=self.vehicle_info, stream=self.stream,
             trigger=self.trigger, engagement=self.engagement, gate=self.gate, frame=self.frame, events=self.events,
             scheduling=self._rt.describe())
-        out.update(self.stage.summary())
+        out.update(self.stage.summary(), position_source=self.source.summary())
         if "feedforward" in out:
             out["feedforward"] = {"file": str(self.cfg.feedforward), **out["feedforward"]}
         return out

@@ -17,9 +17,10 @@ from ddpc_codegen.robot.phases import ContactConfig
 from ddpc_codegen.robot.profile import Envelope, default_envelope, load_profile
 from ddpc_codegen.robot.trajectory import EllipseTrajectory
 
-from firmware_bridge.link import mavlink
+from firmware_bridge.link import mavlink, parse_url
 from firmware_bridge.arg_checks import check_bridge_values
 from firmware_bridge.path_checks import check_flight_paths
+from firmware_bridge.position_source import POSITION_SOURCES
 from firmware_bridge.ticklog import log_file
 
 BRIDGE_MODES = ("steer", "passthrough", "collect", "prefilter", "feedforward")
@@ -84,6 +85,10 @@ class BridgeConfig:
         signing_key: a 32-byte MAVLink 2 signing key (None: unsigned link).
         rate_hz: control rate (must match the solver's dt and the controller's dt).
         attitude_stream / position_stream: telemetry messages to request.
+        position_source: the measured position: "autopilot" (its estimate, from ``position_stream``) or "mocap"
+            (the motion-capture poses received on ``mocap``; :mod:`.position_source`).
+        mocap: the link the motion-capture poses arrive on (``udpin:HOST:PORT``; None: none); with source
+            "autopilot" they are logged beside the estimate.
         max_age: telemetry older than this [s] -> stop steering, stale action.
         stale_action: "reference" (controller on the newest telemetry, unsteered), "hover"
             (level, hover thrust / climb rate 0), "land" (like hover and, with ``offboard``,
@@ -166,6 +171,8 @@ class BridgeConfig:
     rate_hz: float = 200.0
     attitude_stream: str = "ATTITUDE_QUATERNION"
     position_stream: str = "LOCAL_POSITION_NED"
+    position_source: str = "autopilot"
+    mocap: str | None = None
     max_age: float = 0.050
     stale_action: str = "reference"
     stale_stream_limit: float = 1.0
@@ -239,6 +246,7 @@ class BridgeConfig:
             raise ValueError(f"max_gap_fill must be an integer >= 0; got {self.max_gap_fill!r}")
         if self.frame not in ("start", "world"):
             raise ValueError(f"frame must be 'start' or 'world'; got {self.frame!r}")
+        self._check_position_source()
         if self.scenario == "hopping":
             self._hopping_defaults()
         self._check_channel_values()
@@ -268,6 +276,22 @@ class BridgeConfig:
                 setattr(self, key, hop)
         if self.takeoff:
             raise ValueError("takeoff is for flying: hopping is released from where the robot hovers")
+
+    def _check_position_source(self) -> None:
+        """The position source and the mocap link: one line naming the flag when they cannot work."""
+        if self.position_source not in POSITION_SOURCES:
+            raise ValueError(f"--position-source must be one of {', '.join(POSITION_SOURCES)}; got {self.position_source!r}")
+        if self.position_source == "mocap" and not self.mocap:
+            raise ValueError("--position-source mocap needs the link the poses arrive on (--mocap udpin:HOST:PORT)")
+        if self.mocap:
+            try:
+                parse_url(self.mocap)
+            except ValueError as e:
+                raise ValueError(f"--mocap: {e}") from None
+            if self.mocap == self.url:
+                raise ValueError(f"--mocap {self.mocap}: the vehicle's link (the poses need a port of their own)")
+        if self.position_source == "mocap" and self.lockstep:
+            raise ValueError("--position-source mocap runs on the wall clock; --lockstep ticks on the vehicle's stamps")
 
     def _check_channel_values(self) -> None:
         """One value per reference channel, finite; a step guard or blend rate of 0 or below would

@@ -41,6 +41,7 @@ from firmware_bridge.cli_args import (
 )
 from firmware_bridge.exit_status import exit_codes_epilog
 from firmware_bridge.link import LinkError
+from firmware_bridge.position_source import POSITION_SOURCES
 from firmware_bridge.preflight import EnvelopeRefusal, PreflightError
 
 __all__ = ["bridge_main", "build_bridge_parser", "main"]
@@ -137,6 +138,13 @@ def _bridge_loop_args(g) -> None:
     g.add_argument("--rate", type=float, default=_D["rate_hz"], help="control rate [Hz] (default 200)")
     g.add_argument("--attitude-stream", choices=tuple(ATTITUDE_STREAMS), default="quaternion")
     g.add_argument("--position-stream", choices=tuple(POSITION_STREAMS), default="local")
+    g.add_argument("--position-source", choices=POSITION_SOURCES, default=_D["position_source"],
+                   help="the measured position the loop steers on: the autopilot's estimate (default) or the motion "
+                        "capture's poses received on --mocap (a lab's measurement; stale poses make stale ticks)")
+    g.add_argument("--mocap", default=None, metavar="URL",
+                   help="where the motion-capture poses arrive (udpin:HOST:PORT; VISION_POSITION_ESTIMATE, "
+                        "ATT_POS_MOCAP or ODOMETRY, local NED); logged beside the estimate, steered on with "
+                        "--position-source mocap")
     g.add_argument("--lockstep", action="store_true", help="tick only on telemetry, vehicle time (ddpc-vehicle --lockstep)")
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
     g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
@@ -243,7 +251,8 @@ def bridge_config_from_args(a: argparse.Namespace) -> BridgeConfig:
         guid_options=a.guid_options, force_guid_options=a.force_guid_options, sysid=a.sysid, compid=a.compid, target_system=a.target_system,
         target_component=a.target_component, vehicle_address=a.vehicle_address, signing_key=a.signing_key,
         rate_hz=a.rate, attitude_stream=ATTITUDE_STREAMS[a.attitude_stream],
-        position_stream=POSITION_STREAMS[a.position_stream], max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
+        position_stream=POSITION_STREAMS[a.position_stream], position_source=a.position_source, mocap=a.mocap,
+        max_age=a.max_age_ms * 1e-3, stale_action=a.stale_action,
         stale_stream_limit=a.stale_stream_limit, link_timeout=a.link_timeout,
         vehicle_lost_timeout=a.vehicle_lost_timeout, max_tilt_deg=a.max_tilt_deg,
         thrust_min=a.thrust_min, thrust_max=a.thrust_max, max_step=_max_step(a, guards), guard_hold=a.guard_hold,

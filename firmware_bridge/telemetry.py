@@ -285,16 +285,24 @@ class TrajectoryFrame:
 
     def to_trajectory(self, st: MeasuredState) -> MeasuredState:
         """A local-ENU state in the trajectory frame (in place; returns it)."""
-        st.position[2] -= self.z0
+        self.point(st.position)
         if self.mode == "world":
             return st
         c, s = self._c, self._s
-        dx, dy = st.position[0] - self.origin[0], st.position[1] - self.origin[1]
-        st.position[0], st.position[1] = self.anchor[0] + c * dx + s * dy, self.anchor[1] - s * dx + c * dy
         vx, vy = st.velocity[0], st.velocity[1]
         st.velocity[0], st.velocity[1] = c * vx + s * vy, -s * vx + c * vy
         st.euler[2] = wrap_pi(st.euler[2] - self.yaw0)
         return st
+
+    def point(self, p: np.ndarray) -> np.ndarray:
+        """A local-ENU position (3,) [m] in the trajectory frame (in place; returns it)."""
+        p[2] -= self.z0
+        if self.mode == "world":
+            return p
+        c, s = self._c, self._s
+        dx, dy = p[0] - self.origin[0], p[1] - self.origin[1]
+        p[0], p[1] = self.anchor[0] + c * dx + s * dy, self.anchor[1] - s * dx + c * dy
+        return p
 
     def to_world(self, q_enu) -> np.ndarray:
         """An attitude (w, x, y, z) body FLU -> trajectory frame, as body FLU -> local ENU."""

@@ -23,7 +23,8 @@ without any such run is saved marked ``"fit_ok": false`` with the reason, and ``
 codegen`` refuses it. Every tick is kept in the ``tick_*`` arrays (times, telemetry in ENU/FLU,
 references, steered u, setpoint, solver status and time, latency, flags) and every received
 telemetry sample in ``sample_<stream>`` (stamp, receive time): a burst of two is two rows; a SITL's
-true state (ArduPilot SIM_STATE) is kept in ``truth_*`` columns (nan without it).
+true state (ArduPilot SIM_STATE) is kept in ``truth_*`` columns (nan without it), a lab's motion-capture poses
+(``--mocap``) in ``mocap_*`` columns and ``sample_mocap``, the autopilot's estimate in ``estimate_position``.
 :func:`load_ticklog` reads them back.
 """
 
@@ -137,6 +138,12 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "truth_velocity": (3, float),  # ENU [m/s]
         "truth_euler": (3, float),     # roll, pitch, yaw ENU/FLU [rad]
         "truth_age_ms": (0, float),    # since the newest SIM_STATE arrived [ms]
+        # The position sources (:mod:`.position_source`): the autopilot's estimate in the trajectory frame (=
+        # ``position`` with --position-source autopilot), the motion capture's pose (--mocap; nan while stale)
+        "estimate_position": (3, float),  # trajectory frame [m]
+        "mocap_position": (3, float),     # the mocap's local ENU [m], up from where the vehicle stood disarmed
+        "mocap_age_ms": (0, float),       # since the newest pose arrived [ms]
+        "mocap_latency_ms": (0, float),   # its arrival minus its measurement stamp [ms] (nan: another clock)
     }
 
 
@@ -173,6 +180,12 @@ class TickRecorder:
         i = self.n
         self.n += 1
         return i
+
+    def set_last(self, values: dict[str, Any]) -> None:
+        """Fill columns of the newest row (name -> value)."""
+        i = self.n - 1
+        for k, v in values.items():
+            self.arrays[k][i] = v
 
     def view(self) -> dict[str, np.ndarray]:
         return {k: a[: self.n] for k, a in self.arrays.items()}

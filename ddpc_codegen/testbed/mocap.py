@@ -285,12 +285,13 @@ class MocapStandIn(threading.Thread):
     ``target_system`` / ``target_component`` the autopilot's; ``autopilot``: "ardupilot" or "px4" (which
     truth message to ask for). ``set_origin``: send SET_GPS_GLOBAL_ORIGIN at the first truth (the mocap
     frame's origin); None: for ArduPilot only, which needs it without GPS to arm in its position modes (PX4
-    flies OFFBOARD on its local position without one)."""
+    flies OFFBOARD on its local position without one). ``forward``: a second pymavlink connection the same
+    poses also go to (a lab companion's own copy of the stream: ``ddpc-bridge --mocap``)."""
 
     def __init__(self, conn: Any, autopilot: str, config: MocapConfig | None = None, *,
-                 set_origin: bool | None = None):
+                 set_origin: bool | None = None, forward: Any | None = None):
         super().__init__(daemon=True, name=f"mocap-{autopilot}")
-        self.conn, self.autopilot = conn, autopilot
+        self.conn, self.autopilot, self.forward = conn, autopilot, forward
         self.config = config or MocapConfig()
         self.sampler = MocapSampler(self.config)
         self.set_origin = autopilot == "ardupilot" if set_origin is None else set_origin
@@ -360,8 +361,9 @@ class MocapStandIn(threading.Thread):
             self.stats.skipped += 1
             return
         usec = int(round(pose.t * 1e6))  # the measurement instant on this clock (each autopilot maps it to its own)
-        if self.config.message == "odometry":
-            self.conn.mav.odometry_send(**odometry_fields(pose, usec, self.config, _ODOMETRY_FRAME[self.autopilot]))
-        else:
-            self.conn.mav.vision_position_estimate_send(**vision_position_fields(pose, usec, self.config))
+        for conn in (self.conn, self.forward) if self.forward is not None else (self.conn,):
+            if self.config.message == "odometry":
+                conn.mav.odometry_send(**odometry_fields(pose, usec, self.config, _ODOMETRY_FRAME[self.autopilot]))
+            else:
+                conn.mav.vision_position_estimate_send(**vision_position_fields(pose, usec, self.config))
         self.stats.sent += 1

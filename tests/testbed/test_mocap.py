@@ -230,3 +230,15 @@ def test_stand_in_sends_at_its_rate_with_the_origin_and_the_stream_request():
     origin = next(kw["args"] for n, kw in link.sent if n == "set_gps_global_origin_send")
     assert origin[3] == 584000  # whole metres (ArduPilot reads a centimetre-height origin back a centimetre low)
     assert not MocapStandIn(_FakeLink(), "px4").set_origin
+
+
+def test_stand_in_forwards_the_same_poses_to_the_companion():
+    link, companion = _FakeLink(), _FakeLink()
+    m = MocapStandIn(link, "px4", MocapConfig(rate_hz=100.0, seed=0), forward=companion)
+    m.start()
+    time.sleep(0.5)
+    m.stop()
+    sent = [kw for n, kw in link.sent if n == "vision_position_estimate_send"]
+    fwd = [kw for n, kw in companion.sent if n == "vision_position_estimate_send"]
+    assert not m.stats.errors and len(sent) > 10 and fwd == sent  # the same poses, stamps and noise
+    assert all(n == "vision_position_estimate_send" for n, _ in companion.sent)  # nothing else: no admin traffic
