@@ -83,6 +83,11 @@ class SetpointGate:
         if self.last_u is not None:
             self.last_r = np.array(r_nom, dtype=float)
 
+    def passed(self, r_nom: np.ndarray) -> None:
+        """The loop applied the nominal reference ``r_nom`` (m,) itself, past the gate (the proxy's hand-back of a
+        fault: the app's own setpoint): the rate bound counts from there."""
+        self.last_u, self.last_r = np.array(r_nom, dtype=float), np.array(r_nom, dtype=float)
+
     def _done(self, out: np.ndarray, r: np.ndarray, flags: int) -> tuple[np.ndarray, int]:
         self.last_u, self.last_r = out.copy(), np.array(r, dtype=float)
         for k, bit in GATE_FLAGS.items():

@@ -9,8 +9,14 @@ import signal
 import sys
 from pathlib import Path
 
+from ddpc_codegen.design.data import output_path
+from ddpc_codegen.runtime.loader import load_solver
 from firmware_bridge.cli_args import add_realtime_args, qos_request
 from firmware_bridge.proxy.core import Proxy
+from firmware_bridge.proxy.preview import make_preview
+from firmware_bridge.proxy.record import ProxyRecord
+from firmware_bridge.proxy.steering import ProxySteering
+from firmware_bridge.proxy.vehicle_view import VehicleView
 from firmware_bridge.realtime import setup_realtime
 
 __all__ = ["build_proxy_parser", "main"]
@@ -21,7 +27,8 @@ def build_proxy_parser() -> argparse.ArgumentParser:
         prog="ddpc-proxy",
         description="A transparent MAVLink proxy between your own app(s) / ground station and the vehicle: "
                     "every message is forwarded both ways as the same bytes, in order; the counters and the "
-                    "added latency are reported at the end. (Steering of the app's setpoints comes next.)")
+                    "added latency are reported at the end. With --steer, the height of the app's position setpoints is "
+                    "steered by a generated solver; --collect records the app's flights for ddpc-codegen.")
     p.add_argument("--app", action="append", default=None, metavar="URL",
                    help="where apps and ground stations connect (repeat for several): udpin:HOST:PORT, a UDP "
                         "server where each sender address is one client; udpout:HOST:PORT, an app listening "
@@ -36,18 +43,75 @@ def build_proxy_parser() -> argparse.ArgumentParser:
                    help="also forward each client's messages to the other clients (as mavlink-router does)")
     p.add_argument("--client-timeout", type=float, default=5.0,
                    help="forget a client silent this long [s] (default %(default)s)")
+    s = p.add_argument_group("steering the app's SET_POSITION_TARGET_LOCAL_NED (height)")
+    s.add_argument("--steer", type=Path, default=None, metavar="SOLVER",
+                   help="a generated solver folder (inputs z_ref, outputs z, at the app's setpoint rate; "
+                        "configs/proxy_*.toml): steer the height of the app's setpoints while the vehicle is armed "
+                        "in off-board / guided")
+    s.add_argument("--preview-delay", type=float, default=0.0, metavar="S",
+                   help="play the app's setpoints S seconds late and steer with them as a true preview "
+                        "(default 0: a local preview from the setpoint's velocity / acceleration, or its slope)")
+    s.add_argument("--collect", type=Path, default=None, metavar="FILE",
+                   help="record the engaged stretches as a dataset for ddpc-codegen (.npz): heights sent in, "
+                        "the vehicle's height out")
+    s.add_argument("--dither", type=float, default=0.0, metavar="M",
+                   help="without --steer: add a PRBS of +-M metres to the app's height (an excitation for "
+                        "--collect; default 0)")
+    s.add_argument("--dither-hold", type=int, default=3, metavar="N",
+                   help="shortest hold of a dither level, setpoints (default %(default)s)")
+    s.add_argument("--max-step", type=float, default=None, metavar="M",
+                   help="largest steering offset from the app's height [m] (the step guard; default none)")
+    s.add_argument("--max-age", type=float, default=0.2, metavar="S",
+                   help="an older vehicle position is stale: the app's own setpoint goes out (default %(default)s)")
+    s.add_argument("--log", type=Path, default=None, help="write every tick and the summary here (.npz)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing --collect / --log file")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--stats", type=Path, default=None, help="write the final statistics (JSON) here")
     add_realtime_args(p, "the proxy")
     return p
 
 
+def _steering(args) -> ProxySteering | None:
+    """The rewrite hook the options ask for (None: a transparent proxy)."""
+    if args.steer is None and args.collect is None and args.log is None and not args.dither \
+            and not args.preview_delay:
+        return None
+    if args.steer is not None and args.dither:
+        raise ValueError("--dither excites a collect flight; it does not go with --steer")
+    for path in (args.collect, args.log):
+        if path is not None:
+            output_path(path, args.overwrite)  # refused now, not after the flight
+    solver = None
+    if args.steer is not None:
+        solver = load_solver(args.steer)
+    return ProxySteering(VehicleView(), solver=solver, preview=make_preview(args.preview_delay),
+                         max_age=args.max_age, max_step=args.max_step, dither=args.dither,
+                         dither_hold=args.dither_hold, record=ProxyRecord())
+
+
+def _save(hook: ProxySteering, args) -> dict:
+    """Write the --log and --collect files; what was written (or why not)."""
+    out: dict = {}
+    summary = hook.summary()
+    if args.log is not None:
+        out["log"] = str(hook.record.save_log(args.log, summary, args.overwrite))
+    if args.collect is not None:
+        try:
+            ds = hook.record.dataset(hook.tick, {"steering": hook.mode})
+            out["collect"] = str(ds.save(output_path(args.collect, args.overwrite), overwrite=True))
+        except ValueError as e:
+            out["collect_error"] = str(e)
+            print(f"ddpc-proxy: --collect: {e}", file=sys.stderr)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_proxy_parser().parse_args(argv)
     vehicle, apps = args.vehicle, args.app or ["udpin:127.0.0.1:14541"]
     try:
+        hook = _steering(args)
         proxy = Proxy(apps, vehicle, baud=args.baud, between_clients=args.between_clients,
-                      client_timeout=args.client_timeout)
+                      client_timeout=args.client_timeout, rewrite=hook, view=hook.view if hook else None)
     except (ValueError, OSError) as e:
         print(f"ddpc-proxy: {e}", file=sys.stderr)
         return 2
@@ -59,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     rt = setup_realtime(args.rt_priority, cpus=args.cpus, cpu_latency_us=qos_request(args.cpu_latency_us))
-    print(f"ddpc-proxy: apps on {', '.join(apps)}, vehicle on {vehicle} ({rt.describe()})", file=sys.stderr, flush=True)
+    print(f"ddpc-proxy: apps on {', '.join(apps)}, vehicle on {vehicle} ({rt.describe()})"
+          + (f"; {hook.mode}, preview delay {args.preview_delay:g} s" if hook else ""), file=sys.stderr, flush=True)
     try:
         with rt:
             proxy.run(args.duration, stop=lambda: bool(stopping))
@@ -68,6 +133,9 @@ def main(argv: list[str] | None = None) -> int:
     summary = proxy.summary()
     summary["stop_reason"] = stopping[0] if stopping else "duration"
     summary["realtime"] = rt.describe()
+    if hook is not None:
+        summary["steering"] = hook.summary()
+        summary["files"] = _save(hook, args)
     text = json.dumps(summary, indent=1)
     if args.stats is not None:
         args.stats.write_text(text + "\n")

@@ -30,6 +30,7 @@ from firmware_bridge.proxy.frames import msgid, splice, split_frames
 from firmware_bridge.proxy.rewrite import SETPOINT_MSGID, SetpointRewrite, decode_frame, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
 from firmware_bridge.proxy.vehicle_side import VehicleSide
+from firmware_bridge.proxy.vehicle_view import VIEW_MSGIDS, VehicleView
 
 __all__ = ["Proxy"]
 
@@ -43,6 +44,7 @@ class Proxy:
         apps: the app side: ``udpin:``/``udpout:``/``tcpin:HOST:PORT`` strings (or one string).
         vehicle: the vehicle side (``udpin:``/``udpout:``/``tcp:`` or a serial device).
         rewrite: the setpoint hook; None: pass-through.
+        view: the vehicle's state the hook reads, folded in from the vehicle's heartbeats and positions.
         baud: a serial vehicle's baud rate (default from the string, else 921600).
         between_clients: also forward each client's datagrams to the other clients.
         client_timeout: forget a client silent this long [s]; a ``udpin`` vehicle silent this long is
@@ -51,12 +53,13 @@ class Proxy:
     """
 
     def __init__(self, apps: str | list[str], vehicle: str, *, rewrite: SetpointRewrite | None = None,
+                 view: VehicleView | None = None,
                  baud: int | None = None, between_clients: bool = False, client_timeout: float = 5.0,
                  reconnect_interval: float = 1.0, ring_size: int = 1 << 16) -> None:
         self.app_urls, self.vehicle_url = [apps] if isinstance(apps, str) else list(apps), vehicle
         self.apps = [open_app_side(u) for u in self.app_urls]
         self.vehicle = VehicleSide(vehicle, baud, reconnect_interval, repin_after=client_timeout)
-        self.rewrite = rewrite
+        self.rewrite, self.view = rewrite, view
         self.between_clients = between_clients
         self.client_timeout = client_timeout
         # (app endpoint index, address) -> [last heard (monotonic; inf: never expires), datagrams in, datagrams out]
@@ -65,7 +68,7 @@ class Proxy:
         self.setpoints = SetpointPeriod()
         self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
         self.events = dict.fromkeys(("clients_joined", "clients_expired", "clients_left", "foreign_setpoints",
-                                     "rewrite_errors", "between_clients"), 0)
+                                     "rewrite_errors", "between_clients", "own_messages"), 0)
         self._poll = select.poll()
         self._fds: dict[int, int] = {}  # polled descriptor -> app endpoint index (-1: the vehicle)
         self._t0 = time.monotonic()
@@ -81,11 +84,20 @@ class Proxy:
             if end is not None and now >= end:
                 break
             self.vehicle.maintain(now)
+            self._own(now)
             self._watch_fds()
             self._forward(_POLL_S)
             self._membership()
             self._expire(time.monotonic())
         self._forward(0.0)
+
+    def _own(self, now: float) -> None:
+        """The proxy's own messages (the steering's stream request), written between forwarded ones."""
+        own = getattr(self.rewrite, "own_messages", None)
+        if own is not None and self.vehicle.ready:
+            for frame in own(time.time()):
+                if self.vehicle.write(frame):
+                    self.events["own_messages"] += 1
 
     def _forward(self, timeout: float) -> None:
         """Wait up to ``timeout`` [s] for input and forward everything pending."""
@@ -210,8 +222,11 @@ class Proxy:
                       t_rx: float) -> None:
         st = self.down.c
         st["datagrams"] += 1
-        for i, _n in spans:
+        view = self.view
+        for i, n in spans:
             self.down.see(buf, i)
+            if view is not None and msgid(buf, i) in VIEW_MSGIDS:
+                view.on_frame(buf[i:i + n], t_rx)
         st["received"] += len(spans)
         st["garbage_bytes"] += garbage
         lat = self.down.latency

@@ -1,0 +1,205 @@
+"""The steering proxy's tick: the app's position setpoint in, the steered one out (the proxy's rewrite hook).
+
+Each ``SET_POSITION_TARGET_LOCAL_NED`` the app sends is one tick (the app's own period is the steering's tick,
+and must match the solver's ``dt``). A tick composes the companion loop's own parts, as the bridge does:
+:class:`~firmware_bridge.engagement.Engagement` (edges: armed + off-board / guided, the vehicle heard, fresh
+position), :class:`~firmware_bridge.reference_stage.ReferenceStage` (steer: the generated solver through the
+steering policy and its fallbacks; passthrough; collect: the app's setpoint plus the PRBS dither) and
+:class:`~firmware_bridge.tick_gate.TickGate` (finite, rate bound, the solver's bounds, the step guard). The
+nominal reference is the app's height (``-z``); the preview comes from :mod:`.preview`; the measured output is
+the vehicle's ``LOCAL_POSITION_NED`` height, in the same frame as the setpoint.
+
+What goes out: only the height of the app's setpoint is replaced (x, y, velocity and acceleration fields, yaw,
+``type_mask`` and the frame are the app's). A tick that is not steered (not engaged, stale, a solver failure,
+the guard) sends the app's own setpoint unchanged (with ``--preview-delay``: its delayed one), and the rate
+bound counts from there. A setpoint that does not use z in ``MAV_FRAME_LOCAL_NED`` is never steered.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ddpc_codegen.runtime.baselines import PassthroughPolicy
+from ddpc_codegen.runtime.policy import SteeringPolicy
+from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
+
+from firmware_bridge.engagement import Engagement
+from firmware_bridge.events import EventLog
+from firmware_bridge.excitation import Excitation
+from firmware_bridge.gate import SetpointGate
+from firmware_bridge.proxy.preview import DelayedPreview, LocalPreview
+from firmware_bridge.proxy.record import ProxyRecord
+from firmware_bridge.proxy.rewrite import SetpointEncoder, mavlink
+from firmware_bridge.proxy.stats import SetpointPeriod
+from firmware_bridge.proxy.vehicle_view import VehicleView
+from firmware_bridge.reference_stage import ReferenceStage
+from firmware_bridge.tick_gate import TickGate
+
+__all__ = ["ProxySteering", "check_proxy_solver"]
+
+_Z_IGNORE = mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE
+_WIDE = 1e4  # m: the gate's height range when no solver bounds it (passthrough, collect)
+
+
+def check_proxy_solver(solver) -> float:
+    """The solver's tick [s], after checking it steers a height loop (inputs ``z_ref``, outputs ``z``)."""
+    man = solver.manifest
+    d, sig = man["dims"], man.get("signals") or {}
+    if (d["m"], d["p"]) != (1, 1) or tuple(sig.get("inputs") or ()) != ("z_ref",) \
+            or tuple(sig.get("outputs") or ()) != ("z",):
+        raise ValueError(f"the proxy steers the height of position setpoints: a solver with inputs ['z_ref'] and "
+                         f"outputs ['z'] (m = p = 1); this one has inputs {sig.get('inputs')}, outputs "
+                         f"{sig.get('outputs')} (configs/proxy_*.toml make one)")
+    dt = sig.get("dt")
+    if not (isinstance(dt, (int, float)) and dt > 0):
+        raise ValueError("the solver's manifest has no signals.dt: regenerate it")
+    return float(dt)
+
+
+class ProxySteering:
+    """The rewrite hook (see the module docstring); ``proxy = Proxy(..., rewrite=hook)``, ``hook.view`` folded in
+    from the vehicle's frames by the proxy.
+
+    Args:
+        view: the vehicle as the proxy sees it.
+        solver: a loaded generated solver (steer); None: passthrough or (``dither`` > 0) collect.
+        preview: :class:`.preview.LocalPreview` or :class:`.preview.DelayedPreview`.
+        dt: the tick without a solver [s] (None: the app's measured period; a solver brings its own).
+        max_age: an older position sample is stale [s]; max_step: the steering's step guard [m].
+        dither: collect: the PRBS amplitude added to the app's height [m]; dither_hold: its shortest hold [ticks].
+        period_tolerance: steer only while the app's median period is within this fraction of ``dt``.
+        record: where each tick is recorded (None: not kept).
+    """
+
+    def __init__(self, view: VehicleView, *, solver=None, preview: LocalPreview | DelayedPreview | None = None,
+                 dt: float | None = None, max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
+                 dither_hold: int = 3, seed: int = 0, period_tolerance: float = 0.25, offset_rate: float = 1.0,
+                 events: EventLog | None = None, record: ProxyRecord | None = None) -> None:
+        self.view, self.preview = view, preview or LocalPreview()
+        self.events = events or EventLog(name="proxy")
+        self.dt = check_proxy_solver(solver) if solver is not None else dt
+        self.max_age, self.period_tolerance = max_age, period_tolerance
+        self.record = record
+        self.period = SetpointPeriod(ring_size=64)
+        self.mode = "steer" if solver is not None else "collect" if dither > 0 else "passthrough"
+        self.stage, self.steerer, lo, hi, rate = self._stage(solver, max_step, dither, dither_hold, seed)
+        rate = np.minimum(rate, offset_rate * self.tick)  # the envelope's offset rate, as the bridge's gate
+        self.gate = TickGate(SetpointGate(lo, hi, None if self.mode == "collect" else rate), self.events,
+                             max_step=None if max_step is None else np.array([max_step]), max_tilt=math.pi,
+                             thrust_min=0.0, thrust_max=1.0, hover_thrust=0.5, max_age=None, guard_hold=0.0)
+        self.engagement = Engagement(self.events, max_age=max_age)
+        self.encoder = SetpointEncoder()
+        self.counts = dict.fromkeys(("ticks", "steered", "rewritten", "not_steerable", "period_mismatch"), 0)
+        self._period_said = False
+
+    def _stage(self, solver, max_step, dither, hold, seed):
+        """(reference stage, steerer or None, lo (1,), hi (1,), rate per tick (1,)) of the mode."""
+        if solver is None:
+            lo, hi, rate = np.array([-_WIDE]), np.array([_WIDE]), np.array([np.inf])
+            if self.mode == "collect":
+                exc = Excitation(1, dither, hold, seed)
+                exc.prepare()
+                return ReferenceStage("collect", self.preview.desired, self.tick, excitation=exc), None, lo, hi, rate
+            return (ReferenceStage("passthrough", self.preview.desired, self.tick, policy=PassthroughPolicy()), None,
+                    lo, hi, rate)
+        steerer = ReferenceSteerer.for_solver(solver, max_step=None if max_step is None else np.array([max_step]))
+        policy = SteeringPolicy(steerer, ramp_ticks=max(int(round(0.5 / self.dt)), 1))
+        t_f = solver.manifest["dims"]["t_f"]
+        stage = ReferenceStage("steer", self.preview.desired, self.dt, policy=policy,
+                               ahead=self.dt * np.arange(t_f), steerer=steerer)
+        du = (solver.manifest.get("bounds") or {}).get("du_max") or [None]
+        rate = np.array([np.inf if du[0] is None else float(du[0])])
+        lo, hi = solver_input_bounds(solver)
+        return stage, steerer, lo, hi, rate
+
+    # ------------------------------------------------------------------ the hook
+    def __call__(self, msg, frame: bytes, t_rx: float) -> bytes | None:
+        """One tick on the app's setpoint ``msg`` (received at ``t_rx`` [s, time.time()]): the frame to send
+        instead, or None (the app's own frame goes out)."""
+        if int(msg.coordinate_frame) != mavlink.MAV_FRAME_LOCAL_NED or int(msg.type_mask) & _Z_IGNORE \
+                or not math.isfinite(msg.z):
+            self.counts["not_steerable"] += 1
+            return None
+        self.counts["ticks"] += 1
+        self.period.add(t_rx)
+        self.preview.push(t_rx, msg)
+        cur = self.preview.current(t_rx)
+        u, reason = self._tick(cur, t_rx)
+        if reason == "steered" or reason == "collect":
+            self.counts["steered"] += 1
+        delayed = cur is not msg
+        if not delayed and (u is None or -u == cur.z):
+            return None
+        self.counts["rewritten"] += 1
+        return self.encoder.encode(cur, (cur.x, cur.y, cur.z if u is None else -u))
+
+    def _tick(self, cur, now: float) -> tuple[float | None, str]:
+        """(the height to send [m, up], None: the app's own; the tick's reason)."""
+        view, eng = self.view, self.engagement
+        r = np.array([-float(cur.z)])
+        y = np.array([view.height()])
+        age = view.position_age(now)
+        fresh = age <= self.max_age
+        heard = view.heard(now)
+        engaged = view.armed and view.offboard and heard and self._period_ok()
+        eng.telemetry(now, age, fresh)
+        if eng.update(engaged, now, y, float(y[0]), view.mode_name) in ("first", "again", "resume"):
+            self.stage.reset()
+        r_nom, hold = eng.reference(r, y, now, self.tick, heard=heard, engaged=engaged, fresh=fresh)
+        ref = self.stage.step(r_nom, y, 0.0, hold)
+        if ref.reason not in ("steered", "collect") and ref.candidate is None:
+            # not steered: the app's own setpoint, from this tick on (the rate bound counts from it)
+            self.gate.gate.passed(r_nom)
+            self.stage.applied(ref, r_nom)
+            self._record(now, ref, r_nom, 0, age, engaged)
+            return None, ref.reason
+        u, flags = self.gate.reference(ref)
+        self.stage.applied(ref, u)
+        eng.applied(u)
+        self._record(now, ref, u, flags, age, engaged)
+        return float(u[0]), ref.reason
+
+    @property
+    def tick(self) -> float:
+        """The steering's tick [s]: the solver's, else the app's median period so far (0.02 before two setpoints)."""
+        if self.dt is not None:
+            return self.dt
+        p = self.period.period()
+        return 0.02 if p is None else p
+
+    def _period_ok(self) -> bool:
+        """The app streams at the solver's tick (within the tolerance); said once when it does not."""
+        if self.dt is None:
+            return True
+        p = self.period.period()
+        ok = p is not None and abs(p - self.dt) <= self.period_tolerance * self.dt
+        if not ok and p is not None:
+            self.counts["period_mismatch"] += 1
+            if not self._period_said:
+                self._period_said = True
+                self.events(f"the app streams setpoints every {p * 1e3:.1f} ms but the steering's tick is "
+                            f"{self.dt * 1e3:.1f} ms: not steering (a solver generated at the app's rate steers it)")
+        return ok
+
+    def _record(self, now: float, ref, u: np.ndarray, flags: int, age: float, engaged: bool) -> None:
+        if self.record is not None:
+            self.record.add(now, float(ref.r_nom[0]), float(u[0]), float(ref.y[0]), ref.reason, flags, age,
+                            engaged, ref.solve_us, self.view.telem.pos.seq)
+
+    def own_messages(self, now: float) -> list[bytes]:
+        """What the proxy sends of its own (:meth:`.core.Proxy.run`, between forwarded frames): the position stream
+        at the steering's tick when the vehicle sends it slower."""
+        req = self.view.stream_request(now, min(self.tick, 0.05))
+        return [] if req is None else [req]
+
+    def summary(self) -> dict:
+        """Counts, the engagement, the gate and the steering's own summary (JSON-ready)."""
+        out = {"mode": self.mode, "dt": self.tick, "preview_delay_s": self.preview.delay, **self.counts,
+               "app_period": self.period.summary(), "activations": self.engagement.activations,
+               "gate": self.gate.gate.summary(), "events": [list(e) for e in self.events.events],
+               "t_wall": time.time()}
+        out.update(self.stage.summary())
+        return out

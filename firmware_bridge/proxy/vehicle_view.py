@@ -1,0 +1,98 @@
+"""What the steering proxy knows of the vehicle: the autopilot's heartbeat (armed, off-board / guided, its
+autopilot) and its local position, folded in from the frames the proxy forwards to the apps anyway (only
+these few message ids are decoded; the bytes forwarded are never touched).
+
+The position goes through the companion loop's :class:`~firmware_bridge.telemetry.TelemetryState` (plausibility,
+time line, NED -> ENU), so the proxy judges a sample exactly as the bridge does. The profile is chosen from
+the heartbeat's autopilot field (PX4 or ArduPilot); heartbeats of other components (a camera, a gimbal, a
+ground station) are not the vehicle's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from firmware_bridge.plausibility import TelemetryLimits
+from firmware_bridge.profiles import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, Profile, make_profile
+from firmware_bridge.proxy.rewrite import PROXY_COMPONENT, decode_frame, mavlink
+from firmware_bridge.telemetry import TelemetryState
+
+__all__ = ["VehicleView", "VIEW_MSGIDS"]
+
+VIEW_MSGIDS = frozenset((mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+                         mavlink.MAVLINK_MSG_ID_ATTITUDE))
+PROXY_SYSTEM = 254  # the proxy's own messages: neither the vehicle's (1) nor a ground station's (255)
+_REQUEST_EVERY = 2.0  # s between stream requests while the position comes slower than asked
+_AUTOPILOTS = {MAV_AUTOPILOT_PX4: "px4", MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
+
+
+class VehicleView:
+    """The vehicle's state as the proxy sees it (times in seconds on the ``time.time()`` clock).
+
+    Args:
+        limits: what a plausible position sample satisfies (the profile's envelope).
+        link_timeout: no heartbeat for this long: the vehicle is not heard [s].
+    """
+
+    def __init__(self, limits: TelemetryLimits | None = None, link_timeout: float = 1.5) -> None:
+        self.telem = TelemetryState("ATTITUDE", "LOCAL_POSITION_NED", limits=limits or TelemetryLimits())
+        self.link_timeout = link_timeout
+        self.profile: Profile | None = None
+        self.sysid: int | None = None
+        self.armed = self.offboard = False
+        self.mode_name = "?"
+        self.last_hb = -math.inf
+        self.requests = 0
+        self._next_request = -math.inf
+        self._mav = mavlink.MAVLink(None, srcSystem=PROXY_SYSTEM, srcComponent=PROXY_COMPONENT)
+
+    def on_frame(self, frame: bytes, t_rx: float) -> None:
+        """Fold one frame (of :data:`VIEW_MSGIDS`) received at ``t_rx`` in."""
+        msg = decode_frame(frame)
+        if msg is None:
+            return
+        if msg.get_type() == "HEARTBEAT":
+            self._heartbeat(msg, t_rx)
+        elif self.sysid is not None and msg.get_srcSystem() == self.sysid:
+            self.telem.update(msg, t_rx)
+
+    def _heartbeat(self, msg, t_rx: float) -> None:
+        name = _AUTOPILOTS.get(int(msg.autopilot))
+        if name is None or (self.sysid is not None and msg.get_srcSystem() != self.sysid):
+            return  # a ground station, a camera, another vehicle
+        if self.profile is None:
+            self.profile, self.sysid = make_profile(name), msg.get_srcSystem()
+        vm = self.profile.decode(msg.base_mode, msg.custom_mode)
+        self.armed, self.offboard, self.mode_name = vm.armed, vm.offboard, vm.name
+        self.last_hb = t_rx
+
+    def heard(self, now: float) -> bool:
+        """A heartbeat within the link timeout."""
+        return now - self.last_hb <= self.link_timeout
+
+    def height(self) -> float:
+        """The newest local height, up [m] (the setpoints' frame: LOCAL_NED's -z)."""
+        return float(self.telem.position[2])
+
+    def position_age(self, now: float) -> float:
+        """Seconds since the newest position sample arrived (inf: none yet)."""
+        return now - self.telem.pos.rx if self.telem.pos.seq else math.inf
+
+    def position_period(self, n: int = 20) -> float:
+        """The median gap of the last ``n`` position samples' arrivals [s] (inf before two)."""
+        h = self.telem.pos.history[-n:]
+        return float(np.median(np.diff([rx for _, rx in h]))) if len(h) > 1 else math.inf
+
+    def stream_request(self, now: float, period: float) -> bytes | None:
+        """A SET_MESSAGE_INTERVAL asking for LOCAL_POSITION_NED every ``period`` [s] (from the proxy's own ids), when
+        the vehicle is heard and the position comes slower than that (every few seconds at most); else None."""
+        if self.sysid is None or not self.heard(now) or now < self._next_request \
+                or self.position_period() <= 1.2 * period:
+            return None
+        self._next_request = now + _REQUEST_EVERY
+        self.requests += 1
+        msg = self._mav.command_long_encode(self.sysid, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, period * 1e6, 0, 0, 0, 0, 0)
+        return bytes(msg.pack(self._mav))

@@ -1,0 +1,79 @@
+"""A known closed loop behind the steering proxy's hook, in simulated time: an autopilot whose height answers a
+position setpoint as a damped second-order system (natural frequency ``wn``, damping ``zeta``) one setpoint
+late, streaming LOCAL_POSITION_NED and an ArduCopter GUIDED + armed heartbeat; an app streaming
+SET_POSITION_TARGET_LOCAL_NED at ``DT``. Frames are real pymavlink encodings, fed to the hook as the proxy
+would (the vehicle's through ``view.on_frame``, the app's through the hook's call)."""
+
+from __future__ import annotations
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from firmware_bridge.profiles import ARDUCOPTER_MODES, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, MAV_MODE_FLAG_SAFETY_ARMED
+from firmware_bridge.proxy.rewrite import decode_frame
+
+DT = 0.02
+POS_ONLY = 0b0000_1111_1111_1000  # x, y, z used; velocity, acceleration, yaw, yaw rate ignored
+
+
+class LoopSim:
+    """The autopilot's height loop and the two MAVLink ends (see the module docstring)."""
+
+    def __init__(self, wn: float = 4.0, zeta: float = 0.8, h0: float = 2.0, armed: bool = True) -> None:
+        self.wn, self.zeta = wn, zeta
+        self.h, self.v = h0, 0.0
+        self.u_late = h0  # the setpoint applied (one setpoint late)
+        self.armed = armed
+        self.veh = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.app = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+        self.k = 0
+
+    def heartbeat(self) -> bytes:
+        base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        m = self.veh.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
+                                      ARDUCOPTER_MODES["GUIDED"], 4)
+        return bytes(m.pack(self.veh))
+
+    def position(self) -> bytes:
+        m = self.veh.local_position_ned_encode(int(self.k * DT * 1000), 0.0, 0.0, -self.h, 0.0, 0.0, -self.v)
+        return bytes(m.pack(self.veh))
+
+    def setpoint(self, height: float, vz_up: float | None = None):
+        """(decoded message, frame) of the app's setpoint at ``height`` [m up] (with a velocity field if given)."""
+        mask = POS_ONLY if vz_up is None else POS_ONLY & ~mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+        m = self.app.set_position_target_local_ned_encode(
+            int(self.k * DT * 1000), 1, 1, mavlink.MAV_FRAME_LOCAL_NED, mask, 1.0, 2.0, -height, 0.0, 0.0,
+            0.0 if vz_up is None else -vz_up, 0.0, 0.0, 0.0, 0.0, 0.0)
+        frame = bytes(m.pack(self.app))
+        return decode_frame(frame), frame
+
+    def step(self, u: float, substeps: int = 20) -> None:
+        """One setpoint period with ``u`` [m] arriving now (applied from the next period on)."""
+        h_sp, self.u_late = self.u_late, u
+        d = DT / substeps
+        for _ in range(substeps):
+            a = self.wn ** 2 * (h_sp - self.h) - 2.0 * self.zeta * self.wn * self.v
+            self.v += a * d
+            self.h += self.v * d
+        self.k += 1
+
+
+def fly(hook, path: np.ndarray, sim: LoopSim | None = None, vz: np.ndarray | None = None) -> dict:
+    """Fly the app's heights ``path`` (n,) [m] through ``hook``: each tick the vehicle's position (and each
+    second a heartbeat) reaches the proxy, then the app's setpoint. Returns arrays: ``h`` the vehicle's height
+    after each setpoint's period, ``sent`` the height sent, ``rewritten`` whether the hook replaced the frame."""
+    sim = sim or LoopSim(h0=float(path[0]))
+    h, sent, rewritten = [], [], []
+    for k, z in enumerate(path):
+        t = 1000.0 + k * DT
+        if k % 25 == 0:
+            hook.view.on_frame(sim.heartbeat(), t - 0.002)
+        hook.view.on_frame(sim.position(), t - 0.001)
+        msg, frame = sim.setpoint(float(z), None if vz is None else float(vz[k]))
+        out = hook(msg, frame, t)
+        u = float(z) if out is None else -decode_frame(out).z
+        sent.append(u)
+        rewritten.append(out is not None)
+        sim.step(u)
+        h.append(sim.h)
+    return {"h": np.array(h), "sent": np.array(sent), "rewritten": np.array(rewritten)}

@@ -1,0 +1,164 @@
+"""The steering proxy's tick (:class:`firmware_bridge.proxy.steering.ProxySteering`) against a known closed loop
+(:mod:`lti_loop`): pass-through changes nothing, collect adds exactly its dither and records what was sent, the
+generated solver fitted on that record steers the loop closer to the app's path than the app alone, and every
+tick that is not steered (not engaged, stale, wrong frame or rate) sends the app's own setpoint."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.pipeline.solver_build import build_solver
+from ddpc_codegen.runtime.loader import load_solver
+from ddpc_codegen.values.config import SteeringConfig
+from firmware_bridge.proxy.preview import DelayedPreview, LocalPreview
+from firmware_bridge.proxy.record import ProxyRecord
+from firmware_bridge.proxy.rewrite import decode_frame
+from firmware_bridge.proxy.steering import ProxySteering
+from firmware_bridge.proxy.vehicle_view import VehicleView
+from lti_loop import DT, LoopSim, fly
+from support.bridge_helpers import ROOT
+from support.solver_cache import cache_root, shared_build
+
+CONFIG = ROOT / "configs" / "proxy_ardupilot.toml"
+
+
+def _hook(**kw) -> ProxySteering:
+    return ProxySteering(VehicleView(), record=ProxyRecord(), **kw)
+
+
+def _path(n: int, seed: int = 0) -> np.ndarray:
+    """A smooth non-repeating height path around 2 m (sum of three sines of unrelated periods) [m]."""
+    t = np.arange(n) * DT
+    return 2.0 + 0.4 * np.sin(2 * np.pi * t / 3.1 + seed) + 0.25 * np.sin(2 * np.pi * t / 1.7 + 2 * seed) \
+        + 0.15 * np.sin(2 * np.pi * t / 5.3)
+
+
+def test_passthrough_sends_the_apps_own_setpoints():
+    hook = _hook()
+    out = fly(hook, _path(300))
+    assert not out["rewritten"].any() and hook.counts["ticks"] == 300
+    rows = hook.record.view()
+    assert rows["engaged"][5:].all() and np.allclose(rows["u"], rows["r_nom"])
+
+
+def test_collect_adds_exactly_its_dither_and_records_what_was_sent():
+    hook = _hook(dither=0.2, seed=3)
+    path = _path(1500)
+    out = fly(hook, path)
+    rows = hook.record.view()
+    eng = rows["engaged"]
+    assert np.allclose(np.abs(out["sent"][eng] - path[eng]), 0.2) and not out["rewritten"][~eng].any()
+    ds = hook.record.dataset(hook.tick)
+    assert ds.input_names == ("z_ref",) and ds.output_names == ("z",) and ds.dt == pytest.approx(DT)
+    u = np.concatenate([a[:, 0] for a in ds.u])
+    assert np.allclose(u, out["sent"][eng][:len(u)]) and len(u) >= 1400
+
+
+def test_an_unarmed_vehicle_is_never_steered_and_collect_refuses_an_empty_record():
+    hook = _hook(dither=0.2)
+    out = fly(hook, _path(300), LoopSim(armed=False))
+    assert not out["rewritten"].any()
+    with pytest.raises(ValueError, match="no engaged stretch"):
+        hook.record.dataset(DT)
+
+
+def test_delayed_preview_plays_the_stream_late_and_previews_what_it_holds():
+    sim, pv = LoopSim(), DelayedPreview(0.1)
+    msgs = []
+    for k in range(20):
+        msg, _ = sim.setpoint(1.0 + 0.1 * k)
+        pv.push(k * DT, msg)
+        msgs.append(msg)
+        cur = pv.current(k * DT)
+        assert cur is msgs[max(k - 5, 0)]
+    ahead = pv.desired(np.array([0.0, 0.04, 0.1, 0.5]))[:, 0]
+    assert np.allclose(ahead, [1.0 + 0.1 * 14, 1.0 + 0.1 * 16, 1.0 + 0.1 * 19, 1.0 + 0.1 * 19])
+
+
+def test_local_preview_follows_the_velocity_field_or_the_slope():
+    sim, pv = LoopSim(), LocalPreview(reach=0.5)
+    pv.push(0.0, sim.setpoint(1.0)[0])
+    pv.push(DT, sim.setpoint(1.02)[0])  # slope 1 m/s
+    assert np.allclose(pv.desired(np.array([0.0, 0.2, 1.0]))[:, 0], [1.02, 1.22, 1.52])
+    pv.push(2 * DT, sim.setpoint(1.04, vz_up=-0.5)[0])  # the app's own velocity wins
+    assert np.allclose(pv.desired(np.array([0.0, 0.2]))[:, 0], [1.04, 0.94])
+
+
+@pytest.fixture(scope="module")
+def solver(tmp_path_factory):
+    """The generated solver fitted on a dithered flight of the known loop (built once per test run)."""
+    def build(folder):
+        hook = _hook(dither=0.3, dither_hold=3, seed=1)
+        fly(hook, _path(6000, seed=5))
+        hook.record.dataset(hook.tick).save(folder / "collect.npz")
+        build_solver(SteeringConfig.from_toml(CONFIG), folder / "collect.npz", folder / "solver")
+
+    folder = shared_build(cache_root(tmp_path_factory.getbasetemp()),
+                          {"test": "proxy_lti", "config": CONFIG.read_text()}, build)
+    return folder / "solver"
+
+
+def _rmse(h: np.ndarray, target: np.ndarray, skip: int = 150) -> float:
+    return float(np.sqrt(np.mean((h[skip:] - target[skip:]) ** 2)))
+
+
+def _slow_path(n: int) -> np.ndarray:
+    """A smooth path whose periods (5-11 s) are long against the loop's settling (0.8 s) [m]."""
+    t = np.arange(n) * DT
+    return 2.0 + 0.5 * np.sin(2 * np.pi * t / 8.0) + 0.3 * np.sin(2 * np.pi * t / 5.3 + 1) \
+        + 0.2 * np.sin(2 * np.pi * t / 11.0)
+
+
+@pytest.mark.compiler
+def test_steering_tracks_the_apps_path_closer_than_the_app_alone(solver):
+    """Local preview on a slow path (measured 150 -> 18 mm); a 1.5 s delay on a fast one, where a local guess of
+    the future is wrong (measured 314 -> 35 mm against the path played late, the local preview 340 mm)."""
+    slow, fast = _slow_path(3000), _path(1500, seed=2)  # neither is the collect's path
+    local = _hook(solver=load_solver(solver))
+    base, e_local = _rmse(fly(_hook(), slow)["h"], slow), _rmse(fly(local, slow)["h"], slow)
+    delay = 1.5
+    late = _hook(solver=load_solver(solver), preview=DelayedPreview(delay))
+    lag = int(round(delay / DT))
+    fast_late = np.concatenate((np.full(lag, fast[0]), fast[:-lag]))  # what the app declared the vehicle should fly
+    base_fast, e_delay = _rmse(fly(_hook(), fast)["h"], fast), _rmse(fly(late, fast)["h"], fast_late, skip=150 + lag)
+    print(json.dumps({"slow_mm": [base * 1e3, e_local * 1e3], "fast_mm": [base_fast * 1e3, e_delay * 1e3]}))
+    assert local.counts["steered"] > 2800 and late.counts["steered"] > 1200
+    assert e_local < 0.25 * base and e_delay < 0.2 * base_fast
+
+
+@pytest.mark.compiler
+def test_a_stale_position_or_a_foreign_rate_sends_the_apps_own_setpoint(solver):
+    hook = _hook(solver=load_solver(solver))
+    sim, path = LoopSim(), _path(400)
+    out = fly(hook, path[:200], sim)
+    assert out["rewritten"][-50:].all()
+    # the vehicle's position stops: stale after max_age; the app's own setpoint from then on
+    rewritten = []
+    for k, z in enumerate(path[200:]):
+        msg, frame = sim.setpoint(float(z))
+        rewritten.append(hook(msg, frame, 1000.0 + (200 + k) * DT) is not None)
+    stale_ticks = int(np.ceil(hook.max_age / DT))
+    assert all(not r for r in rewritten[stale_ticks + 1:])
+    # an app at half the solver's rate is never steered (said once)
+    slow = _hook(solver=load_solver(solver))
+    sim2 = LoopSim()
+    for k in range(200):
+        t = 1000.0 + 2 * k * DT
+        slow.view.on_frame(sim2.heartbeat(), t - 0.002)
+        slow.view.on_frame(sim2.position(), t - 0.001)
+        msg, frame = sim2.setpoint(2.0 + 0.01 * k)
+        assert slow(msg, frame, t) is None
+        sim2.k += 2
+    assert slow.counts["period_mismatch"] > 0 and any("not steering" in e for _, e in slow.events.events)
+
+
+def test_a_setpoint_in_another_frame_or_without_z_is_never_touched():
+    hook = _hook(dither=0.2)
+    fly(hook, _path(100))
+    sim = LoopSim()
+    m = sim.app.set_position_target_local_ned_encode(0, 1, 1, 8, 0b1111_1111_1000, 0, 0, -2, 0, 0, 0, 0, 0, 0, 0, 0)
+    frame = bytes(m.pack(sim.app))
+    assert hook(decode_frame(frame), frame, 1002.0) is None and hook.counts["not_steerable"] == 1
