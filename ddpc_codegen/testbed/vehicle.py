@@ -4,7 +4,8 @@ Three parts: the physics is the simulator's robot below the companion computer,
 :class:`ddpc_codegen.sim.Stepper` (PogoX plant at 1 kHz, PX4-like attitude loop 250 Hz and
 rate loop 1 kHz, measurement delay and sensor noise, pushes) -- the same object
 :func:`ddpc_codegen.sim.simulate` steps; the autopilot's behaviour in off-board (modes, arming,
-parameters, setpoints, failsafe) is :mod:`ddpc_codegen.testbed.vehicle_autopilot`; the telemetry
+parameters, setpoints, failsafe) is :mod:`ddpc_codegen.testbed.vehicle_autopilot`, with its position
+controller (HOLD, LAND, SET_POSITION_TARGET_LOCAL_NED) in :mod:`ddpc_codegen.testbed.vehicle_position`; the telemetry
 streams and real autopilots' sample patterns are :mod:`ddpc_codegen.testbed.vehicle_telemetry`. The
 companion computer's part is *not* here, it comes over the link. A disarmed vehicle is parked:
 its state is frozen (no physics). A stuck hybrid integration (foot chattering) freezes it too,
@@ -14,7 +15,8 @@ Timing: real time by default. The vehicle wakes once per 5 ms tick: at the bound
 simulates the elapsed 5 ms in 1 ms physics steps, each received setpoint taking effect from the
 first step that starts after its (kernel) receive time -- i.e. within 1 ms of arrival, like
 PX4's 1 kHz rate loop -- and then publishes the telemetry of the new tick. ``lockstep``: after
-publishing telemetry the vehicle waits for the SET_ATTITUDE_TARGET stamped with the newest
+publishing telemetry the vehicle waits for the setpoint (SET_ATTITUDE_TARGET or
+SET_POSITION_TARGET_LOCAL_NED) stamped with the newest
 sample's time (``time_boot_ms``; with the regular pattern: tick k's time) before simulating
 the next 5 ms (at most ``lockstep_timeout`` seconds of wall time, then it goes on with the
 setpoint it has) -- fast, deterministic tests that reproduce :func:`ddpc_codegen.sim.simulate`
@@ -61,6 +63,7 @@ class StepperBody:
         self.stepper = stepper
         p = stepper.params
         self.g, self.mass, self.max_thrust = p.g, p.mass, p.max_thrust
+        self.tilt_max = p.fc.tilt_max
         self._leg = p.leg_rest_length
 
     def state(self) -> np.ndarray:
@@ -100,7 +103,7 @@ class SimVehicle:
         self.telemetry = TelemetryPublisher(self.link, c.default_rates,
                                             SamplePattern(c.telemetry_pattern, c.telemetry_seed), c.contact_signal)
         self.autopilot = AutopilotEmulator(c, self.link, StepperBody(self.stepper), lambda: self.t,
-                                           self.telemetry, (self.start_position, float(c.start_yaw)))
+                                           self.telemetry, (self.start_position, float(c.start_yaw)), self.dt)
         self.k = 0
         self._stop = False
         self.stats = {"overruns": 0, "lockstep_timeouts": 0}
@@ -209,15 +212,15 @@ class SimVehicle:
         return self.summary()
 
     def _tick_start(self, now: float) -> None:
-        """At a tick boundary: heartbeat, failsafe, own-mode setpoint, log, measure and publish."""
+        """At a tick boundary: heartbeat, failsafe, position control, log, measure and publish."""
         ap = self.autopilot
         if now - self._hb_wall >= 1.0:
             # 1 Hz of wall time: the companion's link monitor runs on wall time.
             self._hb_wall = now
             ap.send_heartbeat()
         ap.failsafe_check()
-        if ap.armed and ap.mode != MODE_OFFBOARD:
-            ap.own_mode_setpoint()
+        if ap.armed:
+            ap.control_tick()
         measure = self._measure()
         self._log_truth()
         self._published = [] if ap.silent() else self.telemetry.publish(self.t, measure)

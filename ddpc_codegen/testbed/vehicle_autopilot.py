@@ -7,12 +7,17 @@
 * COMMAND_LONG: COMPONENT_ARM_DISARM, DO_SET_MODE, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE
   (HEARTBEAT), each answered with a COMMAND_ACK; PARAM_REQUEST_READ / PARAM_SET for
   COM_OF_LOSS_T and MPC_THR_HOVER (PX4), GUID_OPTIONS, MOT_THST_HOVER and GUID_TIMEOUT (ArduPilot; the hover
-  thrusts are the true ones, read-only).
+  thrusts are the position controller's estimate, the true one unless configured; read-only).
 * SET_ATTITUDE_TARGET (quaternion FRD -> NED + thrust) goes to the flight controller while armed in
   OFFBOARD. OFFBOARD is refused unless setpoints are arriving; if they stop for COM_OF_LOSS_T
   seconds the vehicle leaves OFFBOARD for its failsafe (HOLD or LAND), as PX4 does.
-* Outside OFFBOARD, armed, the vehicle flies itself: HOLD keeps a position (true-mass PD, as
-  PX4's position controller with a good hover-thrust estimate), LAND descends at 0.5 m/s and
+* SET_POSITION_TARGET_LOCAL_NED (MAV_FRAME_LOCAL_NED; position / velocity / acceleration / yaw /
+  yaw rate as ``type_mask`` enables them, read as PX4 does) is flown by the autopilot's own cascaded
+  position controller (:mod:`ddpc_codegen.testbed.vehicle_position`, PX4's or ArduCopter's gains and
+  limits) while armed in OFFBOARD / GUIDED; other frames and force setpoints are refused and logged.
+  Position setpoints count as the off-board signal exactly as attitude setpoints do.
+* Outside OFFBOARD, armed, the vehicle flies itself on the same position controller: HOLD brakes
+  and holds where it stopped, LAND descends at the land speed holding its horizontal position and
   disarms on touchdown.
 
 The physics is not here (no simulator import): it is reached through :class:`Body`.
@@ -27,7 +32,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from ddpc_codegen.robot.frames import euler_from_quat, quat_enu_flu_from_ned_frd, quat_from_euler
+from ddpc_codegen.robot.frames import euler_from_quat, quat_enu_flu_from_ned_frd
 
 from firmware_bridge.link import MavLink, mavlink
 from firmware_bridge.profiles import (
@@ -43,6 +48,13 @@ from firmware_bridge.profiles import (
     px4_mode_name,
 )
 from ddpc_codegen.testbed.vehicle_config import MODE_HOLD, MODE_LAND, MODE_OFFBOARD, VehicleConfig
+from ddpc_codegen.testbed.vehicle_position import (
+    ARDUCOPTER_POSITION,
+    PX4_POSITION,
+    PositionController,
+    PositionTarget,
+    target_from_local_ned,
+)
 from ddpc_codegen.testbed.vehicle_telemetry import TelemetryPublisher
 
 __all__ = ["Body", "AutopilotEmulator"]
@@ -54,6 +66,8 @@ _PX4_MODES = {MODE_OFFBOARD: (PX4_MAIN["OFFBOARD"], 0), MODE_HOLD: (PX4_MAIN["AU
               MODE_LAND: (PX4_MAIN["AUTO"], PX4_AUTO_SUB["LAND"])}
 _ARDU_MODES = {MODE_OFFBOARD: ARDUCOPTER_MODES["GUIDED_NOGPS"], MODE_HOLD: ARDUCOPTER_MODES["LOITER"],
                MODE_LAND: ARDUCOPTER_MODES["LAND"]}
+# HOLD brakes until slower than this, then holds where it is [m/s].
+_STOPPED = 0.1
 _ARDU_HOLD_MODES = tuple(ARDUCOPTER_MODES[n] for n in ("LOITER", "BRAKE", "ALT_HOLD", "POSHOLD"))
 
 
@@ -63,6 +77,7 @@ class Body(Protocol):
     g: float  # gravity [m/s^2]
     mass: float  # true mass [kg] (a well-tuned autopilot knows its hover thrust)
     max_thrust: float  # collective thrust at normalized thrust 1 [N]
+    tilt_max: float  # the flight controller's limit on the attitude setpoint's tilt [rad]
 
     def state(self) -> np.ndarray:
         """True state (19,) (see :mod:`ddpc_codegen.sim.plant`): position, velocity, quaternion, rates, ..."""
@@ -84,29 +99,37 @@ class AutopilotEmulator:
         cfg: the vehicle's options; link: its MAVLink endpoint; body: the physics.
         clock: vehicle time now [s]; telemetry: the stream publisher (SET_MESSAGE_INTERVAL).
         start: position (3,) [m, ENU] and heading [rad, ENU] HOLD starts with.
+        dt: the position controller's period (the vehicle's tick) [s].
     """
 
     def __init__(self, cfg: VehicleConfig, link: MavLink, body: Body, clock: Callable[[], float],
-                 telemetry: TelemetryPublisher, start: tuple[np.ndarray, float]) -> None:
+                 telemetry: TelemetryPublisher, start: tuple[np.ndarray, float], dt: float = 0.005) -> None:
         self.cfg, self.link, self.body, self.clock, self.telemetry = cfg, link, body, clock, telemetry
         self.ardu = ArduPilotProfile(guid_options=cfg.guid_options) if cfg.autopilot == "ardupilot" else None
         self.armed = cfg.start == "hover"
         self.mode = MODE_HOLD
         self.ardu_mode = ARDUCOPTER_MODES["LOITER"]  # what HEARTBEAT says on ArduPilot
         self.px4_mode = (PX4_MAIN["AUTO"], PX4_AUTO_SUB["LOITER"])
-        self.hold_point, self.hold_yaw = np.array(start[0], dtype=float), float(start[1])
+        hover = cfg.hover_thrust if cfg.hover_thrust is not None else body.mass * body.g / body.max_thrust
+        self.pos_ctl = PositionController(ARDUCOPTER_POSITION if self.ardu else PX4_POSITION, hover, dt, body.g,
+                                          body.tilt_max)
+        self.pos_ctl.reset(float(start[1]))
+        # HOLD / LAND's own setpoint, and the link's newest position setpoint (None: none yet).
+        self.own_target = PositionTarget(position=np.array(start[0], dtype=float), velocity=np.zeros(3),
+                                         yaw=float(start[1]))
+        self.link_target: PositionTarget | None = None
         self.com_of_loss_t = float(cfg.com_of_loss_t)
         self.guid_options = int(cfg.guid_options)
         self._landed_since: float | None = None
         # Setpoint from the link.
         self.sp_q_enu = np.array([1.0, 0.0, 0.0, 0.0])
         self.sp_field = 0.0
-        self.sp_stamp = -1
-        self.last_sp_time = -math.inf  # vehicle time of the newest SET_ATTITUDE_TARGET [s]
+        self.sp_kind = "attitude"  # what OFFBOARD flies: the newest setpoint's kind ("attitude", "position")
+        self.last_sp_time = -math.inf  # vehicle time of the newest setpoint (attitude or position) [s]
         self.sp_queue: deque = deque()  # real time: (rx, q_enu, field), applied at the arrival time
         self.expect_stamp_ms = -1  # lockstep: the setpoint stamp the vehicle waits for
         self.events: list[tuple[float, str]] = []
-        self.stats = {"setpoints": 0, "setpoints_ignored": 0, "commands": 0}
+        self.stats = {"setpoints": 0, "setpoints_ignored": 0, "position_setpoints": 0, "commands": 0}
 
     # ------------------------------------------------------------------ state
     def event(self, what: str) -> None:
@@ -147,24 +170,36 @@ class AutopilotEmulator:
         if mode == MODE_HOLD:
             self._hold_here()
         if mode == MODE_LAND:
-            self._landed_since = None
+            self._land_here()
         self.mode = mode
         self.px4_mode = px4 if px4 is not None else _PX4_MODES[mode]
         self.ardu_mode = ardu if ardu is not None else _ARDU_MODES[mode]
         self.event(f"mode {self.mode_name()}" + (f" ({why})" if why else ""))
         self.send_heartbeat()  # tell the companion at once, not at the next 1 Hz beat
 
+    def _yaw(self) -> float:
+        return float(euler_from_quat(self.body.state()[6:10])[2])
+
     def _hold_here(self) -> None:
-        s = self.body.state()
-        self.hold_point = s[0:3].copy()
-        self.hold_yaw = float(euler_from_quat(s[6:10])[2])
+        """HOLD's setpoint: brake (velocity 0); :meth:`control_tick` fixes the position once stopped."""
+        self.own_target = PositionTarget(velocity=np.zeros(3), yaw=self._yaw())
+
+    def _land_here(self) -> None:
+        """LAND's setpoint: this horizontal position, down at the land speed."""
+        p = self.body.state()[0:3]
+        self.own_target = PositionTarget(position=np.array([p[0], p[1], math.nan]),
+                                         velocity=np.array([math.nan, math.nan, -self.pos_ctl.gains.land_speed]),
+                                         yaw=self._yaw())
+        self._landed_since = None
 
     def set_armed(self, armed: bool, why: str = "") -> None:
         if armed == self.armed:
             return
         self.armed = armed
-        if armed and self.mode != MODE_OFFBOARD:
+        if armed and self.mode == MODE_HOLD:
             self._hold_here()
+        elif armed and self.mode == MODE_LAND:
+            self._land_here()
         self.event(("armed" if armed else "disarmed") + (f" ({why})" if why else ""))
         self.send_heartbeat()
 
@@ -176,6 +211,8 @@ class AutopilotEmulator:
             typ = msg.get_type()
             if typ == "SET_ATTITUDE_TARGET":
                 got |= self._on_setpoint(msg, rx)
+            elif typ == "SET_POSITION_TARGET_LOCAL_NED":
+                got |= self._on_position_target(msg)
             elif typ == "COMMAND_LONG":
                 self._on_command(msg)
             elif typ in ("PARAM_REQUEST_READ", "PARAM_SET"):
@@ -201,23 +238,42 @@ class AutopilotEmulator:
             self.stats["setpoints_ignored"] += 1  # PX4 drops invalid setpoints
             return False
         q_enu = np.array(quat_enu_flu_from_ned_frd(q / n))
-        self.sp_stamp = int(msg.time_boot_ms)
         self.last_sp_time = self.clock()
         self.stats["setpoints"] += 1
         if self.cfg.lockstep:
             self.take_setpoint(q_enu, float(msg.thrust))
         else:
             self.sp_queue.append((rx, q_enu, float(msg.thrust)))  # takes effect at its arrival time
-        return self.sp_stamp == self.expect_stamp_ms
+        return int(msg.time_boot_ms) == self.expect_stamp_ms
+
+    def _on_position_target(self, msg) -> bool:
+        """SET_POSITION_TARGET_LOCAL_NED: the position controller's setpoint from the next tick on."""
+        if not self._for_me(msg):
+            self.stats["setpoints_ignored"] += 1
+            return False
+        try:
+            target = target_from_local_ned(msg)
+        except ValueError as e:
+            self.stats["setpoints_ignored"] += 1
+            if self.stats["setpoints_ignored"] & (self.stats["setpoints_ignored"] - 1) == 0:
+                log.warning("[vehicle t=%7.3f] %s (ignored)", self.clock(), e)  # 1st, 2nd, 4th, 8th, ...
+            return False
+        self.link_target, self.sp_kind = target, "position"
+        self.last_sp_time = self.clock()
+        self.stats["position_setpoints"] += 1
+        return int(msg.time_boot_ms) == self.expect_stamp_ms
 
     def take_setpoint(self, q_enu: np.ndarray, field: float) -> None:
-        """The link's newest setpoint; the flight controller gets it while armed in OFFBOARD."""
-        self.sp_q_enu, self.sp_field = q_enu, field
+        """The link's newest attitude setpoint; the flight controller gets it while armed in OFFBOARD."""
+        self.sp_q_enu, self.sp_field, self.sp_kind = q_enu, field, "attitude"
         if self.mode == MODE_OFFBOARD and self.armed:
             self._apply_offboard()
 
     def _apply_offboard(self) -> None:
-        """Hand the link's setpoint to the flight controller (thrust semantics per autopilot)."""
+        """Hand the link's attitude setpoint to the flight controller (thrust semantics per autopilot);
+        position setpoints are flown by :meth:`control_tick`."""
+        if self.sp_kind == "position":
+            return
         if self.ardu is not None and self.ardu.climb_rate_thrust:
             # ArduPilot: thrust field = climb rate; its own altitude loop makes the thrust.
             vz_sp = self.ardu.field_to_climb_rate(self.sp_field)
@@ -308,9 +364,10 @@ class AutopilotEmulator:
         return R.MAV_RESULT_UNSUPPORTED
 
     def _params(self) -> dict[str, tuple[float, int]]:
-        # What the bridge reads before its first tick, as the real autopilots answer it (a well-tuned
-        # autopilot's hover thrust is the true one); an unanswered read costs the bridge its 3 s wait.
-        hover = (self.body.mass * self.body.g / self.body.max_thrust, mavlink.MAV_PARAM_TYPE_REAL32)
+        # What the bridge reads before its first tick, as the real autopilots answer it (the hover
+        # thrust its position controller uses: the true one unless configured); an unanswered read
+        # costs the bridge its 3 s wait.
+        hover = (self.pos_ctl.hover_thrust, mavlink.MAV_PARAM_TYPE_REAL32)
         if self.ardu is not None:
             return {"GUID_OPTIONS": (float(self.guid_options), mavlink.MAV_PARAM_TYPE_INT32),
                     "MOT_THST_HOVER": hover, "GUID_TIMEOUT": (3.0, mavlink.MAV_PARAM_TYPE_REAL32)}
@@ -344,34 +401,33 @@ class AutopilotEmulator:
         if self.mode == MODE_OFFBOARD and self.armed and self._offboard_signal_lost():
             self.set_mode(self.cfg.loss_action, why=f"offboard setpoints lost for > {self.com_of_loss_t:g} s")
 
-    def own_mode_setpoint(self) -> None:
-        """HOLD / LAND: the vehicle's own position controller (true mass, true state)."""
+    def control_tick(self) -> None:
+        """Once per tick while armed: the position controller flies HOLD, LAND and OFFBOARD's position
+        setpoints (OFFBOARD's attitude setpoints go to the flight controller as they arrive)."""
         b = self.body
         s = b.state()
-        p, v = s[0:3], s[3:6]
-        g = b.g
-        kp_xy, kd_xy = 2.0, 2.5
-        ax = kp_xy * (self.hold_point[0] - p[0]) - kd_xy * v[0]
-        ay = kp_xy * (self.hold_point[1] - p[1]) - kd_xy * v[1]
-        if self.mode == MODE_LAND:
-            az = 3.0 * (-0.5 - v[2])
-            if b.in_contact() and abs(v[2]) < 0.2:
-                t = self.clock()
-                if self._landed_since is None:
-                    self._landed_since = t
-                elif t - self._landed_since > 0.5:
-                    self.set_armed(False, "landed")
-                    return
-            else:
-                self._landed_since = None
+        if self.mode == MODE_OFFBOARD:
+            if self.sp_kind != "position" or self.link_target is None:
+                return
+            target = self.link_target
         else:
-            az = 6.0 * (self.hold_point[2] - p[2]) - 4.0 * v[2]
-        lim = math.tan(math.radians(20.0)) * (g + az)
-        # World accelerations in the heading frame (forward, left): pitch drives forward, roll left.
-        cy, sy = math.cos(self.hold_yaw), math.sin(self.hold_yaw)
-        af, al = cy * ax + sy * ay, -sy * ax + cy * ay
-        af, al = max(-lim, min(lim, af)), max(-lim, min(lim, al))
-        pitch = math.atan2(af, g + az)
-        roll = math.atan2(-al * math.cos(pitch), g + az)
-        thrust = b.mass * (g + az) / max(math.cos(roll) * math.cos(pitch), 0.5) / b.max_thrust
-        b.set_attitude_target(quat_from_euler(roll, pitch, self.hold_yaw), min(max(thrust, 0.0), 1.0))
+            target = self.own_target
+            if self.mode == MODE_LAND and self._landed(s):
+                return
+            if self.mode == MODE_HOLD and not np.isfinite(target.position).all() and np.linalg.norm(s[3:6]) < _STOPPED:
+                target.position = s[0:3].copy()  # stopped: hold here
+        q, thrust = self.pos_ctl.update(target, s[0:3], s[3:6], self.clock(), self._yaw())
+        b.set_attitude_target(q, min(max(thrust, 0.0), 1.0))
+
+    def _landed(self, s: np.ndarray) -> bool:
+        """LAND: foot down and still for 0.5 s disarms."""
+        if self.body.in_contact() and abs(s[5]) < 0.2:
+            t = self.clock()
+            if self._landed_since is None:
+                self._landed_since = t
+            elif t - self._landed_since > 0.5:
+                self.set_armed(False, "landed")
+                return True
+        else:
+            self._landed_since = None
+        return False

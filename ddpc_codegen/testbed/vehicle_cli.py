@@ -20,8 +20,9 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="ddpc-vehicle",
         description="The PogoX simulator behind a MAVLink endpoint that behaves like PX4 (or ArduCopter) in "
-                    "off-board: heartbeat, telemetry at requested rates, arm / mode commands, SET_ATTITUDE_TARGET, "
-                    "off-board-loss failsafe.",
+                    "off-board: heartbeat, telemetry at requested rates, arm / mode commands, SET_ATTITUDE_TARGET and "
+                    "SET_POSITION_TARGET_LOCAL_NED (its own cascaded position controller), off-board-loss "
+                    "failsafe.",
     )
     p.add_argument("connection", nargs="?", default="udpout:127.0.0.1:14540",
                    help="connection string (default udpout:127.0.0.1:14540, to a bridge listening there)")
@@ -49,6 +50,10 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p.add_argument("--com-of-loss-t", type=float, default=1.0, help="off-board loss timeout [s] (PX4 COM_OF_LOSS_T)")
     p.add_argument("--loss-action", choices=("hold", "land"), default="hold", help="failsafe after off-board loss")
     p.add_argument("--guid-options", type=int, default=0, help="ArduPilot GUID_OPTIONS (8: thrust is a thrust)")
+    p.add_argument("--hover-thrust", type=float, default=None, metavar="THR",
+                   help="the autopilot's hover-thrust estimate for its position controller (MPC_THR_HOVER / "
+                        "MOT_THST_HOVER, also what the parameter reads; default: the true one, 0.8). Lower: a "
+                        "vehicle heavier than its autopilot believes")
     p.add_argument("--duration", type=float, default=None, help="stop after this much simulated time [s]")
     p.add_argument("--silence", type=time_window, action="append", default=[], metavar="T0:T1",
                    help="send nothing during this simulated-time window (repeatable)")
@@ -79,6 +84,7 @@ def vehicle_main(argv: list[str] | None = None) -> int:
                             lockstep_timeout=a.lockstep_timeout, peer_timeout=a.peer_timeout, seed=a.seed, noise=not a.no_noise, start=a.start,
                             start_offset=a.start_offset, start_yaw=math.radians(a.start_yaw_deg),
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
+                            hover_thrust=a.hover_thrust,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
                             rt_priority=a.rt_priority, cpu_latency_us=qos_request(a.cpu_latency_us), cpus=a.cpus,
                             verbose=a.verbose, telemetry_pattern=a.telemetry_pattern,

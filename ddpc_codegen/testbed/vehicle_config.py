@@ -39,6 +39,9 @@ class VehicleConfig:
         com_of_loss_t: off-board setpoint-loss timeout [s] (PX4 COM_OF_LOSS_T).
         loss_action: failsafe after the loss: "hold" or "land".
         guid_options: ArduPilot GUID_OPTIONS (bit 3: thrust field is a thrust, else a climb rate).
+        hover_thrust: the autopilot's hover-thrust estimate (MPC_THR_HOVER / MOT_THST_HOVER) its
+            position controller uses and the parameter reports [normalized thrust, (0, 1)]; None:
+            the true one. Below the truth: a vehicle heavier than its autopilot believes.
         duration: stop after this much simulated time [s] (None: run until signalled).
         default_rates: telemetry rates [Hz] before anyone asks (message name -> Hz).
         silence: simulated-time windows [(t0, t1), ...] [s] in which the vehicle sends nothing
@@ -75,6 +78,7 @@ class VehicleConfig:
     com_of_loss_t: float = 1.0
     loss_action: str = "hold"
     guid_options: int = 0
+    hover_thrust: float | None = None
     duration: float | None = None
     default_rates: dict = field(default_factory=lambda: {"ATTITUDE": 10.0, "LOCAL_POSITION_NED": 10.0})
     silence: list = field(default_factory=list)
@@ -104,6 +108,8 @@ class VehicleConfig:
             raise ValueError(f"start_offset must be two finite numbers (x, y) [m]; got {self.start_offset!r}")
         if not math.isfinite(self.start_yaw):
             raise ValueError(f"start_yaw must be finite; got {self.start_yaw!r}")
+        if self.hover_thrust is not None and not 0.0 < self.hover_thrust < 1.0:
+            raise ValueError(f"hover_thrust must be in (0, 1); got {self.hover_thrust!r}")
         if self.loss_action not in (MODE_HOLD, MODE_LAND):
             raise ValueError(f"loss_action must be 'hold' or 'land'; got {self.loss_action!r}")
         if self.telemetry_pattern not in TELEMETRY_PATTERNS:
