@@ -27,7 +27,7 @@ import numpy as np
 
 from ddpc_codegen.stats import percentiles
 from firmware_bridge.events import EventLog
-from firmware_bridge.link import MavLink
+from firmware_bridge.link import LinkError, MavLink
 from firmware_bridge.mocap_input import MocapInput
 from firmware_bridge.plausibility import TelemetryLimits
 from firmware_bridge.telemetry import TrajectoryFrame
@@ -71,7 +71,10 @@ class PositionSource:
     def for_bridge(cls, c: Any, frame: TrajectoryFrame, events: EventLog, limits: TelemetryLimits) -> PositionSource:
         """From the bridge's config ``c`` (``position_source``, ``mocap``, ``max_age``): the mocap link opened
         (a listening UDP link takes every sender: the poses carry no vehicle ids)."""
-        mocap = MocapInput(MavLink(c.mocap, target_system=None), limits) if c.mocap else None
+        try:
+            mocap = MocapInput(MavLink(c.mocap, target_system=None), limits) if c.mocap else None
+        except (OSError, LinkError) as e:
+            raise LinkError(f"--mocap {c.mocap}: {e}") from None
         return cls(c.position_source, frame, events, c.max_age, mocap)
 
     @property

@@ -5,6 +5,9 @@ dropped), the source's frames and freshness, its flags, and a bridge on a fake v
 from __future__ import annotations
 
 import math
+import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -279,3 +282,14 @@ def test_without_a_pose_the_bridge_never_engages_and_says_why(tmp_path):
     assert not t["active"].any() and not np.isfinite(t["t_traj"]).any()
     events = [e for _, e in read_json(tmp_path / "s.json")["events"]]
     assert any("position source mocap: no pose yet on udpin:127.0.0.1:" in e for e in events)
+
+
+def test_a_mocap_port_that_cannot_be_bound_is_one_line_naming_the_flag(tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        r = subprocess.run([sys.executable, "-m", "firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{free_port()}",
+                            "--mode", "passthrough", "--position-source", "mocap", "--mocap", f"udpin:127.0.0.1:{port}"],
+                           capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines()[-1].startswith(
+        f"ddpc-bridge: error: --mocap udpin:127.0.0.1:{port}: "), r.stderr
