@@ -144,8 +144,10 @@ def test_a_disarmed_vehicle_left_in_offboard_gets_idle_thrust_until_it_reports_a
     veh.arm_delay = 0.3
     try:
         veh.start()
+        # (the vehicle stays on the ground: the approach times out, the sooner the better)
         br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--arm", "--takeoff",
-                      "--duration", "1", "--log", str(tmp_path / "t.npz"), "--timeout", "30", name="bridge")
+                      "--approach-timeout", "0.5", "--duration", "1", "--log", str(tmp_path / "t.npz"),
+                      "--timeout", "30", name="bridge")
         assert pr.wait(br, 60) == 0, pr.log(br)
     finally:
         veh.close()
@@ -170,7 +172,7 @@ def test_the_approach_holds_or_times_out_as_configured_and_says_so(tmp_path, z):
     port = free_port()
     veh = FakeVehicle(port, z=z)
     rc, out = _fly_against(tmp_path, veh, port, "--mode", "passthrough", "--takeoff", "--approach-timeout", "1.5",
-                           "--duration", "5", "--summary", str(tmp_path / "s.json"), "--timeout", "30", "--verbose")
+                           "--duration", "1", "--summary", str(tmp_path / "s.json"), "--timeout", "30", "--verbose")
     assert rc == 0, out
     ap = read_json(tmp_path / "s.json")["approach"]
     assert ap["timeout_s"] == 1.5 and ap["target_m"] == pytest.approx(0.9)

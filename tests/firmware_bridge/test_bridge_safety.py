@@ -156,15 +156,17 @@ def test_garbage_and_foreign_sysid_are_ignored_and_the_stream_survives_silence(p
 
 
 def test_a_restarted_vehicle_is_picked_up_again(procs, tmp_path, fake_vehicle_factory):
-    # The vehicle reboots: new socket (new source port), its clock starts again at 0.
+    # The vehicle reboots: new socket (new source port), its clock starts again at 0. The link stays pinned to
+    # the old port until --link-timeout of silence: the old clock must then still be ahead of the new one, or
+    # the new stamps continue the old time line (nothing to tell a reboot by).
     port = free_port()
     v1 = fake_vehicle_factory(port)
     v1.start()
-    br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--summary",
-                     str(tmp_path / "s.json"), "--timeout", "60", name="bridge")
+    br = procs.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--link-timeout", "1",
+                     "--summary", str(tmp_path / "s.json"), "--timeout", "60", name="bridge")
     try:
         wait_until(v1.first_setpoint.is_set, 30, "the first setpoint")
-        wait_until(lambda: v1.k * 0.005 > 1.5, 10, "1.5 s of vehicle time")
+        wait_until(lambda: v1.k * 0.005 > 1.0 + 2.0, 10, "3 s of vehicle time")
         v1.close()
         time.sleep(0.2)
         v2 = fake_vehicle_factory(port)

@@ -113,6 +113,20 @@ def test_parameters_are_decoded_and_the_offboard_loss_timeout_kept():
     assert v.params["COM_OF_LOSS_T"] == pytest.approx(0.3) and v.profile.offboard_loss_timeout == pytest.approx(0.3)
 
 
+def test_the_preflight_asks_for_the_parameters_and_flies_on_without_unanswered_optional_ones():
+    # (the e2e tests' fake vehicle answers them: this is the 3 s wait that a silent autopilot costs)
+    link = FakeLink()
+    v = vehicle(link)
+    v.on_message(heartbeat(), 1.0)
+    link.inbox.append((from_vehicle(mavlink.MAVLink_param_value_message(b"MPC_THR_HOVER", 0.42,
+                                                                        mavlink.MAV_PARAM_TYPE_REAL32, 2, 0)), 1.1))
+    info = v.preflight(None, False, stopped=lambda: False, timeout=0.05)
+    asked = {m.param_id for m in link.sent if m.get_type() == "PARAM_REQUEST_READ"}
+    assert asked == {"MPC_THR_HOVER", "COM_OF_LOSS_T"}
+    assert info.hover_thrust == pytest.approx(0.42) and "COM_OF_LOSS_T" not in info.params
+    assert v.events.events[-1][1] == "parameters not answered within 0.05 s: COM_OF_LOSS_T (not needed)"
+
+
 def test_a_silent_vehicle_loses_the_link_then_is_lost():
     v = vehicle()
     v.on_message(heartbeat(), 1.0)

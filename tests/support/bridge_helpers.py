@@ -78,6 +78,10 @@ class Procs:
                     pass
 
 
+# what the fake vehicle answers: a PX4's hover thrust estimate and off-board loss timeout (its default)
+PX4_PARAMS = {"MPC_THR_HOVER": 0.5, "COM_OF_LOSS_T": 1.0}
+
+
 def wait_until(cond, timeout: float, what: str) -> None:
     """Poll ``cond()`` every 10 ms until it holds; AssertionError naming ``what`` after ``timeout`` s."""
     t_end = time.monotonic() + timeout
@@ -99,6 +103,9 @@ class FakeVehicle(threading.Thread):
     imitates a real autopilot's telemetry (measured against the SITLs): "px4" -- 1 ms stamps,
     attitude steps 4/8/12 ms, position every 8 ms (~125 samples/s per stream); "burst" -- 5 ms
     stamps delivered two per datagram every 10 ms (ArduCopter over TCP). ``sent`` counts samples.
+
+    ``params`` answers PARAM_REQUEST_READ by name, as PX4 does: the bridge's preflight reads them before its
+    first tick and waits 3 s for an unanswered one (set ``params = {}`` to test that wait).
     """
 
     def __init__(self, port: int, sysid: int = 1, z: float = 0.9, pattern: str = "regular") -> None:
@@ -123,6 +130,7 @@ class FakeVehicle(threading.Thread):
         self.commands: list[int] = []  # COMMAND_LONG ids received
         self.armed_hb_at: float | None = None  # just before the first heartbeat saying "armed" went out (monotonic)
         self.sent = {"attitude": 0, "position": 0}
+        self.params: dict[str, float] = dict(PX4_PARAMS)
 
     def run(self) -> None:
         from firmware_bridge.link import mavlink
@@ -150,6 +158,8 @@ class FakeVehicle(threading.Thread):
                 elif msg.get_type() == "COMMAND_LONG":
                     self.commands.append(msg.command)
                     self.link.send(mav.command_ack_encode(msg.command, self._answer(msg)))
+                elif msg.get_type() == "PARAM_REQUEST_READ":
+                    self._answer_param(mav, msg)
             if self.heartbeat and now >= hb_next:
                 hb_next = now + 0.5
                 t_hb = time.monotonic()  # before the send: an answer to it can only be received after this
@@ -178,6 +188,17 @@ class FakeVehicle(threading.Thread):
             else:
                 self.armed = True
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def _answer_param(self, mav, msg) -> None:
+        """PARAM_VALUE for a known name (REAL32, as PX4 sends these two); an unknown one goes unanswered."""
+        from firmware_bridge.link import mavlink
+
+        name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
+        name = name.rstrip("\x00")
+        if name in self.params:
+            names = list(self.params)
+            self.link.send(mav.param_value_encode(name.encode(), self.params[name], mavlink.MAV_PARAM_TYPE_REAL32,
+                                                  len(names), names.index(name)))
 
     def _send_telemetry(self, mav, q_level) -> None:
         """This 5 ms tick's samples per ``pattern`` (stamps in ms of vehicle time)."""
