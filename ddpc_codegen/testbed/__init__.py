@@ -1,7 +1,8 @@
 """Test bed for the companion side: the PogoX simulator behind a PX4- / ArduCopter-like MAVLink
 endpoint, the real-autopilot SITL harness, and the demos that fly the bridge against them.
 
-* :mod:`.vehicle`, :mod:`.vehicle_autopilot`, :mod:`.vehicle_config`, :mod:`.vehicle_telemetry` --
+* :mod:`.vehicle`, :mod:`.vehicle_autopilot`, :mod:`.vehicle_position`, :mod:`.vehicle_config`,
+  :mod:`.vehicle_telemetry` --
   the simulated vehicle (``ddpc-vehicle``, :mod:`.cli`).
 * :mod:`.sitl` -- PX4 SIH and ArduCopter SITL processes in private network namespaces.
 * :mod:`.sitl_demo` -- ``make sitl-demo``: baseline, collect, codegen and steered flights on both.

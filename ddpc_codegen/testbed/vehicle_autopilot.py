@@ -52,7 +52,7 @@ from ddpc_codegen.testbed.vehicle_position import (
     ARDUCOPTER_POSITION,
     PX4_POSITION,
     PositionController,
-    PositionTarget,
+    PositionFlight,
     target_from_local_ned,
 )
 from ddpc_codegen.testbed.vehicle_telemetry import TelemetryPublisher
@@ -66,8 +66,6 @@ _PX4_MODES = {MODE_OFFBOARD: (PX4_MAIN["OFFBOARD"], 0), MODE_HOLD: (PX4_MAIN["AU
               MODE_LAND: (PX4_MAIN["AUTO"], PX4_AUTO_SUB["LAND"])}
 _ARDU_MODES = {MODE_OFFBOARD: ARDUCOPTER_MODES["GUIDED_NOGPS"], MODE_HOLD: ARDUCOPTER_MODES["LOITER"],
                MODE_LAND: ARDUCOPTER_MODES["LAND"]}
-# HOLD brakes until slower than this, then holds where it is [m/s].
-_STOPPED = 0.1
 _ARDU_HOLD_MODES = tuple(ARDUCOPTER_MODES[n] for n in ("LOITER", "BRAKE", "ALT_HOLD", "POSHOLD"))
 
 
@@ -111,17 +109,9 @@ class AutopilotEmulator:
         self.ardu_mode = ARDUCOPTER_MODES["LOITER"]  # what HEARTBEAT says on ArduPilot
         self.px4_mode = (PX4_MAIN["AUTO"], PX4_AUTO_SUB["LOITER"])
         hover = cfg.hover_thrust if cfg.hover_thrust is not None else body.mass * body.g / body.max_thrust
-        self.pos_ctl = PositionController(ARDUCOPTER_POSITION if self.ardu else PX4_POSITION, hover, dt, body.g,
-                                          body.tilt_max)
-        self.pos_ctl.reset(float(start[1]))
-        # HOLD / LAND's own setpoint, and the link's newest position setpoint (None: none yet).
-        self.own_target = PositionTarget(position=np.array(start[0], dtype=float), velocity=np.zeros(3),
-                                         yaw=float(start[1]))
-        self.link_target: PositionTarget | None = None
-        self.com_of_loss_t = float(cfg.com_of_loss_t)
-        self.guid_options = int(cfg.guid_options)
-        self._landed_since: float | None = None
-        # Setpoint from the link.
+        self.flight = PositionFlight(PositionController(ARDUCOPTER_POSITION if self.ardu else PX4_POSITION, hover,
+                                                        dt, body.g, body.tilt_max), start)
+        self.com_of_loss_t, self.guid_options = float(cfg.com_of_loss_t), int(cfg.guid_options)
         self.sp_q_enu = np.array([1.0, 0.0, 0.0, 0.0])
         self.sp_field = 0.0
         self.sp_kind = "attitude"  # what OFFBOARD flies: the newest setpoint's kind ("attitude", "position")
@@ -168,9 +158,9 @@ class AutopilotEmulator:
     def set_mode(self, mode: str, px4: tuple[int, int] | None = None, ardu: int | None = None, why: str = "") -> None:
         """Enter ``mode`` (MODE_*), reported with the given (or the default) autopilot mode numbers."""
         if mode == MODE_HOLD:
-            self._hold_here()
+            self.flight.hold(self._yaw())
         if mode == MODE_LAND:
-            self._land_here()
+            self.flight.land(self.body.state()[0:3], self._yaw())
         self.mode = mode
         self.px4_mode = px4 if px4 is not None else _PX4_MODES[mode]
         self.ardu_mode = ardu if ardu is not None else _ARDU_MODES[mode]
@@ -180,26 +170,14 @@ class AutopilotEmulator:
     def _yaw(self) -> float:
         return float(euler_from_quat(self.body.state()[6:10])[2])
 
-    def _hold_here(self) -> None:
-        """HOLD's setpoint: brake (velocity 0); :meth:`control_tick` fixes the position once stopped."""
-        self.own_target = PositionTarget(velocity=np.zeros(3), yaw=self._yaw())
-
-    def _land_here(self) -> None:
-        """LAND's setpoint: this horizontal position, down at the land speed."""
-        p = self.body.state()[0:3]
-        self.own_target = PositionTarget(position=np.array([p[0], p[1], math.nan]),
-                                         velocity=np.array([math.nan, math.nan, -self.pos_ctl.gains.land_speed]),
-                                         yaw=self._yaw())
-        self._landed_since = None
-
     def set_armed(self, armed: bool, why: str = "") -> None:
         if armed == self.armed:
             return
         self.armed = armed
         if armed and self.mode == MODE_HOLD:
-            self._hold_here()
+            self.flight.hold(self._yaw())
         elif armed and self.mode == MODE_LAND:
-            self._land_here()
+            self.flight.land(self.body.state()[0:3], self._yaw())
         self.event(("armed" if armed else "disarmed") + (f" ({why})" if why else ""))
         self.send_heartbeat()
 
@@ -258,7 +236,7 @@ class AutopilotEmulator:
             if self.stats["setpoints_ignored"] & (self.stats["setpoints_ignored"] - 1) == 0:
                 log.warning("[vehicle t=%7.3f] %s (ignored)", self.clock(), e)  # 1st, 2nd, 4th, 8th, ...
             return False
-        self.link_target, self.sp_kind = target, "position"
+        self.flight.link, self.sp_kind = target, "position"
         self.last_sp_time = self.clock()
         self.stats["position_setpoints"] += 1
         return int(msg.time_boot_ms) == self.expect_stamp_ms
@@ -367,7 +345,7 @@ class AutopilotEmulator:
         # What the bridge reads before its first tick, as the real autopilots answer it (the hover
         # thrust its position controller uses: the true one unless configured); an unanswered read
         # costs the bridge its 3 s wait.
-        hover = (self.pos_ctl.hover_thrust, mavlink.MAV_PARAM_TYPE_REAL32)
+        hover = (self.flight.ctl.hover_thrust, mavlink.MAV_PARAM_TYPE_REAL32)
         if self.ardu is not None:
             return {"GUID_OPTIONS": (float(self.guid_options), mavlink.MAV_PARAM_TYPE_INT32),
                     "MOT_THST_HOVER": hover, "GUID_TIMEOUT": (3.0, mavlink.MAV_PARAM_TYPE_REAL32)}
@@ -404,30 +382,11 @@ class AutopilotEmulator:
     def control_tick(self) -> None:
         """Once per tick while armed: the position controller flies HOLD, LAND and OFFBOARD's position
         setpoints (OFFBOARD's attitude setpoints go to the flight controller as they arrive)."""
-        b = self.body
+        if self.mode == MODE_OFFBOARD and (self.sp_kind != "position" or self.flight.link is None):
+            return
+        b, t = self.body, self.clock()
         s = b.state()
-        if self.mode == MODE_OFFBOARD:
-            if self.sp_kind != "position" or self.link_target is None:
-                return
-            target = self.link_target
-        else:
-            target = self.own_target
-            if self.mode == MODE_LAND and self._landed(s):
-                return
-            if self.mode == MODE_HOLD and not np.isfinite(target.position).all() and np.linalg.norm(s[3:6]) < _STOPPED:
-                target.position = s[0:3].copy()  # stopped: hold here
-        q, thrust = self.pos_ctl.update(target, s[0:3], s[3:6], self.clock(), self._yaw())
-        b.set_attitude_target(q, min(max(thrust, 0.0), 1.0))
-
-    def _landed(self, s: np.ndarray) -> bool:
-        """LAND: foot down and still for 0.5 s disarms."""
-        if self.body.in_contact() and abs(s[5]) < 0.2:
-            t = self.clock()
-            if self._landed_since is None:
-                self._landed_since = t
-            elif t - self._landed_since > 0.5:
-                self.set_armed(False, "landed")
-                return True
-        else:
-            self._landed_since = None
-        return False
+        if self.mode == MODE_LAND and self.flight.landed(b.in_contact(), s[5], t):
+            self.set_armed(False, "landed")
+            return
+        b.set_attitude_target(*self.flight.step(self.mode, s, t, self._yaw()))

@@ -1,5 +1,6 @@
 """The simulated vehicle's position controller: PX4's cascaded multicopter position control
-(``mc_pos_control``'s ``PositionControl``), with ArduCopter's gains and limits for its emulation.
+(``mc_pos_control``'s ``PositionControl``), with ArduCopter's gains and limits for its emulation, and
+what the autopilot flies on it (:class:`PositionFlight`: HOLD, LAND, the link's position setpoints).
 
 * position error -> velocity setpoint (P), plus the setpoint's velocity as feed-forward; the
   horizontal speed is limited keeping the position part first, the vertical one to the climb /
@@ -25,11 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ddpc_codegen.robot.frames import enu_from_ned, quat_from_euler, wrap_pi, yaw_enu_from_ned
+from ddpc_codegen.testbed.vehicle_config import MODE_HOLD, MODE_OFFBOARD
 
 from firmware_bridge.link import mavlink
 
 __all__ = ["PositionGains", "PX4_POSITION", "ARDUCOPTER_POSITION", "PositionTarget", "PositionController",
-           "target_from_local_ned", "constrain_xy"]
+           "PositionFlight", "target_from_local_ned", "constrain_xy"]
 
 _NAN3 = (math.nan, math.nan, math.nan)
 _POS_IGNORE = (mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_Y_IGNORE
@@ -40,6 +42,10 @@ _ACC_IGNORE = (mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE | mavlink.POSITION_TAR
                | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE)
 # PX4 low-passes the velocity derivative the D term acts on (MPC_VELD_LP) [Hz].
 _VEL_DOT_LP_HZ = 5.0
+# HOLD brakes until slower than this, then holds where it is [m/s].
+_STOPPED = 0.1
+# LAND: still (|vz| below this [m/s]) on the ground for this long [s] is landed.
+_LANDED_VZ, _LANDED_FOR = 0.2, 0.5
 
 
 @dataclass(frozen=True)
@@ -261,3 +267,48 @@ class PositionController:
         self.vel_int += ve * self._ki * self.dt
         self.vel_int[2] = min(max(self.vel_int[2], -g), g)
         return thr
+
+
+class PositionFlight:
+    """What the autopilot flies on its position controller: HOLD (brake, then hold where it stopped),
+    LAND (this horizontal position, down at the land speed) and OFFBOARD's position setpoints.
+
+    Args:
+        controller: the cascade; start: position (3,) [m, ENU] and heading [rad, ENU] HOLD starts with.
+    """
+
+    def __init__(self, controller: PositionController, start: tuple[np.ndarray, float]) -> None:
+        self.ctl = controller
+        self.ctl.reset(float(start[1]))
+        self.own = PositionTarget(position=np.array(start[0], dtype=float), velocity=np.zeros(3), yaw=float(start[1]))
+        self.link: PositionTarget | None = None  # the link's newest position setpoint
+        self._landed_since: float | None = None
+
+    def hold(self, yaw: float) -> None:
+        """HOLD from here: brake (velocity 0); :meth:`step` fixes the position once stopped."""
+        self.own = PositionTarget(velocity=np.zeros(3), yaw=yaw)
+
+    def land(self, pos: np.ndarray, yaw: float) -> None:
+        """LAND from ``pos`` (3,) [m, ENU]: hold its horizontal position, descend at the land speed."""
+        self.own = PositionTarget(position=np.array([pos[0], pos[1], math.nan]),
+                                  velocity=np.array([math.nan, math.nan, -self.ctl.gains.land_speed]), yaw=yaw)
+        self._landed_since = None
+
+    def landed(self, in_contact: bool, vz: float, t: float) -> bool:
+        """LAND's touchdown: foot down and still for a moment, at vehicle time t [s]."""
+        if not (in_contact and abs(vz) < _LANDED_VZ):
+            self._landed_since = None
+            return False
+        if self._landed_since is None:
+            self._landed_since = t
+        return t - self._landed_since > _LANDED_FOR
+
+    def step(self, mode: str, state: np.ndarray, t: float, yaw: float) -> tuple[np.ndarray, float]:
+        """One tick in ``mode`` (MODE_*) from the true state (19,) at time t [s], heading ``yaw``:
+        (attitude quaternion body FLU -> world ENU, normalized thrust in [0, 1])."""
+        target = self.link if mode == MODE_OFFBOARD and self.link is not None else self.own
+        pos, vel = state[0:3], state[3:6]
+        if mode == MODE_HOLD and not np.isfinite(target.position).all() and np.linalg.norm(vel) < _STOPPED:
+            target.position = np.array(pos, dtype=float)  # stopped: hold here
+        q, thrust = self.ctl.update(target, pos, vel, t, yaw)
+        return q, min(max(thrust, 0.0), 1.0)

@@ -107,7 +107,7 @@ def _fly(veh: SimVehicle, seconds: float, target) -> np.ndarray:
     ap, p0 = veh.autopilot, veh.plant.state[0:3].copy()
     rows = []
     for _ in range(int(round(seconds / veh.dt))):
-        ap.link_target, ap.sp_kind, ap.last_sp_time = target(veh.t, p0), "position", veh.t
+        ap.flight.link, ap.sp_kind, ap.last_sp_time = target(veh.t, p0), "position", veh.t
         if ap.mode != MODE_OFFBOARD:
             ap.set_mode(MODE_OFFBOARD)
         veh._tick_start(0.0)
@@ -179,7 +179,7 @@ def _vel_sp(veh: SimVehicle, target):
     out: list[np.ndarray] = []
 
     def f(t, p0):
-        out.append(veh.autopilot.pos_ctl.vel_sp.copy())
+        out.append(veh.autopilot.flight.ctl.vel_sp.copy())
         return target(t, p0)
 
     return f, out
@@ -222,7 +222,7 @@ def test_a_heavier_vehicle_than_believed_sags_then_the_integrator_recovers():
     f = _fly(veh, 10.0, lambda t, p0: PositionTarget(position=p0.copy()))
     dz = f[:, 3] - f[0, 3]
     assert np.min(dz) < -0.1 and abs(dz[-1]) < 0.01  # the integrator's slow pole (tau ~ 2 s)
-    assert veh.autopilot.pos_ctl.vel_int[2] == pytest.approx(9.81 * (0.8 / 0.7 - 1.0), rel=0.05)
+    assert veh.autopilot.flight.ctl.vel_int[2] == pytest.approx(9.81 * (0.8 / 0.7 - 1.0), rel=0.05)
 
 
 def test_hold_brakes_and_holds_where_it_stopped():
@@ -236,7 +236,7 @@ def test_hold_brakes_and_holds_where_it_stopped():
         veh._advance()
         veh.k += 1
         xs.append(veh.plant.state[0])
-    hold = veh.autopilot.own_target.position
+    hold = veh.autopilot.flight.own.position
     assert hold[0] > x_entry + 0.3  # where it stopped, not where HOLD began
     # the integrator learnt the drag at 1.5 m/s: it creeps back over seconds (as PX4's, MPC_XY_VEL_I_ACC)
     assert abs(xs[-1] - hold[0]) < 0.08 and abs(veh.plant.state[3]) < 0.03
