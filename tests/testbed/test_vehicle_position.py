@@ -12,7 +12,7 @@ import pytest
 from support.bridge_helpers import free_port
 
 from ddpc_codegen.robot.frames import euler_from_quat
-from ddpc_codegen.testbed.vehicle import MODE_HOLD, MODE_OFFBOARD, SimVehicle, VehicleConfig
+from ddpc_codegen.testbed.vehicle import MODE_HOLD, MODE_LAND, MODE_OFFBOARD, SimVehicle, VehicleConfig
 from ddpc_codegen.testbed.vehicle_position import (
     ARDUCOPTER_POSITION,
     PX4_POSITION,
@@ -240,3 +240,20 @@ def test_hold_brakes_and_holds_where_it_stopped():
     assert hold[0] > x_entry + 0.3  # where it stopped, not where HOLD began
     # the integrator learnt the drag at 1.5 m/s: it creeps back over seconds (as PX4's, MPC_XY_VEL_I_ACC)
     assert abs(xs[-1] - hold[0]) < 0.08 and abs(veh.plant.state[3]) < 0.03
+
+
+def test_land_descends_at_the_land_speed_over_where_it_began_and_disarms_on_the_ground():
+    veh = _vehicle()
+    xy0 = veh.plant.state[0:2].copy()
+    veh.autopilot.set_mode(MODE_LAND)
+    vz = []
+    for _ in range(1000):
+        if not veh.armed:
+            break
+        veh._tick_start(0.0)
+        veh._advance()
+        veh.k += 1
+        vz.append(veh.plant.state[5])
+    assert not veh.armed and veh.events[-1][1] == "disarmed (landed)" and veh.autopilot.body.in_contact()
+    assert min(vz) == pytest.approx(-PX4_POSITION.land_speed, abs=0.1)
+    assert np.linalg.norm(veh.plant.state[0:2] - xy0) < 0.02
