@@ -157,11 +157,8 @@ class AutopilotEmulator:
 
     def set_mode(self, mode: str, px4: tuple[int, int] | None = None, ardu: int | None = None, why: str = "") -> None:
         """Enter ``mode`` (MODE_*), reported with the given (or the default) autopilot mode numbers."""
-        if mode == MODE_HOLD:
-            self.flight.hold(self._yaw())
-        if mode == MODE_LAND:
-            self.flight.land(self.body.state()[0:3], self._yaw())
         self.mode = mode
+        self._own_mode_from_here()
         self.px4_mode = px4 if px4 is not None else _PX4_MODES[mode]
         self.ardu_mode = ardu if ardu is not None else _ARDU_MODES[mode]
         self.event(f"mode {self.mode_name()}" + (f" ({why})" if why else ""))
@@ -170,14 +167,18 @@ class AutopilotEmulator:
     def _yaw(self) -> float:
         return float(euler_from_quat(self.body.state()[6:10])[2])
 
+    def _own_mode_from_here(self) -> None:  # HOLD / LAND start from where the vehicle is now
+        if self.mode == MODE_HOLD:
+            self.flight.hold(self._yaw())
+        elif self.mode == MODE_LAND:
+            self.flight.land(self.body.state()[0:3], self._yaw())
+
     def set_armed(self, armed: bool, why: str = "") -> None:
         if armed == self.armed:
             return
         self.armed = armed
-        if armed and self.mode == MODE_HOLD:
-            self.flight.hold(self._yaw())
-        elif armed and self.mode == MODE_LAND:
-            self.flight.land(self.body.state()[0:3], self._yaw())
+        if armed:
+            self._own_mode_from_here()
         self.event(("armed" if armed else "disarmed") + (f" ({why})" if why else ""))
         self.send_heartbeat()
 
@@ -342,9 +343,8 @@ class AutopilotEmulator:
         return R.MAV_RESULT_UNSUPPORTED
 
     def _params(self) -> dict[str, tuple[float, int]]:
-        # What the bridge reads before its first tick, as the real autopilots answer it (the hover
-        # thrust its position controller uses: the true one unless configured); an unanswered read
-        # costs the bridge its 3 s wait.
+        # What the bridge reads before its first tick, as the real autopilots answer it (the hover thrust:
+        # its position controller's, the true one unless configured); unanswered, the bridge waits 3 s.
         hover = (self.flight.ctl.hover_thrust, mavlink.MAV_PARAM_TYPE_REAL32)
         if self.ardu is not None:
             return {"GUID_OPTIONS": (float(self.guid_options), mavlink.MAV_PARAM_TYPE_INT32),
@@ -384,8 +384,7 @@ class AutopilotEmulator:
         setpoints (OFFBOARD's attitude setpoints go to the flight controller as they arrive)."""
         if self.mode == MODE_OFFBOARD and (self.sp_kind != "position" or self.flight.link is None):
             return
-        b, t = self.body, self.clock()
-        s = b.state()
+        b, t, s = self.body, self.clock(), self.body.state()
         if self.mode == MODE_LAND and self.flight.landed(b.in_contact(), s[5], t):
             self.set_armed(False, "landed")
             return
