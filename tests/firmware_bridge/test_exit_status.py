@@ -89,14 +89,15 @@ def test_a_run_the_vehicle_never_lets_engage_exits_8(tmp_path):
 @pytest.mark.e2e
 @pytest.mark.slow
 def test_a_flight_that_ends_in_the_vehicles_failsafe_exits_9(tmp_path):
-    """ddpc-vehicle goes silent for 1.5 s (simulated 6..7.5 s); the bridge, stale, stops streaming after 0.2 s, the
-    vehicle's off-board loss (0.5 s) holds it: the flight ends at --timeout with the vehicle in its own mode."""
+    """ddpc-vehicle goes silent for 1.5 s (simulated 4..5.5 s, the bridge engaged about 2 s before); the bridge, stale,
+    stops streaming after 0.2 s, the vehicle's off-board loss (0.5 s) holds it: the flight ends at --timeout (some
+    3 s after the vehicle left off-board) with the vehicle in its own mode."""
     pr = Procs(tmp_path)
     port = free_port()
     try:
-        veh = pr.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--com-of-loss-t", "0.5", "--silence", "6:7.5",
+        veh = pr.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--com-of-loss-t", "0.5", "--silence", "4:5.5",
                        name="vehicle")
-        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--offboard", "--timeout", "14",
+        br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "passthrough", "--offboard", "--timeout", "9",
                       "--duration", "30", "--stale-stream-limit", "0.2", "--summary", str(tmp_path / "s.json"),
                       "--wait-heartbeat", "30", name="bridge")
         rc = pr.wait(br, 60)
