@@ -7,7 +7,7 @@ figures to ``docs/figures/`` and replaces the README's table between its marker 
 not exist yet is named on its page with the target that writes it; nothing is copied by hand.
 
 The pages: ``index.md`` (one short table per campaign, steered / best simple fix named), ``simulator.md``,
-``bench.md``, ``sitl.md`` (a section per autopilot) and ``adaptation.md``; each campaign's module renders its
+``bench.md``, ``sitl.md`` (a section per autopilot), ``adaptation.md`` and ``proxy.md``; each campaign's module renders its
 page and its headline table (``results_sim``, ``results_bench``, ``results_sitl``, ``results_adapt``).
 """
 
@@ -19,7 +19,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from ddpc_codegen.docsgen import results_bench, results_sim, results_sitl
+from ddpc_codegen.docsgen import results_bench, results_proxy, results_sim, results_sitl
 from ddpc_codegen.docsgen.results_adapt import adaptation_page
 from ddpc_codegen.docsgen.results_format import label, missing, page_head
 
@@ -27,8 +27,9 @@ ROOT = Path(__file__).resolve().parents[2]
 BEGIN = "<!-- results:begin (written by make demo: python -m ddpc_codegen.docsgen.results) -->"
 END = "<!-- results:end -->"
 # report file -> the make target that writes it
-REPORTS = {"summary.json": "make demo", "bench.json": "make bench", "sitl.json": "make sitl-demo"}
-PAGES = ("index.md", "simulator.md", "bench.md", "sitl.md", "adaptation.md")  # under docs/results/
+REPORTS = {"summary.json": "make demo", "bench.json": "make bench", "sitl.json": "make sitl-demo",
+           "proxy.json": "make proxy-demo"}
+PAGES = ("index.md", "simulator.md", "bench.md", "sitl.md", "adaptation.md", "proxy.md")  # under docs/results/
 
 __all__ = ["ROOT", "BEGIN", "END", "REPORTS", "PAGES", "load_reports", "index_page", "pages", "readme_block",
            "replace_block", "copy_figures", "write_pages", "main"]
@@ -61,6 +62,17 @@ def _sitl_headlines(sitl: dict | None) -> list[str]:
     return out
 
 
+def _proxy_headlines(proxy: dict | None) -> list[str]:
+    head = "## Your own app through ddpc-proxy (`make proxy-demo`)\n"
+    if proxy is None:
+        return [head, missing("make proxy-demo", "proxy.json")]
+    out = [head, "True-height RMSE of a plain pymavlink app with its own feed-forward, alone and steered through the "
+           "proxy; details on the [proxy page](proxy.md).\n"]
+    for name, ap in results_proxy.autopilots(proxy).items():
+        out += [f"**{label(name)}**\n", results_proxy.headline(name, ap)]
+    return out
+
+
 def index_page(reports: dict[str, dict]) -> str:
     """The headline page: one short table per campaign (simulator, bench, each autopilot)."""
     summary, bench = reports.get("summary.json"), reports.get("bench.json")
@@ -76,6 +88,7 @@ def index_page(reports: dict[str, dict]) -> str:
     out += ["## Solver timing (`make bench`)\n", "The generated solver's call per tick; details on the "
             "[bench page](bench.md).\n", results_bench.headline(bench) if bench else missing("make bench", "bench.json")]
     out += _sitl_headlines(reports.get("sitl.json"))
+    out += _proxy_headlines(reports.get("proxy.json"))
     out += ["## Online adaptation (`make adapt-eval`, `make sitl-adapt`)\n",
             "Static against adapted steering after a change mid-flight: the [adaptation page](adaptation.md).\n"]
     return "\n".join(out)
@@ -86,7 +99,7 @@ def pages(reports: dict[str, dict]) -> dict[str, str]:
     summary, sitl = reports.get("summary.json"), reports.get("sitl.json")
     return {"index.md": index_page(reports), "simulator.md": results_sim.sim_page(summary),
             "bench.md": results_bench.bench_page(reports.get("bench.json")), "sitl.md": results_sitl.sitl_page(sitl),
-            "adaptation.md": adaptation_page(summary, sitl)}
+            "adaptation.md": adaptation_page(summary, sitl), "proxy.md": results_proxy.proxy_page(reports.get("proxy.json"))}
 
 
 def readme_block(reports: dict[str, dict]) -> str:

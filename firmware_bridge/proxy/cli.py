@@ -59,6 +59,10 @@ def build_proxy_parser() -> argparse.ArgumentParser:
                         "--collect; default 0)")
     s.add_argument("--dither-hold", type=int, default=3, metavar="N",
                    help="shortest hold of a dither level, setpoints (default %(default)s)")
+    s.add_argument("--z-feedforward", choices=("zero", "keep"), default="zero",
+                   help="a steered (or dithered) setpoint's z velocity / acceleration: zero (the steered height "
+                        "carries the lead, as in the flights it was collected on) or the app's own (default "
+                        "%(default)s)")
     s.add_argument("--max-step", type=float, default=None, metavar="M",
                    help="largest steering offset from the app's height [m] (the step guard; default none)")
     s.add_argument("--max-age", type=float, default=0.2, metavar="S",
@@ -86,7 +90,7 @@ def _steering(args) -> ProxySteering | None:
         solver = load_solver(args.steer)
     return ProxySteering(VehicleView(), solver=solver, preview=make_preview(args.preview_delay),
                          max_age=args.max_age, max_step=args.max_step, dither=args.dither,
-                         dither_hold=args.dither_hold, record=ProxyRecord())
+                         dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward)
 
 
 def _save(hook: ProxySteering, args) -> dict:

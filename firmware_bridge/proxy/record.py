@@ -43,11 +43,10 @@ class ProxyRecord:
         return self.rows[:self.n]
 
     def stretches(self, dt: float) -> list[np.ndarray]:
-        """Row indices of each engaged stretch at least :data:`_MIN_STRETCH_S` long, with a new position every tick
-        (a repeated sample is no new output: the stretch ends there)."""
+        """Row indices of each engaged stretch at least :data:`_MIN_STRETCH_S` long whose positions are at most
+        three ticks old (a longer hole ends the stretch: the outputs would no longer be on the ticks' grid)."""
         r = self.view()
-        ok = r["engaged"] & (r["age"] <= 2.0 * dt)
-        ok[1:] &= np.diff(r["pos_seq"].astype(np.int64)) > 0
+        ok = r["engaged"] & (r["age"] <= 3.0 * dt)
         out, start = [], None
         for k, good in enumerate(np.append(ok, False)):
             if good and start is None:

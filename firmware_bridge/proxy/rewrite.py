@@ -61,14 +61,16 @@ class SetpointEncoder:
         self._mav: dict[int, mavlink.MAVLink] = {}  # per source system: its own sequence counter
 
     def encode(self, msg: mavlink.MAVLink_set_position_target_local_ned_message,
-               position_ned: tuple[float, float, float]) -> bytes:
-        """The replacement frame: ``msg`` with x, y, z = ``position_ned`` [m, the message's frame]."""
+               position_ned: tuple[float, float, float], **fields: float) -> bytes:
+        """The replacement frame: ``msg`` with x, y, z = ``position_ned`` [m, the message's frame] (and any other
+        field given by name, e.g. ``vz=0.0``)."""
         sysid = msg.get_srcSystem()
         mav = self._mav.get(sysid)
         if mav is None:
             mav = self._mav[sysid] = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=self.component)
         values = {f: getattr(msg, f) for f in _FIELDS}
         values["x"], values["y"], values["z"] = (float(v) for v in position_ned)
+        values.update(fields)
         frame = bytes(mavlink.MAVLink_set_position_target_local_ned_message(**values).pack(mav))
         mav.seq = (mav.seq + 1) % 256  # pymavlink counts on in send(), not in pack()
         return frame

@@ -72,12 +72,18 @@ class ProxySteering:
         dither: collect: the PRBS amplitude added to the app's height [m]; dither_hold: its shortest hold [ticks].
         period_tolerance: steer only while the app's median period is within this fraction of ``dt``.
         record: where each tick is recorded (None: not kept).
+        z_feedforward: "zero": a rewritten setpoint's z velocity and acceleration are 0 (the steered height carries
+            the lead; the loop collected and steered is then the position loop alone); "keep": the app's.
     """
 
     def __init__(self, view: VehicleView, *, solver=None, preview: LocalPreview | DelayedPreview | None = None,
                  dt: float | None = None, max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
                  dither_hold: int = 3, seed: int = 0, period_tolerance: float = 0.25, offset_rate: float = 1.0,
-                 events: EventLog | None = None, record: ProxyRecord | None = None) -> None:
+                 events: EventLog | None = None, record: ProxyRecord | None = None,
+                 z_feedforward: str = "zero") -> None:
+        if z_feedforward not in ("zero", "keep"):
+            raise ValueError(f"z_feedforward must be 'zero' or 'keep'; got {z_feedforward!r}")
+        self.ff_fields = {"vz": 0.0, "afz": 0.0} if z_feedforward == "zero" else {}
         self.view, self.preview = view, preview or LocalPreview()
         self.events = events or EventLog(name="proxy")
         self.dt = check_proxy_solver(solver) if solver is not None else dt
@@ -94,6 +100,7 @@ class ProxySteering:
         self.encoder = SetpointEncoder()
         self.counts = dict.fromkeys(("ticks", "steered", "rewritten", "not_steerable", "period_mismatch"), 0)
         self._period_said = False
+        self._period: float | None = None  # the app's median period, refreshed every 16 setpoints [s]
 
     def _stage(self, solver, max_step, dither, hold, seed):
         """(reference stage, steerer or None, lo (1,), hi (1,), rate per tick (1,)) of the mode."""
@@ -134,7 +141,9 @@ class ProxySteering:
         if not delayed and (u is None or -u == cur.z):
             return None
         self.counts["rewritten"] += 1
-        return self.encoder.encode(cur, (cur.x, cur.y, cur.z if u is None else -u))
+        if u is None:
+            return self.encoder.encode(cur, (cur.x, cur.y, cur.z))
+        return self.encoder.encode(cur, (cur.x, cur.y, -u), **self.ff_fields)
 
     def _tick(self, cur, now: float) -> tuple[float | None, str]:
         """(the height to send [m, up], None: the app's own; the tick's reason)."""
@@ -164,17 +173,20 @@ class ProxySteering:
 
     @property
     def tick(self) -> float:
-        """The steering's tick [s]: the solver's, else the app's median period so far (0.02 before two setpoints)."""
+        """The steering's tick [s]: the solver's, else the app's median period so far as a whole rate in Hz (an app
+        streams at a round rate; the jitter of its clock is not the tick): 0.02 before two setpoints."""
         if self.dt is not None:
             return self.dt
         p = self.period.period()
-        return 0.02 if p is None else p
+        return 0.02 if p is None else 1.0 / max(round(1.0 / p), 1)
 
     def _period_ok(self) -> bool:
         """The app streams at the solver's tick (within the tolerance); said once when it does not."""
         if self.dt is None:
             return True
-        p = self.period.period()
+        if self.period.count % 16 == 1 or self._period is None:  # a median per tick would cost more than the tick
+            self._period = self.period.period()
+        p = self._period
         ok = p is not None and abs(p - self.dt) <= self.period_tolerance * self.dt
         if not ok and p is not None:
             self.counts["period_mismatch"] += 1
@@ -191,13 +203,14 @@ class ProxySteering:
 
     def own_messages(self, now: float) -> list[bytes]:
         """What the proxy sends of its own (:meth:`.core.Proxy.run`, between forwarded frames): the position stream
-        at the steering's tick when the vehicle sends it slower."""
-        req = self.view.stream_request(now, min(self.tick, 0.05))
+        at twice the steering's rate (every tick then has a fresh sample) when the vehicle sends it slower."""
+        req = self.view.stream_request(now, min(0.5 * self.tick, 0.025))
         return [] if req is None else [req]
 
     def summary(self) -> dict:
         """Counts, the engagement, the gate and the steering's own summary (JSON-ready)."""
-        out = {"mode": self.mode, "dt": self.tick, "preview_delay_s": self.preview.delay, **self.counts,
+        out = {"mode": self.mode, "dt": self.tick, "preview_delay_s": self.preview.delay,
+               "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts,
                "app_period": self.period.summary(), "activations": self.engagement.activations,
                "gate": self.gate.gate.summary(), "events": [list(e) for e in self.events.events],
                "t_wall": time.time()}

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from firmware_bridge.plausibility import TelemetryLimits
 from firmware_bridge.profiles import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, Profile, make_profile
 from firmware_bridge.proxy.rewrite import PROXY_COMPONENT, decode_frame, mavlink
@@ -21,8 +19,7 @@ from firmware_bridge.telemetry import TelemetryState
 
 __all__ = ["VehicleView", "VIEW_MSGIDS"]
 
-VIEW_MSGIDS = frozenset((mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
-                         mavlink.MAVLINK_MSG_ID_ATTITUDE))
+VIEW_MSGIDS = frozenset((mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED))
 PROXY_SYSTEM = 254  # the proxy's own messages: neither the vehicle's (1) nor a ground station's (255)
 _REQUEST_EVERY = 2.0  # s between stream requests while the position comes slower than asked
 _AUTOPILOTS = {MAV_AUTOPILOT_PX4: "px4", MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
@@ -81,9 +78,10 @@ class VehicleView:
         return now - self.telem.pos.rx if self.telem.pos.seq else math.inf
 
     def position_period(self, n: int = 20) -> float:
-        """The median gap of the last ``n`` position samples' arrivals [s] (inf before two)."""
+        """The mean gap of the last ``n`` position samples' arrivals [s] (inf before two; a mean, since a byte stream
+        delivers them in bursts)."""
         h = self.telem.pos.history[-n:]
-        return float(np.median(np.diff([rx for _, rx in h]))) if len(h) > 1 else math.inf
+        return (h[-1][1] - h[0][1]) / (len(h) - 1) if len(h) > 1 else math.inf
 
     def stream_request(self, now: float, period: float) -> bytes | None:
         """A SET_MESSAGE_INTERVAL asking for LOCAL_POSITION_NED every ``period`` [s] (from the proxy's own ids), when

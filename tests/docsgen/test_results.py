@@ -176,3 +176,27 @@ def test_main_rewrites_pages_readme_and_figures(tmp_path):
     assert "Not measured yet -- run `make demo`" in (docs / "results" / "index.md").read_text()
 
 
+
+
+def _proxy_run(truth_mm: float, est_mm: float, rewritten: int = 0, delay: float = 0.0) -> dict:
+    counts = {"received": 1000, "forwarded": 1000, "rewritten": rewritten, "dropped": 0, "seq_gaps": 0,
+              "send_errors": 0}
+    return {"rmse_z_truth_mm": truth_mm, "rmse_z_mm": est_mm, "estimator_rms_mm": 2.0, "samples": 900,
+            "delay_s": delay, "proxy": {"app_to_vehicle": counts, "vehicle_to_app": {**counts, "rewritten": 0},
+                                       "latency_us": {"app_to_vehicle": {"p50": 120.0, "p99": 480.0},
+                                                      "vehicle_to_app": {"p50": 50.0, "p99": 90.0}},
+                                       "steering": None}}
+
+
+def test_the_proxy_page_says_which_preview_wins_on_each_path():
+    rep = {"ardupilot": {"setup": "lab", "collect": {"path": "wander", "seconds": 60, "dither_m": 0.15},
+                         "paths": {"helix": {"direct": {**_proxy_run(40.0, 39.0), "proxy": None},
+                                             "passthrough": _proxy_run(41.0, 40.0),
+                                             "steer_local": _proxy_run(12.0, 11.0, 990),
+                                             "steer_delay": _proxy_run(8.0, 7.5, 1000, 0.5)}}}}
+    page = results.pages({"proxy.json": rep})["proxy.md"]
+    assert "- helix: the declared delay wins (8.0 mm against 12.0 mm; the app alone 40.0 mm)." in page
+    assert "| helix | steered, delay 0.5 s | 8.0 | 7.5 | 2.0 | 5.00 |" in page
+    assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 120 | 480 |" in page
+    index = results.pages({"proxy.json": rep})["index.md"]
+    assert "| helix | 40.0 | 8.0 (steered, delay) | 5.00 |" in index

@@ -18,17 +18,16 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
 from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl_observer import Observer
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.realtime]
 
-HOME_ALT = 584.0  # m AMSL, the SITL's --home altitude (SIM_STATE.alt is AMSL)
 TAKEOFF_ALT = 2.0
 RATE_HZ = 15.0
 HOLD_S = 5.0     # the app streams this long before it is killed
@@ -115,46 +114,6 @@ def _app(url: str, log: str) -> None:
         time.sleep(max(0.0, t0 + k / RATE_HZ - time.monotonic()))
 
 
-class Observer(threading.Thread):
-    """The SITL's second port (TCP 5762): SIM_STATE, LOCAL_POSITION_NED and HEARTBEAT as (time.time(), ...)."""
-
-    def __init__(self, url: str) -> None:
-        super().__init__(daemon=True)
-        from pymavlink import mavutil
-        self.c = mavutil.mavlink_connection(url, source_system=251, autoreconnect=False)
-        self.sim: list[tuple[float, float]] = []   # (t, altitude above home [m])
-        self.lpos: list[tuple[float, float]] = []  # (t, -z [m])
-        self.hb: list[tuple[float, int, bool]] = []  # (t, custom_mode, armed)
-        self.texts: list[tuple[float, str]] = []
-        self.halt = threading.Event()
-        self.start()
-
-    def run(self) -> None:
-        next_req = 0.0
-        while not self.halt.is_set():
-            if time.monotonic() > next_req:  # (re)request until it streams
-                next_req = time.monotonic() + (5.0 if self.sim else 1.0)
-                for msg_id in (108, 32):  # SIM_STATE, LOCAL_POSITION_NED at 10 Hz
-                    self.c.mav.command_long_send(1, 1, 511, 0, msg_id, 100_000, 0, 0, 0, 0, 0)
-            m = self.c.recv_match(blocking=True, timeout=0.2)
-            if m is None:
-                continue
-            t, typ = time.time(), m.get_type()
-            if typ == "SIM_STATE":
-                self.sim.append((t, m.alt - HOME_ALT))
-            elif typ == "LOCAL_POSITION_NED":
-                self.lpos.append((t, -m.z))
-            elif typ == "STATUSTEXT":
-                self.texts.append((t, m.text))
-            elif typ == "HEARTBEAT" and m.get_srcSystem() == 1 and m.get_srcComponent() == 1:
-                self.hb.append((t, m.custom_mode, bool(m.base_mode & 128)))
-
-    def stop(self) -> None:
-        self.halt.set()
-        self.join(3)
-        self.c.close()
-
-
 def _lines(path: Path) -> list[dict]:
     return [json.loads(s) for s in path.read_text().splitlines() if s.strip()] if path.exists() else []
 
@@ -198,7 +157,7 @@ def proxy_flight(out_dir: str) -> dict:
                 break
             except OSError:
                 time.sleep(0.5)
-        obs = Observer("tcp:127.0.0.1:5762")
+        obs = Observer("tcp:127.0.0.1:5762", rate_hz=10.0)
         # wait for HOLD_S of setpoints (bounded), then SIGKILL the app right after one was logged
         end = time.monotonic() + 140
         n_sp = 0

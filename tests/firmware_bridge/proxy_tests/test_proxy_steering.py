@@ -162,3 +162,14 @@ def test_a_setpoint_in_another_frame_or_without_z_is_never_touched():
     m = sim.app.set_position_target_local_ned_encode(0, 1, 1, 8, 0b1111_1111_1000, 0, 0, -2, 0, 0, 0, 0, 0, 0, 0, 0)
     frame = bytes(m.pack(sim.app))
     assert hook(decode_frame(frame), frame, 1002.0) is None and hook.counts["not_steerable"] == 1
+
+
+@pytest.mark.parametrize("ff", ["zero", "keep"])
+def test_a_rewritten_setpoint_keeps_or_zeroes_the_apps_z_feedforward(ff):
+    hook = _hook(dither=0.2, z_feedforward=ff)
+    sim = LoopSim()
+    fly(hook, _path(50), sim)
+    msg, frame = sim.setpoint(2.0, vz_up=0.7)
+    out = decode_frame(hook(msg, frame, 1000.0 + 50 * DT))
+    assert out.vz == (0.0 if ff == "zero" else pytest.approx(-0.7)) and out.x == msg.x and out.yaw == msg.yaw
+    assert out.get_srcComponent() == 192 and out.type_mask == msg.type_mask

@@ -1,0 +1,105 @@
+"""The steering proxy's results (``make proxy-demo``, ``reports/proxy.json``): a user's own app flown directly and
+through ``ddpc-proxy`` (pass-through, steered with the local preview, steered with a declared delay), per
+autopilot and app path, on the true height; the proxy's message counts and added latency."""
+
+from __future__ import annotations
+
+from ddpc_codegen.docsgen.results_format import NA, label, missing, num, page_head, ratio, table
+
+__all__ = ["KINDS", "proxy_page", "headline", "autopilots"]
+
+KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
+_NAMES = {"direct": "app direct (its own ff)", "passthrough": "through the proxy", "steer_local": "steered, local preview",
+          "steer_delay": "steered, delay"}
+
+
+def autopilots(report: dict) -> dict[str, dict]:
+    """The autopilots the report holds (name -> entry)."""
+    return {k: v for k, v in report.items() if isinstance(v, dict) and "paths" in v}
+
+
+def _truth(run: dict | None) -> float | None:
+    return None if not run else run.get("rmse_z_truth_mm")
+
+
+def _best(runs: dict) -> tuple[str, float] | None:
+    """The steered flight with the lowest true-height error."""
+    flown = [(v, k) for k in ("steer_local", "steer_delay") if isinstance(v := _truth(runs.get(k)), (int, float))]
+    return (min(flown)[1], min(flown)[0]) if flown else None
+
+
+def headline(name: str, ap: dict) -> str:
+    """Per app path: the app direct, the best steered flight, their ratio (true height)."""
+    rows = []
+    for path, runs in ap["paths"].items():
+        best = _best(runs)
+        rows.append([path, num(_truth(runs.get("direct"))), NA if best is None else f"{best[1]:.1f} ({_NAMES[best[0]]})",
+                     NA if best is None else ratio(_truth(runs.get("direct")), best[1])])
+    return table(["app path", "app direct [mm]", "best steered [mm]", "direct / steered"], rows)
+
+
+def _errors(ap: dict) -> str:
+    rows = []
+    for path, runs in ap["paths"].items():
+        d = _truth(runs.get("direct"))
+        for k in KINDS:
+            r = runs.get(k) or {}
+            rows.append([path, _NAMES[k] + (f" {r.get('delay_s', 0):g} s" if k == "steer_delay" else ""),
+                         num(r.get("rmse_z_truth_mm")), num(r.get("rmse_z_mm")), num(r.get("estimator_rms_mm")),
+                         ratio(d, r.get("rmse_z_truth_mm")) if k != "direct" else NA])
+    return table(["app path", "flight", "true height [mm]", "estimate [mm]", "estimator error [mm]",
+                  "direct / this"], rows)
+
+
+def _link(ap: dict) -> str:
+    rows = []
+    for path, runs in ap["paths"].items():
+        for k in KINDS[1:]:
+            p = (runs.get(k) or {}).get("proxy")
+            if not p:
+                continue
+            up, down, lat = p["app_to_vehicle"], p["vehicle_to_app"], p["latency_us"]["app_to_vehicle"]
+            rows.append([path, _NAMES[k], str(up["received"]), str(up["forwarded"]), str(up["rewritten"]),
+                         str(up["dropped"] + down["dropped"]), str(up["seq_gaps"] + down["seq_gaps"]),
+                         num(lat.get("p50"), digits=0), num(lat.get("p99"), digits=0)])
+    return table(["app path", "flight", "app msgs in", "forwarded", "rewritten", "dropped (both ways)",
+                  "sequence gaps (both ways)", "added p50 [us]", "added p99 [us]"], rows)
+
+
+def _verdict(ap: dict) -> str:
+    """Which preview wins on which path (a sentence per path, from the figures)."""
+    out = []
+    for path, runs in ap["paths"].items():
+        loc, dly, d = (_truth(runs.get(k)) for k in ("steer_local", "steer_delay", "direct"))
+        if None in (loc, dly, d):
+            continue
+        win = "the declared delay" if dly < loc else "the local preview"
+        out.append(f"- {path}: {win} wins ({num(min(loc, dly))} mm against {num(max(loc, dly))} mm; the app alone "
+                   f"{num(d)} mm).")
+    return "\n".join(out) + "\n" if out else ""
+
+
+def _section(name: str, ap: dict) -> str:
+    col = ap.get("collect") or {}
+    return "\n".join([
+        f"## {label(name)}\n",
+        f"The steering was fitted on one {num(col.get('seconds'), digits=0)} s flight of the app's `{col.get('path', '?')}` "
+        f"path through `ddpc-proxy --collect --dither {col.get('dither_m', '?')}`; the paths below were flown after it. "
+        "Errors are RMS over each path (its first seconds left out) against the height the app declared, played late "
+        "by the delay for the delayed flights.\n",
+        _errors(ap), _verdict(ap), "Messages and the latency the proxy added (its own receive and send stamps):\n",
+        _link(ap)])
+
+
+def proxy_page(report: dict | None) -> str:
+    """The proxy results page."""
+    head = page_head("Steering your own app (ddpc-proxy)",
+                     "A plain pymavlink app (`ddpc_codegen/testbed/proxy_app.py`) streams position setpoints with its "
+                     "own velocity and acceleration feed-forward at 50 Hz; it flies the SITL directly, through the proxy "
+                     "in pass-through, and steered. How to run it: [the proxy guide](../guides/proxy.md).")
+    if report is None:
+        return head + missing("make proxy-demo", "proxy.json")
+    aps = autopilots(report)
+    if not aps:
+        return head + "`make proxy-demo` found no SITL.\n"
+    return head + "\n".join(_section(n, ap) for n, ap in aps.items())

@@ -1,0 +1,218 @@
+"""``make proxy-demo``: a user's own app (:mod:`.proxy_app`, plain pymavlink) flies the ArduCopter SITL directly and
+through ``ddpc-proxy``: pass-through, then steered with the local preview and with a declared preview delay,
+on paths the steering never saw. The steering is learned from the app's own flight through the proxy
+(``--collect`` with a dither). Every flight is judged on the simulator's true height against the path the app
+declared (played late by the delay where there is one), with the autopilot's estimate and its own error beside;
+the proxy's counters and added latency come from its statistics. Writes ``reports/proxy.json``.
+
+Two estimation setups (``--setup``): "lab" (default), the EKF on the motion-capture stand-in
+(:mod:`.mocap`), as a lab flies, so that the estimate is within millimetres of the truth and the true height
+judges the steering; "outdoor", ArduCopter's stock GPS + barometer, whose own error (tens of mm here) is larger
+than the differences to judge.
+
+All of it runs in a private network namespace (:func:`.sitl.run_isolated`): SITL (its TCP 5760 is the proxy's
+vehicle side, or the app's when it flies directly; 5762 the mocap stand-in's; 5763 the observer's), the proxy
+and the app processes, each stopped by its pid.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ddpc_codegen.experiments.report_file import nan_as_null, update_report
+from ddpc_codegen.testbed.mocap import MocapConfig, MocapStandIn
+from ddpc_codegen.testbed.mocap_params import lab_params
+from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl_adapt import second_link
+from ddpc_codegen.testbed.sitl_demo import codegen
+from ddpc_codegen.testbed.sitl_observer import Observer
+
+__all__ = ["run_ardupilot", "score", "main"]
+
+ROOT = Path(__file__).resolve().parents[2]
+APP_PORT = 14541
+SKIP_S = 3.0  # path seconds left out of a score (the lead-in's end and the steering's warm-up)
+
+
+def _wait_port(port: int, timeout: float = 15.0) -> None:
+    """Until a UDP socket is bound on ``port`` (the proxy is up), at most ``timeout`` [s]."""
+    end = time.monotonic() + timeout
+    while f":{port:04X} " not in Path("/proc/net/udp").read_text() and time.monotonic() < end:
+        time.sleep(0.1)
+
+
+def _stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
+    """SIGINT (the proxy writes its statistics), then SIGKILL after ``timeout`` [s]."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode
+
+
+def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[str] | None, feedforward: str = "velacc",
+           height: float = 2.5) -> dict:
+    """One app flight, directly (``proxy_args`` None) or through a proxy started with ``proxy_args``."""
+    applog = out / f"{name}.app.jsonl"
+    applog.unlink(missing_ok=True)
+    proxy = None
+    if proxy_args is not None:
+        cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
+               "--vehicle", "tcp:127.0.0.1:5760", "--stats", str(out / f"{name}.proxy.json"), *proxy_args]
+        proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
+        _wait_port(APP_PORT)
+        time.sleep(1.0)  # the proxy's TCP connection to the vehicle
+    url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else "tcp:127.0.0.1:5760"
+    cmd = [sys.executable, "-m", "ddpc_codegen.testbed.proxy_app", "--connect", url, "--path", path, "--duration",
+           f"{duration:g}", "--feedforward", feedforward, "--height", f"{height:g}", "--log", str(applog)]
+    app = subprocess.Popen(cmd, env={**os.environ, "MAVLINK20": "1"}, stdout=subprocess.DEVNULL,
+                           stderr=open(out / f"{name}.app.err", "w"), cwd=out)
+    try:
+        rc = app.wait(duration + 200)
+    except subprocess.TimeoutExpired:
+        app.kill()
+        rc = app.wait(5)
+    stats = None
+    if proxy is not None:
+        _stop(proxy)
+        p = out / f"{name}.proxy.json"
+        stats = json.loads(p.read_text()) if p.is_file() else None
+    if rc != 0:
+        raise RuntimeError(f"{name}: the app failed ({rc}): {(out / f'{name}.app.err').read_text()[-1500:]}")
+    return {"name": name, "path": path, "app_log": str(applog), "proxy": stats}
+
+
+def score(applog: Path, obs: Observer, delay: float = 0.0, skip: float = SKIP_S, ground: float = 0.0) -> dict:
+    """RMSE [mm] of the true and estimated heights against the app's declared heights (``delay`` [s] late), over the
+    path after ``skip`` [s]; the estimator's own error (RMS of estimate - truth) beside. ``ground``: the truth's
+    height where the local frame's origin is (the vehicle on the ground before take-off) [m]."""
+    rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip()]
+    t = np.array([r["t"] for r in rows if r["tp"] >= skip]) + delay
+    want = -np.array([r["z"] for r in rows if r["tp"] >= skip])
+    truth, est = obs.heights(t)
+    truth = truth - ground
+    ok = np.isfinite(truth) & np.isfinite(est)
+    rms = lambda e: float(np.sqrt(np.mean(e[ok] ** 2)) * 1e3) if ok.any() else None  # noqa: E731
+    return {"rmse_z_truth_mm": rms(truth - want), "rmse_z_mm": rms(est - want), "estimator_rms_mm": rms(est - truth),
+            "samples": int(ok.sum()), "delay_s": delay}
+
+
+def _proxy_figures(stats: dict | None) -> dict | None:
+    """What a flight's proxy statistics say: counts both ways, added latency, the steering's counts."""
+    if stats is None:
+        return None
+    up, down = stats["app_to_vehicle"], stats["vehicle_to_app"]
+    keep = ("received", "forwarded", "rewritten", "dropped", "seq_gaps", "send_errors")
+    st = stats.get("steering") or {}
+    return {"app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
+            "latency_us": {"app_to_vehicle": up["latency_us"], "vehicle_to_app": down["latency_us"]},
+            "steering": {k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
+                                                "period_mismatch", "preview_delay_s")} if st else None}
+
+
+def run_ardupilot(out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
+                  delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab") -> dict:
+    """In a private network namespace: SITL (``setup`` "lab": on the mocap stand-in), the collect flight, codegen,
+    then per path the direct, pass-through, steered (local preview) and steered (``delay``) flights. Returns the
+    report's ``ardupilot`` entry."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = MocapConfig()
+    sitl = make_sitl("ardupilot", params=lab_params("ardupilot", cfg) if setup == "lab" else None).start()
+    obs = mocap = link = None
+    res: dict = {"setup": setup, "paths": {}, "collect": {}}
+    try:
+        obs = _observer(sitl)
+        if setup == "lab":
+            link = second_link(sitl).connect(timeout=30)
+            mocap = MocapStandIn(link, "ardupilot", cfg)
+            mocap.start()
+        time.sleep(5.0)
+        ground = obs.ground()
+        print(f"[proxy-demo] ardupilot ({setup}): collect through the proxy (the app's own path + a dither)", flush=True)
+        col = flight(out, "collect", "wander", collect_s, ["--dither", f"{dither:g}", "--dither-hold", str(dither_hold),
+                                                        "--collect", str(out / "collect.npz"), "--overwrite"],
+                     feedforward="none")
+        res["collect"] = {"path": "wander", "seconds": collect_s, "dither_m": dither, "dither_hold": dither_hold,
+                          "proxy": _proxy_figures(col["proxy"])}
+        solver = codegen(ROOT / "configs" / "proxy_ardupilot.toml", out / "collect.npz", out / "solver")
+        for path in paths:
+            runs = {"direct": None, "passthrough": [], "steer_local": ["--steer", str(solver)],
+                    "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}"]}
+            res["paths"][path] = {}
+            for kind, args in runs.items():
+                print(f"[proxy-demo] ardupilot: {path}, {kind}", flush=True)
+                f = flight(out, f"{path}_{kind}", path, duration, args)
+                res["paths"][path][kind] = {**score(Path(f["app_log"]), obs, delay if kind == "steer_delay" else 0.0,
+                                                    ground=ground),
+                                            "proxy": _proxy_figures(f["proxy"])}
+        res["ground_truth_offset_mm"] = ground * 1e3
+    finally:
+        if mocap is not None:
+            mocap.stop()
+        for x in (obs, link):
+            if x is not None:
+                x.stop() if x is obs else x.close()
+        sitl.stop()
+    return res
+
+
+def _observer(sitl) -> Observer:
+    """The observer on port 5762, once the SITL serves it (after its first port has a client)."""
+    import socket
+    end = time.monotonic() + 60
+    while not sitl._port_ready() and time.monotonic() < end:
+        time.sleep(0.2)
+    keep = socket.create_connection(("127.0.0.1", 5760), timeout=2)  # ArduPilot serves 5762 once 5760 has a client
+    try:
+        end = time.monotonic() + 20
+        while time.monotonic() < end:
+            try:
+                socket.create_connection(("127.0.0.1", 5763), timeout=0.5).close()
+                break
+            except OSError:
+                time.sleep(0.5)
+        return Observer("tcp:127.0.0.1:5763")
+    finally:
+        keep.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m ddpc_codegen.testbed.proxy_demo", description=__doc__.split("\n\n")[0])
+    p.add_argument("--paths", default="helix,steps,wander", help="app paths to fly (default %(default)s)")
+    p.add_argument("--duration", type=float, default=30.0, help="seconds of each path (default %(default)s)")
+    p.add_argument("--collect", type=float, default=60.0, help="seconds of the collect flight (default %(default)s)")
+    p.add_argument("--delay", type=float, default=0.5, help="the declared preview delay [s] (default %(default)s)")
+    p.add_argument("--setup", choices=("lab", "outdoor"), default="lab",
+                   help="lab: the EKF on the motion-capture stand-in; outdoor: GPS + barometer (default %(default)s)")
+    p.add_argument("--out", type=Path, default=ROOT / "reports" / "proxy_ardupilot")
+    p.add_argument("--report", type=Path, default=ROOT / "reports" / "proxy.json")
+    a = p.parse_args(argv)
+    why = missing_reason("ardupilot")
+    if why:
+        print(f"[proxy-demo] skipped: {why}", file=sys.stderr)
+        return 0
+    paths = [s for s in a.paths.split(",") if s]
+    kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect, "delay": a.delay,
+          "setup": a.setup}
+    budget = 300 + a.collect + len(paths) * 4 * (a.duration + 60)
+    res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
+    update_report(a.report, {"ardupilot": nan_as_null(res)})
+    print(json.dumps(res["paths"], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

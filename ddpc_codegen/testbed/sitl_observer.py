@@ -1,0 +1,84 @@
+"""A watcher on a SITL's spare MAVLink port (ArduCopter's TCP 5762), independent of whatever flies the vehicle:
+the simulator's ground truth (``SIM_STATE``), the autopilot's own estimate (``LOCAL_POSITION_NED``), its
+heartbeats and status texts, each stamped on arrival (``time.time()``). A flight is then judged on the true
+height, not on what the flying side believed."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+__all__ = ["Observer", "HOME_ALT"]
+
+HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
+_SIM_STATE, _LOCAL_POSITION_NED = 108, 32
+
+
+class Observer(threading.Thread):
+    """Records the SITL's truth and estimate (see the module docstring) until :meth:`stop`.
+
+    Args:
+        url: the spare port (``tcp:127.0.0.1:5762``); rate_hz: the rate asked for both streams.
+    """
+
+    def __init__(self, url: str, rate_hz: float = 50.0) -> None:
+        super().__init__(daemon=True)
+        from pymavlink import mavutil  # the testbed's optional dependency, as the SITL harness's
+
+        self.c = mavutil.mavlink_connection(url, source_system=251, autoreconnect=False)
+        self.interval_us = 1e6 / rate_hz
+        self.sim: list[tuple[float, float]] = []   # (t, true height above home [m])
+        self.lpos: list[tuple[float, float]] = []  # (t, estimated height -z [m])
+        self.hb: list[tuple[float, int, bool]] = []  # (t, custom_mode, armed)
+        self.texts: list[tuple[float, str]] = []
+        self.halt = threading.Event()
+        self.start()
+
+    def run(self) -> None:
+        next_req = 0.0
+        while not self.halt.is_set():
+            if time.monotonic() > next_req:  # (re)request until it streams
+                next_req = time.monotonic() + (5.0 if self.sim else 1.0)
+                for msg_id in (_SIM_STATE, _LOCAL_POSITION_NED):
+                    self.c.mav.command_long_send(1, 1, 511, 0, msg_id, self.interval_us, 0, 0, 0, 0, 0)
+            m = self.c.recv_match(blocking=True, timeout=0.2)
+            if m is None:
+                continue
+            t, typ = time.time(), m.get_type()
+            if typ == "SIM_STATE":
+                self.sim.append((t, m.alt - HOME_ALT))
+            elif typ == "LOCAL_POSITION_NED":
+                self.lpos.append((t, -m.z))
+            elif typ == "STATUSTEXT":
+                self.texts.append((t, m.text))
+            elif typ == "HEARTBEAT" and m.get_srcSystem() == 1 and m.get_srcComponent() == 1:
+                self.hb.append((t, m.custom_mode, bool(m.base_mode & 128)))
+
+    def heights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(true, estimated) heights [m] at the times ``t`` [s, time.time()], interpolated (nan outside)."""
+        out = []
+        for rec in (list(self.sim), list(self.lpos)):
+            if len(rec) < 2:
+                out.append(np.full(len(t), np.nan))
+                continue
+            a = np.array(rec)
+            out.append(np.interp(t, a[:, 0], a[:, 1], left=np.nan, right=np.nan))
+        return out[0], out[1]
+
+    def ground(self, seconds: float = 3.0) -> float:
+        """The true height where the local frame's origin is: median of truth - estimate over the last ``seconds``
+        (call it with the vehicle on the ground, before take-off) [m]; 0 without both streams."""
+        sim, est = list(self.sim), list(self.lpos)
+        if len(sim) < 2 or len(est) < 2:
+            return 0.0
+        a, b = np.array(sim), np.array(est)
+        t = b[b[:, 0] > b[-1, 0] - seconds, 0]
+        truth = np.interp(t, a[:, 0], a[:, 1])
+        return float(np.median(truth - np.interp(t, b[:, 0], b[:, 1])))
+
+    def stop(self) -> None:
+        self.halt.set()
+        self.join(3)
+        self.c.close()

@@ -1,0 +1,57 @@
+"""The demo app's paths (:mod:`ddpc_codegen.testbed.proxy_app`) and the demo's scoring (:mod:`.proxy_demo`) against
+closed forms: velocity and acceleration by finite differences agree with each path's analytic derivatives, and a
+flight that follows the declared heights exactly scores zero (played late by the delay where there is one)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ddpc_codegen.testbed.proxy_app import PATHS, path_point
+from ddpc_codegen.testbed.proxy_demo import score
+
+
+def test_the_helix_derivatives_match_its_closed_form():
+    t = 3.7
+    p, v, a = path_point("helix", t)
+    w, c = 0.5, 2 * np.pi / 12.0
+    assert np.allclose(p, [2 * np.cos(w * t) - 2, 2 * np.sin(w * t), 0.6 - 0.6 * np.cos(c * t)])
+    assert np.allclose(v, [-2 * w * np.sin(w * t), 2 * w * np.cos(w * t), 0.6 * c * np.sin(c * t)], atol=1e-6)
+    assert np.allclose(a, [-2 * w * w * np.cos(w * t), -2 * w * w * np.sin(w * t), 0.6 * c * c * np.cos(c * t)],
+                       atol=1e-4)
+
+
+@pytest.mark.parametrize("name", sorted(PATHS))
+def test_every_path_starts_near_its_origin_and_stays_flyable(name):
+    t = np.arange(0.0, 60.0, 0.02)
+    pts = np.array([path_point(name, s)[0] for s in t[::10]])
+    vel = np.array([path_point(name, s)[1] for s in t[::10]])
+    assert np.all(pts[:, 2] < 1.7) and np.all(pts[:, 2] > -0.5)  # heights: from 2 m above the ground at the 2.5 m base
+    assert np.max(np.linalg.norm(vel, axis=1)) < 2.0  # m/s: within a copter's guided limits
+
+
+class _Obs:
+    """An observer whose truth and estimate are given functions of time."""
+
+    def __init__(self, truth, est):
+        self.truth, self.est = truth, est
+
+    def heights(self, t):
+        return self.truth(t), self.est(t)
+
+
+def test_a_flight_on_the_declared_heights_scores_zero_and_a_bias_scores_itself(tmp_path):
+    log = tmp_path / "app.jsonl"
+    t0 = 1000.0
+    rows = [{"t": t0 + k * 0.02, "tp": k * 0.02, "x": 0, "y": 0, "z": -(2 + np.sin(0.5 * k * 0.02))} for k in range(500)]
+    log.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    want = lambda t: 2 + np.sin(0.5 * (t - t0))  # noqa: E731
+    s = score(log, _Obs(want, lambda t: want(t) + 0.01))
+    assert s["rmse_z_truth_mm"] == pytest.approx(0.0, abs=1e-9) and s["rmse_z_mm"] == pytest.approx(10.0)
+    assert s["estimator_rms_mm"] == pytest.approx(10.0)
+    late = score(log, _Obs(lambda t: want(t - 0.5), lambda t: want(t - 0.5)), delay=0.5)
+    assert late["rmse_z_truth_mm"] == pytest.approx(0.0, abs=1e-9) and late["delay_s"] == 0.5
+    shifted = score(log, _Obs(lambda t: want(t) + 0.3, want), ground=0.3)  # the truth's origin 0.3 m lower
+    assert shifted["rmse_z_truth_mm"] == pytest.approx(0.0, abs=1e-9)
