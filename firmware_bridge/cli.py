@@ -280,7 +280,8 @@ def format_summary(s: dict) -> str:
         f"  latency us p50 {f(lat.get('p50'))}  p99 {f(lat.get('p99'))}  max {f(lat.get('max'))}",
         f"  fallbacks {s['fallbacks']} {s['fallback_reasons'] or ''}  telemetry gaps {s['telemetry_gaps']}  "
         f"clamps tilt {s['tilt_clamped']} thrust {s['thrust_clamped']}",
-        f"  rmse z (telemetry, after settle) {f(s['rmse_z_measured'], '{:.4f}')} m  "
+        f"  rmse z (telemetry, every trajectory tick after settle) {f(s['rmse_z_measured'], '{:.4f}')} m  engaged "
+        f"{f(None if s.get('engaged_share') is None else 1e2 * s['engaged_share'], '{:.1f}')} %  "
         f"link rx {s['link'].get('rx', 0)} bad {s['link'].get('bad_data', 0)} foreign {s['link'].get('foreign', 0)}",
     ]
     g = s.get("gate")

@@ -6,8 +6,9 @@ bridge's tick and supervisor consult.
   setpoint computed without a position is garbage), then retry every ``interval`` while refused
   (each refusal reported with the autopilot's words), give up after ``timeout``.
 * :class:`Approach` -- take-off / approach: the height reference ramps at ``climb_rate`` from
-  where the vehicle is to the trajectory's start height (heights from the take-off point), the
-  trajectory clock waits; done once the vehicle holds the start height.
+  where the vehicle is to the trajectory's start height (heights from the take-off point), then is
+  trimmed while the vehicle hovers off it; the trajectory clock waits; done once the vehicle holds
+  the start height (or the wait timed out: the trajectory then starts off its start, and says so).
 * :class:`RefBlend` -- bumpless (re-)engagement: the applied reference starts at the measured
   output and moves toward the nominal one at bounded rates, then hands over exactly.
 * :class:`Engagement` -- the loop's engagement as a whole: its edges (the first starts the trajectory
@@ -77,15 +78,25 @@ class ArmingRetry:
 
 @dataclass
 class Approach:
-    """Height-reference ramp from the engagement height to the trajectory start.
+    """Height-reference ramp from the engagement height to the trajectory start, then a trim until the vehicle is
+    there.
+
+    The bridge's height controller has no integrator, so a vehicle heavier (or weaker) than its model hovers below
+    the reference it is given (a 35 % heavier PX4 SIH ended its take-off 0.3-0.4 m low) and would start the
+    trajectory, and the steering, that far off. From ``trim_after`` s after the ramp ended, while the height error
+    is larger than half the tolerance, the reference is trimmed by ``trim_gain`` times the error per second (at
+    most ``climb_rate``, within ``max_trim``), so the vehicle reaches the start; the engagement then hands the
+    trimmed reference back to the trajectory's at the blend's rates. A vehicle that holds the start unaided is
+    never trimmed (its error stays within half the tolerance).
 
     Attributes:
         target: start height of the trajectory [m, from the take-off point].
         climb_rate: ramp rate [m/s]; tolerance: |z - target| counted as there [m];
         hold: seconds within tolerance before the trajectory starts; max_extra: give up waiting
-            this long after the ramp ended [s] (the trajectory starts anyway, and ``timed_out`` says
-            so with ``last_error``, the height error [m] of the last tick: the vehicle, or its height
+            this long after the ramp ended [s] (the trajectory starts anyway, off its start, and ``timed_out``
+            says so with ``last_error``, the height error [m] of the last tick: the vehicle, or its height
             estimate, did not settle); ``t_done``: when it ended.
+        trim_gain: [1/s], trim_after: [s], max_trim: [m] (0: no trim); ``trim``: the trim now [m].
     """
 
     target: float
@@ -93,7 +104,12 @@ class Approach:
     tolerance: float = 0.05
     hold: float = 1.0
     max_extra: float = 5.0
+    trim_gain: float = 1.0
+    trim_after: float = 1.5
+    max_trim: float = 1.0
     z_ref: float = math.nan
+    z_ramp: float = math.nan
+    trim: float = 0.0
     t_ramp_end: float = math.nan
     t_in: float = math.nan
     held: bool = False
@@ -108,16 +124,20 @@ class Approach:
 
     def start(self, z: float) -> None:
         """Begin at the measured height z [m]."""
-        self.z_ref = float(z)
+        self.z_ref = self.z_ramp = float(z)
 
     def step(self, t: float, dt: float, z: float) -> float:
-        """The height reference for this tick at time t [s]; advances the ramp by one tick."""
-        gap = self.target - self.z_ref
-        self.z_ref += math.copysign(min(abs(gap), self.climb_rate * dt), gap)
-        if self.z_ref == self.target and not math.isfinite(self.t_ramp_end):
+        """The height reference for this tick at time t [s] (the ramp plus the trim); advances by one tick."""
+        gap = self.target - self.z_ramp
+        self.z_ramp += math.copysign(min(abs(gap), self.climb_rate * dt), gap)
+        if self.z_ramp == self.target and not math.isfinite(self.t_ramp_end):
             self.t_ramp_end = t
         if math.isfinite(self.t_ramp_end):
-            if abs(z - self.target) <= self.tolerance:
+            err = self.target - float(z)
+            if t - self.t_ramp_end >= self.trim_after and abs(err) > 0.5 * self.tolerance:
+                step = max(-self.climb_rate * dt, min(self.climb_rate * dt, self.trim_gain * err * dt))
+                self.trim = max(-self.max_trim, min(self.max_trim, self.trim + step))
+            if abs(err) <= self.tolerance:
                 self.t_in = t if not math.isfinite(self.t_in) else self.t_in
             else:
                 self.t_in = math.nan
@@ -126,13 +146,16 @@ class Approach:
         self.last_error = float(z) - self.target
         if self.done and not math.isfinite(self.t_done):
             self.t_done = t
+        self.z_ref = self.z_ramp + self.trim
         return self.z_ref
 
     def outcome(self) -> dict:
-        """How the approach ended (the bridge summary's ``approach``): held or not, the start height and
-        the height error then [m], the wait after the ramp [s], the tolerance [m] and timeout [s]."""
-        return {"held": self.held, "target_m": self.target, "error_at_start_m": self.last_error,
-                "waited_s": self.t_done - self.t_ramp_end, "tolerance_m": self.tolerance, "timeout_s": self.max_extra}
+        """How the approach ended (the bridge summary's ``approach``): held or not, whether the trajectory started
+        off its start (``off_start``: the wait timed out), the start height and the height error then [m], the
+        wait after the ramp [s], the trim the reference needed [m], the tolerance [m] and timeout [s]."""
+        return {"held": self.held, "off_start": not self.held, "target_m": self.target,
+                "error_at_start_m": self.last_error, "waited_s": self.t_done - self.t_ramp_end, "trim_m": self.trim,
+                "tolerance_m": self.tolerance, "timeout_s": self.max_extra}
 
 
 @dataclass
@@ -304,7 +327,7 @@ class Engagement:
             r_nom = self.blend.apply(r_nom, dt)
         if ramping:
             if self.approach.done:
-                self._approached()
+                self._approached(r_nom)
             return r_nom, "takeoff"
         if not heard:
             return r_nom, "no_heartbeat"
@@ -314,15 +337,21 @@ class Engagement:
             return r_nom, "stale"
         return r_nom, "blend" if blending else ""
 
-    def _approached(self) -> None:
+    def _approached(self, r_last: np.ndarray) -> None:
+        """The approach ended on this tick, whose reference was ``r_last`` (m,): the trajectory starts; a trimmed
+        reference is handed back to the trajectory's at the blend's rates (bumpless, as a resume)."""
         ap, self.approach = self.approach, None
         self.approach_result = ap.outcome()
+        if ap.trim and self.blend_rates:
+            self.blend.start(r_last)
+        trim = (f" (the reference trimmed {ap.trim:+.3f} m to get there: the vehicle hovers off its model, handed "
+                "back to the trajectory's at the blend's rates)") if ap.trim else ""
         if ap.timed_out:  # say so: the steering then starts against that error
             self.events(f"WARNING: did not hold the start height within {ap.tolerance:g} m for {ap.hold:g} s "
                         f"in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle or its "
-                        "height estimate did not settle): trajectory starts anyway")
+                        f"height estimate did not settle): trajectory starts OFF its start{trim}")
         else:
-            self.events("at the trajectory's start height: trajectory starts")
+            self.events(f"at the trajectory's start height: trajectory starts{trim}")
 
     def applied(self, u: np.ndarray) -> None:
         """This tick applied the reference ``u`` (m,): a resume starts from there."""

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.values.phases import GROUND
-from ddpc_codegen.flight_metrics import flight_metrics
+from ddpc_codegen.flight_metrics import flight_metrics, scored_ticks
 from ddpc_codegen.stats import percentiles
 
 from firmware_bridge.clock import TickTrigger
@@ -25,13 +25,31 @@ from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.setpoints import SetpointStream
 from firmware_bridge.telemetry import TrajectoryFrame
 from firmware_bridge.tick_gate import TickGate
-from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, reason_code
+from firmware_bridge.ticklog import (FALLBACK_REASONS, REASONS, TickLog, TickRecorder, _json_default, column_frames,
+                                    reason_code)
 from firmware_bridge.truth import SimTruth
 from firmware_bridge.vehicle_link import VehicleLink
 
-__all__ = ["FlightRecorder", "gap_statistics", "describe_trajectory", "telemetry_summary", "write_summary"]
+__all__ = ["FlightRecorder", "gap_statistics", "describe_trajectory", "telemetry_summary", "write_summary",
+           "trajectory_ticks", "engaged_share"]
 
 _GUARD_CLAMPED = reason_code("guard_clamped")
+_TAKEOFF = reason_code("takeoff")
+
+
+def trajectory_ticks(t_traj: np.ndarray, reason: np.ndarray) -> np.ndarray:
+    """(N,) bool: the ticks of the flown trajectory -- after it started (a finite trajectory time that is not
+    the take-off's approach, whose clock waits at 0), engaged or not. A stall's or a re-engagement's bumpless
+    blend, a fallback and a stale tick are part of what the vehicle flew, so every score counts them; the
+    engaged share (:func:`engaged_share`) says how much of it the loop was engaged for."""
+    return np.isfinite(np.asarray(t_traj, dtype=float)) & (np.asarray(reason) != _TAKEOFF)
+
+
+def engaged_share(active: np.ndarray, scored: np.ndarray) -> float | None:
+    """The share of the ``scored`` ticks (N,) bool that were ``active`` (N,) bool (engaged, fresh, not blending);
+    None without a scored tick."""
+    on = np.asarray(scored, dtype=bool)
+    return float(np.asarray(active, dtype=bool)[on].mean()) if on.any() else None
 
 
 def gap_statistics(send_times: np.ndarray, period: float) -> dict:
@@ -126,7 +144,8 @@ class FlightRecorder:
 
     def statistics(self, send_times, settle: float) -> dict:
         """The rows' part of the summary: ticks, the setpoint stream's rate and misses (``send_times`` [s] on
-        the clock that counts), latency percentiles, reasons and fallbacks, the engaged height error."""
+        the clock that counts), latency percentiles, reasons and fallbacks, the height error over every event tick
+        of the flown trajectory after the settle time (:func:`trajectory_ticks`) and the engaged share of them."""
         v = self.rows.view()
         n = self.rows.n
         reasons = v["reason"]
@@ -134,15 +153,18 @@ class FlightRecorder:
         counts = {str(names[i]): int((reasons == i).sum()) for i in np.unique(reasons)} if n else {}
         fb = {k: cnt for k, cnt in counts.items() if k in FALLBACK_REASONS}
         gaps = gap_statistics(np.asarray(send_times), self.period)
-        # the engaged event ticks after the settle time, scored as every other run is
-        fm = flight_metrics(v["t_traj"], v["y"], v["y_des"], settle=settle, active=v["event"] & v["active"],
+        # every event tick of the trajectory after the settle time (a held sample is not scored twice), engaged
+        # or not, scored as every other run is
+        scored = v["event"] & trajectory_ticks(v["t_traj"], reasons)
+        fm = flight_metrics(v["t_traj"], v["y"], v["y_des"], settle=settle, active=scored,
                             z_truth=v["truth_position"][:, 2])
         return {"ticks": n, "rate_hz": gaps["rate_hz"], "duration_s": gaps["duration_s"],
                 "latency_us": percentiles(v["latency_us"]) if n else percentiles(()),
                 "missed_ticks": gaps["missed_ticks"], "max_gap_ms": gaps["max_gap_ms"],
                 "fallbacks": int(sum(fb.values())), "fallback_reasons": fb, "reasons": counts,
                 "event_ticks": int(v["event"].sum()) if n else 0,
-                "rmse_z_measured": fm["rmse"][0], "rmse_samples": fm["ticks"], "rmse_z_truth": fm["rmse_z_truth"]}
+                "rmse_z_measured": fm["rmse"][0], "rmse_samples": fm["ticks"], "rmse_z_truth": fm["rmse_z_truth"],
+                "engaged_share": engaged_share(v["active"], scored_ticks(v["t_traj"], settle, scored))}
 
     def ticklog(self, c, ctrl, vehicle: VehicleLink, frame: TrajectoryFrame, events: EventLog, gate: TickGate,
                 solver=None) -> TickLog:
@@ -154,8 +176,10 @@ class FlightRecorder:
                 "autopilot": prof.name, "dataset_skip": c.dataset_skip, "min_segment": 50,
                 # what SET_ATTITUDE_TARGET.thrust meant: a solver fits the loop it was collected in
                 "thrust_field": "climb_rate" if prof.climb_rate_thrust else "thrust",
-                # tick_position / velocity / euler are in this frame (last capture: the latest engagement)
-                "frame": frame.as_dict(), "truth": vehicle.truth.as_dict(), "events": list(events.events),
+                # tick_position / velocity / euler are in this frame (last capture: the latest engagement), truth_* in
+                # world ENU: each column's frame in words under "columns"
+                "frame": frame.as_dict(), "columns": column_frames(frame.mode), "truth": vehicle.truth.as_dict(),
+                "events": list(events.events),
                 "stalls": list(gate.stalls), "guard_saturations": list(gate.guard_saturations),
                 "solver": None if solver is None else {"folder": str(getattr(solver, "folder", "")),
                                                       "config_hash": solver.manifest.get("config_hash"),
@@ -188,7 +212,7 @@ class FlightRecorder:
             "arming": {"attempts": vehicle.arming.attempts, "refusals": vehicle.arming.refusals[-5:]},
             "vehicle": None if vehicle_info is None else asdict(vehicle_info),
             "rmse_z_measured": r["rmse_z_measured"], "rmse_samples": r["rmse_samples"],
-            "rmse_z_truth": r["rmse_z_truth"], "truth_samples": vehicle.truth.seq,
+            "rmse_z_truth": r["rmse_z_truth"], "engaged_share": r["engaged_share"], "truth_samples": vehicle.truth.seq,
             **gate.counts, "telemetry_gaps": trigger.gaps, **vehicle.counts,
             "link": {**dict(vehicle.link.stats), "foreign_systems": sorted(vehicle.link.foreign_systems)},
             "params": vehicle.params, "scheduling": scheduling, "frame": frame.as_dict(),

@@ -20,11 +20,13 @@ a stale stretch or a mode change. "hold" ticks (older logs) are skipped over; an
 (stale, inactive, a fallback outside off-board) or a gap ends the run. Runs shorter than
 ``min_segment`` ticks, and the first ``skip`` seconds after each activation, are dropped. A log
 without any such run is saved marked ``"fit_ok": false`` with the reason, and ``ddpc-codegen
-codegen`` refuses it. Every tick is kept in the ``tick_*`` arrays (times, telemetry in ENU/FLU,
+codegen`` refuses it. Every tick is kept in the ``tick_*`` arrays (times, telemetry in the trajectory frame,
 references, steered u, setpoint, solver status and time, latency, flags) and every received
 telemetry sample in ``sample_<stream>`` (stamp, receive time): a burst of two is two rows; a SITL's
 true state (ArduPilot SIM_STATE) is kept in ``truth_*`` columns (nan without it), a lab's motion-capture poses
 (``--mocap``) in ``mocap_*`` columns and ``sample_mocap``, the autopilot's estimate in ``estimate_position``.
+Each column with a frame says which in the metadata's ``columns`` (:func:`column_frames`): the measured state is
+in the bridge's trajectory frame (its start frame, turned by the start heading), the truth in world ENU.
 :func:`load_ticklog` reads them back.
 """
 
@@ -40,7 +42,8 @@ import numpy as np
 from ddpc_codegen.design.data import IODataset, checked_json_entry
 from ddpc_codegen.errors import DataError
 
-__all__ = ["TickRecorder", "TickLog", "load_ticklog", "log_file", "REASONS", "reason_code", "TICK_FIELDS"]
+__all__ = ["TickRecorder", "TickLog", "load_ticklog", "log_file", "REASONS", "reason_code", "TICK_FIELDS",
+           "column_frames"]
 
 # Why a tick's reference is what it is (int8 in the log).
 REASONS = (
@@ -99,9 +102,11 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "t_vehicle": (0, float),    # vehicle time of the tick [s] (telemetry stamp / estimate)
         "t_traj": (0, float),       # controller trajectory time [s] (nan before activation)
         "age_ms": (0, float),       # telemetry age at the tick [ms]
-        "position": (3, float),     # ENU [m]
-        "velocity": (3, float),     # ENU [m/s]
-        "euler": (3, float),        # roll, pitch, yaw ENU/FLU [rad]
+        # The measured state in the trajectory frame (:func:`column_frames`; --frame start: the bridge's start
+        # frame, x along the heading at the start; not world ENU), the position the position source's
+        "position": (3, float),     # trajectory frame [m], heights from the take-off point
+        "velocity": (3, float),     # trajectory frame [m/s]
+        "euler": (3, float),        # roll, pitch (body FLU), yaw from the start heading [rad]
         "rates": (3, float),        # body FLU [rad/s]
         "y": (p, float),            # measured outputs
         "y_des": (p, float),        # desired outputs
@@ -133,21 +138,50 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
                                      # later tick, with the swap), 2 a re-solve period skipped (one still ran)
         "phase": (0, np.int8),      # phase label (design.phases: 0 flying; hopping 1 descent, 2 ground, 3 ascent)
         "contact": (0, np.int8),    # hopping: the robot's contact flag as received (-1: none yet / not read)
-        # The simulator's truth (ArduPilot SITL SIM_STATE, :mod:`.truth`; nan without it): never used for control
-        "truth_position": (3, float),  # local ENU [m]: east / north from the first sample, up from the take-off point
-        "truth_velocity": (3, float),  # ENU [m/s]
-        "truth_euler": (3, float),     # roll, pitch, yaw ENU/FLU [rad]
+        # The simulator's truth (ArduPilot SITL SIM_STATE, :mod:`.truth`; nan without it): never used for control.
+        # World ENU, not the trajectory frame: its axes are east / north (the start frame's are turned by the start
+        # heading), its origin the first sample's position
+        "truth_position": (3, float),  # world ENU [m]: east / north from the first sample, up from the take-off point
+        "truth_velocity": (3, float),  # world ENU [m/s]
+        "truth_euler": (3, float),     # roll, pitch (body FLU), yaw from east [rad]
         "truth_age_ms": (0, float),    # since the newest SIM_STATE arrived [ms]
         # The position sources (:mod:`.position_source`): the autopilot's estimate in the trajectory frame (=
         # ``position`` with --position-source autopilot), the motion capture's pose (--mocap; nan while stale)
         "estimate_position": (3, float),  # trajectory frame [m]
-        "mocap_position": (3, float),     # the mocap's local ENU [m], up from where the vehicle stood disarmed
+        "mocap_position": (3, float),     # the mocap's own ENU frame [m], up from where the vehicle stood disarmed
         "mocap_age_ms": (0, float),       # since the newest pose arrived [ms]
         "mocap_latency_ms": (0, float),   # its arrival minus its measurement stamp [ms] (nan: another clock)
     }
 
 
 TICK_FIELDS = tuple(tick_fields(1, 1))
+
+
+def column_frames(frame_mode: str = "start") -> dict[str, str]:
+    """What each tick-log column with a frame is in (the metadata's ``columns``), for the bridge's ``--frame``
+    ``frame_mode`` ("start" or "world"). The trajectory frame and world ENU differ by the start heading's turn
+    and the start point, so a column is never just "ENU"."""
+    if frame_mode == "world":
+        traj = "the autopilot's local ENU frame (--frame world: east, north, up from its origin)"
+    else:
+        traj = ("the bridge's start frame (--frame start: x along the vehicle's heading when the trajectory started, "
+                "y to its left, z up; origin the trajectory's start point where the vehicle then stood)")
+    heights = "heights from the take-off point (where the vehicle stood disarmed)"
+    return {
+        "position": f"[m] {traj}, {heights}; the position source's measurement (autopilot estimate or mocap)",
+        "velocity": f"[m/s] {traj}; the autopilot's estimate",
+        "euler": "[rad] roll, pitch of body FLU; yaw " + ("from east (ENU)" if frame_mode == "world" else
+                                                          "from the start heading"),
+        "estimate_position": f"[m] {traj}, {heights}; the autopilot's estimate",
+        "truth_position": ("[m] world ENU: east / north from the simulator's first sample, up from the take-off "
+                           "altitude; not the trajectory frame"),
+        "truth_velocity": "[m/s] world ENU (east, north, up)",
+        "truth_euler": "[rad] roll, pitch of body FLU; yaw from east (world ENU)",
+        "mocap_position": ("[m] the motion capture's own frame (its axes and origin, as the lab's system sends them, "
+                           "turned to ENU), up from where the vehicle stood disarmed"),
+        "sp_q": "quaternion (w, x, y, z) body FRD -> the autopilot's local NED",
+        "rates": "[rad/s] body FLU",
+    }
 
 
 class TickRecorder:

@@ -20,6 +20,7 @@ import numpy as np
 
 from ddpc_codegen.flight_metrics import flight_metrics, near_changes, rms, scored_ticks
 from firmware_bridge.gate import GATE_FLAGS
+from firmware_bridge.report import engaged_share, trajectory_ticks
 from firmware_bridge.ticklog import REASONS, load_ticklog
 
 __all__ = ["PROFILES", "APPROACH_TIMEOUT", "ctrl_ff_profile", "bridge_command", "fly", "ensure_disarmed", "flight_figures"]
@@ -100,14 +101,15 @@ def ctrl_ff_profile(autopilot: str, out: Path) -> Path:
 def bridge_command(sitl, autopilot: str, mode: str, out: Path, duration: float, timeout: float,
                    extra: tuple[str, ...] = (), tag: str | None = None) -> list[str]:
     """The ``ddpc-bridge`` command of one flight from the ground (arm, take off, fly ``duration`` s,
-    land); log ``<out>/<autopilot>_<tag or mode>.npz``, summary ``.json``."""
+    land); log ``<out>/<autopilot>_<tag or mode>.npz``, summary ``.json``; the SITL setup's own arguments
+    (``sitl.bridge_args``: :class:`~ddpc_codegen.testbed.sitl_setups.SetupSitl`, the lab's position source) last."""
     name = f"{autopilot}_{tag or mode}"
     return [sys.executable, "-m", "firmware_bridge.cli", "bridge", sitl.url, "--autopilot", autopilot,
             "--profile", PROFILES[autopilot], "--mode", mode, "--arm", "--offboard", "--takeoff", "--land",
             "--duration", f"{duration:g}", "--timeout", f"{timeout:g}", "--wait-heartbeat", "60",
             "--log", str(out / f"{name}.npz"), "--overwrite", "--summary", str(out / f"{name}.json"), "--verbose",
             "--rt-priority", "10", "--approach-timeout", f"{APPROACH_TIMEOUT:g}",
-            "--target-system", str(getattr(sitl, "sysid", 1)), *extra]
+            "--target-system", str(getattr(sitl, "sysid", 1)), *extra, *getattr(sitl, "bridge_args", ())]
 
 
 def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: Path | None = None,
@@ -152,9 +154,14 @@ def fly(sitl, autopilot: str, mode: str, out: Path, duration: float, *, solver: 
 
 
 def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
-    """From a tick log, after ``settle`` s of trajectory: RMSE of z on the telemetry (EKF) and on the
+    """From a tick log, over every tick of the flown trajectory after ``settle`` s of it
+    (:func:`~firmware_bridge.report.trajectory_ticks`: engaged or not -- a stall's bumpless blend, a fallback and a
+    stale tick are flown too) with the share of them the loop was engaged for (``engaged_share``): RMSE of z on the
+    measured height (the position source's: the EKF's, or the motion capture's) and on the
     simulator's true height (ArduPilot SIM_STATE, PX4 SIH HIL_STATE_QUATERNION; None without it), the
-    estimator's own error (RMS of EKF - true height), the steered fraction of the engaged ticks, the
+    measurement's own error (``estimator_rms``: RMS of the measured - true height; ``ekf_rms``: the autopilot's
+    estimate's, which is the same figure unless the loop measured the motion capture), the steered fraction of
+    those ticks (``engaged_fraction``), the
     tick-to-tick thrust change (rms), the largest tick-to-tick step of the applied height reference
     (``max_ref_step``: the trajectory's own steps included) and of its correction u - r_nom
     (``max_offset_step``: what the steering, its fallbacks and the bridge's gate moved), and the bridge's own
@@ -166,21 +173,26 @@ def flight_figures(log_path: Path, settle: float = 3.0) -> dict:
     (``rmse_z_truth_changing``: :func:`~ddpc_codegen.flight_metrics.near_changes`) and the rest
     (``rmse_z_truth_steady``; None without such ticks)."""
     t = load_ticklog(log_path).ticks
-    f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=t["active"], u=t["u"], r_nom=t["r_nom"],
+    flown_traj = trajectory_ticks(t["t_traj"], t["reason"])
+    f = flight_metrics(t["t_traj"], t["y"], t["y_des"], settle=settle, active=flown_traj, u=t["u"], r_nom=t["r_nom"],
                        thrust=t["sp_thrust"], z_truth=t["truth_position"][:, 2] if "truth_position" in t else None,
                        steered=t["reason"] == _STEERED)
+    on = scored_ticks(t["t_traj"], settle, flown_traj)
     near = near_changes(t["t_traj"], t["y_des"][:, 0])
-    split = {}
+    split: dict = {"ekf_rms": None}
     if "truth_position" in t:  # the true-height error where the path changes height (lead, ramp, settling) and elsewhere
-        on = scored_ticks(t["t_traj"], settle, t["active"])
         e = t["truth_position"][:, 2] - t["y_des"][:, 0]
         for key, mask in (("rmse_z_truth_changing", on & near), ("rmse_z_truth_steady", on & ~near)):
             split[key] = rms(e[mask & np.isfinite(e)])
+        if "estimate_position" in t:  # the autopilot's estimate beside the measurement (the same without mocap)
+            ekf = t["estimate_position"][on, 2] - t["truth_position"][on, 2]
+            split["ekf_rms"] = rms(ekf[np.isfinite(ekf)])
     solve = t["solve_us"][np.isfinite(t["solve_us"])] if "solve_us" in t else np.empty(0)
     flown = np.isfinite(t["t_traj"])
     return {"rmse_z": f["rmse"][0], "rmse_z_truth": f.get("rmse_z_truth"), "estimator_rms": f.get("estimator_rms"),
             "estimator_bias": f.get("estimator_bias"),
-            "engaged_fraction": f["engaged_fraction"], "thrust_step_rms": f["thrust_step_rms"],
+            "engaged_fraction": f["engaged_fraction"], "engaged_share": engaged_share(t["active"], on),
+            "thrust_step_rms": f["thrust_step_rms"],
             "max_ref_step": f["max_ref_step"], "max_offset_step": f["max_offset_step"], "ticks": f["ticks"],
             "ref_rate_ratio": f["ref_rate_ratio"],
             # the steering's solver call in the loop (Python -> C and back) beside the SITL; None: nothing solved

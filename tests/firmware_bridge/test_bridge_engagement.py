@@ -13,7 +13,8 @@ from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
 from firmware_bridge.bridge_config import BridgeConfig
 from firmware_bridge.link import mavlink
-from firmware_bridge.engagement import Approach, ArmingRetry, RefBlend
+from firmware_bridge.engagement import Approach, ArmingRetry, Engagement, RefBlend
+from firmware_bridge.events import EventLog
 from firmware_bridge.preflight import PreflightError, check_autopilot, decode_param_value, resolve_guid_options
 from firmware_bridge.profiles import make_profile
 
@@ -67,9 +68,9 @@ def test_takeoff_ramp_is_rate_limited_and_waits_for_the_vehicle():
     assert not ap.done
     ap.step((k0 + 201) * dt, dt, 0.88)
     assert ap.done and not ap.timed_out                 # held within 5 cm for 1 s
-    assert ap.outcome() == pytest.approx({"held": True, "target_m": 0.9, "error_at_start_m": -0.02,
-                                          "waited_s": (k0 + 201) * dt - ap.t_ramp_end, "tolerance_m": 0.05,
-                                          "timeout_s": 5.0})
+    assert ap.outcome() == pytest.approx({"held": True, "off_start": False, "target_m": 0.9, "error_at_start_m": -0.02,
+                                          "waited_s": (k0 + 201) * dt - ap.t_ramp_end, "trim_m": 0.0,
+                                          "tolerance_m": 0.05, "timeout_s": 5.0})
     late = Approach(target=0.9, max_extra=1.0)
     late.start(0.9)
     late.step(0.0, dt, 0.5)
@@ -77,7 +78,53 @@ def test_takeoff_ramp_is_rate_limited_and_waits_for_the_vehicle():
     late.step(1.0, dt, 1.15)
     assert late.done and late.timed_out                 # gives up waiting: the trajectory starts anyway,
     assert late.last_error == pytest.approx(0.25)       # and says how far off the vehicle was
-    assert late.outcome()["held"] is False and late.outcome()["waited_s"] == 1.0
+    assert late.outcome()["held"] is False and late.outcome()["waited_s"] == 1.0 and late.outcome()["off_start"]
+
+
+def _sagging_takeoff(eng: Engagement, sag: float, seconds: float, dt: float = 0.005) -> tuple[list, list, list]:
+    """Fly ``eng``'s take-off on a vehicle that hovers ``sag`` m below its reference (a controller without an
+    integrator on a heavier vehicle: z follows r - sag at 3 1/s); (references, reasons, heights) per tick."""
+    z, refs, reasons, zs = 0.0, [], [], []
+    eng.update(True, 0.0, np.array([z, 0.0]), z, "OFFBOARD")
+    for k in range(int(seconds / dt)):
+        t = k * dt
+        if k:
+            eng.update(True, t, np.array([z, 0.0]), z, "OFFBOARD")
+        r, why = eng.reference(np.array([1.0, 0.0]), np.array([z, 0.0]), t, dt, heard=True, engaged=True, fresh=True)
+        z += 3.0 * (max(r[0] - sag, 0.0) - z) * dt
+        refs.append(r.copy()), reasons.append(why), zs.append(z)
+    return refs, reasons, zs
+
+
+def test_a_take_off_that_hovers_low_is_trimmed_to_the_start_before_the_trajectory_starts():
+    """A vehicle 0.35 m heavier than its model hovers 0.35 m below the start: the approach trims its reference
+    until the vehicle holds the start, the trajectory starts there, and the trim is blended back to the
+    trajectory's reference at the blend's rate (no step); a vehicle that holds the start unaided is not trimmed."""
+    events = EventLog(verbose=False)
+    eng = Engagement(events, blend_rates=(0.5, 0.5), takeoff=True, start_height=lambda: 1.0, timeout=20.0)
+    refs, reasons, zs = _sagging_takeoff(eng, sag=0.35, seconds=16.0)
+    first = reasons.index("blend")  # the tick after the approach ended
+    assert set(reasons[:first]) == {"takeoff"} and eng.approach is None
+    res = eng.approach_result
+    assert res["held"] and not res["off_start"] and res["trim_m"] == pytest.approx(0.35, abs=0.03)
+    assert abs(zs[first - 1] - 1.0) <= 0.05  # the steering starts where the trajectory does
+    assert any("at the trajectory's start height: trajectory starts (the reference trimmed +0.3" in e
+               for _, e in events.events)
+    z_ref = np.array([r[0] for r in refs])
+    assert np.max(np.abs(np.diff(z_ref))) <= 0.5 * 0.005 + 1e-9  # ramp, trim and hand-back: never a step
+    assert z_ref[-1] == 1.0 and reasons[-1] == ""  # handed back: the trajectory's own reference, engaged
+    plain = Engagement(EventLog(), blend_rates=(0.5, 0.5), takeoff=True, start_height=lambda: 1.0, timeout=20.0)
+    _, reasons, _ = _sagging_takeoff(plain, sag=0.01, seconds=6.0)
+    assert plain.approach_result["trim_m"] == 0.0 and "blend" not in reasons
+
+
+def test_a_take_off_that_times_out_says_the_trajectory_started_off_its_start():
+    events = EventLog()
+    eng = Engagement(events, blend_rates=(0.5, 0.5), takeoff=True, start_height=lambda: 1.0, timeout=2.0)
+    _sagging_takeoff(eng, sag=0.35, seconds=8.0)
+    res = eng.approach_result
+    assert not res["held"] and res["off_start"] and res["error_at_start_m"] < -0.05
+    assert any("trajectory starts OFF its start" in e for _, e in events.events)
 
 
 def test_blend_starts_at_the_measurement_and_hands_over_exactly():

@@ -7,13 +7,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from ddpc_codegen.robot.state import MeasuredState
 from firmware_bridge.clock import TickTrigger
 from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.report import FlightRecorder
 from firmware_bridge.telemetry import TelemetryState
-from firmware_bridge.ticklog import REASONS
+from firmware_bridge.ticklog import REASONS, TICK_FIELDS, column_frames
 from firmware_bridge.truth import SimTruth
 from part_fakes import telemetry
 
@@ -82,3 +83,37 @@ def test_real_time_ticks_on_the_grid_from_the_first_complete_telemetry():
     assert tr.due(5.002, tel) == "" and abs(tr.wake_in(5.002) - 0.003) < 1e-9
     age, t, _ = tr.timing(5.006, tel)
     assert abs(age - 0.006) < 1e-9 and t == DT
+
+
+def test_statistics_score_every_tick_of_the_trajectory_and_say_the_engaged_share():
+    """A stall's blend (not active) is flown and scored; the take-off's approach (its clock at 0) is not."""
+    rec = FlightRecorder(2, 2, DT, t0=10.0, lockstep=True)
+    plan = ["takeoff"] * 2 + ["blend"] * 3 + ["steered"] * 5
+    for k, reason in enumerate(plan):
+        err = {"takeoff": 0.5, "blend": 0.1, "steered": 0.0}[reason]
+        y = np.array([1.0 + err, 0.0])
+        ref = TickReference(np.array([1.0, 0.0]), y, np.array([1.0, 0.0]), reason)
+        state = MeasuredState(t=0.0, position=np.array([0.0, 0.0, y[0]]), velocity=np.zeros(3), euler=np.zeros(3),
+                              body_rates=np.zeros(3))
+        rec.record(ref, np.array([1.0, 0.0]), state, now=10.0 + k * DT, t_sent=10.0 + k * DT, t_vehicle=k * DT,
+                   t_traj=0.0 if reason == "takeoff" else (k - 1) * DT, age=0.002, q=(1.0, 0.0, 0.0, 0.0), thrust=0.5,
+                   field=0.5, event=True, engaged=reason == "steered", fresh=True, sent=True, gap=False, n_new=2,
+                   latency=300.0, gate=0, armed=True, offboard=True, y_des=np.array([1.0, 0.0]), phase=0, backdate=0,
+                   contact=None, truth=SimTruth())
+    s = rec.statistics(np.arange(10) * DT, settle=0.0)
+    assert s["rmse_samples"] == 8  # the blend's 3 ticks and the 5 steered ones
+    assert s["rmse_z_measured"] == pytest.approx(math.sqrt(3 * 0.1**2 / 8))
+    assert s["engaged_share"] == pytest.approx(5 / 8)
+    assert rec.statistics(np.arange(10) * DT, settle=1.0)["engaged_share"] is None  # nothing scored
+
+
+def test_the_columns_with_a_frame_say_which():
+    """The measured state is in the bridge's trajectory frame (start frame: turned by the start heading), the
+    truth in world ENU: never both just "ENU"."""
+    start, world = column_frames("start"), column_frames("world")
+    for cols in (start, world):
+        assert cols["truth_position"].startswith("[m] world ENU") and "not the trajectory frame" in cols["truth_position"]
+        assert set(cols) >= {"position", "velocity", "euler", "estimate_position", "truth_velocity", "mocap_position"}
+    assert "the bridge's start frame" in start["position"] and "from the start heading" in start["euler"]
+    assert "the autopilot's local ENU frame" in world["position"] and "from east" in world["euler"]
+    assert set(start) <= set(TICK_FIELDS)

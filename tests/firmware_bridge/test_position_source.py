@@ -271,6 +271,8 @@ def test_collect_on_the_mocap_records_its_height_and_a_gap_in_it_is_stale(tmp_pa
     ps = s["position_source"]
     assert ps["kind"] == "mocap" and ps["poses"] > 250 and ps["stale_events"] == 1
     assert log.samples["mocap"].shape == (ps["poses"], 2) and log.metadata["position_source"]["kind"] == "mocap"
+    cols = log.metadata["columns"]  # each frame said: the measured state in the start frame, the mocap in its own
+    assert "the bridge's start frame" in cols["position"] and "motion capture's own frame" in cols["mocap_position"]
 
 
 @pytest.mark.e2e

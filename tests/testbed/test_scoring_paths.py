@@ -73,3 +73,30 @@ def test_the_same_run_scores_the_same_in_process_and_from_its_tick_log(scored):
     assert ff["guard_saturations"] == 2
     # the ellipse's height never holds still for 0.5 s: every scored tick is near a change of the path's height
     assert ff["rmse_z_truth_changing"] == pytest.approx(ff["rmse_z_truth"], rel=1e-12) and ff["rmse_z_truth_steady"] is None
+
+
+def test_flight_figures_count_every_tick_of_the_flown_trajectory(tmp_path):
+    """A stall's bumpless blend is logged not active but flown: scored, and the engaged share says how much of
+    the trajectory was engaged; the take-off's approach (trajectory clock at 0) and the ticks before are not."""
+    rec = TickRecorder(2, 2, capacity=64)
+    plan = ["inactive"] * 4 + ["takeoff"] * 6 + ["steered"] * 10 + ["blend"] * 10 + ["steered"] * 20
+    t = 0.0
+    for k, reason in enumerate(plan):
+        i = rec.new_row()
+        a = rec.arrays
+        err = {"inactive": 1.0, "takeoff": 0.4, "steered": 0.01, "blend": 0.1}[reason]
+        if reason not in ("inactive", "takeoff"):
+            t += 0.005
+        a["t_traj"][i] = np.nan if reason == "inactive" else t
+        a["y_des"][i], a["y"][i], a["u"][i], a["r_nom"][i] = (1.0, 0.0), (1.0 + err, 0.0), (1.0, 0.0), (1.0, 0.0)
+        a["truth_position"][i] = (0.0, 0.0, 1.0 + 2 * err)
+        a["estimate_position"][i] = (0.0, 0.0, 1.0 + err)
+        a["reason"][i] = reason_code(reason)
+        a["active"][i] = a["event"][i] = reason == "steered"
+    log = rec.to_log(dt=0.005, input_names=("z_ref", "pitch_ref"), output_names=("z", "pitch")).save(tmp_path / "l.npz")
+    ff = flight_figures(log, settle=0.0)
+    assert ff["ticks"] == 40 and ff["engaged_share"] == pytest.approx(30 / 40)
+    assert ff["rmse_z"] == pytest.approx(np.sqrt((30 * 0.01**2 + 10 * 0.1**2) / 40), rel=1e-12)
+    assert ff["rmse_z_truth"] == pytest.approx(2 * ff["rmse_z"], rel=1e-12)
+    assert ff["engaged_fraction"] == pytest.approx(30 / 40)  # the steered share of the same ticks
+    assert ff["ekf_rms"] == pytest.approx(ff["estimator_rms"], rel=1e-12)  # measured on the autopilot's estimate
