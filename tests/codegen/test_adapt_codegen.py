@@ -20,6 +20,10 @@ from support.lti import random_lti
 
 # every test but test_adaptation_needs_the_daqp_backend compiles the generated update (cffi)
 pytestmark = pytest.mark.compiler
+# One solver name for every build of this file: a generated source that does not depend on the problem (or one
+# of the same problem) is then the same source, which the test run's compile cache reuses
+# (tests/support/cc_cache.py); each build still loads as its own module (compile_alone).
+NAME = "ad"
 
 
 def _dataset(seed: int, T: int = 400) -> IODataset:
@@ -80,7 +84,7 @@ def test_generated_update_equals_the_numpy_reference(form, knots, bounded, gain,
     # the gain bound between the changes of this system and the swaps it needs: both verdicts occur
     st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
                        max_gain_change=gain, min_improvement=margin)
-    name = f"ad_{form[:3]}_{'k' if knots else 'n'}_{int(gain)}_{int(100 * margin)}"
+    name = NAME
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     twin = AdaptiveProblem(prob, st, solver="fast")
     ref = twin.adapter
@@ -156,7 +160,7 @@ def test_rank_deficient_factor_is_refused_at_init(tmp_path):
     from ddpc_codegen.errors import DataError
 
     with pytest.raises(DataError, match=r"^the shipped R factor is rank deficient"):
-        compile_alone(prob, AdaptSettings(window=10), tmp_path, "ad_rank")
+        compile_alone(prob, AdaptSettings(window=10), tmp_path, NAME)
 
 
 @pytest.mark.slow
@@ -233,7 +237,7 @@ _SPLIT = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3,
 def split_build(tmp_path_factory):
     """An unbounded absolute-form problem with the output offset, built once; its windows from a changed system."""
     prob = _problem("absolute")
-    ffi, lib = compile_alone(prob, _SPLIT, tmp_path_factory.mktemp("split"), "ad_split")
+    ffi, lib = compile_alone(prob, _SPLIT, tmp_path_factory.mktemp("split"), NAME)
     rng = np.random.default_rng(5)
     u = rng.standard_normal((700, 2)) * [0.3, 2.0]
     y, _ = random_lti(4, 2, 2, 7).simulate(u, np.zeros(4))
@@ -249,7 +253,7 @@ def test_resolve_from_an_earlier_snapshot_equals_the_numpy_reference(split_build
     from hypothesis import strategies as hs
 
     prob, ffi, lib, sig = split_build
-    fn = {k: getattr(lib, f"ad_split_adapt_{k}") for k in ("init", "push", "snapshot", "resolve", "swap")}
+    fn = {k: getattr(lib, f"ad_adapt_{k}") for k in ("init", "push", "snapshot", "resolve", "swap")}
     rounds = hs.lists(hs.tuples(hs.integers(0, 45), hs.integers(0, 30), hs.integers(0, 8)), min_size=1, max_size=4)
 
     @settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck))
@@ -258,8 +262,8 @@ def test_resolve_from_an_earlier_snapshot_equals_the_numpy_reference(split_build
         twin = AdaptiveProblem(prob, _SPLIT, solver="fast")
         ref, lay = twin.adapter, twin.adapter.layout
         q, n_y = lay.q_y + lay.q_s, prob.predictor.Gy_w.shape[0]
-        ws, sws = ffi.new("ad_split_adapt_workspace *"), ffi.new("ad_split_workspace *")
-        assert fn["init"](ws) == 0 and lib.ad_split_init(sws) == 0
+        ws, sws = ffi.new("ad_adapt_workspace *"), ffi.new("ad_workspace *")
+        assert fn["init"](ws) == 0 and lib.ad_init(sws) == 0
         k = 0
 
         def push(n):
@@ -289,7 +293,7 @@ def test_resolve_from_an_earlier_snapshot_equals_the_numpy_reference(split_build
                 assert _close(_arr(ffi, ws.yoff, 2 * n_y)[(1 - ws.off_spare) * n_y : (2 - ws.off_spare) * n_y],
                               ref.offset)
         w = lay.width
-        assert _close(_r_of(ffi, lib, "ad_split", ws, w), ref.R)
+        assert _close(_r_of(ffi, lib, NAME, ws, w), ref.R)
         c = ws.counts
         assert {k: getattr(c, k) for k in ("updates", "skipped", "resolves", "accepted", "swaps", "clipped",
                                            "offset_swaps", "offset_clipped", "offset_rejected")} == \
@@ -324,18 +328,18 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
                          predictor={"method": "pem"})
     prob = SteeringProblem(pred, cfg)
     st = dataclasses.replace(_SPLIT, window=100)
-    ffi, lib = compile_alone(prob, st, tmp_path, "ad_gil")
+    ffi, lib = compile_alone(prob, st, tmp_path, NAME)
     ref = adapter(prob, st)
-    ws = ffi.new("ad_gil_adapt_workspace *")
-    assert lib.ad_gil_adapt_init(ws) == 0
+    ws = ffi.new("ad_adapt_workspace *")
+    assert lib.ad_adapt_init(ws) == 0
     u = np.random.default_rng(9).standard_normal((2000, 2)) * [0.3, 2.0]
     y, _ = random_lti(4, 2, 2, 7).simulate(u, np.zeros(4))
     sig, d = np.hstack([u, y]), ref.layout.depth
     wins = [np.ascontiguousarray(sig[j : j + d]) for j in range(1900)]
     for j in range(150):
-        lib.ad_gil_adapt_push(ws, ffi.from_buffer("double[]", wins[j]))
+        lib.ad_adapt_push(ws, ffi.from_buffer("double[]", wins[j]))
         ref.push(wins[j])
-    lib.ad_gil_adapt_snapshot(ws)
+    lib.ad_adapt_snapshot(ws)
     ref.snapshot()
     spans, codes, stamps, j = [], [], [], 150
     pushing = threading.Event()
@@ -346,7 +350,7 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
         pushing.wait(10.0)
         for _ in range(50):
             t0 = time.perf_counter()
-            codes.append(lib.ad_gil_adapt_resolve(ws))
+            codes.append(lib.ad_adapt_resolve(ws))
             spans.append((t0, time.perf_counter()))
             if sum(t0 < t < spans[-1][1] for t in list(stamps)) >= 3:
                 return
@@ -354,7 +358,7 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
     th = threading.Thread(target=work)
     th.start()
     while th.is_alive() and j < len(wins):
-        lib.ad_gil_adapt_push(ws, ffi.from_buffer("double[]", wins[j]))
+        lib.ad_adapt_push(ws, ffi.from_buffer("double[]", wins[j]))
         ref.push(wins[j])
         stamps.append(time.perf_counter())
         pushing.set()
@@ -371,7 +375,7 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
     if verdict == "accepted":
         assert _close(_arr(ffi, ws.Gc, q * lay.r).reshape(q, lay.r), ref.pending)
     assert ws.counts.updates == ref.counts["updates"] == j
-    assert _close(_r_of(ffi, lib, "ad_gil", ws, lay.width), ref.R)
+    assert _close(_r_of(ffi, lib, NAME, ws, lay.width), ref.R)
 
 
 def test_the_tick_only_queues_columns_and_the_resolve_folds_them_into_r(tmp_path):
@@ -381,7 +385,7 @@ def test_the_tick_only_queues_columns_and_the_resolve_folds_them_into_r(tmp_path
     (counted) instead of overwriting one R lacks."""
     prob = _problem("absolute")
     st = AdaptSettings(enabled=True, window=40, period_ticks=20, min_excitation=1e-4)
-    name = "ad_queue"
+    name = NAME
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     ref = adapter(prob, st)
     lay = ref.layout

@@ -17,6 +17,8 @@ from ddpc_codegen.values.adapt import OFFSET_COUNTS, REJECTIONS, AdaptSettings
 from support.lti import random_lti
 
 pytestmark = pytest.mark.compiler
+# one solver name for every build (as in test_adapt_codegen.py): sources that do not differ are compiled once
+NAME = "ad"
 
 
 def _problem(form: str, knots=None) -> SteeringProblem:
@@ -49,7 +51,7 @@ def test_generated_offset_equals_the_numpy_reference(form, knots, gain, tmp_path
     prob = _problem(form, knots)
     st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
                        max_gain_change=gain, offset=True, max_offset=(1.0, 0.02))
-    name = f"off_{form[:3]}"
+    name = NAME
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     twin = AdaptiveProblem(prob, st, solver="fast")
     ref = twin.adapter
@@ -111,24 +113,24 @@ def test_plain_adaptive_build_without_offset_never_shifts(tmp_path):
     prob = _problem("absolute")
     st = AdaptSettings(enabled=True, forgetting=0.99, window=40, max_change=0.3, min_excitation=1e-4,
                        max_gain_change=np.inf)
-    ffi, lib = compile_alone(prob, st, tmp_path, "off_none")
+    ffi, lib = compile_alone(prob, st, tmp_path, NAME)
     twin = AdaptiveProblem(prob, st, solver="fast")
-    ws, sws = ffi.new("off_none_adapt_workspace *"), ffi.new("off_none_workspace *")
-    assert lib.off_none_adapt_init(ws) == 0 and lib.off_none_init(sws) == 0
+    ws, sws = ffi.new("ad_adapt_workspace *"), ffi.new("ad_workspace *")
+    assert lib.ad_adapt_init(ws) == 0 and lib.ad_init(sws) == 0
     rng = np.random.default_rng(3)
     th, out = rng.standard_normal(prob.n_theta) * 0.05, np.empty(prob.n_u)
     for _ in range(3):
         for _ in range(45):
             win = np.ascontiguousarray(rng.standard_normal((10, 4)) + 0.5)  # an offset the fit has no term for
-            lib.off_none_adapt_push(ws, ffi.from_buffer("double[]", win))
+            lib.ad_adapt_push(ws, ffi.from_buffer("double[]", win))
             twin.adapter.push(win)
-        lib.off_none_adapt_snapshot(ws)
-        lib.off_none_adapt_resolve(ws)
+        lib.ad_adapt_snapshot(ws)
+        lib.ad_adapt_resolve(ws)
         twin.adapt_resolve()
-        lib.off_none_adapt_swap(ws, sws)
+        lib.ad_adapt_swap(ws, sws)
         twin.adapt_swap()
         assert ws.off_pending == 0 and ws.counts.offset_swaps == 0 and not np.any(twin.adapt_offset())
-        assert lib.off_none_solve(sws, ffi.from_buffer("double[]", th), ffi.from_buffer("double[]", out), ffi.NULL) == 0
+        assert lib.ad_solve(sws, ffi.from_buffer("double[]", th), ffi.from_buffer("double[]", out), ffi.NULL) == 0
         assert _close(out, twin.solve_theta(th).u.reshape(-1))
 
 
@@ -146,7 +148,7 @@ def test_absurd_columns_install_no_offset_in_c_either(probe, tmp_path):
     the solver still solves."""
     prob = _problem("absolute")
     st = AdaptSettings(enabled=True, forgetting=0.99, window=100, offset=True, max_gain_change=0.0)
-    name = "probe_out" if probe == "outliers" else "probe_big"
+    name = NAME
     ffi, lib = compile_alone(prob, st, tmp_path, name)
     twin = AdaptiveProblem(prob, st, solver="fast")
     ref = twin.adapter
