@@ -344,14 +344,15 @@ class Engagement:
         self.approach_result = ap.outcome()
         if ap.trim and self.blend_rates:
             self.blend.start(r_last)
-        trim = (f" (the reference trimmed {ap.trim:+.3f} m to get there: the vehicle hovers off its model, handed "
-                "back to the trajectory's at the blend's rates)") if ap.trim else ""
-        if ap.timed_out:  # say so: the steering then starts against that error
-            self.events(f"WARNING: did not hold the start height within {ap.tolerance:g} m for {ap.hold:g} s "
-                        f"in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle or its "
-                        f"height estimate did not settle): trajectory starts OFF its start{trim}")
+        if ap.trim:
+            self.events(f"take-off: the reference trimmed {ap.trim:+.3f} m to reach the start height (the vehicle "
+                        "hovers off its model), handed back to the trajectory's at the blend's rates")
+        if ap.timed_out:  # say so: the steering then starts against that error (the line ends as readers expect)
+            self.events(f"WARNING: OFF ITS START: did not hold the start height within {ap.tolerance:g} m for "
+                        f"{ap.hold:g} s in {ap.max_extra:g} s (height error now {ap.last_error:+.3f} m: the vehicle "
+                        "or its height estimate did not settle): trajectory starts anyway")
         else:
-            self.events(f"at the trajectory's start height: trajectory starts{trim}")
+            self.events("at the trajectory's start height: trajectory starts")
 
     def applied(self, u: np.ndarray) -> None:
         """This tick applied the reference ``u`` (m,): a resume starts from there."""

@@ -1,9 +1,14 @@
 """The real autopilots' results (``make sitl-demo``, ``reports/sitl.json``): their page and headline tables.
 
-The page: the loop on each autopilot, then a section per autopilot (true and EKF height per method and
-condition, the estimator's own error, the error near path changes, the steered loop's activity), then the
+The page: which figure judges the steering, the loop on each autopilot and setup, then a section per autopilot
+(true and measured height per method and condition, the measurement's own error, the error near path changes, the
+steered loop's activity; with a lab run, both estimation setups side by side and the lab's own tables), then the
 steps against the identified loop's front. The headline: per autopilot and condition, the true-height error of
-passthrough, of the best simple fix and of the steering, steered / best simple fix named.
+passthrough, of the best simple fix and of the steering, steered / best simple fix named (the lab setup's where it
+was flown: the one that judges the steering).
+
+An autopilot's entry of ``sitl.json`` is its outdoor run (:func:`~ddpc_codegen.testbed.sitl_demo.run_pipeline`), with
+the lab run of the same shape under ``lab`` (:func:`~ddpc_codegen.testbed.sitl_demo.merge_setups`).
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ from ddpc_codegen.docsgen.results_format import (NA, best_simple_fix, label, mis
                                                  table, tally)
 from ddpc_codegen.testbed.sitl_conditions import steered_estimator_rms
 
-__all__ = ["METHODS", "autopilots", "headline", "sitl_page", "front_table"]
+__all__ = ["METHODS", "autopilots", "headline", "sitl_page", "front_table", "judged_setup"]
 
 METHODS = ("passthrough", "ctrl_ff", "prefilter", "ilc", "steered")
 
@@ -22,19 +27,53 @@ def autopilots(sitl: dict) -> dict[str, dict]:
     return {k: v for k, v in sitl.items() if k != "adaptation"}
 
 
+JUDGE_TEXT = (
+    "Which figure judges the steering: the true height in the **lab** setup. There the height the loop measures "
+    "(ArduCopter's EKF fused on the motion-capture stand-in; on PX4, whose build fuses no external vision, the "
+    "motion capture itself) is within a few mm of the truth (the measurement's error beside each flight), so the "
+    "true-height error left is the steering's. In the **outdoor** setup the autopilot's estimate is tens to "
+    "hundreds of mm off the truth: the true height there is limited by the estimator, and the height on the "
+    "estimate says what the steering did with what it measured.\n")
+
+
+def judged_setup(ap: dict) -> tuple[str, dict]:
+    """The setup whose true height judges the steering: ("lab", its result) where flown, else ("outdoor", ``ap``)."""
+    return ("lab", ap["lab"]) if ap.get("lab") else ("outdoor", ap)
+
+
+def _has_outdoor(ap: dict) -> bool:
+    """An autopilot's entry holds its outdoor run (anything beside ``lab``: a lab-only run stores only that)."""
+    return any(k != "lab" for k in ap)
+
+
+def _runs(aps: dict[str, dict]) -> list[tuple[str, dict]]:
+    """(column label, result) of every run: each autopilot's outdoor one (where flown), then its lab one."""
+    out = []
+    for a, ap in aps.items():
+        if _has_outdoor(ap):
+            out.append((label(a), ap))
+        if ap.get("lab"):
+            out.append((f"{label(a)} lab", ap["lab"]))
+    return out
+
+
 def _flown(ap: dict) -> list[tuple[str, dict]]:
     return [(n, c) for n, c in (ap.get("conditions") or {}).items() if "skipped" not in c]
 
 
 def _loop_table(aps: dict[str, dict]) -> str:
+    runs = _runs(aps)
     lat = lambda r, k: num((r.get("latency_us") or {}).get(k), 1e-3)  # noqa: E731
-    rows = [["setpoint rate [Hz]", *(num(r["rate_hz"]) for r in aps.values())],
-            ["missed ticks", *(str(r["missed_ticks"]) for r in aps.values())],
-            ["steered share of engaged ticks [%]", *(num(r["engaged_fraction"], 1e2) for r in aps.values())],
-            ["tick latency p50 / p99 [ms]", *(f"{lat(r, 'p50')} / {lat(r, 'p99')}" for r in aps.values())],
-            ["fallbacks [ticks]", *(str(r["fallbacks"]) for r in aps.values())],
-            ["wall time [s]", *(num(r["wall_s"], 1, 0) for r in aps.values())]]
-    return table(["the ellipse flight", *(label(a) for a in aps)], rows)
+    rows = [["setpoint rate [Hz]", *(num(r["rate_hz"]) for _, r in runs)],
+            ["missed ticks", *(str(r["missed_ticks"]) for _, r in runs)],
+            ["steered share of scored ticks [%]", *(num(r["engaged_fraction"], 1e2) for _, r in runs)]]
+    if any("engaged_share" in r for _, r in runs):
+        rows.append(["engaged share of the trajectory's ticks [%]",
+                     *(num(r.get("engaged_share"), 1e2) for _, r in runs)])
+    rows += [["tick latency p50 / p99 [ms]", *(f"{lat(r, 'p50')} / {lat(r, 'p99')}" for _, r in runs)],
+             ["fallbacks [ticks]", *(str(r["fallbacks"]) for _, r in runs)],
+             ["wall time [s]", *(num(r["wall_s"], 1, 0) for _, r in runs)]]
+    return table(["the ellipse flight", *(name for name, _ in runs)], rows)
 
 
 def _methods_table(ap: dict, key: str, judged: bool) -> str:
@@ -52,14 +91,37 @@ def _methods_table(ap: dict, key: str, judged: bool) -> str:
     return table(head + (["best simple fix", "steered / best simple fix"] if judged else []), rows)
 
 
-def _estimator_table(ap: dict) -> str:
+def _estimator_table(ap: dict, ekf: bool = False) -> str:
+    """Per condition, the measured height's error in the steered flights; ``ekf``: the autopilot's EKF's beside
+    (the lab where the loop measured the motion capture)."""
     rows = []
     for name, c in _flown(ap):
         est = steered_estimator_rms(c)
         rows.append([name, mm(est), mm((c.get("estimator_bias_rms") or {}).get("steered")),
-                     ratio((c.get("rmse_z_truth") or {}).get("steered"), est)])
+                     ratio((c.get("rmse_z_truth") or {}).get("steered"), est)]
+                    + ([mm((c.get("ekf_rms") or {}).get("steered"))] if ekf else []))
     return table(["condition", "estimator error, steered flights: RMS [mm]", "its constant part [mm]",
-                  "steered true-height RMSE / estimator error"], rows)
+                  "steered true-height RMSE / estimator error"]
+                 + (["the autopilot's EKF, beside: RMS [mm]"] if ekf else []), rows)
+
+
+def _side_by_side(ap: dict) -> str:
+    """Per condition, the steered and best simple fix's true height and the measurement's error in each setup."""
+    out, lab = ap, ap["lab"]
+    names = list(dict.fromkeys([n for n, _ in _flown(out)] + [n for n, _ in _flown(lab)]))
+    rows = []
+    for name in names:
+        row = [name]
+        for res in (out, lab):
+            c = (res.get("conditions") or {}).get(name) or {}
+            v = c.get("rmse_z_truth") or {}
+            best = best_simple_fix(v)
+            row += [mm(v.get("steered")), NA if best is None else f"{mm(best[1])} ({label(best[0])})",
+                    mm(steered_estimator_rms(c)) if c else NA]
+        rows.append(row)
+    return table(["condition", "outdoor: steered [mm]", "outdoor: best simple fix [mm]",
+                  "outdoor: measured height's error [mm]", "lab: steered [mm]", "lab: best simple fix [mm]",
+                  "lab: measured height's error [mm]"], rows)
 
 
 def _split_table(ap: dict) -> str:
@@ -98,23 +160,44 @@ def _ilc_text(ap: dict) -> str:
             f"iteration {il['iterations_to_settle']} of {il['iterations_run']}, the last one flown.\n")
 
 
-def _autopilot_section(name: str, ap: dict) -> str:
-    out = [f"## {label(name)}\n", "### True height RMSE\n",
+def _setup_tables(ap: dict, lab: bool) -> list[str]:
+    """One setup's tables (``ap``: its result): true height, measured height, the measurement's error, near path
+    changes, the steered loop; ``lab``: headed and described as the lab setup's."""
+    pre, where = ("Lab: ", "the lab setup's measured height") if lab else ("", "the autopilot's estimate (EKF)")
+    out = [f"### {pre}True height RMSE\n",
            "The judged figure: the simulator's true height against the desired one (mean of the rounds; `--` not "
            "flown: ILC needs a repeating path). Steered / best simple fix < 1: the steering is better.\n",
            _methods_table(ap, "rmse_z_truth", judged=True), _ilc_text(ap),
-           "### Height RMSE on the autopilot's estimate (EKF)\n", _methods_table(ap, "rmse_z", judged=False),
-           "### The estimator's own error\n",
-           "The EKF height against the true height in the steered flights. The steering acts on the estimate: a "
-           "ratio near 1 means the true-height error left is the estimator's own.\n", _estimator_table(ap)]
+           f"### {pre}Height RMSE on {where}\n", _methods_table(ap, "rmse_z", judged=False),
+           f"### {pre}The estimator's own error\n"]
+    if lab:
+        out += ["The measured height against the true height in the steered flights (the loop's measurement: "
+                f"{(ap.get('setup') or {}).get('estimator', 'the lab setup')}); where it is not the EKF's, the EKF's "
+                "error beside.\n", _estimator_table(ap, ekf=True)]
+    else:
+        out += ["The EKF height against the true height in the steered flights. The steering acts on the estimate: a "
+                "ratio near 1 means the true-height error left is the estimator's own.\n", _estimator_table(ap)]
     split = _split_table(ap)
     if split:
-        out += ["### Near path changes and steady\n", "Near path changes: from 0.5 s before to 1.5 s after any tick "
-                "where the desired height moves (a step's lead, ramp and settling); steady: the rest.\n", split]
-    out += ["### The steered loop\n", _loop_activity_table(ap)]
+        out += [f"### {pre}Near path changes and steady\n", "Near path changes: from 0.5 s before to 1.5 s after any "
+                "tick where the desired height moves (a step's lead, ramp and settling); steady: the rest.\n", split]
+    out += [f"### {pre}The steered loop\n", _loop_activity_table(ap)]
     skipped = [f"- {n}: {c['skipped']}" for n, c in (ap.get("conditions") or {}).items() if "skipped" in c]
     if skipped:
         out += ["Not flown:\n", "\n".join(skipped) + "\n"]
+    return out
+
+
+def _autopilot_section(name: str, ap: dict) -> str:
+    out = [f"## {label(name)}\n"]
+    if ap.get("lab"):
+        out += ["### Outdoor and lab side by side\n",
+                "True-height RMSE of the steering and of the best simple fix per condition and setup, with the error "
+                "of the height each loop measured; the lab column judges the steering.\n", _side_by_side(ap)]
+    if _has_outdoor(ap):
+        out += _setup_tables(ap, lab=False)
+    if ap.get("lab"):
+        out += _setup_tables(ap["lab"], lab=True)
     return "\n".join(out)
 
 
@@ -145,17 +228,20 @@ def front_table(rows: list[tuple[str, dict, dict]]) -> str:
 
 def headline(name: str, ap: dict) -> str:
     """One autopilot, per condition: true-height RMSE of passthrough, the best simple fix and the steering,
-    steered / best simple fix, steered / the estimator's own error, and the count of conditions the steering won."""
+    steered / best simple fix, steered / the estimator's own error, and the count of conditions the steering won;
+    the lab setup's where it was flown (:func:`judged_setup`), said above the table."""
+    setup, res = judged_setup(ap)
     rows, pairs = [], []
-    for cname, c in _flown(ap):
+    for cname, c in _flown(res):
         v = c.get("rmse_z_truth") or {}
         best = best_simple_fix(v)
         pairs.append((v.get("steered"), None if best is None else best[1]))
         rows.append([cname, mm(v.get("passthrough")), NA if best is None else f"{mm(best[1])} ({label(best[0])})",
                      mm(v.get("steered")), NA if best is None else ratio(v.get("steered"), best[1]),
                      ratio(v.get("steered"), steered_estimator_rms(c))])
-    return table(["condition", "passthrough [mm]", "best simple fix [mm]", "steered [mm]",
-                  "steered / best simple fix", "steered / the estimator's error"], rows) + "\n" + tally(pairs)
+    head = "The lab setup (the height measured on the motion capture).\n\n" if setup == "lab" else ""
+    return head + table(["condition", "passthrough [mm]", "best simple fix [mm]", "steered [mm]",
+                         "steered / best simple fix", "steered / the estimator's error"], rows) + "\n" + tally(pairs)
 
 
 def sitl_page(sitl: dict | None) -> str:
@@ -168,8 +254,14 @@ def sitl_page(sitl: dict | None) -> str:
     aps = autopilots(sitl)
     if not aps:
         return head + "\n`make sitl-demo` found no SITL (set `DDPC_PX4_SITL` / `DDPC_ARDUPILOT_SITL`).\n"
-    out = [head, "## The loop\n", _loop_table(aps)]
+    flown_lab = any(ap.get("lab") for ap in aps.values())
+    judge = JUDGE_TEXT if flown_lab else (
+        "Only the outdoor setup is flown here (`make sitl-demo --setups lab` flies the lab one, on a motion "
+        "capture): the autopilot's estimate is tens to hundreds of mm off the truth, so the true height is limited "
+        "by the estimator, and the height on the estimate says what the steering did with what it measured.\n")
+    out = [head, "## Which figure judges the steering\n", judge, "## The loop\n", _loop_table(aps)]
     out += [_autopilot_section(name, ap) for name, ap in aps.items()]
-    out.append(front_table([(a, c["front"], c) for a, ap in aps.items() for n, c in (ap.get("conditions") or {}).items()
+    out.append(front_table([(a if res is ap else f"{label(a)} lab", c["front"], c) for a, ap in aps.items()
+                            for res in (ap, ap.get("lab") or {}) for n, c in (res.get("conditions") or {}).items()
                             if n == "steps" and "model" in c.get("front", {})]))
     return "\n".join(out)

@@ -20,7 +20,6 @@ the ``WINDOW_S`` s after the change; the adaptation's counters from the tick log
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import threading
@@ -36,6 +35,7 @@ from ddpc_codegen.values.adapt import REJECTIONS
 from ddpc_codegen.testbed.sitl import Sitl, SitlError, make_sitl
 from ddpc_codegen.testbed.sitl_conditions import CONDITIONS, write_steps_trajectory
 from ddpc_codegen.testbed.sitl_flight import fly
+from ddpc_codegen.testbed.sitl_setups import second_link
 from ddpc_codegen.testbed.sitl_demo import (COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen, fit_prefilter_from_log,
                                             available_autopilots, comma_list, fly_autopilots)
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
@@ -53,16 +53,6 @@ METHODS = ("static", "adapted", "prefilter")
 ADAPT_CONDITIONS = ("nominal", "motor", "heavy")
 # The bridge's verbose events that end the approach (its "engaged" line also names "trajectory starts", mid-line).
 START_EVENTS = ("trajectory starts", "trajectory starts anyway")
-
-
-def second_link(sitl: Sitl) -> Sitl:
-    """A view of the running ``sitl`` whose ``url`` is its second MAVLink link (the bridge holds the
-    first): ArduCopter's SERIAL1 TCP server (first port + 2), PX4's GCS link (it sends to UDP 14550).
-    Same process: :meth:`Sitl.connect` on it checks the same SITL is alive; never stop the view."""
-    if sitl.autopilot == "ardupilot":
-        host, _, port = sitl.url[len("tcp:"):].rpartition(":")
-        return dataclasses.replace(sitl, url=f"tcp:{host}:{int(port) + 2}")
-    return dataclasses.replace(sitl, url="udpin:127.0.0.1:14550")
 
 
 def send_params(conn, params: dict[str, float], timeout: float = 5.0) -> tuple[float, float]:

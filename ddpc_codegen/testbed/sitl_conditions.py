@@ -16,8 +16,9 @@ The changes are each SITL's own simulation parameters, set over MAVLink between 
 Every condition flies the same trajectory file with passthrough, the controller's own feed-forward
 (ctrl ff), the prefilter fitted on the collect, and steering with the collect's solver; ILC needs a
 repeating path and is flown on the ellipse only (its figures here are None). Figures: height RMSE on
-the EKF estimate (``rmse_z``) and on the SITL's truth (``rmse_z_truth``), the estimator's own error
-(RMS of EKF height - true height, ``estimator_rms``), the largest tick-to-tick step of the applied
+the measured height (``rmse_z``: the EKF's, or the motion capture's in the lab setup) and on the SITL's truth
+(``rmse_z_truth``), the measurement's own error (RMS of measured - true height, ``estimator_rms``; the EKF's beside
+it, ``ekf_rms``), the largest tick-to-tick step of the applied
 height reference, the thrust change, the fallbacks: per round and averaged over the rounds.
 """
 
@@ -130,14 +131,14 @@ def fly_condition(sitl, autopilot: str, name: str, out: Path, trajectory: Path, 
 
 def summarize_rounds(per_round: list[dict]) -> dict:
     """Per key (rmse_z, rmse_z_truth and its split near path changes / steady, thrust_step_rms, max_ref_step,
-    max_offset_step, ref_rate_ratio, fallbacks, stalls, stale_ticks, guard_saturations) and method: the mean over the
+    max_offset_step, ref_rate_ratio, fallbacks, stalls, stale_ticks, guard_saturations, engaged_share) and method: the mean over the
     rounds (None where any round has none; ``solve_us_p99``: the largest over the rounds); ``ilc`` None (the path does not repeat); the estimator's
     error per method (RMS over the rounds: the steered figure is the one of the steered flights, which the
-    target compares against); the rounds themselves."""
+    target compares against) and the autopilot estimate's (``ekf_rms``); the rounds themselves."""
     out: dict = {}
     for key in ("rmse_z", "rmse_z_truth", "rmse_z_truth_changing", "rmse_z_truth_steady", "thrust_step_rms",
                 "max_ref_step", "max_offset_step", "ref_rate_ratio", "fallbacks", "stalls", "stale_ticks",
-                "guard_saturations", "solve_us_p99"):
+                "guard_saturations", "solve_us_p99", "engaged_share"):
         out[key] = {}
         worst = max if key == "solve_us_p99" else np.mean  # a latency target holds in every flight
         for method in METHODS:
@@ -146,6 +147,8 @@ def summarize_rounds(per_round: list[dict]) -> dict:
         if key in ("rmse_z", "rmse_z_truth"):
             out[key]["ilc"] = None
     out["estimator_rms"] = {m: rms_of([r[m]["estimator_rms"] for r in per_round]) for m in METHODS}
+    # the autopilot's estimate beside it (the same figure unless the loop measured the motion capture)
+    out["ekf_rms"] = {m: rms_of([r[m].get("ekf_rms") for r in per_round]) for m in METHODS}
     # its constant part per flight (RMS over the rounds): a bias of the estimate, which steering on it cannot see
     out["estimator_bias_rms"] = {m: rms_of([r[m].get("estimator_bias") for r in per_round]) for m in METHODS}
     out["rounds"] = per_round

@@ -29,6 +29,7 @@ from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_flight import ctrl_ff_profile, flight_figures, fly
 from ddpc_codegen.testbed.sitl_conditions import (CONDITIONS, STEPS_DURATION, fly_condition, steered_estimator_rms,
                                                   summarize_rounds, write_steps_trajectory)
+from ddpc_codegen.testbed.sitl_setups import SETUPS, describe_setup, flown_setup, setup_folder, setup_params
 from firmware_bridge.ticklog import load_ticklog
 from ddpc_codegen.design.baselines import ILC_CUTOFF_HZ, iterations_to_settle
 from ddpc_codegen.design.baselines import fit_prefilter
@@ -36,7 +37,8 @@ from ddpc_codegen.testbed.ilc import next_table
 from ddpc_codegen.testbed.sitl_front import steps_front
 from ddpc_codegen.values.prefilter import PrefilterModel
 
-__all__ = ["SITL_PARAMS", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "fly_ilc", "run_pipeline", "main", "format_condition"]
+__all__ = ["SITL_PARAMS", "CONFIGS", "COLLECT", "ILC_ITERATIONS", "fly_ilc", "run_pipeline", "run_setups", "merge_setups",
+           "main", "format_condition"]
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository (ddpc_codegen/testbed/ -> .)
 # ArduCopter: SET_ATTITUDE_TARGET.thrust as a thrust (GUID_OPTIONS bit 3), as the profile assumes.
@@ -106,7 +108,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
                  steer_s: float = 13.0, sitl_params: dict | None = None, baselines: bool = True,
                  ilc_iterations: int = ILC_ITERATIONS, ilc_law: dict | None = None,
                  conditions: list[str] | None = None, rounds: int = 2, steps_s: float = STEPS_DURATION,
-                 trajectories: tuple[str, ...] = (), config: str | None = None) -> dict:
+                 trajectories: tuple[str, ...] = (), config: str | None = None, setup: str = "outdoor") -> dict:
     """Start the SITL here, fly baseline -> collect -> codegen -> steer (-> with ``baselines``: the
     prefilter baseline, identified from the same collect log, and ``ilc_iterations`` ILC flights of
     ``baseline_s`` each, :func:`fly_ilc`, with ``ilc_law`` if given; then each of ``conditions``
@@ -116,17 +118,20 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
     right after the steered ellipse (``steered_trajectories``); the figures (JSON-ready). ``config``: a
     steering config in ``configs/`` instead of the autopilot's default (:data:`CONFIGS`).
     ``sitl_params``: the SITL's extra parameters (default ``SITL_PARAMS``; e.g. ArduCopter's
-    climb-rate mode: ``{"GUID_OPTIONS": 0}``)."""
+    climb-rate mode: ``{"GUID_OPTIONS": 0}``). ``setup``: the estimation setup every flight flies in
+    (:data:`~ddpc_codegen.testbed.sitl_setups.SETUPS`: "outdoor", the autopilot's EKF on its own sensors, or "lab",
+    on the motion-capture stand-in), described in the result's ``setup``."""
     if conditions and not baselines:
         raise ValueError("conditions need the baselines (the prefilter is fitted there)")
     unknown = sorted(set(conditions or ()) - set(CONDITIONS[autopilot]))
     if unknown:
         raise ValueError(f"unknown condition(s) {unknown}; choose from {sorted(CONDITIONS[autopilot])}")
+    params = setup_params(autopilot, setup, SITL_PARAMS[autopilot] if sitl_params is None else sitl_params)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     res: dict = {"autopilot": autopilot}
-    with make_sitl(autopilot, params=SITL_PARAMS[autopilot] if sitl_params is None else sitl_params) as sitl:
+    with make_sitl(autopilot, params=params) as raw, flown_setup(raw, autopilot, setup) as sitl:
         base = fly(sitl, autopilot, "passthrough", out, baseline_s)
         fly(sitl, autopilot, "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT[autopilot]))
         solver = codegen(ROOT / "configs" / (config or CONFIGS[autopilot]), out / f"{autopilot}_collect.npz",
@@ -147,6 +152,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
             steps = write_steps_trajectory(out / "steps.csv")
             res["conditions"] = {name: fly_condition(sitl, autopilot, name, out, steps, solver, pf, rounds, steps_s)
                                  for name in conditions}
+    res["setup"] = describe_setup(autopilot, setup, sitl.mocap)
     if "steps" in res.get("conditions", {}):
         add_steps_front(res["conditions"]["steps"], out, autopilot, ROOT / "configs" / (config or CONFIGS[autopilot]))
     fb, fs = flight_figures(out / f"{autopilot}_passthrough.npz"), flight_figures(out / f"{autopilot}_steer.npz")
@@ -157,7 +163,7 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         "rmse_z": {"baseline": fb["rmse_z"], "steered": fs["rmse_z"]},
         "rmse_z_truth": {"baseline": fb["rmse_z_truth"], "steered": fs["rmse_z_truth"]},
         "estimator_rms": {"baseline": fb["estimator_rms"], "steered": fs["estimator_rms"]},
-        "engaged_fraction": fs["engaged_fraction"],
+        "engaged_fraction": fs["engaged_fraction"], "engaged_share": fs["engaged_share"],
         "thrust_step_rms": {"baseline": fb["thrust_step_rms"], "steered": fs["thrust_step_rms"]},
         "rate_hz": steer["rate_hz"], "latency_us": steer["latency_us"], "fallbacks": steer["fallbacks"],
         "fallback_reasons": steer["fallback_reasons"], "missed_ticks": steer["missed_ticks"],
@@ -166,6 +172,22 @@ def run_pipeline(autopilot: str, out_dir: str, baseline_s: float = 13.0, collect
         "wall_s": round(time.monotonic() - t0, 1),
     })
     return res
+
+
+def run_setups(autopilot: str, out_dir: str, setups: list[str], **kw) -> dict:
+    """:func:`run_pipeline` in each of ``setups`` in turn (one SITL each, in ``<out_dir>/``
+    :func:`~ddpc_codegen.testbed.sitl_setups.setup_folder`), ``kw`` for every one; the results per setup."""
+    return {s: run_pipeline(autopilot, str(Path(out_dir) / setup_folder(autopilot, s)), setup=s, **kw) for s in setups}
+
+
+def merge_setups(old: dict | None, new: dict[str, dict]) -> dict:
+    """One autopilot's entry of ``sitl.json`` from its stored one (``old``) and the setups just flown (``new``):
+    the outdoor result at the top (as before the lab existed), the lab one under ``lab``; a setup not flown now
+    keeps its stored result."""
+    old = old or {}
+    outdoor = new.get("outdoor", {k: v for k, v in old.items() if k != "lab"})
+    lab = new.get("lab", old.get("lab"))
+    return {**outdoor, **({"lab": lab} if lab is not None else {})}
 
 
 def trajectory_tag(spec: str) -> str:
@@ -185,6 +207,7 @@ def ellipse_figures(out: Path, autopilot: str, ilc: dict) -> tuple[dict, dict]:
                  "prefilter": json.loads((out / "prefilter.json").read_text())["prefilter"], "ilc": ilc}
     ellipse = {k: baselines[k] for k in ("rmse_z", "rmse_z_truth", "thrust_step_rms")}
     ellipse.update(estimator_rms={m: v["estimator_rms"] for m, v in f.items()},
+                   ekf_rms={m: v.get("ekf_rms") for m, v in f.items()},
                    max_ref_step={m: v["max_ref_step"] for m, v in f.items()},
                    max_offset_step={m: v["max_offset_step"] for m, v in f.items()},
                    solve_us_p99={m: v["solve_us_p99"] for m, v in f.items()})
@@ -199,6 +222,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--conditions", default="steps,wind,motor,heavy",
                    help="after the ellipse, on the non-repeating steps file (comma list, 'none': skip; default %(default)s)")
     p.add_argument("--rounds", type=int, default=2, help="flights of each method per condition (default %(default)s)")
+    p.add_argument("--setups", default=",".join(SETUPS),
+                   help="estimation setups to fly, each with every flight (comma list of outdoor, lab; default "
+                        "%(default)s): outdoor the autopilot's EKF on its own sensors, lab on the motion-capture "
+                        "stand-in; a setup not flown keeps its stored figures")
     p.add_argument("--steps-s", type=float, default=STEPS_DURATION, help="seconds of each steps-file flight")
     p.add_argument("--fit-prefilter", metavar="COLLECT_LOG", default=None,
                    help="only fit the prefilter baseline on a collect flight's tick log (as the demo does) and exit")
@@ -222,19 +249,25 @@ def main(argv: list[str] | None = None) -> int:
     conds = [] if a.conditions.strip() == "none" else comma_list(a.conditions)
     if a.rounds < 1:
         p.error(f"--rounds must be >= 1; got {a.rounds}")
+    setups = comma_list(a.setups)
+    if not setups or set(setups) - set(SETUPS):
+        p.error(f"--setups: choose from {', '.join(SETUPS)}; got {a.setups!r}")
     jobs = {}
     for ap in available_autopilots(a.autopilot, "sitl-demo"):
         flights = sum(not isinstance(CONDITIONS[ap].get(c), str) for c in conds) * a.rounds * 4
-        print(f"[sitl-demo] {ap}: ground -> baseline -> collect -> codegen -> steer -> prefilter, ctrl ff, ilc"
-              f"{f' -> {len(conds)} condition(s) x {a.rounds} round(s): {flights} more flights' if conds else ''} "
+        print(f"[sitl-demo] {ap} ({', '.join(setups)}): ground -> baseline -> collect -> codegen -> steer -> "
+              f"prefilter, ctrl ff, ilc{f' -> {len(conds)} condition(s) x {a.rounds} round(s): {flights} more flights' if conds else ''} "
               "(~40 s of wall time per flight) ...", flush=True)
-        jobs[ap] = ("ddpc_codegen.testbed.sitl_demo:run_pipeline",
-                    {"autopilot": ap, "out_dir": str(Path(a.out) / f"sitl_{ap}"), "conditions": conds,
-                     "rounds": a.rounds, "steps_s": a.steps_s}, 900 + 120 * flights)
-    report, failed = fly_autopilots(jobs, "sitl-demo")
+        jobs[ap] = ("ddpc_codegen.testbed.sitl_demo:run_setups",
+                    {"autopilot": ap, "out_dir": str(Path(a.out)), "setups": setups, "conditions": conds,
+                     "rounds": a.rounds, "steps_s": a.steps_s}, (900 + 120 * flights) * len(setups))
+    flown, failed = fly_autopilots(jobs, "sitl-demo")
+    path = Path(a.out) / "sitl.json"
+    stored = json.loads(path.read_text()) if path.is_file() else {}
+    report = {ap: merge_setups(stored.get(ap), per_setup) for ap, per_setup in flown.items()}
     for ap, res in report.items():
-        print_result(ap, res)
-    update_report(Path(a.out) / "sitl.json", report, default=nan_as_null)
+        print_setups(ap, res)
+    update_report(path, report, default=nan_as_null)
     return 0 if report and not failed else 1
 
 
@@ -242,21 +275,28 @@ def rescore(out: Path) -> int:
     """Score the flights of ``out/sitl.json`` again with today's figures, without flying: each autopilot's
     ellipse from its tick logs, each condition from its stored rounds; print and write them back."""
     report = json.loads((out / "sitl.json").read_text())
-    for ap, res in report.items():
-        if ap not in CONDITIONS or "conditions" not in res:
+    for ap, entry in report.items():
+        if ap not in CONDITIONS:
             continue
-        conds = res["conditions"]
-        for name, c in conds.items():
-            if name != "ellipse" and "rounds" in c:
-                conds[name] = {**c, **summarize_rounds(rescored_rounds(out / f"sitl_{ap}", ap, name, c["rounds"]))}
-        if "ellipse" in conds:
-            res["baselines"], conds["ellipse"] = ellipse_figures(out / f"sitl_{ap}", ap, res["baselines"]["ilc"])
-        if "steps" in conds and "rounds" in conds["steps"]:
-            config = (conds["steps"].get("front") or {}).get("config") or CONFIGS[ap]
-            add_steps_front(conds["steps"], out / f"sitl_{ap}", ap, ROOT / "configs" / config)
-        print_result(ap, res)
+        for setup, res in (("outdoor", entry), ("lab", entry.get("lab"))):
+            if res is not None and "conditions" in res:
+                rescore_setup(out / setup_folder(ap, setup), ap, res)
+        print_setups(ap, entry)
     update_report(out / "sitl.json", report, default=nan_as_null)
     return 0
+
+
+def rescore_setup(folder: Path, ap: str, res: dict) -> None:
+    """One setup's result of autopilot ``ap`` scored again (in place) from its flights in ``folder``."""
+    conds = res["conditions"]
+    for name, c in conds.items():
+        if name != "ellipse" and "rounds" in c:
+            conds[name] = {**c, **summarize_rounds(rescored_rounds(folder, ap, name, c["rounds"]))}
+    if "ellipse" in conds:
+        res["baselines"], conds["ellipse"] = ellipse_figures(folder, ap, res["baselines"]["ilc"])
+    if "steps" in conds and "rounds" in conds["steps"]:
+        config = (conds["steps"].get("front") or {}).get("config") or CONFIGS[ap]
+        add_steps_front(conds["steps"], folder, ap, ROOT / "configs" / config)
 
 
 def add_steps_front(steps: dict, folder: Path, autopilot: str, config: Path) -> None:
@@ -311,6 +351,14 @@ def fly_autopilots(jobs: dict[str, tuple[str, dict, float]], tag: str) -> tuple[
     return results, failed
 
 
+def print_setups(ap: str, entry: dict) -> None:
+    """The printed lines of one autopilot's entry: its outdoor result (if flown), then its lab one."""
+    if "rmse_z" in entry:
+        print_result(ap, entry)
+    if entry.get("lab") is not None:
+        print_result(f"{ap} lab", entry["lab"])
+
+
 def print_result(ap: str, res: dict) -> None:
     """The printed lines of one autopilot: the ellipse, the baselines, each condition and its target."""
     r, rt = res["rmse_z"], res["rmse_z_truth"]
@@ -323,6 +371,9 @@ def print_result(ap: str, res: dict) -> None:
         if ap_end is not None and not ap_end["held"]:
             print(f"[sitl-demo] {ap}: WARNING: the {flight} flight started {ap_end['error_at_start_m']:+.3f} m off its "
                   f"start height (did not hold it within {ap_end['timeout_s']:g} s)", flush=True)
+        if ap_end is not None and ap_end.get("trim_m"):
+            print(f"[sitl-demo] {ap}: the {flight} flight's take-off trimmed its reference {ap_end['trim_m']:+.3f} m "
+                  "to reach its start", flush=True)
     if "baselines" in res:
         print(format_baselines(ap, res["baselines"]), flush=True)
     for name, c in res.get("conditions", {}).items():

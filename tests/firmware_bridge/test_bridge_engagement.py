@@ -108,8 +108,9 @@ def test_a_take_off_that_hovers_low_is_trimmed_to_the_start_before_the_trajector
     res = eng.approach_result
     assert res["held"] and not res["off_start"] and res["trim_m"] == pytest.approx(0.35, abs=0.03)
     assert abs(zs[first - 1] - 1.0) <= 0.05  # the steering starts where the trajectory does
-    assert any("at the trajectory's start height: trajectory starts (the reference trimmed +0.3" in e
-               for _, e in events.events)
+    said = [e for _, e in events.events]
+    assert said[-2].startswith("take-off: the reference trimmed +0.3") and "handed back" in said[-2]
+    assert said[-1] == "at the trajectory's start height: trajectory starts"
     z_ref = np.array([r[0] for r in refs])
     assert np.max(np.abs(np.diff(z_ref))) <= 0.5 * 0.005 + 1e-9  # ramp, trim and hand-back: never a step
     assert z_ref[-1] == 1.0 and reasons[-1] == ""  # handed back: the trajectory's own reference, engaged
@@ -124,7 +125,8 @@ def test_a_take_off_that_times_out_says_the_trajectory_started_off_its_start():
     _sagging_takeoff(eng, sag=0.35, seconds=8.0)
     res = eng.approach_result
     assert not res["held"] and res["off_start"] and res["error_at_start_m"] < -0.05
-    assert any("trajectory starts OFF its start" in e for _, e in events.events)
+    assert events.events[-1][1].startswith("WARNING: OFF ITS START: did not hold the start height within 0.05 m")
+    assert events.events[-1][1].endswith("trajectory starts anyway")
 
 
 def test_blend_starts_at_the_measurement_and_hands_over_exactly():
@@ -226,7 +228,9 @@ def test_the_approach_holds_or_times_out_as_configured_and_says_so(tmp_path, z):
     assert ap["error_at_start_m"] == pytest.approx(z - 0.9, abs=1e-6)
     if z == 0.5:
         assert ap["held"] is False and ap["waited_s"] == pytest.approx(1.5, abs=0.011)   # to a tick or two
-        assert "WARNING: did not hold the start height within 0.1 m for 1 s in 1.5 s (height error now -0.400 m" in out
+        assert ap["off_start"] is True and ap["trim_m"] == pytest.approx(0.0, abs=0.005)  # timed out as the trim began
+        assert ("WARNING: OFF ITS START: did not hold the start height within 0.1 m for 1 s in 1.5 s (height error "
+                "now -0.400 m") in out
     else:
         assert ap["held"] is True and ap["waited_s"] == pytest.approx(1.0, abs=0.011)
         assert "at the trajectory's start height: trajectory starts" in out and "WARNING" not in out
