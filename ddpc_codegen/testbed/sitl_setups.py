@@ -91,6 +91,7 @@ def flown_setup(sitl: Any, autopilot: str, setup: str, config: MocapConfig | Non
     from pymavlink import mavutil  # optional: the SITL harness only
 
     on_mocap = LAB_SOURCE[autopilot] == "mocap"
+    sitl.connect(timeout=90).close()  # booted: ArduCopter waits for a client on its first link before the second opens
     link = second_link(sitl).connect(timeout=30)
     fwd = (mavutil.mavlink_connection(f"udpout:127.0.0.1:{MOCAP_PORT}", source_system=1, source_component=197)
            if on_mocap else None)

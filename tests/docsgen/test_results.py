@@ -200,3 +200,41 @@ def test_the_proxy_page_says_which_preview_wins_on_each_path():
     assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 120 | 480 |" in page
     index = results.pages({"proxy.json": rep})["index.md"]
     assert "| helix | 40.0 | 8.0 (steered, delay) | 5.00 |" in index
+
+
+def _run(cond: dict, estimator: str = "") -> dict:
+    """One setup's run of one autopilot (the ellipse flight's loop figures and one condition)."""
+    return {"rate_hz": 200.0, "missed_ticks": 0, "engaged_fraction": 0.99, "engaged_share": 0.98, "fallbacks": 0,
+            "wall_s": 600.0, "latency_us": {"p50": 2300.0, "p99": 4700.0}, "conditions": {"steps": cond},
+            "setup": {"estimator": estimator}}
+
+
+def test_the_sitl_page_shows_both_setups_side_by_side_and_says_which_figure_judges():
+    """A synthetic report with PX4 flown outdoors and in the lab: the page names the lab's true height as the
+    judged figure, puts both setups' steered, best simple fix and measurement error in one table, renders the lab's
+    own tables (the EKF's error beside the mocap's), and the headline is the lab's."""
+    lab_cond = {"rmse_z": {"passthrough": 0.05, "ctrl_ff": 0.03, "prefilter": 0.02, "ilc": None, "steered": 0.004},
+                "rmse_z_truth": {"passthrough": 0.051, "ctrl_ff": 0.031, "prefilter": 0.021, "ilc": None,
+                                 "steered": 0.0045},
+                "estimator_rms": {"steered": 0.0012}, "ekf_rms": {"steered": 0.116}}
+    lab = _run(lab_cond, "the motion capture itself")
+    sitl = {"px4": {**_run(SITL_COND), "lab": lab}}
+    page = results_sitl.sitl_page(sitl)
+    assert "## Which figure judges the steering" in page and "the true height in the **lab** setup" in page
+    assert "| the ellipse flight | PX4 | PX4 lab |" in page
+    assert "| engaged share of the trajectory's ticks [%] | 98.0 | 98.0 |" in page
+    # side by side: outdoor steered 113.1 vs the prefilter's 107.0, the EKF 111.9 off; lab 4.5 vs 21.0, 1.2 off
+    assert "| steps | 113.1 | 107.0 (prefilter) | 111.9 | 4.5 | 21.0 (prefilter) | 1.2 |" in page
+    assert page.index("### True height RMSE") < page.index("### Lab: True height RMSE")
+    assert "### Lab: Height RMSE on the lab setup's measured height" in page
+    assert "(the loop's measurement: the motion capture itself)" in page
+    assert "| steps | 1.2 | -- | 3.75 | 116.0 |" in page  # the mocap's error, the EKF's beside
+    index = results.index_page({"sitl.json": sitl})
+    assert "The lab setup (the height measured on the motion capture)." in index
+    assert "| steps | 51.0 | 21.0 (prefilter) | 4.5 | 0.21 | 3.75 |" in index
+    # a report without a lab run: the outdoor page, saying the lab one is not flown
+    outdoor = results_sitl.sitl_page({"px4": _run(SITL_COND)})
+    assert "Only the outdoor setup is flown here (`make sitl-demo --setups lab`" in outdoor and "Lab:" not in outdoor
+    # a lab-only entry (no outdoor run stored yet): only the lab's tables
+    only_lab = results_sitl.sitl_page({"px4": {"lab": lab}})
+    assert "| the ellipse flight | PX4 lab |" in only_lab and "### True height RMSE" not in only_lab
