@@ -28,12 +28,12 @@ def autopilots(sitl: dict) -> dict[str, dict]:
 
 
 JUDGE_TEXT = (
-    "Which figure judges the steering: the true height in the **lab** setup. There the height the loop measures "
-    "(ArduCopter's EKF fused on the motion-capture stand-in; on PX4, whose build fuses no external vision, the "
-    "motion capture itself) is within a few mm of the truth (the measurement's error beside each flight), so the "
-    "true-height error left is the steering's. In the **outdoor** setup the autopilot's estimate is tens to "
-    "hundreds of mm off the truth: the true height there is limited by the estimator, and the height on the "
-    "estimate says what the steering did with what it measured.\n")
+    "The true height in the **lab** setup judges the steering. There the height the loop measures (ArduCopter's "
+    "EKF fused on the motion-capture stand-in; on PX4, whose build fuses no external vision, the motion capture "
+    "itself) is within a few mm of the truth, and that measurement's own error stands beside each flight: a "
+    "steered true-height error near it is the measurement's limit, anything above it the steering's. In the "
+    "**outdoor** setup the autopilot's estimate is tens to hundreds of mm off the truth: the true height there is "
+    "limited by the estimator, and the height on the estimate says what the steering did with what it measured.\n")
 
 
 def judged_setup(ap: dict) -> tuple[str, dict]:

@@ -220,7 +220,7 @@ def test_the_sitl_page_shows_both_setups_side_by_side_and_says_which_figure_judg
     lab = _run(lab_cond, "the motion capture itself")
     sitl = {"px4": {**_run(SITL_COND), "lab": lab}}
     page = results_sitl.sitl_page(sitl)
-    assert "## Which figure judges the steering" in page and "the true height in the **lab** setup" in page
+    assert "## Which figure judges the steering" in page and "The true height in the **lab** setup judges" in page
     assert "| the ellipse flight | PX4 | PX4 lab |" in page
     assert "| engaged share of the trajectory's ticks [%] | 98.0 | 98.0 |" in page
     # side by side: outdoor steered 113.1 vs the prefilter's 107.0, the EKF 111.9 off; lab 4.5 vs 21.0, 1.2 off
