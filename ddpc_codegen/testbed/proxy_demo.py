@@ -36,7 +36,7 @@ from ddpc_codegen.testbed.sitl_adapt import second_link
 from ddpc_codegen.testbed.sitl_demo import codegen
 from ddpc_codegen.testbed.sitl_observer import Observer
 
-__all__ = ["run_ardupilot", "score", "main"]
+__all__ = ["KINDS", "run_ardupilot", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
@@ -70,7 +70,8 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
     proxy = None
     if proxy_args is not None:
         cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
-               "--vehicle", "tcp:127.0.0.1:5760", "--stats", str(out / f"{name}.proxy.json"), *proxy_args]
+               "--vehicle", "tcp:127.0.0.1:5760", "--stats", str(out / f"{name}.proxy.json"),
+               "--log", str(out / f"{name}.ticks.npz"), "--overwrite", *proxy_args]
         proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
         _wait_port(APP_PORT)
         time.sleep(1.0)  # the proxy's TCP connection to the vehicle
@@ -122,17 +123,22 @@ def _proxy_figures(stats: dict | None) -> dict | None:
                                                 "period_mismatch", "preview_delay_s")} if st else None}
 
 
+KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
+
+
 def run_ardupilot(out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
-                  delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab") -> dict:
+                  delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab",
+                  kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep") -> dict:
     """In a private network namespace: SITL (``setup`` "lab": on the mocap stand-in), the collect flight, codegen,
-    then per path the direct, pass-through, steered (local preview) and steered (``delay``) flights. Returns the
-    report's ``ardupilot`` entry."""
+    then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``).
+    Returns the report's ``ardupilot`` entry."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cfg = MocapConfig()
     sitl = make_sitl("ardupilot", params=lab_params("ardupilot", cfg) if setup == "lab" else None).start()
     obs = mocap = link = None
-    res: dict = {"setup": setup, "paths": {}, "collect": {}}
+    res: dict = {"setup": setup, "z_feedforward": z_feedforward, "paths": {}, "collect": {}}
+    zff = ["--z-feedforward", z_feedforward]
     try:
         obs = _observer(sitl)
         if setup == "lab":
@@ -143,14 +149,14 @@ def run_ardupilot(out_dir: str, paths: list[str], duration: float = 30.0, collec
         ground = obs.ground()
         print(f"[proxy-demo] ardupilot ({setup}): collect through the proxy (the app's own path + a dither)", flush=True)
         col = flight(out, "collect", "wander", collect_s, ["--dither", f"{dither:g}", "--dither-hold", str(dither_hold),
-                                                        "--collect", str(out / "collect.npz"), "--overwrite"],
-                     feedforward="none")
+                                                        "--collect", str(out / "collect.npz"), "--overwrite", *zff])
         res["collect"] = {"path": "wander", "seconds": collect_s, "dither_m": dither, "dither_hold": dither_hold,
                           "proxy": _proxy_figures(col["proxy"])}
         solver = codegen(ROOT / "configs" / "proxy_ardupilot.toml", out / "collect.npz", out / "solver")
         for path in paths:
-            runs = {"direct": None, "passthrough": [], "steer_local": ["--steer", str(solver)],
-                    "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}"]}
+            runs = {"direct": None, "passthrough": [], "steer_local": ["--steer", str(solver), *zff],
+                    "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}", *zff]}
+            runs = {k: v for k, v in runs.items() if k in kinds}
             res["paths"][path] = {}
             for kind, args in runs.items():
                 print(f"[proxy-demo] ardupilot: {path}, {kind}", flush=True)
@@ -197,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--delay", type=float, default=0.5, help="the declared preview delay [s] (default %(default)s)")
     p.add_argument("--setup", choices=("lab", "outdoor"), default="lab",
                    help="lab: the EKF on the motion-capture stand-in; outdoor: GPS + barometer (default %(default)s)")
+    p.add_argument("--z-feedforward", choices=("keep", "zero"), default="keep",
+                   help="the proxy's --z-feedforward in the collect and steered flights (default %(default)s)")
     p.add_argument("--out", type=Path, default=ROOT / "reports" / "proxy_ardupilot")
     p.add_argument("--report", type=Path, default=ROOT / "reports" / "proxy.json")
     a = p.parse_args(argv)
@@ -206,10 +214,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     paths = [s for s in a.paths.split(",") if s]
     kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect, "delay": a.delay,
-          "setup": a.setup}
+          "setup": a.setup, "z_feedforward": a.z_feedforward}
     budget = 300 + a.collect + len(paths) * 4 * (a.duration + 60)
     res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
-    update_report(a.report, {"ardupilot": nan_as_null(res)})
+    update_report(a.report, {"ardupilot": res}, default=nan_as_null)
     print(json.dumps(res["paths"], indent=1))
     return 0
 

@@ -59,10 +59,14 @@ def build_proxy_parser() -> argparse.ArgumentParser:
                         "--collect; default 0)")
     s.add_argument("--dither-hold", type=int, default=3, metavar="N",
                    help="shortest hold of a dither level, setpoints (default %(default)s)")
-    s.add_argument("--z-feedforward", choices=("zero", "keep"), default="zero",
-                   help="a steered (or dithered) setpoint's z velocity / acceleration: zero (the steered height "
-                        "carries the lead, as in the flights it was collected on) or the app's own (default "
-                        "%(default)s)")
+    s.add_argument("--z-feedforward", choices=("keep", "zero"), default="keep",
+                   help="a steered (or dithered) setpoint's z velocity / acceleration: the app's own, or zero (the "
+                        "steered height then carries the lead; collect the same way) (default %(default)s)")
+    s.add_argument("--coordinates", choices=("deviation", "absolute"), default="deviation",
+                   help="what --collect records: deviation (the offset added to the app's height in, the tracking "
+                        "error out: for an app that sends its own velocity / acceleration) or absolute (the height "
+                        "sent in, the height flown out) (default %(default)s; a solver's signals say which it "
+                        "steers)")
     s.add_argument("--max-step", type=float, default=None, metavar="M",
                    help="largest steering offset from the app's height [m] (the step guard; default none)")
     s.add_argument("--max-age", type=float, default=0.2, metavar="S",
@@ -90,7 +94,8 @@ def _steering(args) -> ProxySteering | None:
         solver = load_solver(args.steer)
     return ProxySteering(VehicleView(), solver=solver, preview=make_preview(args.preview_delay),
                          max_age=args.max_age, max_step=args.max_step, dither=args.dither,
-                         dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward)
+                         dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward,
+                         coordinates=args.coordinates)
 
 
 def _save(hook: ProxySteering, args) -> dict:
@@ -101,7 +106,7 @@ def _save(hook: ProxySteering, args) -> dict:
         out["log"] = str(hook.record.save_log(args.log, summary, args.overwrite))
     if args.collect is not None:
         try:
-            ds = hook.record.dataset(hook.tick, {"steering": hook.mode})
+            ds = hook.record.dataset(hook.tick, {"steering": hook.mode}, hook.coordinates)
             out["collect"] = str(ds.save(output_path(args.collect, args.overwrite), overwrite=True))
         except ValueError as e:
             out["collect_error"] = str(e)

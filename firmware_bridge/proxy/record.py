@@ -57,8 +57,9 @@ class ProxyRecord:
                 start = None
         return out
 
-    def dataset(self, dt: float, metadata: dict | None = None) -> IODataset:
-        """The engaged stretches as an :class:`IODataset` (u: the heights sent, y: the measured ones; [m], up).
+    def dataset(self, dt: float, metadata: dict | None = None, coordinates: str = "absolute") -> IODataset:
+        """The engaged stretches as an :class:`IODataset` [m]: absolute (u ``z_ref``: the heights sent, y ``z``: the
+        measured ones, up), or deviation (u ``z_offset``: sent - the app's, y ``z_error``: measured - the app's).
 
         Raises:
             ValueError: no stretch long enough was flown.
@@ -68,9 +69,11 @@ class ProxyRecord:
             raise ValueError(f"no engaged stretch of {_MIN_STRETCH_S:g} s or more with fresh positions was flown: "
                              "nothing to collect (was the vehicle armed in off-board / guided?)")
         r = self.view()
-        return IODataset([r["u"][i, None] for i in idx], [r["y"][i, None] for i in idx], dt,
-                         input_names=["z_ref"], output_names=["z"], input_units=["m"], output_units=["m"],
-                         metadata={"source": "ddpc-proxy --collect", **(metadata or {})})
+        base = r["r_nom"] if coordinates == "deviation" else np.zeros(len(r))
+        names = (["z_offset"], ["z_error"]) if coordinates == "deviation" else (["z_ref"], ["z"])
+        return IODataset([(r["u"] - base)[i, None] for i in idx], [(r["y"] - base)[i, None] for i in idx], dt,
+                         input_names=names[0], output_names=names[1], input_units=["m"], output_units=["m"],
+                         metadata={"source": "ddpc-proxy --collect", "coordinates": coordinates, **(metadata or {})})
 
     def save_log(self, path: str | Path, summary: dict, overwrite: bool = False) -> Path:
         """Every row and the session's summary as ``.npz`` (``rows``, ``reasons``, ``summary`` JSON)."""

@@ -9,6 +9,15 @@ steering policy and its fallbacks; passthrough; collect: the app's setpoint plus
 nominal reference is the app's height (``-z``); the preview comes from :mod:`.preview`; the measured output is
 the vehicle's ``LOCAL_POSITION_NED`` height, in the same frame as the setpoint.
 
+Two coordinate systems, named by the solver's signals (the generated solver is the authority on what it steers):
+
+* absolute (inputs ``z_ref``, outputs ``z``): the loop from the height sent to the height flown; the app's height
+  is the nominal reference and the preview its future. Right for an app without its own feed-forward.
+* deviation (inputs ``z_offset``, outputs ``z_error``): the loop from the offset added to the app's height to the
+  tracking error (measured height - the app's height); the nominal offset and the desired error are 0. Right for
+  an app that sends its own velocity / acceleration: the autopilot's feed-forward carries the path, and what is
+  left to steer is the error around it, which an absolute model cannot separate from the path.
+
 What goes out: only the height of the app's setpoint is replaced (x, y, velocity and acceleration fields, yaw,
 ``type_mask`` and the frame are the app's). A tick that is not steered (not engaged, stale, a solver failure,
 the guard) sends the app's own setpoint unchanged (with ``--preview-delay``: its delayed one), and the rate
@@ -44,19 +53,28 @@ _Z_IGNORE = mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE
 _WIDE = 1e4  # m: the gate's height range when no solver bounds it (passthrough, collect)
 
 
-def check_proxy_solver(solver) -> float:
-    """The solver's tick [s], after checking it steers a height loop (inputs ``z_ref``, outputs ``z``)."""
+COORDINATES = {"absolute": (("z_ref",), ("z",)), "deviation": (("z_offset",), ("z_error",))}
+
+
+def check_proxy_solver(solver) -> tuple[float, str]:
+    """(the solver's tick [s], its coordinates), after checking it steers a height loop (:data:`COORDINATES`)."""
     man = solver.manifest
     d, sig = man["dims"], man.get("signals") or {}
-    if (d["m"], d["p"]) != (1, 1) or tuple(sig.get("inputs") or ()) != ("z_ref",) \
-            or tuple(sig.get("outputs") or ()) != ("z",):
+    io = (tuple(sig.get("inputs") or ()), tuple(sig.get("outputs") or ()))
+    kind = next((k for k, v in COORDINATES.items() if v == io), None)
+    if (d["m"], d["p"]) != (1, 1) or kind is None:
         raise ValueError(f"the proxy steers the height of position setpoints: a solver with inputs ['z_ref'] and "
-                         f"outputs ['z'] (m = p = 1); this one has inputs {sig.get('inputs')}, outputs "
-                         f"{sig.get('outputs')} (configs/proxy_*.toml make one)")
+                         f"outputs ['z'], or ['z_offset'] and ['z_error'] (m = p = 1); this one has inputs "
+                         f"{sig.get('inputs')}, outputs {sig.get('outputs')} (configs/proxy_*.toml make one)")
     dt = sig.get("dt")
     if not (isinstance(dt, (int, float)) and dt > 0):
         raise ValueError("the solver's manifest has no signals.dt: regenerate it")
-    return float(dt)
+    return float(dt), kind
+
+
+def _no_error(t: np.ndarray) -> np.ndarray:
+    """Deviation coordinates' desired outputs: no tracking error, (len(t), 1)."""
+    return np.zeros((len(t), 1))
 
 
 class ProxySteering:
@@ -72,6 +90,7 @@ class ProxySteering:
         dither: collect: the PRBS amplitude added to the app's height [m]; dither_hold: its shortest hold [ticks].
         period_tolerance: steer only while the app's median period is within this fraction of ``dt``.
         record: where each tick is recorded (None: not kept).
+        coordinates: collect / passthrough: what the record's dataset holds (a solver brings its own).
         z_feedforward: "zero": a rewritten setpoint's z velocity and acceleration are 0 (the steered height carries
             the lead; the loop collected and steered is then the position loop alone); "keep": the app's.
     """
@@ -80,13 +99,16 @@ class ProxySteering:
                  dt: float | None = None, max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
                  dither_hold: int = 3, seed: int = 0, period_tolerance: float = 0.25, offset_rate: float = 1.0,
                  events: EventLog | None = None, record: ProxyRecord | None = None,
-                 z_feedforward: str = "zero") -> None:
+                 z_feedforward: str = "keep", coordinates: str = "absolute") -> None:
         if z_feedforward not in ("zero", "keep"):
             raise ValueError(f"z_feedforward must be 'zero' or 'keep'; got {z_feedforward!r}")
         self.ff_fields = {"vz": 0.0, "afz": 0.0} if z_feedforward == "zero" else {}
         self.view, self.preview = view, preview or LocalPreview()
         self.events = events or EventLog(name="proxy")
-        self.dt = check_proxy_solver(solver) if solver is not None else dt
+        self.dt, self.coordinates = check_proxy_solver(solver) if solver is not None else (dt, coordinates)
+        if self.coordinates not in COORDINATES:
+            raise ValueError(f"coordinates must be one of {sorted(COORDINATES)}; got {coordinates!r}")
+        self.deviation = self.coordinates == "deviation"
         self.max_age, self.period_tolerance = max_age, period_tolerance
         self.record = record
         self.period = SetpointPeriod(ring_size=64)
@@ -115,7 +137,8 @@ class ProxySteering:
         steerer = ReferenceSteerer.for_solver(solver, max_step=None if max_step is None else np.array([max_step]))
         policy = SteeringPolicy(steerer, ramp_ticks=max(int(round(0.5 / self.dt)), 1))
         t_f = solver.manifest["dims"]["t_f"]
-        stage = ReferenceStage("steer", self.preview.desired, self.dt, policy=policy,
+        desired = _no_error if self.deviation else self.preview.desired
+        stage = ReferenceStage("steer", desired, self.dt, policy=policy,
                                ahead=self.dt * np.arange(t_f), steerer=steerer)
         du = (solver.manifest.get("bounds") or {}).get("du_max") or [None]
         rate = np.array([np.inf if du[0] is None else float(du[0])])
@@ -148,8 +171,10 @@ class ProxySteering:
     def _tick(self, cur, now: float) -> tuple[float | None, str]:
         """(the height to send [m, up], None: the app's own; the tick's reason)."""
         view, eng = self.view, self.engagement
-        r = np.array([-float(cur.z)])
-        y = np.array([view.height()])
+        app = -float(cur.z)
+        base = app if self.deviation else 0.0  # deviation: offsets and errors around the app's height
+        r = np.array([app - base])
+        y = np.array([view.height(now) - base])
         age = view.position_age(now)
         fresh = age <= self.max_age
         heard = view.heard(now)
@@ -163,13 +188,13 @@ class ProxySteering:
             # not steered: the app's own setpoint, from this tick on (the rate bound counts from it)
             self.gate.gate.passed(r_nom)
             self.stage.applied(ref, r_nom)
-            self._record(now, ref, r_nom, 0, age, engaged)
+            self._record(now, ref, r_nom, 0, age, engaged, base)
             return None, ref.reason
         u, flags = self.gate.reference(ref)
         self.stage.applied(ref, u)
         eng.applied(u)
-        self._record(now, ref, u, flags, age, engaged)
-        return float(u[0]), ref.reason
+        self._record(now, ref, u, flags, age, engaged, base)
+        return float(u[0]) + base, ref.reason
 
     @property
     def tick(self) -> float:
@@ -196,10 +221,11 @@ class ProxySteering:
                             f"{self.dt * 1e3:.1f} ms: not steering (a solver generated at the app's rate steers it)")
         return ok
 
-    def _record(self, now: float, ref, u: np.ndarray, flags: int, age: float, engaged: bool) -> None:
+    def _record(self, now: float, ref, u: np.ndarray, flags: int, age: float, engaged: bool, base: float) -> None:
+        """One row, in absolute heights whatever the coordinates."""
         if self.record is not None:
-            self.record.add(now, float(ref.r_nom[0]), float(u[0]), float(ref.y[0]), ref.reason, flags, age,
-                            engaged, ref.solve_us, self.view.telem.pos.seq)
+            self.record.add(now, float(ref.r_nom[0]) + base, float(u[0]) + base, float(ref.y[0]) + base, ref.reason,
+                            flags, age, engaged, ref.solve_us, self.view.telem.pos.seq)
 
     def own_messages(self, now: float) -> list[bytes]:
         """What the proxy sends of its own (:meth:`.core.Proxy.run`, between forwarded frames): the position stream
@@ -209,7 +235,7 @@ class ProxySteering:
 
     def summary(self) -> dict:
         """Counts, the engagement, the gate and the steering's own summary (JSON-ready)."""
-        out = {"mode": self.mode, "dt": self.tick, "preview_delay_s": self.preview.delay,
+        out = {"mode": self.mode, "coordinates": self.coordinates, "dt": self.tick, "preview_delay_s": self.preview.delay,
                "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts,
                "app_period": self.period.summary(), "activations": self.engagement.activations,
                "gate": self.gate.gate.summary(), "events": [list(e) for e in self.events.events],

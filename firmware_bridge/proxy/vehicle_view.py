@@ -69,9 +69,14 @@ class VehicleView:
         """A heartbeat within the link timeout."""
         return now - self.last_hb <= self.link_timeout
 
-    def height(self) -> float:
-        """The newest local height, up [m] (the setpoints' frame: LOCAL_NED's -z)."""
-        return float(self.telem.position[2])
+    def height(self, now: float | None = None, max_advance: float = 0.05) -> float:
+        """The local height, up [m] (the setpoints' frame: LOCAL_NED's -z): the newest sample, advanced by its own
+        vertical velocity to ``now`` (at most ``max_advance`` [s]): a stream that arrives in bursts (TCP) would
+        otherwise sample a climbing vehicle up to a few ticks late, which the steering reads as noise."""
+        z = float(self.telem.position[2])
+        if now is None or not self.telem.pos.seq:
+            return z
+        return z + float(self.telem.velocity[2]) * min(max(now - self.telem.pos.rx, 0.0), max_advance)
 
     def position_age(self, now: float) -> float:
         """Seconds since the newest position sample arrived (inf: none yet)."""
