@@ -50,13 +50,15 @@ from ddpc_codegen.runtime.policy import SteeringPolicy
 from ddpc_codegen.runtime.steerer import ReferenceSteerer
 from ddpc_codegen.sim import simulate
 from firmware_bridge.realtime import probe_cpus
+from firmware_bridge.report import trajectory_ticks
 from firmware_bridge.ticklog import load_ticklog
 
 __all__ = ["main", "run_demo", "free_udp_port", "truth_rmse"]
 
 def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
-    """True height error over the link: vehicle truth at each engaged tick's vehicle time
-    (interpolated) minus that tick's desired height, for trajectory time >= settle [m]."""
+    """True height error over the link: vehicle truth at each tick's vehicle time (interpolated) minus that
+    tick's desired height, over every tick of the flown trajectory (engaged or not, as
+    :func:`firmware_bridge.report.trajectory_ticks` says) with trajectory time >= settle [m]."""
     tl = load_ticklog(ticks_path).ticks
     with np.load(truth_path) as z:
         tt, st = z["t"], z["state"]
@@ -66,8 +68,8 @@ def truth_rmse(ticks_path: Path, truth_path: Path, settle: float = 3.0) -> dict:
     ok = (tv >= tt[0]) & (tv <= tt[-1])
     z_truth = np.full(tv.shape, np.nan)
     z_truth[ok] = np.interp(tv[ok], tt, st[:, 2])
-    f = flight_metrics(tl["t_traj"], tl["y"], tl["y_des"], settle=settle, active=tl["active"], z_truth=z_truth,
-                       empty=math.nan)
+    f = flight_metrics(tl["t_traj"], tl["y"], tl["y_des"], settle=settle, active=trajectory_ticks(tl["t_traj"], tl["reason"]),
+                       z_truth=z_truth, empty=math.nan)
     return {"rmse_z": f["rmse_z_truth"], "rmse_z_telemetry": f["rmse"][0], "samples": f["truth_ticks"],
             "flown_s": float(np.nanmax(tl["t_traj"])) if np.isfinite(tl["t_traj"]).any() else 0.0}
 

@@ -88,6 +88,7 @@ def test_flight_figures_count_every_tick_of_the_flown_trajectory(tmp_path):
         if reason not in ("inactive", "takeoff"):
             t += 0.005
         a["t_traj"][i] = np.nan if reason == "inactive" else t
+        a["t_vehicle"][i] = 0.005 * k
         a["y_des"][i], a["y"][i], a["u"][i], a["r_nom"][i] = (1.0, 0.0), (1.0 + err, 0.0), (1.0, 0.0), (1.0, 0.0)
         a["truth_position"][i] = (0.0, 0.0, 1.0 + 2 * err)
         a["estimate_position"][i] = (0.0, 0.0, 1.0 + err)
@@ -100,3 +101,8 @@ def test_flight_figures_count_every_tick_of_the_flown_trajectory(tmp_path):
     assert ff["rmse_z_truth"] == pytest.approx(2 * ff["rmse_z"], rel=1e-12)
     assert ff["engaged_fraction"] == pytest.approx(30 / 40)  # the steered share of the same ticks
     assert ff["ekf_rms"] == pytest.approx(ff["estimator_rms"], rel=1e-12)  # measured on the autopilot's estimate
+    # the bridge demo's truth log scores the same ticks
+    state = np.zeros((len(plan), 12))
+    state[:, 2] = rec.arrays["truth_position"][: len(plan), 2]
+    np.savez(tmp_path / "truth.npz", t=0.005 * np.arange(len(plan)), state=state)
+    assert truth_rmse(log, tmp_path / "truth.npz", settle=0.0)["rmse_z"] == pytest.approx(ff["rmse_z_truth"], rel=1e-12)
