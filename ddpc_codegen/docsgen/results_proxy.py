@@ -8,9 +8,13 @@ from ddpc_codegen.docsgen.results_format import NA, label, missing, num, page_he
 
 __all__ = ["KINDS", "proxy_page", "headline", "autopilots"]
 
-KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
-_NAMES = {"direct": "app direct (its own ff)", "passthrough": "through the proxy", "steer_local": "steered, local preview",
-          "steer_delay": "steered, delay"}
+KINDS = ("direct", "direct_pos", "passthrough", "steer_local", "steer_delay")
+_NAMES = {"direct": "app direct (its own ff)", "direct_pos": "app direct, position only",
+          "passthrough": "through the proxy", "steer_local": "steered, local preview", "steer_delay": "steered, delay"}
+
+
+_SETUPS = {"lab": "lab (ArduCopter's EKF on the motion-capture stand-in: the true height judges)",
+           "outdoor": "outdoor (GPS and barometer: the estimator's own error is beside each flight)"}
 
 
 def autopilots(report: dict) -> dict[str, dict]:
@@ -22,9 +26,17 @@ def _truth(run: dict | None) -> float | None:
     return None if not run else run.get("rmse_z_truth_mm")
 
 
+def _judged(run: dict | None) -> float | None:
+    """The figure that judges a flight: the true height, else (a vehicle whose telemetry is its truth) the measured."""
+    if not run:
+        return None
+    v = run.get("rmse_z_truth_mm")
+    return v if isinstance(v, (int, float)) else run.get("rmse_z_mm")
+
+
 def _best(runs: dict) -> tuple[str, float] | None:
     """The steered flight with the lowest true-height error."""
-    flown = [(v, k) for k in ("steer_local", "steer_delay") if isinstance(v := _truth(runs.get(k)), (int, float))]
+    flown = [(v, k) for k in ("steer_local", "steer_delay") if isinstance(v := _judged(runs.get(k)), (int, float))]
     return (min(flown)[1], min(flown)[0]) if flown else None
 
 
@@ -33,28 +45,28 @@ def headline(name: str, ap: dict) -> str:
     rows = []
     for path, runs in ap["paths"].items():
         best = _best(runs)
-        rows.append([path, num(_truth(runs.get("direct"))), NA if best is None else f"{best[1]:.1f} ({_NAMES[best[0]]})",
-                     NA if best is None else ratio(_truth(runs.get("direct")), best[1])])
+        rows.append([path, num(_judged(runs.get("direct"))), NA if best is None else f"{best[1]:.1f} ({_NAMES[best[0]]})",
+                     NA if best is None else ratio(_judged(runs.get("direct")), best[1])])
     return table(["app path", "app direct [mm]", "best steered [mm]", "direct / steered"], rows)
 
 
 def _errors(ap: dict) -> str:
     rows = []
     for path, runs in ap["paths"].items():
-        d = _truth(runs.get("direct"))
-        for k in KINDS:
+        d = _judged(runs.get("direct"))
+        for k in (k for k in KINDS if k in runs):
             r = runs.get(k) or {}
             rows.append([path, _NAMES[k] + (f" {r.get('delay_s', 0):g} s" if k == "steer_delay" else ""),
                          num(r.get("rmse_z_truth_mm")), num(r.get("rmse_z_mm")), num(r.get("estimator_rms_mm")),
-                         ratio(d, r.get("rmse_z_truth_mm")) if k != "direct" else NA])
+                         ratio(d, _judged(r)) if k != "direct" else NA])
     return table(["app path", "flight", "true height [mm]", "estimate [mm]", "estimator error [mm]",
-                  "direct / this"], rows)
+                  "app direct / this"], rows)
 
 
 def _link(ap: dict) -> str:
     rows = []
     for path, runs in ap["paths"].items():
-        for k in KINDS[1:]:
+        for k in KINDS[2:]:
             p = (runs.get(k) or {}).get("proxy")
             if not p:
                 continue
@@ -70,7 +82,7 @@ def _verdict(ap: dict) -> str:
     """Which preview wins on which path (a sentence per path, from the figures)."""
     out = []
     for path, runs in ap["paths"].items():
-        loc, dly, d = (_truth(runs.get(k)) for k in ("steer_local", "steer_delay", "direct"))
+        loc, dly, d = (_judged(runs.get(k)) for k in ("steer_local", "steer_delay", "direct"))
         if None in (loc, dly, d):
             continue
         win = "the declared delay" if dly < loc else "the local preview"
@@ -83,7 +95,7 @@ def _section(name: str, ap: dict) -> str:
     col = ap.get("collect") or {}
     return "\n".join([
         f"## {label(name)}\n",
-        f"The steering was fitted on one {num(col.get('seconds'), digits=0)} s flight of the app's `{col.get('path', '?')}` "
+        f"Setup: {_SETUPS.get(ap.get('setup'), ap.get('setup', '?'))}. The steering was fitted on one {num(col.get('seconds'), digits=0)} s flight of the app's `{col.get('path', '?')}` "
         f"path through `ddpc-proxy --collect --dither {col.get('dither_m', '?')}`; the paths below were flown after it. "
         "Errors are RMS over each path (its first seconds left out) against the height the app declared, played late "
         "by the delay for the delayed flights.\n",

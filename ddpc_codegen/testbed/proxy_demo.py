@@ -36,7 +36,7 @@ from ddpc_codegen.testbed.sitl_adapt import second_link
 from ddpc_codegen.testbed.sitl_demo import codegen
 from ddpc_codegen.testbed.sitl_observer import Observer
 
-__all__ = ["KINDS", "run_ardupilot", "score", "main"]
+__all__ = ["KINDS", "AppLogHeights", "flight", "run_ardupilot", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
@@ -63,19 +63,20 @@ def _stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
 
 
 def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[str] | None, feedforward: str = "velacc",
-           height: float = 2.5) -> dict:
-    """One app flight, directly (``proxy_args`` None) or through a proxy started with ``proxy_args``."""
+           height: float = 2.5, vehicle_url: str = "tcp:127.0.0.1:5760", direct_url: str = "tcp:127.0.0.1:5760") -> dict:
+    """One app flight, directly (``proxy_args`` None: the app on ``direct_url``) or through a proxy started with
+    ``proxy_args`` (its vehicle side ``vehicle_url``)."""
     applog = out / f"{name}.app.jsonl"
     applog.unlink(missing_ok=True)
     proxy = None
     if proxy_args is not None:
         cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
-               "--vehicle", "tcp:127.0.0.1:5760", "--stats", str(out / f"{name}.proxy.json"),
+               "--vehicle", vehicle_url, "--stats", str(out / f"{name}.proxy.json"),
                "--log", str(out / f"{name}.ticks.npz"), "--overwrite", *proxy_args]
         proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
         _wait_port(APP_PORT)
         time.sleep(1.0)  # the proxy's TCP connection to the vehicle
-    url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else "tcp:127.0.0.1:5760"
+    url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else direct_url
     cmd = [sys.executable, "-m", "ddpc_codegen.testbed.proxy_app", "--connect", url, "--path", path, "--duration",
            f"{duration:g}", "--feedforward", feedforward, "--height", f"{height:g}", "--log", str(applog)]
     app = subprocess.Popen(cmd, env={**os.environ, "MAVLINK20": "1"}, stdout=subprocess.DEVNULL,
@@ -99,15 +100,32 @@ def score(applog: Path, obs: Observer, delay: float = 0.0, skip: float = SKIP_S,
     """RMSE [mm] of the true and estimated heights against the app's declared heights (``delay`` [s] late), over the
     path after ``skip`` [s]; the estimator's own error (RMS of estimate - truth) beside. ``ground``: the truth's
     height where the local frame's origin is (the vehicle on the ground before take-off) [m]."""
-    rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip()]
+    rows = [r for r in (json.loads(s) for s in applog.read_text().splitlines() if s.strip()) if "tp" in r]
     t = np.array([r["t"] for r in rows if r["tp"] >= skip]) + delay
     want = -np.array([r["z"] for r in rows if r["tp"] >= skip])
     truth, est = obs.heights(t)
     truth = truth - ground
-    ok = np.isfinite(truth) & np.isfinite(est)
-    rms = lambda e: float(np.sqrt(np.mean(e[ok] ** 2)) * 1e3) if ok.any() else None  # noqa: E731
+
+    def rms(e: np.ndarray) -> float | None:
+        ok = np.isfinite(e)
+        return float(np.sqrt(np.mean(e[ok] ** 2)) * 1e3) if ok.any() else None
+
     return {"rmse_z_truth_mm": rms(truth - want), "rmse_z_mm": rms(est - want), "estimator_rms_mm": rms(est - truth),
-            "samples": int(ok.sum()), "delay_s": delay}
+            "samples": int(np.isfinite(est).sum()), "delay_s": delay}
+
+
+class AppLogHeights:
+    """The heights an app logged it received (:mod:`.proxy_app`), as an observer without a truth (``ddpc-vehicle``
+    sends its true state as its telemetry)."""
+
+    def __init__(self, applog: Path) -> None:
+        rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip()]
+        self.a = np.array([(r["t"], r["pz"]) for r in rows if "pz" in r]).reshape(-1, 2)
+
+    def heights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        est = np.interp(t, self.a[:, 0], self.a[:, 1], left=np.nan, right=np.nan) if len(self.a) > 1 else \
+            np.full(len(t), np.nan)
+        return np.full(len(t), np.nan), est
 
 
 def _proxy_figures(stats: dict | None) -> dict | None:
@@ -207,18 +225,27 @@ def main(argv: list[str] | None = None) -> int:
                    help="the proxy's --z-feedforward in the collect and steered flights (default %(default)s)")
     p.add_argument("--out", type=Path, default=ROOT / "reports" / "proxy_ardupilot")
     p.add_argument("--report", type=Path, default=ROOT / "reports" / "proxy.json")
+    p.add_argument("--vehicles", default="ardupilot,ddpc_vehicle",
+                   help="ardupilot (the SITL), ddpc_vehicle (its PX4 emulation, a position-only app) (default "
+                        "%(default)s)")
     a = p.parse_args(argv)
-    why = missing_reason("ardupilot")
-    if why:
-        print(f"[proxy-demo] skipped: {why}", file=sys.stderr)
-        return 0
     paths = [s for s in a.paths.split(",") if s]
-    kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect, "delay": a.delay,
-          "setup": a.setup, "z_feedforward": a.z_feedforward}
     budget = 300 + a.collect + len(paths) * 4 * (a.duration + 60)
-    res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
-    update_report(a.report, {"ardupilot": res}, default=nan_as_null)
-    print(json.dumps(res["paths"], indent=1))
+    for name in [s for s in a.vehicles.split(",") if s]:
+        if name == "ardupilot":
+            why = missing_reason("ardupilot")
+            if why:
+                print(f"[proxy-demo] ardupilot skipped: {why}", file=sys.stderr)
+                continue
+            kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect,
+                  "delay": a.delay, "setup": a.setup, "z_feedforward": a.z_feedforward}
+            res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
+        else:
+            kw = {"out_dir": str(a.out.with_name("proxy_ddpc_vehicle")), "paths": paths, "duration": a.duration,
+                  "collect_s": a.collect, "delay": a.delay}
+            res = run_isolated("ddpc_codegen.testbed.proxy_demo_vehicle:run_vehicle", kw, timeout=budget)
+        update_report(a.report, {name: res}, default=nan_as_null)
+        print(json.dumps(res["paths"], indent=1))
     return 0
 
 

@@ -19,8 +19,10 @@ POS_ONLY = 0b0000_1111_1111_1000  # x, y, z used; velocity, acceleration, yaw, y
 class LoopSim:
     """The autopilot's height loop and the two MAVLink ends (see the module docstring)."""
 
-    def __init__(self, wn: float = 4.0, zeta: float = 0.8, h0: float = 2.0, armed: bool = True) -> None:
-        self.wn, self.zeta = wn, zeta
+    def __init__(self, wn: float = 4.0, zeta: float = 0.8, h0: float = 2.0, armed: bool = True,
+                 sag: float = 0.0) -> None:
+        self.wn, self.zeta, self.sag = wn, zeta, sag  # sag: a constant downward acceleration (a heavier vehicle) [m/s^2]
+        self.vz_late = 0.0
         self.h, self.v = h0, 0.0
         self.u_late = h0  # the setpoint applied (one setpoint late)
         self.armed = armed
@@ -47,12 +49,14 @@ class LoopSim:
         frame = bytes(m.pack(self.app))
         return decode_frame(frame), frame
 
-    def step(self, u: float, substeps: int = 20) -> None:
-        """One setpoint period with ``u`` [m] arriving now (applied from the next period on)."""
+    def step(self, u: float, substeps: int = 20, vz: float = 0.0) -> None:
+        """One setpoint period with ``u`` [m] (and the velocity feed-forward ``vz`` [m/s, up]) arriving now (applied
+        from the next period on)."""
         h_sp, self.u_late = self.u_late, u
+        v_sp, self.vz_late = self.vz_late, vz
         d = DT / substeps
         for _ in range(substeps):
-            a = self.wn ** 2 * (h_sp - self.h) - 2.0 * self.zeta * self.wn * self.v
+            a = self.wn ** 2 * (h_sp - self.h) + 2.0 * self.zeta * self.wn * (v_sp - self.v) - self.sag
             self.v += a * d
             self.h += self.v * d
         self.k += 1
@@ -71,9 +75,10 @@ def fly(hook, path: np.ndarray, sim: LoopSim | None = None, vz: np.ndarray | Non
         hook.view.on_frame(sim.position(), t - 0.001)
         msg, frame = sim.setpoint(float(z), None if vz is None else float(vz[k]))
         out = hook(msg, frame, t)
-        u = float(z) if out is None else -decode_frame(out).z
+        sp = msg if out is None else decode_frame(out)
+        u = -float(sp.z)
         sent.append(u)
         rewritten.append(out is not None)
-        sim.step(u)
+        sim.step(u, vz=0.0 if vz is None else -float(sp.vz))
         h.append(sim.h)
     return {"h": np.array(h), "sent": np.array(sent), "rewritten": np.array(rewritten)}

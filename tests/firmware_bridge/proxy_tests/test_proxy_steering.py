@@ -6,7 +6,6 @@ tick that is not steered (not engaged, stale, wrong frame or rate) sends the app
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +22,7 @@ from lti_loop import DT, LoopSim, fly
 from support.bridge_helpers import ROOT
 from support.solver_cache import cache_root, shared_build
 
-CONFIG = ROOT / "configs" / "proxy_ardupilot.toml"
+CONFIG = ROOT / "configs" / "proxy_px4.toml"  # the absolute loop: an app without feed-forward
 
 
 def _hook(**kw) -> ProxySteering:
@@ -88,15 +87,6 @@ def test_local_preview_follows_the_velocity_field_or_the_slope():
     assert np.allclose(pv.desired(np.array([0.0, 0.2]))[:, 0], [1.04, 0.94])
 
 
-def _absolute_config(folder: Path) -> Path:
-    """The shipped config, for the absolute loop (an app without feed-forward: heights in, heights out)."""
-    text = CONFIG.read_text().replace('inputs = ["z_offset"]', 'inputs = ["z_ref"]')
-    text = text.replace('outputs = ["z_error"]', 'outputs = ["z"]').replace("u_min = [-0.3]", "u_min = [0.3]")
-    path = folder / "absolute.toml"
-    path.write_text(text.replace("u_max = [0.3]", "u_max = [50.0]"))
-    return path
-
-
 @pytest.fixture(scope="module")
 def solver(tmp_path_factory):
     """The generated solver fitted on a dithered flight of the known loop (built once per test run)."""
@@ -104,7 +94,7 @@ def solver(tmp_path_factory):
         hook = _hook(dither=0.3, dither_hold=3, seed=1)
         fly(hook, _path(6000, seed=5))
         hook.record.dataset(hook.tick).save(folder / "collect.npz")
-        build_solver(SteeringConfig.from_toml(_absolute_config(folder)), folder / "collect.npz", folder / "solver")
+        build_solver(SteeringConfig.from_toml(CONFIG), folder / "collect.npz", folder / "solver")
 
     folder = shared_build(cache_root(tmp_path_factory.getbasetemp()),
                           {"test": "proxy_lti", "config": CONFIG.read_text()}, build)
@@ -184,3 +174,35 @@ def test_a_rewritten_setpoint_keeps_or_zeroes_the_apps_z_feedforward(ff):
     out = decode_frame(hook(msg, frame, 1000.0 + 50 * DT))
     assert out.vz == (0.0 if ff == "zero" else pytest.approx(-0.7)) and out.x == msg.x and out.yaw == msg.yaw
     assert out.get_srcComponent() == 192 and out.type_mask == msg.type_mask
+
+
+@pytest.fixture(scope="module")
+def deviation_solver(tmp_path_factory):
+    """A deviation-coordinates solver (the shipped ArduCopter config) fitted on a dithered flight of an app that
+    sends its own velocity, on the known loop with a sag (built once per test run)."""
+    def build(folder):
+        hook = _hook(dither=0.15, dither_hold=10, seed=2, coordinates="deviation")
+        path = _slow_path(6000)
+        fly(hook, path, LoopSim(h0=2.0, sag=1.0), vz=np.gradient(path, DT))
+        hook.record.dataset(hook.tick, coordinates="deviation").save(folder / "collect.npz")
+        build_solver(SteeringConfig.from_toml(ROOT / "configs" / "proxy_ardupilot.toml"), folder / "collect.npz",
+                     folder / "solver")
+
+    folder = shared_build(cache_root(tmp_path_factory.getbasetemp()),
+                          {"test": "proxy_lti_deviation", "config": (ROOT / "configs" / "proxy_ardupilot.toml").read_text()},
+                          build)
+    return folder / "solver"
+
+
+@pytest.mark.compiler
+def test_deviation_steering_removes_what_the_apps_own_feedforward_leaves(deviation_solver):
+    """An app with its own velocity feed-forward on a vehicle that sags (1 m/s^2 too heavy): its error is the sag's
+    steady offset; steering the offset around the app's height (z_offset -> z_error) removes it."""
+    path = _slow_path(2500)
+    vz = np.gradient(path, DT)
+    alone = _rmse(fly(_hook(), path, LoopSim(h0=2.0, sag=1.0), vz=vz)["h"], path, skip=500)
+    hook = _hook(solver=load_solver(deviation_solver))
+    steered = _rmse(fly(hook, path, LoopSim(h0=2.0, sag=1.0), vz=vz)["h"], path, skip=500)
+    print(json.dumps({"app_alone_mm": alone * 1e3, "steered_mm": steered * 1e3}))
+    assert hook.coordinates == "deviation" and hook.counts["steered"] > 2000
+    assert steered < 0.5 * alone
