@@ -78,8 +78,14 @@ class Procs:
                     pass
 
 
-# what the fake vehicle answers: a PX4's hover thrust estimate and off-board loss timeout (its default)
-PX4_PARAMS = {"MPC_THR_HOVER": 0.5, "COM_OF_LOSS_T": 1.0}
+def px4_params() -> dict[str, float]:
+    """What the fake vehicle answers: PX4's off-board loss timeout (its default) and a hover thrust estimate that
+    agrees with the bridge's default controller model (as ``ddpc-vehicle``'s does: the bridge refuses a vehicle
+    whose hover thrust its model is far from)."""
+    from firmware_bridge.bridge_config import default_controller_config
+
+    c = default_controller_config()
+    return {"MPC_THR_HOVER": c.model_mass * c.g / c.max_thrust, "COM_OF_LOSS_T": 1.0}
 
 
 def wait_until(cond, timeout: float, what: str) -> None:
@@ -130,7 +136,7 @@ class FakeVehicle(threading.Thread):
         self.commands: list[int] = []  # COMMAND_LONG ids received
         self.armed_hb_at: float | None = None  # just before the first heartbeat saying "armed" went out (monotonic)
         self.sent = {"attitude": 0, "position": 0}
-        self.params: dict[str, float] = dict(PX4_PARAMS)
+        self.params: dict[str, float] = px4_params()
 
     def run(self) -> None:
         from firmware_bridge.link import mavlink
