@@ -34,7 +34,8 @@ def _wait_for(path_text, what: str, timeout: float) -> None:
 def stalled(tmp_path_factory, flying_solver):
     """Steer the simulated PX4 (real time); solver calls 600..639 fail, the step guard is tight (0.02 m:
     guard trips), the correction may move 1 mm per tick ([envelope] offset_rate 0.2 m/s); 5 s after
-    engaging the bridge is SIGSTOPped for 2 s. (Not 4 s as in issue 46's ArduCopter probe: this vehicle takes
+    engaging the bridge is SIGSTOPped for 2 s, then it flies on to 12 s of trajectory (about 5 s: the resume,
+    steering again, the hand-back at the end). (Not 4 s as in issue 46's ArduCopter probe: this vehicle takes
     attitude and thrust setpoints and holds the last one through the stall, so after 4 s it has fallen and
     tilted beyond anything a resume can be judged on; ArduCopter's guided mode holds its position.)"""
     tmp = tmp_path_factory.mktemp("stall")
@@ -46,7 +47,7 @@ def stalled(tmp_path_factory, flying_solver):
         # the autopilot keeps OFFBOARD through the stall (its loss timeout 5 s): the bridge must resume itself
         veh = pr.spawn("vehicle", f"udpout:127.0.0.1:{port}", "--seed", "3", "--com-of-loss-t", "5", name="vehicle")
         br = pr.spawn("bridge", f"udpin:127.0.0.1:{port}", "--mode", "steer", "--solver", str(flying_solver),
-                      "--profile", str(prof), "--offboard", "--duration", "20", "--timeout", "60",
+                      "--profile", str(prof), "--offboard", "--duration", "12", "--timeout", "60",
                       "--max-step", "0.02,0.5", "--inject-solver-failure", "600:40", "--verbose",
                       "--log", str(tmp / "ticks.npz"), "--summary", str(tmp / "summary.json"), name="bridge")
         _wait_for(lambda: pr.log(br), "engaged (", 40)
