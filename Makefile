@@ -95,10 +95,18 @@ sitl-demo: install
 	$(PY) -m ddpc_codegen.testbed.sitl_demo
 	$(RENDER)
 
-# Every file kind the bridge flies on, fuzzed: 10 000 mutated files per kind (profiles, prefilter, feed-forward,
-# trajectories): each refused with a precise error or loaded with finite values only.
+# Fuzzing what the bridge flies on (ddpc_codegen/testbed/fuzz.py): mutants of the dynamics of every input that
+# defines the path (profiles, trajectory files, prefilters, feed-forward tables, excitation, flags; their numbers
+# and their raw bytes), each refused with one line or, accepted, flown in-process lock-step against the simulated
+# vehicle (the bridge's and ddpc-vehicle's own classes) until 1000 have flown; a sample of them again as
+# ddpc-vehicle + ddpc-bridge processes; the MAVLink input attacked in flight (foreign and same-address peers,
+# absurd values, stamps, corrupted bytes, a 10 kHz flood). Judged on the vehicle's true position in its envelope
+# and every reference step against the rate bound: a table, reports/fuzz.json, exit 1 on a violation (replay one
+# with --replay SEED). Then each file kind's keys mutated (1000 files per kind: refused with a precise error or
+# loaded with finite values). Under 5 min on 2 cores.
 fuzz: install
-	DDPC_FUZZ_EXAMPLES=10000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
+	$(PY) -m ddpc_codegen.testbed.fuzz
+	DDPC_FUZZ_EXAMPLES=1000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
 		tests/firmware_bridge/test_baseline_modes.py tests/robot/test_profile.py tests/robot/test_trajectory_files_fuzz.py
 
 # Online adaptation on the PX4 and ArduCopter SITLs: a motor's thrust loss and a heavier vehicle applied mid-flight

@@ -13,7 +13,8 @@ feed-forward table of 20 m, a 63 km/s ellipse, a 1000 m step in a trajectory fil
 * collect's excitation: the nominal path plus or minus the amplitude inside the envelope, and a PRBS step
   (twice the amplitude in one tick) within the references' rate limits;
 * ``--thrust-min`` / ``--thrust-max`` around the hover thrust (:func:`check_thrust_limits`, run again once the
-  vehicle's own hover thrust is read).
+  vehicle's own hover thrust is read), and the controller model's hover thrust against the vehicle's
+  (:func:`check_model_hover`, once it is read).
 
 A refusal is a :class:`PathRefused` (a ConfigError: exit 2) whose one line names the file or flag, the
 limit and the value.
@@ -35,12 +36,16 @@ from firmware_bridge.baseline_modes import load_feedforward, load_prefilter
 
 __all__ = ["PathRefused", "SPAN_CAP", "path_times", "path_limits", "check_trajectory_path", "nominal_path",
            "check_references", "check_prefilter_path", "check_feedforward_path", "check_excitation", "check_hopping_path",
-           "check_thrust_limits", "check_flight_paths"]
+           "check_thrust_limits", "check_model_hover", "MAX_HOVER_OFFSET_M", "check_flight_paths"]
 
 SPAN_CAP = 600.0  # s of an endless path that are sampled
 _MAX_SAMPLES = 2_000_000  # a finite path longer than this many ticks is sampled this often (evenly)
 _CHUNK = 100_000
 _TOL = 1e-9
+# A model-based height loop settling further than this from its references is a model of another vehicle (the
+# shipped profiles' models settle within about a quarter of it on their vehicles); make fuzz flew a model 4x off
+# into the ground with every reference inside the envelope.
+MAX_HOVER_OFFSET_M = 0.25
 
 
 class PathRefused(ConfigError):
@@ -222,6 +227,25 @@ def check_thrust_limits(hover: float, thrust_min: float, thrust_max: float, sour
     if not thrust_max > hover:
         raise PathRefused(f"--thrust-max {thrust_max:g} is not above the hover thrust {hover:.3f} ({source}): "
                           "the vehicle could only sink")
+
+
+def check_model_hover(model_hover: float, hover: float, kp_z: float, g: float, source: str) -> None:
+    """The controller model's hover thrust (its ``model_mass`` g / ``max_thrust``) against the vehicle's ``hover``
+    (``source`` says whose): the model's height loop settles ``g / kp_z * (hover / model_hover - 1)`` m below its
+    reference (above when negative), whatever the reference, so a model too far off flies the vehicle out of its
+    envelope with every reference inside it. Refused beyond :data:`MAX_HOVER_OFFSET_M`.
+
+    Raises:
+        PathRefused: naming both hover thrusts and the offset.
+    """
+    if not (math.isfinite(hover) and hover > 0 and model_hover > 0 and kp_z > 0):
+        return
+    offset = g / kp_z * (hover / model_hover - 1.0)
+    if abs(offset) > MAX_HOVER_OFFSET_M:
+        raise PathRefused(f"the controller model's hover thrust {model_hover:.3f} (model_mass g / max_thrust) is far "
+                          f"from {source} {hover:.3f}: its height loop would settle {abs(offset):.2f} m "
+                          f"{'below' if offset > 0 else 'above'} every reference (at most {MAX_HOVER_OFFSET_M:g} m; "
+                          "fix the profile's [controller] model_mass / max_thrust)")
 
 
 def _trajectory_name(trajectory) -> str:

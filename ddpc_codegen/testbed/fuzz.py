@@ -6,9 +6,11 @@
    ``--duration`` s from engagement in-process, lock-step (:func:`.fuzz_flight.fly_in_process`) and is judged on
    the vehicle's true position and the applied references' one-tick steps. The flights run on ``--workers``
    processes (each flight: the bridge's thread and the vehicle's, taking turns).
-2. A sample of the accepted mutants (``--process-flights``) flown again as ``ddpc-vehicle`` + ``ddpc-bridge``
-   processes (:func:`.fuzz_flight.fly_processes`).
+2. A sample of accepted mutants (``--process-flights``) flown as ``ddpc-vehicle`` + ``ddpc-bridge`` processes
+   (:func:`.fuzz_flight.fly_processes`).
 3. The MAVLink input fuzzed against flying bridges (:mod:`.fuzz_link`).
+
+The flights of 2 and 3 go to the same pool first and fly beside those of 1.
 
 Prints a short table and writes ``--out`` (reports/fuzz.json). A violation names the mutant's seed:
 ``python -m ddpc_codegen.testbed.fuzz --replay SEED`` rebuilds and flies it alone. Exit 1 on any violation or
@@ -32,7 +34,7 @@ from ddpc_codegen.testbed.fuzz_flight import (REFUSALS, TRACK_MARGIN_M, accept, 
 from ddpc_codegen.testbed.fuzz_link import LINK_ATTACKS, STARTUP_STAMP, fly_link_attack
 from ddpc_codegen.testbed.fuzz_mutants import make_mutant
 
-__all__ = ["run_mutant", "fuzz_dynamics", "fuzz_processes", "fuzz_link", "run_fuzz", "format_table", "main"]
+__all__ = ["run_mutant", "fuzz_dynamics", "accepted_seeds", "side_flights", "run_fuzz", "format_table", "main"]
 
 _SLACK_S = 2.0  # vehicle time beyond the flight's duration: start-up, pre-stream, hand-back
 
@@ -70,53 +72,67 @@ def _worker(seeds: list[int], duration: float) -> list[dict]:
         return [run_mutant(s, Path(tmp), duration) for s in seeds]
 
 
-def fuzz_dynamics(target: int, seed: int, duration: float, workers: int, batch: int = 8,
+def fuzz_dynamics(pool: ProcessPoolExecutor, target: int, seed: int, duration: float, workers: int, batch: int = 8,
                   time_budget: float = 240.0, log=print) -> list[dict]:
-    """Mutants from seeds ``seed``, ``seed + 1``, ... until ``target`` accepted ones have flown (or ``time_budget``
-    s have passed): the records of :func:`run_mutant`, in seed order."""
+    """Mutants from seeds ``seed``, ``seed + 1``, ... on ``pool`` until ``target`` accepted ones have flown (or
+    ``time_budget`` s have passed): the records of :func:`run_mutant`, in seed order."""
     records: list[dict] = []
     t_end = time.monotonic() + time_budget
     next_seed = seed
     flown = 0
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        pending = set()
-        while True:
-            while len(pending) < 2 * workers and flown < target and time.monotonic() < t_end:
-                pending.add(pool.submit(_worker, list(range(next_seed, next_seed + batch)), duration))
-                next_seed += batch
-            if not pending:
-                break
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for f in done:
-                for r in f.result():
-                    records.append(r)
-                    flown += r["flight"] is not None and r["flight"]["outcome"] == "flown"
-            if len(records) // 100 != (len(records) - sum(len(f.result()) for f in done)) // 100:
-                log(f"  mutants {len(records)}  flown {flown}/{target}", flush=True)
+    pending: set = set()
+    while True:
+        while len(pending) < 2 * workers and flown < target and time.monotonic() < t_end:
+            pending.add(pool.submit(_worker, list(range(next_seed, next_seed + batch)), duration))
+            next_seed += batch
+        if not pending:
+            break
+        done, pending = wait(pending, return_when=FIRST_COMPLETED)
+        before = len(records)
+        for f in done:
+            for r in f.result():
+                records.append(r)
+                flown += r["flight"] is not None and r["flight"]["outcome"] == "flown"
+        if len(records) // 200 != before // 200:
+            log(f"  mutants {len(records)}  flown {flown}/{target}", flush=True)
     return sorted(records, key=lambda r: r["mutant"]["seed"])
 
 
-def fuzz_processes(records: list[dict], n: int, duration: float, work: Path) -> list[dict]:
-    """The first ``n`` flown mutants (by seed) again as two processes: [{"seed", "flight"}]."""
-    out = []
-    for r in [r for r in records if r["flight"] and r["flight"]["outcome"] == "flown"][:n]:
-        seed = r["mutant"]["seed"]
-        m = make_mutant(seed, work / f"p{seed}")
+def _process_flight(seed: int, duration: float) -> dict:
+    """The mutant of ``seed`` (accepted) flown as two processes: {"seed", "kind", "flight"}."""
+    with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
+        m = make_mutant(seed, Path(tmp) / "m")
         cfg = accept(m.args, free_udp_port(), duration)
-        check = fly_processes(m.args, cfg, work, sim_time=duration + _SLACK_S, seed=seed)
-        out.append({"seed": seed, "kind": m.kind, "flight": check.as_dict()})
+        check = fly_processes(m.args, cfg, Path(tmp), sim_time=duration + _SLACK_S, seed=seed)
+    return {"seed": seed, "kind": m.kind, "mutant": m.as_dict(), "flight": check.as_dict()}
+
+
+def _link_flight(attack: str, seed: int, duration: float) -> dict:
+    with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
+        return fly_link_attack(attack, seed, duration, Path(tmp))
+
+
+def accepted_seeds(n: int, seed: int) -> list[int]:
+    """The first ``n`` seeds from ``seed`` on whose mutants the bridge accepts (nothing flown)."""
+    out: list[int] = []
+    with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
+        while len(out) < n:
+            if run_mutant(seed, Path(tmp), 1.0, fly=False)["status"] == "accepted":
+                out.append(seed)
+            seed += 1
     return out
 
 
-def fuzz_link(rounds: int, seed: int, duration: float, work: Path) -> tuple[list[dict], list[dict]]:
-    """Every attack of :data:`.fuzz_link.LINK_ATTACKS` ``rounds`` times against a flying bridge, and the known
-    finding (:data:`.fuzz_link.STARTUP_STAMP`) once: (records, findings still present)."""
-    out = []
-    for i in range(rounds):
-        for j, attack in enumerate(LINK_ATTACKS):
-            out.append(fly_link_attack(attack, seed + 100 * i + j, duration, work))
-    finding = fly_link_attack(STARTUP_STAMP, seed, duration, work)
-    return out, [finding] if finding["defect"] else []
+def side_flights(pool: ProcessPoolExecutor, args) -> tuple[list, list, object]:
+    """Submitted first, so that they fly beside the dynamics mutants: ``--process-flights`` accepted mutants (seeds
+    from ``--seed + 10**6``) as two processes, every attack of :data:`.fuzz_link.LINK_ATTACKS` ``--link-rounds``
+    times, and the known finding (:data:`.fuzz_link.STARTUP_STAMP`) once: their futures."""
+    procs = [pool.submit(_process_flight, s, args.duration) for s in accepted_seeds(args.process_flights,
+                                                                                   args.seed + 10**6)]
+    link = [pool.submit(_link_flight, attack, args.seed + 100 * i + j, args.duration + 1.0)
+            for i in range(args.link_rounds) for j, attack in enumerate(LINK_ATTACKS)]
+    finding = pool.submit(_link_flight, STARTUP_STAMP, args.seed, args.duration + 1.0)
+    return procs, link, finding
 
 
 def _summary(records: list[dict], procs: list[dict], link: list[dict], seconds: float, args) -> dict:
@@ -175,12 +191,13 @@ def format_table(s: dict) -> str:
 def run_fuzz(args) -> dict:
     """The whole fuzz run of the parsed ``args`` (see :func:`main`): the report dict."""
     t0 = time.monotonic()
-    records = fuzz_dynamics(args.mutants, args.seed, args.duration, args.workers, time_budget=args.time_budget)
-    with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
-        procs = fuzz_processes(records, args.process_flights, args.duration, Path(tmp))
-        link, findings = fuzz_link(args.link_rounds, args.seed, args.duration + 1.0, Path(tmp))
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        procs, link, finding = side_flights(pool, args)
+        records = fuzz_dynamics(pool, args.mutants, args.seed, args.duration, args.workers,
+                                time_budget=args.time_budget)
+        procs, link, finding = [f.result() for f in procs], [f.result() for f in link], finding.result()
     out = _summary(records, procs, link, time.monotonic() - t0, args)
-    out["findings"] = findings
+    out["findings"] = [finding] if finding["defect"] else []
     return out
 
 
@@ -196,7 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mutants", type=int, default=1000, help="accepted mutants to fly in-process")
     p.add_argument("--seed", type=int, default=1, help="the first mutant's seed")
     p.add_argument("--duration", type=float, default=1.0, help="seconds flown from engagement per flight")
-    p.add_argument("--workers", type=int, default=(os.cpu_count() or 1) + 1)
+    p.add_argument("--workers", type=int, default=2 * (os.cpu_count() or 1),
+                   help="flight processes (each flight waits about half its time on the other thread)")
     p.add_argument("--time-budget", type=float, default=240.0, help="stop drawing mutants after this many s")
     p.add_argument("--process-flights", type=int, default=6)
     p.add_argument("--link-rounds", type=int, default=2, help="times each link attack is flown")

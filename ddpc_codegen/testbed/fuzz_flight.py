@@ -38,8 +38,8 @@ from firmware_bridge.link import LinkError, MavLink
 from firmware_bridge.preflight import PreflightError
 from firmware_bridge.ticklog import load_ticklog
 
-__all__ = ["TRACK_MARGIN_M", "RATE_TOL", "REFUSALS", "COUNTED", "FlightCheck", "accept", "fly_in_process", "fly_processes",
-           "envelope_excess", "rate_ratio", "LOCKSTEP_ARGS"]
+__all__ = ["TRACK_MARGIN_M", "RATE_TOL", "REFUSALS", "COUNTED", "LOCKSTEP_ARGS", "FlightCheck", "accept",
+           "fly_in_process", "fly_processes", "vehicle_link", "envelope_excess", "rate_ratio"]
 
 # The envelope bounds the references; the vehicle follows them with its own controller's tracking error. A
 # reference stopped at the envelope's edge while the path moved at max_speed is overshot by the closed loop
@@ -54,7 +54,7 @@ LOCKSTEP_ARGS = ("--lockstep", "--offboard", "--prestream", "0.1", "--timeout", 
 REFUSALS = (ValueError, DDPCError, OSError, LinkError)
 # The summary's counters a fuzzed flight keeps: the link's (``summary["link"]``) and the vehicle link's own.
 COUNTED = (("link", "peer_changes"), ("link", "foreign_packets"), ("link", "foreign_heartbeats"), ("link", "unpinned"),
-           ("link", "bad_data"), ("link", "parse_errors"), (None, "reboots"), (None, "stream_requests"),
+           ("link", "bad_data"), ("link", "parse_errors"), ("link", "unsigned"), ("link", "bad_signature"), (None, "reboots"), (None, "stream_requests"),
            (None, "link_losses"), (None, "telemetry_dropped"))
 
 
@@ -139,6 +139,11 @@ def _rate_step(cfg: BridgeConfig) -> np.ndarray:
     return (cfg.envelope or Envelope()).ref_rates(cfg.scenario) / cfg.rate_hz
 
 
+def vehicle_link(url: str, signing_key: bytes | None = None) -> MavLink:
+    """The link :class:`SimVehicle` would open on ``url`` (system 1, component 1), signing with ``signing_key``."""
+    return MavLink(url, source_system=1, source_component=1, target_system=None, signing_key=signing_key)
+
+
 def _vehicle_thread(v: SimVehicle, bridge: Bridge, done: threading.Event) -> threading.Thread:
     """The vehicle's loop; when its simulated time is up, the bridge is stopped (the flight's end)."""
     def run() -> None:
@@ -152,14 +157,14 @@ def _vehicle_thread(v: SimVehicle, bridge: Bridge, done: threading.Event) -> thr
 
 
 def fly_in_process(cfg: BridgeConfig, work: Path, *, sim_time: float, seed: int,
-                   vehicle_url: str | None = None, signing_key: bytes | None = None) -> FlightCheck:
+                   vehicle_url: str | None = None, vehicle_link: MavLink | None = None) -> FlightCheck:
     """Fly ``cfg`` (from :func:`accept`, listening on its port) against a :class:`SimVehicle` in a thread for
     ``sim_time`` s of vehicle time, and judge it (see the module docstring). Lock-step or real time as ``cfg``.
 
     Args:
         work: a folder for the vehicle's truth log. seed: the vehicle's sensor-noise seed.
         vehicle_url: where the vehicle sends (default: the bridge's port; a relay's, to fuzz the link).
-        signing_key: the vehicle signs what it sends with this MAVLink 2 key (the bridge's ``--signing-key``).
+        vehicle_link: the vehicle's link, made by the caller (signing, a known local address; see :func:`vehicle_link`).
     """
     port = int(cfg.url.rsplit(":", 1)[1])
     truth_path = Path(work) / "truth.npz"
@@ -167,9 +172,7 @@ def fly_in_process(cfg: BridgeConfig, work: Path, *, sim_time: float, seed: int,
     vc = VehicleConfig(url=vehicle_url or f"udpout:127.0.0.1:{port}", lockstep=cfg.lockstep, lockstep_timeout=0.05,
                        peer_timeout=2.0, seed=seed, duration=sim_time, truth_log=str(truth_path))
     bridge = Bridge(cfg)
-    link = None if signing_key is None else MavLink(vc.url, source_system=vc.sysid, source_component=vc.compid,
-                                                    target_system=None, signing_key=signing_key)
-    v = SimVehicle(vc, link)
+    v = SimVehicle(vc, vehicle_link)
     done = threading.Event()
     th = _vehicle_thread(v, bridge, done)
     th.start()
@@ -188,12 +191,14 @@ def fly_in_process(cfg: BridgeConfig, work: Path, *, sim_time: float, seed: int,
     if outcome != "flown":
         return FlightCheck("refused" if outcome.startswith("refused") else outcome, notes=[outcome])
     rows = bridge.recorder.rows.view()
-    return _judge(cfg, summary, rows["u"], rows["active"], truth_path, bridge.frame.origin)
+    return _judge(cfg, summary, rows["u"], rows["active"], truth_path, bridge.frame.origin if bridge.engagement.flown
+                  else None)
 
 
 def _judge(cfg: BridgeConfig, summary: dict, u: np.ndarray, engaged: np.ndarray, truth_path: Path,
            origin_xy) -> FlightCheck:
-    """The verdict of a flight from its applied references, the truth log and the bridge's frame origin."""
+    """The verdict of a flight from its applied references, the truth log and the bridge's frame origin (None: the
+    bridge never flew, the vehicle's true start: a frame captured from forged telemetry is not where it is)."""
     env = cfg.envelope or Envelope()
     check = FlightCheck("flown", ticks=int(summary["ticks"]), engaged_ticks=int(np.sum(engaged)),
                         stop_reason=str(summary["stop_reason"]), exit_code=int(summary["exit"]["code"]))
@@ -205,6 +210,8 @@ def _judge(cfg: BridgeConfig, summary: dict, u: np.ndarray, engaged: np.ndarray,
         return check
     with np.load(truth_path) as t:
         pos = np.asarray(t["state"])[:, 0:3]
+    if origin_xy is None:
+        origin_xy = pos[0, :2]
     check.excess_m, check.z_range, check.radius_m = envelope_excess(pos, origin_xy, env)
     return check
 
@@ -213,8 +220,7 @@ def fly_processes(args: list[str], cfg: BridgeConfig, work: Path, *, sim_time: f
                   timeout: float = 60.0) -> FlightCheck:
     """The same flight as :func:`fly_in_process` with ``ddpc-vehicle`` and ``ddpc-bridge`` as processes over UDP
     loopback (``args``: the mutant's flags, ``cfg`` what :func:`accept` made of them), bounded by ``timeout`` s of
-    wall time; both processes are stopped by their pid whatever happens. The horizontal origin is where the
-    vehicle stood at the bridge's first tick (the tick log's first position)."""
+    wall time; both processes are stopped by their pid whatever happens."""
     work = Path(work)
     port = free_udp_port()
     truth, log = work / "proc_truth.npz", work / "proc_flight.npz"
@@ -226,12 +232,12 @@ def fly_processes(args: list[str], cfg: BridgeConfig, work: Path, *, sim_time: f
                                              "--lockstep", "--lockstep-timeout", "0.05", "--seed", str(seed),
                                              "--duration", str(sim_time), "--truth-log", str(truth)],
                                env=child_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=work)
-        br = subprocess.Popen(python_m() + ["firmware_bridge.cli", f"udpin:127.0.0.1:{port}", *LOCKSTEP_ARGS, *args,
-                                            "--log", str(log), "--overwrite", "--json"],
+        br = subprocess.Popen(python_m() + ["firmware_bridge.cli", f"udpin:127.0.0.1:{port}", *LOCKSTEP_ARGS,
+                                            "--duration", f"{cfg.duration:g}", *args, "--log", str(log),
+                                            "--overwrite", "--json"],
                               env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=work, text=True)
-        veh.wait(timeout)
-        stop_process(br, 10.0)  # the vehicle's time is up: SIGTERM, the bridge writes its log
-        out, err = br.communicate(timeout=10)
+        # the bridge ends on its --duration (or, never engaged, on the vehicle's end: vehicle lost)
+        out, err = br.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         return FlightCheck(f"error: the process flight did not end in {timeout:g} s")
     finally:
@@ -241,6 +247,6 @@ def fly_processes(args: list[str], cfg: BridgeConfig, work: Path, *, sim_time: f
         return FlightCheck(f"error: ddpc-bridge exited {br.returncode} without a log: {err.strip()[-300:]}")
     tl = load_ticklog(log)
     summary = json.loads(out)
-    origin = tl.metadata.get("frame", {}).get("origin", (0.0, 0.0))
+    origin = summary["frame"]["origin"] if summary.get("activations") else None
     return _judge(cfg, summary, tl.ticks["u"], tl.ticks["active"], truth, origin)
 

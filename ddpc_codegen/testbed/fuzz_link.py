@@ -6,8 +6,10 @@ and reference steps are judged as every fuzzed flight's are, in a tight envelope
 The attacks (:data:`LINK_ATTACKS`):
 
 * ``foreign_same_ids`` / ``foreign_other_ids``: a peer on another port sends telemetry 50 m away, heartbeats
-  (disarmed, another mode) and acknowledgements, with the vehicle's system id or another one: it must change
-  nothing the vehicle receives and receive nothing itself (the pinned peer never moves);
+  (disarmed, another mode) and acknowledgements, with the vehicle's system id or another one, from shortly after
+  the vehicle's first heartbeat (which pins the peer; a spoofer that speaks first wins the pin without
+  ``--vehicle-address``: the threat model): it must change nothing the vehicle receives and receive nothing;
+* ``foreign_first_pinned``: the same peer speaking before the vehicle, the bridge given ``--vehicle-address``;
 * ``same_address_absurd``: between the vehicle and the bridge (a relay the bridge takes for the vehicle), forged
   samples injected among the real ones in flight: positions and velocities of 1e30, NaN or metres off in one
   sample, zero and non-unit quaternions, body rates of 1e30 -- what telemetry plausibility must drop;
@@ -41,15 +43,16 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.testbed.bridge_flights import child_env, free_udp_port, python_m, stop_process
-from ddpc_codegen.testbed.fuzz_flight import accept, fly_in_process
+from ddpc_codegen.testbed.fuzz_flight import accept, fly_in_process, vehicle_link
 from ddpc_codegen.testbed.fuzz_mutants import mutate_bytes
 
 from firmware_bridge.link import mavlink
 
 __all__ = ["LINK_ATTACKS", "STARTUP_STAMP", "TIGHT_PROFILE", "Relay", "ForeignPeer", "forged_packets", "fly_link_attack"]
 
-LINK_ATTACKS = ("foreign_same_ids", "foreign_other_ids", "same_address_absurd", "same_address_stamps",
-                "same_address_signed", "raw_bytes", "flood")
+LINK_ATTACKS = ("foreign_same_ids", "foreign_first_pinned", "foreign_other_ids", "same_address_absurd",
+                "same_address_stamps", "same_address_signed", "raw_bytes", "flood")
+_PINNED = ("foreign_first_pinned",)
 # Found by this fuzzer, a liveness finding rather than a hazard (the vehicle keeps hovering in its own mode):
 # one sample stamped far ahead, from the vehicle's address before its first real sample, anchors the telemetry's
 # time line; every real sample is then dropped as off it and the bridge never engages (exit 8). Flown and
@@ -64,6 +67,7 @@ TIGHT_PROFILE = ('extends = "pogox"\nname = "tight"\n[trajectory]\nt_start = 0.1
                  "[envelope]\nz_min = 0.3\nz_max = 1.6\nradius = 1.5\n")
 _FLOOD_HZ = 10_000.0
 _PEER_HZ = 500.0
+_PEER_DELAY_S = 0.1  # the vehicle's first heartbeat (sent as its thread starts) is at the bridge by then
 
 
 def _encoder(sysid: int) -> mavlink.MAVLink:
@@ -173,20 +177,21 @@ class Relay(threading.Thread):
 
 class ForeignPeer(threading.Thread):
     """A peer on a port of its own sending :func:`forged_packets` "peer" with system id ``sysid`` at ``rate_hz``
-    messages per second; counts what comes back (:attr:`received`: must stay 0)."""
+    messages per second from ``delay`` s after it starts; counts what comes back (:attr:`received`: must stay 0)."""
 
-    def __init__(self, port: int, sysid: int, seed: int, rate_hz: float = _PEER_HZ) -> None:
+    def __init__(self, port: int, sysid: int, seed: int, rate_hz: float = _PEER_HZ, delay: float = 0.0) -> None:
         super().__init__(daemon=True, name="fuzz-peer")
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.setblocking(False)
-        self.dest, self.sysid, self.period = ("127.0.0.1", port), sysid, 1.0 / rate_hz
+        self.dest, self.sysid, self.period, self.delay = ("127.0.0.1", port), sysid, 1.0 / rate_hz, delay
         self.rng = np.random.default_rng(seed)
         self.stop_flag = threading.Event()
         self.sent = self.received = 0
 
     def run(self) -> None:
         k = 0
+        self.stop_flag.wait(self.delay)
         while not self.stop_flag.is_set():
             for pkt in forged_packets("peer", self.rng, 1000 + 5 * k, self.sysid)[k % 4: k % 4 + 1]:
                 try:
@@ -220,7 +225,8 @@ def _start(attack: str, port: int, seed: int):
         relay = Relay(port, _RELAYED[attack], seed, **kw)
         relay.start()
     elif attack.startswith("foreign"):
-        peer = ForeignPeer(port, 1 if attack == "foreign_same_ids" else 42, seed)
+        peer = ForeignPeer(port, 42 if attack == "foreign_other_ids" else 1, seed,
+                           delay=0.0 if attack in _PINNED else _PEER_DELAY_S)
         peer.start()
     elif attack == "flood":
         flood = subprocess.Popen(python_m() + ["ddpc_codegen.testbed.fuzz_link", "flood", str(port), str(_FLOOD_HZ),
@@ -243,10 +249,19 @@ def fly_link_attack(attack: str, seed: int, duration: float, work: Path) -> dict
     if attack == STARTUP_STAMP:
         args += ["--timeout", "5"]  # it never engages: no need to wait the default 30 s for that
     port = free_udp_port()
+    link = None
+    if attack in _PINNED:  # the vehicle's address given: pinned from the start, the peer may speak first
+        link = vehicle_link(f"udpout:127.0.0.1:{port}")
+        args += ["--vehicle-address", "{}:{}".format(*link.local_address())]
+    elif key is not None:
+        link = vehicle_link(f"udpout:127.0.0.1:{port}", key)
     cfg = accept(args, port, duration, lockstep=attack not in REAL_TIME)
     relay, peer, flood = _start(attack, port, seed)
+    if relay is not None and link is not None:
+        link.close()
+        link = vehicle_link(f"udpout:127.0.0.1:{relay.port}", key)
     try:
-        check = fly_in_process(cfg, work, sim_time=duration + 2.0, seed=seed, signing_key=key,
+        check = fly_in_process(cfg, work, sim_time=duration + 2.0, seed=seed, vehicle_link=link,
                                vehicle_url=f"udpout:127.0.0.1:{relay.port}" if relay else None)
     finally:
         for part in (relay, peer):

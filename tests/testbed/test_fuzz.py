@@ -13,7 +13,7 @@ from ddpc_codegen.robot.profile import Envelope
 from ddpc_codegen.testbed.bridge_flights import free_udp_port
 from ddpc_codegen.testbed.fuzz import format_table, run_mutant
 from ddpc_codegen.testbed.fuzz_flight import (REFUSALS, TRACK_MARGIN_M, FlightCheck, accept, envelope_excess,
-                                              fly_processes, rate_ratio)
+                                              fly_in_process, fly_processes, rate_ratio)
 from ddpc_codegen.testbed.fuzz_link import STARTUP_STAMP, fly_link_attack, forged_packets
 from ddpc_codegen.testbed.fuzz_mutants import KINDS, make_mutant, mutate_bytes, mutate_number
 from firmware_bridge.link import mavlink
@@ -104,7 +104,8 @@ def test_an_accepted_mutant_flies_as_two_processes(tmp_path):
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize("attack", ["foreign_same_ids", "same_address_absurd", "same_address_signed"])
+@pytest.mark.parametrize("attack", ["foreign_same_ids", "foreign_first_pinned", "same_address_absurd",
+                                    "same_address_signed"])
 def test_a_link_attack_changes_nothing_the_vehicle_flies(tmp_path, attack):
     r = fly_link_attack(attack, 3, 1.5, tmp_path)
     assert r["defect"] == "" and not r["flight"]["violation"], r
@@ -115,6 +116,20 @@ def test_a_link_attack_changes_nothing_the_vehicle_flies(tmp_path, attack):
         assert r["injected"] > 0
     if attack == "same_address_absurd":
         assert r["flight"]["counts"]["telemetry_dropped"] > 0
+    if attack == "same_address_signed":  # the forgeries are unsigned: dropped before they are parsed as messages
+        assert r["flight"]["counts"]["unsigned"] > 0 and r["flight"]["counts"]["telemetry_dropped"] == 0
+
+
+@pytest.mark.e2e
+def test_a_controller_model_that_sank_the_vehicle_is_refused_before_arming(tmp_path):
+    """The regression of make fuzz's profile mutant 2456 (max_thrust 187 N, the model's hover thrust 0.18 against
+    the vehicle's 0.80): flown, its height loop sank the vehicle to the ground below z_min with every reference
+    inside the envelope. Refused now when the vehicle's hover thrust is read (path_checks.check_model_hover)."""
+    profile = tmp_path / "model.toml"
+    profile.write_text('extends = "pogox"\n[controller]\nmax_thrust = 186.9\n[envelope]\nz_min = 0.6\nz_max = 2.3\n')
+    cfg = accept(["--controller", str(profile), "--mode", "passthrough"], free_udp_port(), 1.0)
+    check = fly_in_process(cfg, tmp_path, sim_time=3.0, seed=1)
+    assert check.outcome == "refused" and "would settle 3.35 m below every reference" in check.notes[0], check
 
 
 @pytest.mark.e2e
