@@ -21,6 +21,9 @@ from ddpc_codegen.values.adapt import REJECTIONS, AdaptSettings
 from support.lti import random_lti
 
 pytestmark = pytest.mark.compiler
+# the solver name of tests/codegen/test_adapt_codegen.py's builds of this problem: a source that comes out the
+# same is compiled once in a test run (tests/support/cc_cache.py)
+NAME = "ad"
 
 
 def _problem() -> SteeringProblem:
@@ -52,7 +55,7 @@ def test_aarch64_timing_under_qemu_agrees_with_the_native_build(tmp_path):
     prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
     lay = fit_layout(prob.predictor)
     wins = np.random.default_rng(0).standard_normal((300, lay.depth * (lay.m + lay.p))) * 0.05  # the bench's recipe
-    name = "bx_small"
+    name = NAME
     emit_sources(prob, tmp_path, name, "daqp", dict(DEFAULTS["daqp"]), adapt=st)
     ref = adapter(prob, st)  # the numpy twin: what the C must compute
     assert all(ref.push(w.reshape(lay.depth, lay.m + lay.p)) for w in wins)
@@ -98,7 +101,7 @@ def test_native_timing_program_stamps_every_phase_of_a_resolve(tmp_path):
     from ddpc_codegen.experiments.bench_adapt import _phase_figures, adapt_lines
 
     prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
-    emit_sources(prob, tmp_path, "bx_phases", "daqp", dict(DEFAULTS["daqp"]), adapt=st)
+    emit_sources(prob, tmp_path, NAME, "daqp", dict(DEFAULTS["daqp"]), adapt=st)
     native = cross.native_figures(tmp_path, _small_windows(prob), 5, runs=3)
     assert native["runs"] == 3 and native["verdict"] in (0, 5)  # verified to the end (accepted, or refused by the prediction check)
     ph = native["phase_ns_median"]
@@ -119,13 +122,13 @@ def test_a_build_without_the_clock_stamps_nothing(tmp_path):
     from ddpc_codegen.codegen.artifact import compile_alone
 
     prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
-    ffi, lib = compile_alone(prob, st, tmp_path, "bx_noclock")
-    ws = ffi.new("bx_noclock_adapt_workspace *")
-    assert lib.bx_noclock_adapt_init(ws) == 0
+    ffi, lib = compile_alone(prob, st, tmp_path, NAME)
+    ws = ffi.new("ad_adapt_workspace *")
+    assert lib.ad_adapt_init(ws) == 0
     for w in _small_windows(prob, 120):
-        lib.bx_noclock_adapt_push(ws, ffi.from_buffer("double[]", np.ascontiguousarray(w)))
-    lib.bx_noclock_adapt_snapshot(ws)
-    lib.bx_noclock_adapt_resolve(ws)
+        lib.ad_adapt_push(ws, ffi.from_buffer("double[]", np.ascontiguousarray(w)))
+    lib.ad_adapt_snapshot(ws)
+    lib.ad_adapt_resolve(ws)
     assert ws.counts.resolves == 1 and list(ws.phase_ns) == [0] * 7
 
 
