@@ -214,10 +214,11 @@ def test_manifest_contents_and_mismatch_refused(problem, plant, solvers, tmp_pat
 
 
 def test_tampered_or_missing_artifacts_refused(problem, tmp_path):
-    out = generate(problem, tmp_path / "t", backend="daqp", name="tamper")
-    src = out / "tamper_data.c"
+    # (the name of the solvers fixture: builds of one problem under one name share their compiled objects)
+    out = generate(problem, tmp_path / "t", backend="daqp", name="cg_daqp")
+    src = out / "cg_daqp_data.c"
     src.write_text(src.read_text() + "\n/* edited */\n")
-    with pytest.raises(ManifestError, match="tamper_data.c differs from the one the solver was built from"):
+    with pytest.raises(ManifestError, match="cg_daqp_data.c differs from the one the solver was built from"):
         load_solver(out)
     man = json.loads((out / "manifest.json").read_text())
     man["format_version"] = 99
@@ -238,7 +239,7 @@ def test_build_works_without_network(problem, tmp_path, monkeypatch):
     monkeypatch.setattr(socket.socket, "connect", refuse)
     monkeypatch.setattr(socket, "create_connection", refuse)
     for backend in ("daqp", "osqp"):
-        out = generate(problem, tmp_path / backend, backend=backend, name=f"offline_{backend}")
+        out = generate(problem, tmp_path / backend, backend=backend, name=f"cg_{backend}")
         assert load_solver(out).solve_theta(np.zeros(problem.n_theta)).ok
 
 
@@ -311,12 +312,12 @@ def test_bad_names_and_backends(problem, tmp_path):
 def test_regenerating_in_place_loads_the_new_binary(problem, tmp_path):
     """A rebuilt solver in the same folder must not be served by the library already loaded."""
     out = tmp_path / "same"
-    a = load_solver(generate(problem, out, backend="daqp", name="inplace"))
+    a = load_solver(generate(problem, out, backend="daqp", name="cg_daqp"))
     th = np.zeros(problem.n_theta)
     th[problem.n_w : problem.n_w + P * TF] = 50.0  # a far target: the u bound is active
     ua = a.solve_theta(th).u.max()
     tighter = SteeringProblem(problem.predictor, problem.config.replace(u_max=[0.5, 0.5]))
-    b = load_solver(generate(tighter, out, backend="daqp", name="inplace"))
+    b = load_solver(generate(tighter, out, backend="daqp", name="cg_daqp"))
     ub = b.solve_theta(th).u.max()
     assert ua > 0.5 + 1e-6 and ub <= 0.5 + 1e-9
     assert a.manifest["module"] != b.manifest["module"]
