@@ -94,16 +94,19 @@ class App:
                     self.log.write(json.dumps({"t": time.time(), "pz": -float(m.z)}) + "\n")
             m = self.c.recv_match(blocking=False)
 
-    def wait(self, what, timeout: float, every=None) -> bool:
-        """Pump until ``what()`` (calling ``every()`` each second) or ``timeout`` [s]."""
-        end, nxt = time.monotonic() + timeout, 0.0
+    def wait(self, what, timeout: float, every=None, period: float = 1.0) -> bool:
+        """Pump until ``what()`` (calling ``every()`` each ``period`` [s]) or ``timeout`` [s]."""
+        end, nxt, beat = time.monotonic() + timeout, 0.0, 0.0
         while time.monotonic() < end:
-            if time.monotonic() >= nxt:
-                nxt = time.monotonic() + 1.0
+            now = time.monotonic()
+            if now >= beat:
+                beat = now + 1.0
                 self.beat()
+            if now >= nxt:
+                nxt = now + period
                 if every is not None:
                     every()
-            self.pump(0.1)
+            self.pump(min(0.1, period))
             if what():
                 return True
         return False
@@ -139,21 +142,24 @@ def _take_off(app: App, home: np.ndarray, height: float) -> None:
     target = home + np.array([0.0, 0.0, height])
     mode = (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0) if app.px4 else (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED)
 
+    asked = [0.0]
+
     def ask() -> None:
-        if app.px4:  # PX4 takes OFFBOARD only while setpoints stream: the target itself, from the ground
-            for _ in range(10):
-                app.setpoint(target, zero, zero, MASKS["none"], -1.0)
-        if app.hb is None or not app.armed_in_mode():
+        if app.px4:  # PX4 takes OFFBOARD only while setpoints stream (and leaves it when they stop): 20 Hz
+            app.setpoint(target, zero, zero, MASKS["none"], -1.0)
+        if (app.hb is None or not app.armed_in_mode()) and time.monotonic() - asked[0] > 1.0:
+            asked[0] = time.monotonic()
             app.command(M.MAV_CMD_DO_SET_MODE, *mode)
             app.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
-    if not app.wait(app.armed_in_mode, 120.0, ask):
+    if not app.wait(app.armed_in_mode, 120.0, ask, period=0.05):
         raise SystemExit("proxy_app: the vehicle did not arm in GUIDED / OFFBOARD within 120 s")
     if not app.px4:
         app.wait(lambda: False, 1.0)
         app.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height)
     climbed = lambda: app.lpos is not None and -app.lpos.z > home[2] + height - 0.2  # noqa: E731
-    if not app.wait(climbed, 30.0, lambda: app.setpoint(target, zero, zero, MASKS["none"], -1.0) if app.px4 else None):
+    if not app.wait(climbed, 30.0, lambda: app.setpoint(target, zero, zero, MASKS["none"], -1.0) if app.px4 else None,
+                    period=0.05):
         raise SystemExit("proxy_app: the take-off did not reach its height within 30 s")
 
 

@@ -32,8 +32,8 @@ def run_vehicle(out_dir: str, paths: list[str], duration: float = 30.0, collect_
     :data:`VEHICLE_KINDS`; the report's ``ddpc_vehicle`` entry."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    veh = subprocess.Popen([sys.executable, "-m", "ddpc_codegen.testbed.vehicle_cli", "udpout:127.0.0.1:14540",
-                            "--start", "disarmed"], stdout=subprocess.DEVNULL,
+    veh = subprocess.Popen([sys.executable, "-m", "ddpc_codegen.testbed.vehicle_cli", "udpout:127.0.0.1:14540"],
+                           stdout=subprocess.DEVNULL,
                            stderr=open(out / "vehicle.err", "w"), cwd=out)
     res: dict = {"setup": "ddpc-vehicle (PX4 emulation, true state as telemetry)", "paths": {}}
     kw = {"vehicle_url": _VEHICLE, "direct_url": _VEHICLE}
