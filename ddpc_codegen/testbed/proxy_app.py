@@ -2,8 +2,7 @@
 its connection string says where it connects). It takes the vehicle into GUIDED (ArduCopter) or OFFBOARD (PX4),
 arms and takes off when on the ground, moves to the path's start, then streams ``SET_POSITION_TARGET_LOCAL_NED``
 at a fixed rate along a named path, with its own velocity and acceleration feed-forward (``--feedforward``),
-and holds the last point. Every setpoint it sends is logged (one JSON line: wall time, path time, position NED), and
-every local position it receives (wall time, height up).
+and holds the last point. Every setpoint it sends is logged (one JSON line: wall time, path time, position NED).
 
 ``python -m ddpc_codegen.testbed.proxy_app --connect udpout:127.0.0.1:14541 --path helix --duration 30``
 """
@@ -90,8 +89,6 @@ class App:
                 self.c.target_system, self.c.target_component = m.get_srcSystem(), m.get_srcComponent()
             elif typ == "LOCAL_POSITION_NED":
                 self.lpos = m
-                if self.log is not None:  # what the app saw of its vehicle (scored where there is no truth)
-                    self.log.write(json.dumps({"t": time.time(), "pz": -float(m.z)}) + "\n")
             m = self.c.recv_match(blocking=False)
 
     def wait(self, what, timeout: float, every=None, period: float = 1.0) -> bool:

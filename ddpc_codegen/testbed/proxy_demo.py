@@ -36,7 +36,7 @@ from ddpc_codegen.testbed.sitl_adapt import second_link
 from ddpc_codegen.testbed.sitl_demo import codegen
 from ddpc_codegen.testbed.sitl_observer import Observer
 
-__all__ = ["KINDS", "AppLogHeights", "flight", "run_ardupilot", "score", "main"]
+__all__ = ["KINDS", "flight", "run_ardupilot", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
@@ -112,20 +112,6 @@ def score(applog: Path, obs: Observer, delay: float = 0.0, skip: float = SKIP_S,
 
     return {"rmse_z_truth_mm": rms(truth - want), "rmse_z_mm": rms(est - want), "estimator_rms_mm": rms(est - truth),
             "samples": int(np.isfinite(est).sum()), "delay_s": delay}
-
-
-class AppLogHeights:
-    """The heights an app logged it received (:mod:`.proxy_app`), as an observer without a truth (``ddpc-vehicle``
-    sends its true state as its telemetry)."""
-
-    def __init__(self, applog: Path) -> None:
-        rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip()]
-        self.a = np.array([(r["t"], r["pz"]) for r in rows if "pz" in r]).reshape(-1, 2)
-
-    def heights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        est = np.interp(t, self.a[:, 0], self.a[:, 1], left=np.nan, right=np.nan) if len(self.a) > 1 else \
-            np.full(len(t), np.nan)
-        return np.full(len(t), np.nan), est
 
 
 def _proxy_figures(stats: dict | None) -> dict | None:
@@ -225,27 +211,18 @@ def main(argv: list[str] | None = None) -> int:
                    help="the proxy's --z-feedforward in the collect and steered flights (default %(default)s)")
     p.add_argument("--out", type=Path, default=ROOT / "reports" / "proxy_ardupilot")
     p.add_argument("--report", type=Path, default=ROOT / "reports" / "proxy.json")
-    p.add_argument("--vehicles", default="ardupilot,ddpc_vehicle",
-                   help="ardupilot (the SITL), ddpc_vehicle (its PX4 emulation, a position-only app) (default "
-                        "%(default)s)")
     a = p.parse_args(argv)
+    why = missing_reason("ardupilot")
+    if why:
+        print(f"[proxy-demo] skipped: {why}", file=sys.stderr)
+        return 0
     paths = [s for s in a.paths.split(",") if s]
+    kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect, "delay": a.delay,
+          "setup": a.setup, "z_feedforward": a.z_feedforward}
     budget = 300 + a.collect + len(paths) * 4 * (a.duration + 60)
-    for name in [s for s in a.vehicles.split(",") if s]:
-        if name == "ardupilot":
-            why = missing_reason("ardupilot")
-            if why:
-                print(f"[proxy-demo] ardupilot skipped: {why}", file=sys.stderr)
-                continue
-            kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect,
-                  "delay": a.delay, "setup": a.setup, "z_feedforward": a.z_feedforward}
-            res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
-        else:
-            kw = {"out_dir": str(a.out.with_name("proxy_ddpc_vehicle")), "paths": paths, "duration": a.duration,
-                  "collect_s": a.collect, "delay": a.delay}
-            res = run_isolated("ddpc_codegen.testbed.proxy_demo_vehicle:run_vehicle", kw, timeout=budget)
-        update_report(a.report, {name: res}, default=nan_as_null)
-        print(json.dumps(res["paths"], indent=1))
+    res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
+    update_report(a.report, {"ardupilot": res}, default=nan_as_null)
+    print(json.dumps(res["paths"], indent=1))
     return 0
 
 

@@ -197,7 +197,8 @@ def test_the_proxy_page_says_which_preview_wins_on_each_path():
     page = results.pages({"proxy.json": rep})["proxy.md"]
     assert "- helix: the declared delay wins (8.0 mm against 12.0 mm; the app alone 40.0 mm)." in page
     assert "| helix | steered, delay 0.5 s | 8.0 | 7.5 | 2.0 | 5.00 |" in page
-    assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 120 | 480 |" in page
+    assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 0 | 0 | 120 | 480 |" in page
+    assert "The steered app (its better preview) below the app alone on 1 of 1 paths." in page
     index = results.pages({"proxy.json": rep})["index.md"]
     assert "| helix | 40.0 | 8.0 (steered, delay) | 5.00 |" in index
 
