@@ -102,10 +102,11 @@ sitl-demo: install
 # ddpc-vehicle + ddpc-bridge processes; the MAVLink input attacked in flight (foreign and same-address peers,
 # absurd values, stamps, corrupted bytes, a 10 kHz flood). Judged on the vehicle's true position in its envelope
 # and every reference step against the rate bound: a table, reports/fuzz.json, exit 1 on a violation (replay one
-# with --replay SEED). Then each file kind's keys mutated (1000 files per kind: refused with a precise error or
-# loaded with finite values). Under 5 min on 2 cores.
+# with --replay SEED); steered mutants too once `make codegen` has built generated/flying. Then each file kind's
+# keys mutated (1000 files per kind: refused with a precise error or loaded with finite values). Under 5 min on
+# 2 cores.
 fuzz: install
-	$(PY) -m ddpc_codegen.testbed.fuzz
+	$(PY) -m ddpc_codegen.testbed.fuzz $(if $(wildcard generated/flying/manifest.json),--solver generated/flying)
 	DDPC_FUZZ_EXAMPLES=1000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
 		tests/firmware_bridge/test_baseline_modes.py tests/robot/test_profile.py tests/robot/test_trajectory_files_fuzz.py
 

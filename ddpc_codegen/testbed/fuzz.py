@@ -39,10 +39,10 @@ __all__ = ["run_mutant", "fuzz_dynamics", "accepted_seeds", "side_flights", "run
 _SLACK_S = 2.0  # vehicle time beyond the flight's duration: start-up, pre-stream, hand-back
 
 
-def run_mutant(seed: int, work: Path, duration: float, fly: bool = True) -> dict:
+def run_mutant(seed: int, work: Path, duration: float, fly: bool = True, solver: str | None = None) -> dict:
     """Build the mutant of ``seed`` in ``work``, put it through the bridge's acceptance and (``fly``) fly it:
     {"mutant", "status": "refused" | "defect" | "accepted", "message", "flight"}."""
-    m = make_mutant(seed, Path(work) / f"m{seed}")
+    m = make_mutant(seed, Path(work) / f"m{seed}", solver=solver)
     rec: dict = {"mutant": m.as_dict(), "status": "accepted", "message": "", "flight": None}
     try:
         cfg = accept(m.args, free_udp_port(), duration)
@@ -67,15 +67,15 @@ def run_mutant(seed: int, work: Path, duration: float, fly: bool = True) -> dict
     return rec
 
 
-def _worker(seeds: list[int], duration: float) -> list[dict]:
+def _worker(seeds: list[int], duration: float, solver: str | None) -> list[dict]:
     with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
-        return [run_mutant(s, Path(tmp), duration) for s in seeds]
+        return [run_mutant(s, Path(tmp), duration, solver=solver) for s in seeds]
 
 
 def fuzz_dynamics(pool: ProcessPoolExecutor, target: int, seed: int, duration: float, workers: int, batch: int = 8,
-                  time_budget: float = 240.0, log=print) -> list[dict]:
+                  time_budget: float = 240.0, solver: str | None = None, log=print) -> list[dict]:
     """Mutants from seeds ``seed``, ``seed + 1``, ... on ``pool`` until ``target`` accepted ones have flown (or
-    ``time_budget`` s have passed): the records of :func:`run_mutant`, in seed order."""
+    ``time_budget`` s have passed): the records of :func:`run_mutant`, in seed order (``solver``: steered ones too)."""
     records: list[dict] = []
     t_end = time.monotonic() + time_budget
     next_seed = seed
@@ -83,7 +83,7 @@ def fuzz_dynamics(pool: ProcessPoolExecutor, target: int, seed: int, duration: f
     pending: set = set()
     while True:
         while len(pending) < 2 * workers and flown < target and time.monotonic() < t_end:
-            pending.add(pool.submit(_worker, list(range(next_seed, next_seed + batch)), duration))
+            pending.add(pool.submit(_worker, list(range(next_seed, next_seed + batch)), duration, solver))
             next_seed += batch
         if not pending:
             break
@@ -98,10 +98,10 @@ def fuzz_dynamics(pool: ProcessPoolExecutor, target: int, seed: int, duration: f
     return sorted(records, key=lambda r: r["mutant"]["seed"])
 
 
-def _process_flight(seed: int, duration: float) -> dict:
+def _process_flight(seed: int, duration: float, solver: str | None) -> dict:
     """The mutant of ``seed`` (accepted) flown as two processes: {"seed", "kind", "flight"}."""
     with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
-        m = make_mutant(seed, Path(tmp) / "m")
+        m = make_mutant(seed, Path(tmp) / "m", solver=solver)
         cfg = accept(m.args, free_udp_port(), duration)
         check = fly_processes(m.args, cfg, Path(tmp), sim_time=duration + _SLACK_S, seed=seed)
     return {"seed": seed, "kind": m.kind, "mutant": m.as_dict(), "flight": check.as_dict()}
@@ -112,12 +112,12 @@ def _link_flight(attack: str, seed: int, duration: float) -> dict:
         return fly_link_attack(attack, seed, duration, Path(tmp))
 
 
-def accepted_seeds(n: int, seed: int) -> list[int]:
+def accepted_seeds(n: int, seed: int, solver: str | None = None) -> list[int]:
     """The first ``n`` seeds from ``seed`` on whose mutants the bridge accepts (nothing flown)."""
     out: list[int] = []
     with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
         while len(out) < n:
-            if run_mutant(seed, Path(tmp), 1.0, fly=False)["status"] == "accepted":
+            if run_mutant(seed, Path(tmp), 1.0, fly=False, solver=solver)["status"] == "accepted":
                 out.append(seed)
             seed += 1
     return out
@@ -127,8 +127,8 @@ def side_flights(pool: ProcessPoolExecutor, args) -> tuple[list, list, object]:
     """Submitted first, so that they fly beside the dynamics mutants: ``--process-flights`` accepted mutants (seeds
     from ``--seed + 10**6``) as two processes, every attack of :data:`.fuzz_link.LINK_ATTACKS` ``--link-rounds``
     times, and the known finding (:data:`.fuzz_link.STARTUP_STAMP`) once: their futures."""
-    procs = [pool.submit(_process_flight, s, args.duration) for s in accepted_seeds(args.process_flights,
-                                                                                   args.seed + 10**6)]
+    procs = [pool.submit(_process_flight, s, args.duration, args.solver)
+             for s in accepted_seeds(args.process_flights, args.seed + 10**6, args.solver)]
     link = [pool.submit(_link_flight, attack, args.seed + 100 * i + j, args.duration + 1.0)
             for i in range(args.link_rounds) for j, attack in enumerate(LINK_ATTACKS)]
     finding = pool.submit(_link_flight, STARTUP_STAMP, args.seed, args.duration + 1.0)
@@ -144,7 +144,7 @@ def _summary(records: list[dict], procs: list[dict], link: list[dict], seconds: 
         k = per_kind.setdefault(r["mutant"]["kind"], {"generated": 0, "refused": 0, "accepted": 0, "flown": 0})
         k["generated"] += 1
         k["refused"] += r["status"] in ("refused", "refused_preflight")
-        k["accepted"] += r["status"] in ("accepted", "refused_preflight")
+        k["accepted"] += r["status"] == "accepted"
         k["flown"] += bool(r["flight"] and r["flight"]["outcome"] == "flown")
 
     def worst(key: str) -> float | None:
@@ -165,7 +165,8 @@ def _summary(records: list[dict], procs: list[dict], link: list[dict], seconds: 
                      "rate_ratio": r["flight"]["rate_ratio"], "changes": r["mutant"]["changes"]}
                     for r in sorted((r for r in records if r["flight"] and r["flight"]["excess_m"] is not None),
                                     key=lambda r: -r["flight"]["excess_m"])[:10]],
-        "settings": {"seed": args.seed, "duration_s": args.duration, "workers": args.workers, "target": args.mutants},
+        "settings": {"seed": args.seed, "duration_s": args.duration, "workers": args.workers, "target": args.mutants,
+                     "solver": args.solver},
         "violating": [r for r in records if r["flight"] and r["flight"]["violation"]]
         + [p for p in procs if p["flight"]["violation"]] + [r for r in link if r["flight"]["violation"]],
         "process": procs, "link": link,
@@ -176,7 +177,7 @@ def format_table(s: dict) -> str:
     """The short table ``make fuzz`` prints."""
     f = lambda v, fmt: "-" if v is None else fmt.format(v)  # noqa: E731
     rows = [("mutants generated", s["generated"]), ("refused (one line, exit 2)", s["refused"]),
-            ("  of them before arming (hover thrust)", s["refused_before_arming"]), ("accepted", s["accepted"]),
+            ("  of them when set up or before arming", s["refused_before_arming"]), ("accepted", s["accepted"]),
             ("flown in-process (lock-step)", s["flown"]), ("flown as ddpc-vehicle + ddpc-bridge", s["process_flights"]),
             ("link attacks flown", s["link_flights"]), ("envelope / rate violations", s["violations"]),
             ("defects (traceback, imprecise refusal, link)", len(s["defects"])),
@@ -194,16 +195,16 @@ def run_fuzz(args) -> dict:
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         procs, link, finding = side_flights(pool, args)
         records = fuzz_dynamics(pool, args.mutants, args.seed, args.duration, args.workers,
-                                time_budget=args.time_budget)
+                                time_budget=args.time_budget, solver=args.solver)
         procs, link, finding = [f.result() for f in procs], [f.result() for f in link], finding.result()
     out = _summary(records, procs, link, time.monotonic() - t0, args)
     out["findings"] = [finding] if finding["defect"] else []
     return out
 
 
-def _replay(seed: int, duration: float) -> int:
+def _replay(seed: int, duration: float, solver: str | None) -> int:
     with tempfile.TemporaryDirectory(prefix="ddpc-fuzz-") as tmp:
-        r = run_mutant(seed, Path(tmp), duration)
+        r = run_mutant(seed, Path(tmp), duration, solver=solver)
     print(json.dumps(r, indent=1))
     return 1 if r["status"] == "defect" or (r["flight"] and r["flight"]["violation"]) else 0
 
@@ -220,9 +221,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--link-rounds", type=int, default=2, help="times each link attack is flown")
     p.add_argument("--out", type=Path, default=ROOT / "reports" / "fuzz.json")
     p.add_argument("--replay", type=int, default=None, help="build and fly this seed's mutant alone")
+    p.add_argument("--solver", default=None, help="a generated steering solver folder: steered mutants too")
     a = p.parse_args(argv)
     if a.replay is not None:
-        return _replay(a.replay, a.duration)
+        return _replay(a.replay, a.duration, a.solver)
     s = run_fuzz(a)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(s, indent=1, default=str) + "\n")

@@ -63,8 +63,8 @@ class FlightCheck:
     """One flight's verdict.
 
     Attributes:
-        outcome: "flown", "refused" (before arming: the vehicle's hover thrust), or "error: ..." (an exception
-            that is not a refusal: a defect of its own).
+        outcome: "flown", "refused" (when set up or before arming: the steering solver, the vehicle's hover
+            thrust), or "error: ..." (an exception that is not a refusal: a defect of its own).
         ticks: bridge ticks; engaged_ticks: ticks steered / flown engaged.
         excess_m: how far the true position got outside the envelope's box (negative: the closest it came to
             an edge, inside) [m]; margin [m] allowed beyond it.
@@ -171,7 +171,12 @@ def fly_in_process(cfg: BridgeConfig, work: Path, *, sim_time: float, seed: int,
     truth_path.unlink(missing_ok=True)
     vc = VehicleConfig(url=vehicle_url or f"udpout:127.0.0.1:{port}", lockstep=cfg.lockstep, lockstep_timeout=0.05,
                        peer_timeout=2.0, seed=seed, duration=sim_time, truth_log=str(truth_path))
-    bridge = Bridge(cfg)
+    try:
+        bridge = Bridge(cfg)  # ddpc-bridge's last refusals: the steering solver against the path and the loop
+    except REFUSALS as e:
+        if vehicle_link is not None:
+            vehicle_link.close()
+        return FlightCheck("refused", notes=[f"refused: {e}"])
     v = SimVehicle(vc, vehicle_link)
     done = threading.Event()
     th = _vehicle_thread(v, bridge, done)
@@ -243,6 +248,8 @@ def fly_processes(args: list[str], cfg: BridgeConfig, work: Path, *, sim_time: f
     finally:
         stop_process(br)
         stop_process(veh)
+    if br.returncode == 2 and not log.exists():  # refused when the bridge was set up (its solver): one line
+        return FlightCheck("refused", notes=[f"refused: {err.strip().splitlines()[-1] if err.strip() else ''}"])
     if not log.exists() or not out.strip().startswith("{"):
         return FlightCheck(f"error: ddpc-bridge exited {br.returncode} without a log: {err.strip()[-300:]}")
     tl = load_ticklog(log)

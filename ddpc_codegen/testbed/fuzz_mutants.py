@@ -13,7 +13,9 @@ kind is one of :data:`KINDS`:
 * ``prefilter``: a prefilter JSON whose gains, offsets and leads are mutated;
 * ``feedforward``: a feed-forward table (npz) of sines, steps and noise of mutated amplitude and tick;
 * ``excitation``: collect mode's PRBS amplitude and hold;
-* ``flags``: thrust limits, blend rates, tilt, take-off ramp, frame, a random path.
+* ``flags``: thrust limits, blend rates, tilt, take-off ramp, frame, a random path;
+* ``steer`` (given a generated solver): steered flights with the step guard, its hold and injected solver
+  failures (failed or NaN solutions) mutated, on a mutated profile or path file now and then.
 
 Any kind may carry a mutated profile as well (a tight envelope is what makes a short flight reach its edges),
 and any file may have its bytes flipped, inserted, deleted, duplicated or truncated.
@@ -34,8 +36,8 @@ from ddpc_codegen.testbed.bridge_flights import write_toml
 
 __all__ = ["KINDS", "Mutant", "make_mutant", "mutate_number", "mutate_bytes", "VEHICLE_START_Z"]
 
-KINDS = ("profile", "trajectory", "prefilter", "feedforward", "excitation", "flags")
-_KIND_WEIGHTS = (0.3, 0.2, 0.14, 0.14, 0.1, 0.12)
+KINDS = ("profile", "trajectory", "prefilter", "feedforward", "excitation", "flags", "steer")
+_KIND_WEIGHTS = (0.3, 0.2, 0.14, 0.14, 0.1, 0.12, 0.15)  # steer: only with a solver (the others renormalised)
 VEHICLE_START_Z = 0.9  # m: where ddpc-vehicle hovers (the default ellipse's start), heights from the ground
 _RATE = 200.0
 
@@ -261,12 +263,29 @@ def _flags(rng: np.random.Generator, changes: list[str]) -> list[str]:
     return args
 
 
-def make_mutant(seed: int, folder: Path, kind: str | None = None) -> Mutant:
-    """The mutant of ``seed`` (its files written into ``folder``, created if needed); ``kind`` None: drawn."""
+def _steer(rng: np.random.Generator, solver: str, changes: list[str]) -> list[str]:
+    args = ["--mode", "steer", "--solver", solver]
+    if rng.random() < 0.5:
+        args += ["--max-step", ",".join(f"{10.0 ** rng.uniform(-3, 0.5):.4g}" for _ in range(2))]
+    if rng.random() < 0.3:
+        args += ["--guard-hold", f"{float(rng.choice([0.0, 0.05, 0.3, 1.0])):g}"]
+    if rng.random() < 0.4:
+        start, count = int(rng.integers(0, 150)), int(rng.integers(1, 100))
+        args += ["--inject-solver-failure", f"{start}:{count}:{rng.choice(['fail', 'nan'])}"]
+    changes.append(" ".join(args[4:]) or "steered")
+    return args
+
+
+def make_mutant(seed: int, folder: Path, kind: str | None = None, solver: str | None = None) -> Mutant:
+    """The mutant of ``seed`` (its files written into ``folder``, created if needed); ``kind`` None: drawn (``steer``
+    only with a ``solver`` folder: the same seed draws another mutant with and without one)."""
     rng = np.random.default_rng(seed)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    drawn = str(rng.choice(KINDS, p=_KIND_WEIGHTS))
+    w = np.array(_KIND_WEIGHTS, dtype=float)
+    if solver is None:
+        w[KINDS.index("steer")] = 0.0
+    drawn = str(rng.choice(KINDS, p=w / w.sum()))
     kind = kind or drawn
     changes: list[str] = []
     args: list[str] = []
@@ -274,8 +293,12 @@ def make_mutant(seed: int, folder: Path, kind: str | None = None) -> Mutant:
         args += ["--controller", str(_profile(rng, folder, changes, None if kind == "profile" else 0))]
     if kind in ("profile", "trajectory"):
         args += ["--mode", str(rng.choice(["passthrough", "collect"]))]
-    if kind == "trajectory":
+    if kind == "trajectory" or (kind == "steer" and rng.random() < 0.3):
         args += ["--trajectory", str(_trajectory(rng, folder, changes))]
+    if kind == "steer":
+        if solver is None:
+            raise ValueError("a steer mutant needs a generated solver folder")
+        args += _steer(rng, solver, changes)
     elif kind == "prefilter":
         args += ["--mode", "prefilter", "--prefilter", str(_prefilter(rng, folder, changes))]
     elif kind == "feedforward":

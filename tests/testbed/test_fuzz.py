@@ -17,6 +17,7 @@ from ddpc_codegen.testbed.fuzz_flight import (REFUSALS, TRACK_MARGIN_M, FlightCh
 from ddpc_codegen.testbed.fuzz_link import STARTUP_STAMP, fly_link_attack, forged_packets
 from ddpc_codegen.testbed.fuzz_mutants import KINDS, make_mutant, mutate_bytes, mutate_number
 from firmware_bridge.link import mavlink
+from support.bridge_helpers import flying_solver  # noqa: F401 (fixture)
 
 QUICK_SEEDS = range(1, 25)  # drawn by the quick variant: every kind, refused and accepted ones
 
@@ -27,7 +28,8 @@ def test_a_mutant_is_its_seed(tmp_path):
     assert [x.replace(str(tmp_path / "a"), "") for x in a.args] == [x.replace(str(tmp_path / "b"), "") for x in b.args]
     for fa, fb in zip(a.files, b.files):
         assert fa.read_bytes() == fb.read_bytes()
-    assert {make_mutant(s, tmp_path / f"k{s}").kind for s in range(60)} == set(KINDS)
+    assert {make_mutant(s, tmp_path / f"k{s}").kind for s in range(60)} == set(KINDS) - {"steer"}
+    assert {make_mutant(s, tmp_path / f"s{s}", solver="gen/x").kind for s in range(60)} == set(KINDS)
 
 
 def test_number_and_byte_mutations_are_seeded_and_change_something():
@@ -93,6 +95,19 @@ def test_accepted_mutants_fly_inside_their_envelope(tmp_path):
         # a second flown (200 ticks) after the off-board switch; the vehicle blends to a path that starts elsewhere
         assert f["ticks"] > 200 and f["engaged_ticks"] > 0 and f["exit_code"] == 0, r
         assert f["rate_ratio"] <= 1.0 + 1e-6 and f["excess_m"] <= TRACK_MARGIN_M
+
+
+@pytest.mark.e2e
+@pytest.mark.compiler
+def test_steered_mutants_fly_inside_their_envelope(tmp_path, flying_solver):  # noqa: F811
+    """Steered mutants (the step guard, its hold, injected solver failures and NaN solutions) with a solver."""
+    solver = str(flying_solver)
+    seeds = [s for s in range(1, 80) if make_mutant(s, tmp_path / f"k{s}", solver=solver).kind == "steer"][:8]
+    records = [run_mutant(s, tmp_path, 1.0, solver=solver) for s in seeds]
+    flown = [r for r in records if r["flight"] and r["flight"]["outcome"] == "flown"]
+    assert len(flown) >= 2 and all(r["status"] != "defect" for r in records), records
+    for r in flown:
+        assert not r["flight"]["violation"] and r["flight"]["exit_code"] == 0, r
 
 
 @pytest.mark.e2e
