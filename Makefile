@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install check test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt clean
+.PHONY: install check test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt proxy-demo clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -109,6 +109,13 @@ fuzz: install
 	$(PY) -m ddpc_codegen.testbed.fuzz $(if $(wildcard generated/flying/manifest.json),--solver generated/flying)
 	DDPC_FUZZ_EXAMPLES=1000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
 		tests/firmware_bridge/test_baseline_modes.py tests/robot/test_profile.py tests/robot/test_trajectory_files_fuzz.py
+
+# A user's own pymavlink app flown on the ArduCopter SITL directly, through ddpc-proxy in pass-through, and steered
+# (a local preview and a declared delay) on three paths, after one collect flight through the proxy and codegen;
+# the true height judges (reports/proxy.json, docs/results/proxy.md; flights and logs in reports/proxy_ardupilot/).
+proxy-demo: install
+	$(PY) -m ddpc_codegen.testbed.proxy_demo
+	$(RENDER)
 
 # Online adaptation on the PX4 and ArduCopter SITLs: a motor's thrust loss and a heavier vehicle applied mid-flight
 # (by the harness, over a second MAVLink link), static vs adapted steering (ddpc-bridge --adapt) vs the prefilter;
