@@ -6,7 +6,7 @@ feed-forward table of 20 m, a 63 km/s ellipse, a 1000 m step in a trajectory fil
 * the trajectory (profile ellipse, random, file): its largest speed and acceleration sampled at the
   control rate over its time span (an endless one: its first :data:`SPAN_CAP` s), its extent (every
   height it takes, the horizontal distance from its start);
-* a hopper's apex height and target speed;
+* a hopper's apex height and target speed, and the distance it hops at that speed over ``--duration``;
 * a prefilter: the references it would produce on that path (its gain, offset and lead applied) inside
   the envelope and its rate limits;
 * a feed-forward table: the nominal path plus each row inside the envelope;
@@ -199,8 +199,10 @@ def check_excitation(amplitude, nominal: np.ndarray | None, env: Envelope, mode:
             check_references(nominal + sign * amp, env, mode, max_tilt, None, "--excitation")
 
 
-def check_hopping_path(ctrl: ControllerConfig, env: Envelope, what: str = "the profile's [controller]") -> None:
-    """A hopper's path: its apex height inside the envelope's heights, its target speed within ``max_speed``.
+def check_hopping_path(ctrl: ControllerConfig, env: Envelope, what: str = "the profile's [controller]",
+                       duration: float | None = None) -> None:
+    """A hopper's path: its apex height inside the envelope's heights, its target speed within ``max_speed``, and
+    (``duration`` [s] given, the ``--duration``) the distance it travels at that speed within the ``radius``.
 
     Raises:
         PathRefused: naming the key, the limit and the value.
@@ -210,6 +212,9 @@ def check_hopping_path(ctrl: ControllerConfig, env: Envelope, what: str = "the p
     speed = math.hypot(*ctrl.target_velocity)
     if speed > env.max_speed:
         _refuse(what, "target_velocity speed", speed, f"max_speed {env.max_speed:g} m/s", " m/s")
+    if duration is not None and speed * duration > env.radius * (1 + _TOL):
+        _refuse(f"{what} target_velocity over --duration {duration:g} s", "distance from the start",
+                speed * duration, f"radius {env.radius:g} m", " m")
 
 
 def check_thrust_limits(hover: float, thrust_min: float, thrust_max: float, source: str) -> None:
@@ -279,6 +284,6 @@ def check_flight_paths(cfg, ctrl: ControllerConfig, trajectory) -> None:
         if cfg.mode == "feedforward" and cfg.feedforward:
             check_feedforward_path(cfg.feedforward, trajectory, ctrl, env, rate)
     else:
-        check_hopping_path(ctrl, env)
+        check_hopping_path(ctrl, env, duration=cfg.duration)
     if cfg.mode == "collect" and cfg.excitation is not None:
         check_excitation(cfg.excitation, nominal, env, cfg.scenario, ctrl.max_tilt, rate)

@@ -170,7 +170,7 @@ def fly_in_process(cfg: BridgeConfig, work: Path, *, sim_time: float, seed: int,
     truth_path = Path(work) / "truth.npz"
     truth_path.unlink(missing_ok=True)
     vc = VehicleConfig(url=vehicle_url or f"udpout:127.0.0.1:{port}", lockstep=cfg.lockstep, lockstep_timeout=0.05,
-                       peer_timeout=2.0, seed=seed, duration=sim_time, truth_log=str(truth_path))
+                       peer_timeout=2.0, seed=seed, duration=sim_time, truth_log=str(truth_path), scenario=cfg.scenario)
     try:
         bridge = Bridge(cfg)  # ddpc-bridge's last refusals: the steering solver against the path and the loop
     except REFUSALS as e:
@@ -235,6 +235,7 @@ def fly_processes(args: list[str], cfg: BridgeConfig, work: Path, *, sim_time: f
     try:
         veh = subprocess.Popen(python_m() + ["ddpc_codegen.testbed.vehicle_cli", f"udpout:127.0.0.1:{port}",
                                              "--lockstep", "--lockstep-timeout", "0.05", "--seed", str(seed),
+                                             "--scenario", cfg.scenario,
                                              "--duration", str(sim_time), "--truth-log", str(truth)],
                                env=child_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=work)
         br = subprocess.Popen(python_m() + ["firmware_bridge.cli", f"udpin:127.0.0.1:{port}", *LOCKSTEP_ARGS,

@@ -14,6 +14,8 @@ kind is one of :data:`KINDS`:
 * ``feedforward``: a feed-forward table (npz) of sines, steps and noise of mutated amplitude and tick;
 * ``excitation``: collect mode's PRBS amplitude and hold;
 * ``flags``: thrust limits, blend rates, tilt, take-off ramp, frame, a random path;
+* ``hopping``: the ``pogox_hopping`` profile's hop (apex, target velocity, thrust share, stance boost, Raibert and
+  velocity gains) and envelope mutated, hopped or collected;
 * ``steer`` (given a generated solver): steered flights with the step guard, its hold and injected solver
   failures (failed or NaN solutions) mutated, on a mutated profile or path file now and then.
 
@@ -36,8 +38,8 @@ from ddpc_codegen.testbed.bridge_flights import write_toml
 
 __all__ = ["KINDS", "Mutant", "make_mutant", "mutate_number", "mutate_bytes", "VEHICLE_START_Z"]
 
-KINDS = ("profile", "trajectory", "prefilter", "feedforward", "excitation", "flags", "steer")
-_KIND_WEIGHTS = (0.3, 0.2, 0.14, 0.14, 0.1, 0.12, 0.15)  # steer: only with a solver (the others renormalised)
+KINDS = ("profile", "trajectory", "prefilter", "feedforward", "excitation", "flags", "hopping", "steer")
+_KIND_WEIGHTS = (0.3, 0.2, 0.14, 0.14, 0.1, 0.12, 0.08, 0.15)  # steer: only with a solver (the others renormalised)
 VEHICLE_START_Z = 0.9  # m: where ddpc-vehicle hovers (the default ellipse's start), heights from the ground
 _RATE = 200.0
 
@@ -50,6 +52,12 @@ _PROFILE_KEYS = [("trajectory", "center", 0), ("trajectory", "center", 1), ("tra
                  ("envelope", "offset_rate", 1)]
 _CONTROLLER_KEYS = [("controller", k, None) for k in ("kp_z", "kd_z", "kp_xy", "kd_xy", "max_tilt", "model_mass",
                                                       "max_thrust", "ref_velocity_tau")]
+_HOP_KEYS = [("controller", "apex_height", None), ("controller", "target_velocity", 0),
+             ("controller", "target_velocity", 1), ("controller", "thrust_fraction", None),
+             ("controller", "stance_boost", None), ("controller", "raibert_gain", None),
+             ("controller", "velocity_integral_gain", None), ("envelope", "z_max", None), ("envelope", "radius", None),
+             ("envelope", "max_speed", None), ("envelope", "ref_rate", 0), ("envelope", "ref_rate", 2)]
+_HOP_RELEASE_Z = 0.7  # m: where ddpc-vehicle --scenario hopping releases the hopper (the shipped apex)
 
 
 @dataclass
@@ -118,10 +126,29 @@ def _maybe_bytes(rng: np.random.Generator, path: Path, changes: list[str], p: fl
         changes.append(f"{path.name}: {what}")
 
 
+def _mutate_keys(rng: np.random.Generator, raw: dict, keys: list, n: int, changes: list[str],
+                 base: dict | None = None) -> None:
+    """``n`` numbers of ``raw`` (a profile's tables) at ``keys`` ((table, key, index or None)) mutated in place; a
+    key ``raw`` does not set starts from ``base`` (the profile it extends)."""
+    defaults = {"ref_rate": [30.0, 100.0, 100.0], "offset_rate": [5.0, 5.0, 5.0]}
+    for _ in range(n):
+        table, key, idx = keys[int(rng.integers(0, len(keys)))]
+        t = raw.setdefault(table, {})
+        old = t.get(key, (base or {}).get(table, {}).get(key, defaults.get(key)))
+        if old is None:
+            continue
+        if idx is None:
+            t[key] = mutate_number(rng, float(old))
+        else:
+            old = [float(x) for x in old]
+            old[idx] = mutate_number(rng, old[idx])
+            t[key] = old
+        changes.append(f"[{table}] {key} = {t[key]}")
+
+
 def _profile(rng: np.random.Generator, folder: Path, changes: list[str], n_keys: int | None = None) -> Path:
     """The pogox profile with a few dynamics numbers mutated (the envelope often tightened around the vehicle)."""
-    raw = tomllib.loads((PROFILE_DIR / "pogox.toml").read_text())
-    raw = copy.deepcopy(raw)
+    raw = copy.deepcopy(tomllib.loads((PROFILE_DIR / "pogox.toml").read_text()))
     keys = _PROFILE_KEYS + (_CONTROLLER_KEYS if rng.random() < 0.3 else [])
     if rng.random() < 0.5:  # a tight envelope: the short flight reaches its edges
         env = raw["envelope"]
@@ -132,23 +159,24 @@ def _profile(rng: np.random.Generator, folder: Path, changes: list[str], n_keys:
     if rng.random() < 0.6:  # the path starts moving at once
         raw["trajectory"]["t_start"] = float(rng.uniform(0.0, 0.3))
         raw["trajectory"]["spin_up"] = float(rng.uniform(0.01, 0.5))
-    for _ in range(n_keys if n_keys is not None else int(rng.integers(1, 4))):
-        table, key, idx = keys[int(rng.integers(0, len(keys)))]
-        t = raw[table]
-        old = t.get(key, [30.0, 100.0] if key == "ref_rate" else [5.0, 5.0] if key == "offset_rate" else None)
-        if old is None:
-            continue
-        if idx is None:
-            t[key] = mutate_number(rng, float(old))
-        else:
-            old = [float(x) for x in old]
-            old[idx] = mutate_number(rng, old[idx])
-            t[key] = old
-        changes.append(f"[{table}] {key} = {t[key]}")
+    _mutate_keys(rng, raw, keys, n_keys if n_keys is not None else int(rng.integers(1, 4)), changes)
     raw["name"] = "fuzzed"
     path = write_toml(raw, folder / "profile.toml")
     _maybe_bytes(rng, path, changes, 0.1)
     return path
+
+
+def _hopping(rng: np.random.Generator, folder: Path, changes: list[str]) -> list[str]:
+    """A ``pogox_hopping`` profile with its hop and envelope mutated (``extends`` the shipped one)."""
+    raw: dict = {"extends": "pogox_hopping", "name": "fuzzed_hop"}
+    if rng.random() < 0.5:
+        raw["envelope"] = {"z_max": float(_HOP_RELEASE_Z + rng.uniform(0.2, 1.0)), "radius": float(rng.uniform(0.3, 2.0))}
+        changes.append(f"envelope z_max {raw['envelope']['z_max']:.3g} radius {raw['envelope']['radius']:.3g}")
+    base = tomllib.loads((PROFILE_DIR / "pogox_hopping.toml").read_text())
+    _mutate_keys(rng, raw, _HOP_KEYS, int(rng.integers(1, 4)), changes, base)
+    path = write_toml(raw, folder / "hop.toml")
+    _maybe_bytes(rng, path, changes, 0.1)
+    return ["--scenario", "hopping", "--controller", str(path), "--mode", str(rng.choice(["passthrough", "collect"]))]
 
 
 def _trajectory(rng: np.random.Generator, folder: Path, changes: list[str]) -> Path:
@@ -289,6 +317,8 @@ def make_mutant(seed: int, folder: Path, kind: str | None = None, solver: str | 
     kind = kind or drawn
     changes: list[str] = []
     args: list[str] = []
+    if kind == "hopping":
+        return Mutant(kind, seed, _hopping(rng, folder, changes), changes, [folder / "hop.toml"])
     if kind == "profile" or rng.random() < 0.4:
         args += ["--controller", str(_profile(rng, folder, changes, None if kind == "profile" else 0))]
     if kind in ("profile", "trajectory"):

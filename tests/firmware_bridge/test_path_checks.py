@@ -281,6 +281,13 @@ def test_a_hopper_above_the_envelope_or_too_fast_and_a_takeoff_too_fast_are_refu
                    "envelope's max_speed 3 m/s")
     err = _refused(capsys, "--mode", "passthrough", "--takeoff", "--climb-rate", "5")
     assert err == "ddpc-bridge: error: --climb-rate: take-off speed 5 m/s, outside the envelope's max_speed 3 m/s"
+    # make fuzz: a hopper at 1.36 m/s in a 0.55 m radius left it within its 1 s flight
+    prof.write_text('extends = "pogox_hopping"\n[controller]\ntarget_velocity = [1.2, 0.0]\n[envelope]\nradius = 1.0\n')
+    err = _refused(capsys, "--mode", "passthrough", "--profile", str(prof), "--duration", "1.5")
+    assert err == ("ddpc-bridge: error: the profile's [controller] target_velocity over --duration 1.5 s: distance "
+                   "from the start 1.8 m, outside the envelope's radius 1 m")
+    hop = load_profile(prof)
+    BridgeConfig(mode="passthrough", controller=hop.controller, envelope=hop.envelope, duration=0.5)  # 0.6 m: inside
 
 
 @settings(max_examples=30, deadline=None)

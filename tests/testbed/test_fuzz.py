@@ -98,6 +98,17 @@ def test_accepted_mutants_fly_inside_their_envelope(tmp_path):
 
 
 @pytest.mark.e2e
+def test_hopping_mutants_hop_inside_their_envelope(tmp_path):
+    seeds = [s for s in range(1, 200) if make_mutant(s, tmp_path / f"k{s}").kind == "hopping"][:6]
+    records = [run_mutant(s, tmp_path, 1.0) for s in seeds]
+    flown = [r for r in records if r["flight"] and r["flight"]["outcome"] == "flown"]
+    assert len(flown) >= 2 and all(r["status"] != "defect" for r in records), records
+    for r in flown:
+        assert not r["flight"]["violation"] and r["flight"]["exit_code"] == 0, r
+        assert r["flight"]["z_range"][0] < 0.45  # it hopped: the body came down over its leg
+
+
+@pytest.mark.e2e
 @pytest.mark.compiler
 def test_steered_mutants_fly_inside_their_envelope(tmp_path, flying_solver):  # noqa: F811
     """Steered mutants (the step guard, its hold, injected solver failures and NaN solutions) with a solver."""
