@@ -368,9 +368,7 @@ class Bridge:
         """Before the first tick: the vehicle's preflight, then what the loop adds (solver, hopping timing)."""
         c, prof = self.cfg, self.vehicle.profile
         self.vehicle_info = info = self.vehicle.preflight(c.guid_options, c.force_guid_options, lambda: self._stop)
-        cc = self.ctrl.config
-        check_vehicle_thrust(info, self.shaping.hover_thrust, c.thrust_min, c.thrust_max, prof,
-                             (cc.kp_z, cc.g) if self.ctrl.mode == "flying" else None)
+        check_vehicle_thrust(info, self.shaping.hover_thrust, c.thrust_min, c.thrust_max, prof, self.ctrl.config)
         for warning in loop_warnings(self.steering, self.hop, prof, c.rate_hz):
             self.events(f"warning: {warning}")
         self.events(f"vehicle: {prof.name}, hover thrust {hover_param(prof)}="

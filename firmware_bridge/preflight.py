@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ddpc_codegen.robot.controller_config import ControllerConfig
+
 from firmware_bridge.path_checks import PathRefused, check_model_hover, check_thrust_limits
 from firmware_bridge.profiles import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, Profile
 
@@ -105,10 +107,10 @@ def hover_param(profile: Profile) -> str:
 
 
 def check_vehicle_thrust(info: VehicleInfo, model_hover: float, thrust_min: float, thrust_max: float,
-                         profile: Profile, height_gain: tuple[float, float] | None = None) -> None:
+                         profile: Profile, ctrl: ControllerConfig | None = None) -> None:
     """``--thrust-min`` / ``--thrust-max`` around the vehicle's hover thrust (the controller model's when
-    the vehicle did not say), and (``height_gain``: the flying controller's (kp_z, g)) the model's hover thrust
-    against the vehicle's (:func:`.path_checks.check_model_hover`), before anything arms.
+    the vehicle did not say), and (``ctrl``: a flying controller's config) the model's hover thrust against the
+    vehicle's (:func:`.path_checks.check_model_hover`), before anything arms.
 
     Raises:
         EnvelopeRefusal: one line naming the flag, the hover thrust (whose) and the value.
@@ -118,8 +120,8 @@ def check_vehicle_thrust(info: VehicleInfo, model_hover: float, thrust_min: floa
     source = f"the vehicle's {hover_param(profile)}" if read else "the controller model's; the vehicle did not say"
     try:
         check_thrust_limits(hover, thrust_min, thrust_max, source)
-        if read and height_gain is not None:
-            check_model_hover(model_hover, hover, *height_gain, source)
+        if read and ctrl is not None and ctrl.mode == "flying":
+            check_model_hover(model_hover, hover, ctrl.kp_z, ctrl.g, source)
     except PathRefused as e:
         raise EnvelopeRefusal(str(e)) from None
 

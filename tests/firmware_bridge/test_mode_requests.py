@@ -82,5 +82,5 @@ def test_the_stream_length_counts_in_vehicle_time_in_lockstep():
     stream = SetpointStream(v, lockstep=True)
     stream.send(Q, 0.5, 5000)
     for m in telemetry(5.75):
-        v.on_message(m, 1.1)
+        v.on_message(m, 1.2)  # 0.75 s of vehicle time in 0.2 s: a lock-step simulator under 4x real time
     assert abs(stream.streamed(time.monotonic()) - 0.75) < 1e-9 and stream.send_stamps == [5.0]

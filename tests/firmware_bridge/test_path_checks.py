@@ -117,16 +117,17 @@ def test_a_controller_model_far_from_the_vehicles_hover_thrust_is_refused_before
     # make fuzz: a profile with max_thrust 4x the vehicle's (model hover 0.18 vs 0.80) sank into the ground with
     # every reference inside the envelope; its PD height loop settles g / kp_z * (0.8 / 0.18 - 1) = 3.4 m low
     vehicle = VehicleInfo(autopilot=12, vehicle_type=2, hover_thrust=0.8)
+    flying, hopping = load_profile("pogox").controller, load_profile("pogox_hopping").controller  # kp_z 10
     with pytest.raises(EnvelopeRefusal, match=r"^the controller model's hover thrust 0.181 \(model_mass g / "
                                               r"max_thrust\) is far from the vehicle's MPC_THR_HOVER 0.800: its height "
                                               r"loop would settle 3.35 m below every reference \(at most 0.25 m; "):
-        check_vehicle_thrust(vehicle, 0.181, 0.0, 1.0, PX4, (10.0, 9.81))
+        check_vehicle_thrust(vehicle, 0.181, 0.0, 1.0, PX4, flying)
     with pytest.raises(EnvelopeRefusal, match=r"settle 0.27 m above every reference"):
-        check_vehicle_thrust(VehicleInfo(12, 2, hover_thrust=0.55), 0.756, 0.0, 1.0, PX4, (10.0, 9.81))
-    check_vehicle_thrust(vehicle, 0.756, 0.0, 1.0, PX4, (10.0, 9.81))        # the shipped model: 0.06 m
+        check_vehicle_thrust(VehicleInfo(12, 2, hover_thrust=0.55), 0.756, 0.0, 1.0, PX4, flying)
+    check_vehicle_thrust(vehicle, 0.756, 0.0, 1.0, PX4, flying)              # the shipped model: 0.06 m
     assert 0.981 * (0.8 / 0.756 - 1) < MAX_HOVER_OFFSET_M
-    check_vehicle_thrust(vehicle, 0.181, 0.0, 1.0, PX4)                      # hopping: no height-loop check
-    check_vehicle_thrust(VehicleInfo(12, 2), 0.181, 0.0, 1.0, PX4, (10.0, 9.81))  # not read: nothing to compare
+    check_vehicle_thrust(vehicle, 0.181, 0.0, 1.0, PX4, hopping)             # hopping: no height-loop check
+    check_vehicle_thrust(VehicleInfo(12, 2), 0.181, 0.0, 1.0, PX4, flying)   # not read: nothing to compare
 
 
 def test_thrust_max_below_the_vehicles_own_hover_thrust_is_refused_before_arming(procs, tmp_path):
