@@ -14,7 +14,7 @@ from mav_app import M, command, connect, drain
 from proxy_support import free_port, spawn_proxy
 from support.bridge_helpers import read_json
 
-pytestmark = [pytest.mark.e2e]
+pytestmark = [pytest.mark.e2e, pytest.mark.realtime]  # the failsafe times are wall-clock times
 
 RATE_HZ = 50.0
 
