@@ -339,7 +339,7 @@ class Bridge:
 
     def _gate(self, ref: TickReference, stalled: bool, now: float) -> tuple[np.ndarray, int]:
         """The applied reference (m,) and the gate flags; a guard saturation hands the steering back."""
-        u, flags = self.gate.reference(ref, reanchored=self.engagement.edge == "resume")
+        u, flags = self.gate.reference(ref, edge=self.engagement.edge)
         self.stage.applied(ref, u)
         flags |= GATE_FLAGS["stall"] if stalled else 0
         sat = self.gate.saturated(flags, now, self._tick_t)

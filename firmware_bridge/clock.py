@@ -64,6 +64,19 @@ class TickClock:
         """Seconds to sleep until the next deadline, at most ``cap``."""
         return max(0.0, min(cap, self.deadline - now))
 
+    def catch_up(self, now: float) -> int:
+        """Before a tick that fires a period or more after its deadline (the process was not scheduled, or
+        stopped): move to the newest grid point at or before ``now``, so the tick's control-clock time is the
+        wall's, not the missed deadline's (a stall's jump of the trajectory clock lands on the tick that detects
+        the stall). The grid points passed over are counted as skipped; returns how many."""
+        late = now - self.deadline
+        if not late >= self.period:
+            return 0
+        n = int(late // self.period)
+        self.k += n
+        self.skipped += n
+        return n
+
     def advance(self, now: float) -> int:
         """Mark the current tick done; returns how many grid points were skipped (0 normally)."""
         self.k += 1
@@ -116,7 +129,10 @@ class TickTrigger:
             return "event" if tel.att.seq > self.last_seq[0] and tel.pos.seq > self.last_seq[1] else ""
         if not self.clock.started:
             self.clock.start(now)  # the grid starts with the first complete telemetry
-        return "grid" if self.clock.due(now) else ""
+        if not self.clock.due(now):
+            return ""
+        self.clock.catch_up(now)
+        return "grid"
 
     def done(self, kind: str, now: float) -> None:
         """The tick of ``kind`` is done (the grid moves to its next deadline)."""

@@ -227,7 +227,7 @@ class Engagement:
         self.engaged_before = False
         self.activations = 0
         self.traj_t0: float | None = None     # control-clock time at which the trajectory started [s]
-        self.resume_pending = False           # fresh after a stale stretch or a stall: resume bumplessly
+        self.resume_pending = ""              # what a pending bumpless resume follows (staleness, a stall); "": none
         self.last_applied: np.ndarray | None = None  # the reference the last tick applied (a resume starts there)
         self.edge = ""                        # the last tick's edge (see :meth:`update`)
         self.stale_since: float | None = None
@@ -250,7 +250,7 @@ class Engagement:
         if fresh:
             if self.stale_since is not None:
                 self.events(f"telemetry fresh again after {now - self.stale_since:.3f} s")
-                self.resume_pending = True
+                self.resume_pending = "stale telemetry"
             self.stale_since = None
             return True
         if self.stale_since is None:
@@ -262,7 +262,7 @@ class Engagement:
     def stalled(self) -> None:
         """The loop's own clock stalled: resume bumplessly (as after stale telemetry) once flying."""
         if self.flown:
-            self.resume_pending = True
+            self.resume_pending = "a stall of the bridge"
 
     def update(self, engaged: bool, t: float, y: np.ndarray, z: float, vehicle_mode: str) -> str:
         """Engagement edges at control-clock time ``t`` [s] with the measured outputs ``y`` (p,) and height
@@ -290,12 +290,12 @@ class Engagement:
             edge = "resume"
             if self.blend_rates and self.approach is None:
                 self.blend.start(y if self.last_applied is None else self.last_applied)
-            self.events(f"resumed after stale telemetry: trajectory continues at t = {t - self.traj_t0:.3f} s, "
+            self.events(f"resumed after {self.resume_pending}: trajectory continues at t = {t - self.traj_t0:.3f} s, "
                         "same frame")
         elif not engaged and self.engaged:
             edge = "lost"
             self.events("disengaged: vehicle no longer armed + off-board (or link lost)")
-        self.resume_pending = False
+        self.resume_pending = ""
         self.engaged, self.t_last, self.edge = engaged, t, edge
         if not engaged and self.engaged_before:
             self.left_mode = vehicle_mode or "?"  # the vehicle's newest mode while it is out (its failsafe's)

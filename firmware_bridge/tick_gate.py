@@ -113,14 +113,20 @@ class TickGate:
                     "steering history refilled, reference resumes from where it stood")
         return True
 
-    def reference(self, ref: TickReference, reanchored: bool = False) -> tuple[np.ndarray, int]:
+    def reference(self, ref: TickReference, edge: str = "") -> tuple[np.ndarray, int]:
         """(the reference to apply (m,), the gate flags): a guard trip (``ref.candidate``, the solver's proposal)
         clamps the steered offset to the guard instead of dropping it (a clamp, not a fallback); then the gate.
-        ``reanchored``: this tick's nominal reference was re-anchored (a resume): the applied one moves at most
-        the rate bound from where it stood, whatever the nominal's jump."""
+        ``edge``: the engagement's edge on this tick (:meth:`.engagement.Engagement.update`). "resume": this tick's
+        nominal reference was re-anchored: the applied one moves at most the rate bound from where it stood,
+        whatever the nominal's jump. "first": the run's first engagement: the vehicle never flew a reference of
+        this run before (disarmed it got the idle ground setpoint, out of off-board it ignored them), so the
+        applied reference starts at this tick's nominal one (the take-off's or the blend's start, from the
+        measured outputs), not rate-limited from what the inactive ticks computed."""
         flags = 0
         u = ref.u
-        if reanchored:
+        if edge == "first":
+            self.gate.passed(ref.r_nom)
+        elif edge == "resume":
             self.gate.hold_nominal(ref.r_nom)
         self.proposal = None
         if ref.candidate is not None and self.max_step is not None:

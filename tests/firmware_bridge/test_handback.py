@@ -9,12 +9,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
+from firmware_bridge.clock import TickTrigger
 from firmware_bridge.engagement import Engagement
 from firmware_bridge.events import EventLog
 from firmware_bridge.gate import GATE_FLAGS, SetpointGate
 from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.report import FlightRecorder
+from firmware_bridge.telemetry import TelemetryState
 from firmware_bridge.tick_gate import TickGate
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS
 from part_fakes import heartbeat, telemetry, vehicle
@@ -40,7 +43,7 @@ def _tick(gate: TickGate, eng: Engagement, now: float, y: np.ndarray, steer: np.
     eng.update(True, now, y, float(y[0]), "OFFBOARD")
     r, hold = eng.reference(R_NOM.copy(), y, now, DT, heard=True, engaged=True, fresh=True)
     ref = TickReference(r, y, r if hold else r + steer, hold or "steered")  # steered: a 3 cm correction
-    u, _flags = gate.reference(ref, reanchored=eng.edge == "resume")
+    u, _flags = gate.reference(ref, edge=eng.edge)
     eng.applied(u)
     return u, eng.edge
 
@@ -69,6 +72,42 @@ def test_a_stall_while_the_vehicle_drifted_resumes_within_the_rate_bound_from_wh
     assert np.all(steps <= RATE + 1e-12), steps.max(axis=0)  # the nominal does not move: the bound is the rate
     assert np.allclose(applied[-1], R_NOM)  # handed back to the nominal reference, at the rate bound
     assert gate.stalls == [{"t": 5.0, "gap_s": 4.005}]
+    assert [e for _, e in events.events if e.startswith("resumed")] == [
+        "resumed after a stall of the bridge: trajectory continues at t = 5.000 s, same frame"]
+
+
+def test_the_tick_that_sees_a_stall_runs_at_the_wall_clocks_grid_time():
+    """ArduCopter SITL, 4 s SIGSTOP of the bridge: the tick that saw the stall ran at its missed deadline's time and
+    the next one 4 s later, so the resume was re-anchored before the trajectory clock jumped and the path's 0.5 m
+    jump passed the gate as the path's own motion. The late tick takes the newest grid point: one jump, there."""
+    tr, tel = TickTrigger(DT, lockstep=False, max_gap_fill=3), TelemetryState()
+    for m in telemetry(1.0):
+        tel.update(m, 5.0)
+    assert tr.due(5.0, tel) == "grid"
+    tr.done("grid", 5.001)
+    assert tr.due(9.0025, tel) == "grid"  # stopped from 5.001 to 9.0025
+    _age, t, _n = tr.timing(9.0025, tel)
+    assert t == pytest.approx(4.0) and tr.clock.skipped == 799  # grid points 1..799 passed over, 800 runs now
+    tr.done("grid", 9.003)
+    assert tr.due(9.004, tel) == "" and tr.timing(9.005, tel)[1] == pytest.approx(4.005)
+
+
+def test_the_first_engagement_starts_at_the_take_offs_reference_not_at_what_inactive_ticks_computed():
+    """ArduCopter SITL: disarmed, the inactive ticks computed the path's start (0.9 m) -- never sent, the vehicle
+    got the idle ground setpoint; at the engagement the take-off's ramp starts at the measured height, but the
+    envelope's rate clamp held the applied reference at 0.75 m and it came down at the gate's rate bound plus
+    the ramp's, 8.5 mm per tick, for 70 ticks: 0.68 thrust on the ground. It starts on the ramp."""
+    gate = TickGate(SetpointGate(np.array([0.0, -0.5]), np.array([3.0, 0.5]), RATE.copy()), EventLog(t0=0.0),
+                    max_step=None, max_tilt=0.5, thrust_min=0.1, thrust_max=0.9, hover_thrust=0.5, max_age=0.05,
+                    guard_hold=0.0, ref_rate=np.array([30.0, 100.0]), period=DT)
+    start = np.array([0.9, 0.0])
+    for _ in range(5):
+        gate.reference(TickReference(start, np.zeros(2), start, "inactive"))
+    ramp = np.array([0.0025, 0.0])
+    u, flags = gate.reference(TickReference(ramp, np.zeros(2), ramp, "takeoff"), edge="first")
+    assert np.allclose(u, ramp) and flags == 0
+    u, _ = gate.reference(TickReference(2 * ramp, np.zeros(2), 2 * ramp, "takeoff"))
+    assert np.allclose(u, 2 * ramp)
 
 
 def test_a_bridge_pause_is_one_stall_and_no_link_event():
