@@ -3,7 +3,12 @@ module name: tests/ is on the import path)."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
 import time
+from collections.abc import Callable
+from pathlib import Path
 
 
 def netns_facts(tag: str) -> dict:
@@ -39,10 +44,8 @@ def flight_with_autopilot_log(autopilot: str, out_dir: str, duration: float = 6.
     ArduCopter (GUID_OPTIONS 8) a tlog recorded meanwhile by a GCS-like connection on SERIAL1
     (5762) that asks for ATTITUDE, LOCAL_POSITION_NED and ATTITUDE_TARGET at 50 Hz."""
     import shutil
-    import subprocess
     import sys
     import threading
-    from pathlib import Path
 
     from ddpc_codegen.testbed.sitl import make_sitl
     from ddpc_codegen.testbed.sitl_flight import PROFILES
@@ -95,28 +98,18 @@ def _record_tlog(url: str, path, stop) -> None:
     conn.close()
 
 
-def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.0, duration: float = 9.0) -> dict:
-    """A passthrough PX4 flight from the ground in which the PX4 daemon is frozen (SIGSTOP) for
-    ``stall_s`` seconds, ``stall_after`` seconds into the trajectory, then continued (SIGCONT).
+def _stopped_mid_flight(cmd: list[str], console: Path, cwd: Path, pid: Callable[[subprocess.Popen], int],
+                        stall_after: float, stall_s: float, timeout: float) -> tuple[int, float]:
+    """Run the bridge command ``cmd`` (console to ``console``); ``stall_after`` s after its trajectory starts, stop
+    the process ``pid(bridge)`` (the SITL's or the bridge's own) with SIGSTOP for ``stall_s`` s, then SIGCONT it;
+    wait for the bridge to exit within ``timeout`` s. Returns (its exit code, the stall's length as timed here [s]).
+    The bridge's process group is killed (SIGKILL) if it is still running at the end.
 
-    Returns the bridge's exit code, the stall's length as timed here [s], the paths of the bridge's
-    tick log and summary and the tail of its console.
+    Raises:
+        RuntimeError: the trajectory never started (within 80 s).
     """
-    import os
-    import signal
-    import subprocess
-    from pathlib import Path
-
-    from ddpc_codegen.testbed.sitl import make_sitl
-    from ddpc_codegen.testbed.sitl_flight import bridge_command
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    console = out / "px4_passthrough.out"
-    with make_sitl("px4") as sitl, open(console, "w") as f:
-        cmd = bridge_command(sitl, "px4", "passthrough", out, duration, timeout=90.0)
-        br = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=out, start_new_session=True)
-        stall = None
+    with open(console, "w") as f:
+        br = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=cwd, start_new_session=True)
         try:
             t_end = time.monotonic() + 80.0
             while time.monotonic() < t_end and br.poll() is None:
@@ -127,20 +120,72 @@ def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.
             else:
                 raise RuntimeError(f"the trajectory never started:\n{console.read_text()[-3000:]}")
             time.sleep(stall_after)
+            target = pid(br)
             t0 = time.monotonic()
-            os.kill(sitl.proc.pid, signal.SIGSTOP)
+            os.kill(target, signal.SIGSTOP)
             try:
                 time.sleep(stall_s)
             finally:
-                os.kill(sitl.proc.pid, signal.SIGCONT)
+                os.kill(target, signal.SIGCONT)
             stall = time.monotonic() - t0
-            rc = br.wait(timeout=120)
+            rc = br.wait(timeout=timeout)
         finally:
             if br.poll() is None:
                 os.killpg(br.pid, signal.SIGKILL)
                 br.wait()
+    return rc, stall
+
+
+def px4_stall_flight(out_dir: str, stall_after: float = 3.0, stall_s: float = 2.0, duration: float = 9.0) -> dict:
+    """A passthrough PX4 flight from the ground in which the PX4 daemon is frozen (SIGSTOP) for
+    ``stall_s`` seconds, ``stall_after`` seconds into the trajectory, then continued (SIGCONT).
+
+    Returns the bridge's exit code, the stall's length as timed here [s], the paths of the bridge's
+    tick log and summary and the tail of its console.
+    """
+    from ddpc_codegen.testbed.sitl import make_sitl
+    from ddpc_codegen.testbed.sitl_flight import bridge_command
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    console = out / "px4_passthrough.out"
+    with make_sitl("px4") as sitl:
+        cmd = bridge_command(sitl, "px4", "passthrough", out, duration, timeout=90.0)
+        rc, stall = _stopped_mid_flight(cmd, console, out, lambda _br: sitl.proc.pid, stall_after, stall_s, 120.0)
     return {"rc": rc, "stall_s": stall, "log": str(out / "px4_passthrough.npz"),
             "summary": str(out / "px4_passthrough.json"), "console": console.read_text()[-4000:]}
+
+
+def ardupilot_bridge_stall_flight(out_dir: str, collect_s: float = 12.0, stall_after: float = 2.5,
+                                  stall_s: float = 4.0, duration: float = 10.0) -> dict:
+    """Issue 46's probe re-flown on ArduCopter: a short collect flight from the ground and ``ddpc-codegen codegen``
+    on it (as ``make sitl-demo`` does, shorter), then a steered flight from the ground in which the *bridge*
+    process is stopped (SIGSTOP) for ``stall_s`` s, ``stall_after`` s into the trajectory, then continued.
+
+    Returns the steered flight's exit code, the stall's length as timed here [s], the paths of its tick log and
+    summary, the tail of its console and the wall time of each part [s].
+    """
+    from ddpc_codegen.testbed.sitl import make_sitl
+    from ddpc_codegen.testbed.sitl_demo import COLLECT, CONFIGS, ROOT, SITL_PARAMS, codegen
+    from ddpc_codegen.testbed.sitl_flight import bridge_command, ensure_disarmed, fly
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    console = out / "ardupilot_steer.out"
+    wall = {"start": time.monotonic()}
+    with make_sitl("ardupilot", params=SITL_PARAMS["ardupilot"]) as sitl:
+        fly(sitl, "ardupilot", "collect", out, collect_s, extra=("--dataset-skip", "1.0", *COLLECT["ardupilot"]))
+        wall["collect"] = time.monotonic()
+        solver = codegen(ROOT / "configs" / CONFIGS["ardupilot"], out / "ardupilot_collect.npz", out / "generated")
+        wall["codegen"] = time.monotonic()
+        ensure_disarmed(sitl)
+        cmd = bridge_command(sitl, "ardupilot", "steer", out, duration, timeout=90.0, extra=("--solver", str(solver)))
+        rc, stall = _stopped_mid_flight(cmd, console, out, lambda br: br.pid, stall_after, stall_s, 120.0)
+        wall["steer"] = time.monotonic()
+    marks = list(wall.values())
+    return {"rc": rc, "stall_s": stall, "log": str(out / "ardupilot_steer.npz"),
+            "summary": str(out / "ardupilot_steer.json"), "console": console.read_text()[-4000:],
+            "wall_s": {k: round(b - a, 1) for k, a, b in zip(list(wall)[1:], marks, marks[1:])}}
 
 
 def sitl_conditions_and_truth(autopilot: str) -> dict:
