@@ -81,7 +81,10 @@ class Engine:
                 yield i, fn(shared, item)
             return
         ray = self._ray
-        opts: dict[str, Any] = {"num_cpus": 1, "max_retries": 0}
+        # One retry of a task whose worker died (a force-cancelled task of an interrupted run may still take its
+        # worker down under a new task; measured once in CI): a point is a pure function of its item, so a rerun
+        # gives the same row. Exceptions raised by ``fn`` itself are not retried.
+        opts: dict[str, Any] = {"num_cpus": 1, "max_retries": 1}
         if self.memory_mib:
             opts["memory"] = int(self.memory_mib * 2**20)
         task = ray.remote(**opts)(fn)
