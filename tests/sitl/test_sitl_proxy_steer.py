@@ -1,6 +1,6 @@
 """A user's own pymavlink app (:mod:`ddpc_codegen.testbed.proxy_app`) steered through ``ddpc-proxy`` on the real
 ArduCopter SITL in the lab setup (its EKF on the motion-capture stand-in), as ``make proxy-demo`` flies it, shorter:
-one collect flight through the proxy (``--collect --dither``), ``ddpc-codegen codegen`` on it, then the helix
+one 30 s collect flight through the proxy (``--collect --dither``), ``ddpc-codegen codegen`` on it, then 12 s of the helix
 flown directly (the app's own velocity and acceleration feed-forward) and steered with a declared 0.5 s preview
 delay, judged on the simulator's true height. Skipped without the SITL.
 
@@ -19,12 +19,12 @@ from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.realtime]
 
 
-def test_the_steered_app_flies_closer_to_its_path_than_the_app_alone(tmp_path):
+def test_an_app_is_collected_fitted_and_steered_through_the_proxy(tmp_path):
     why = missing_reason("ardupilot")
     if why:
         pytest.skip(why)
     res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot",
-                       {"out_dir": str(tmp_path), "paths": ["helix"], "duration": 20.0, "collect_s": 45.0,
+                       {"out_dir": str(tmp_path), "paths": ["helix"], "duration": 12.0, "collect_s": 30.0,
                         "kinds": ["direct", "steer_delay"]}, timeout=420)
     runs = res["paths"]["helix"]
     direct, steered = runs["direct"], runs["steer_delay"]
