@@ -114,9 +114,8 @@ def _slow_path(n: int) -> np.ndarray:
 
 @pytest.mark.compiler
 def test_steering_tracks_the_apps_path_closer_than_the_app_alone(solver):
-    """Local preview on a slow path (measured 150 -> 26 mm); a 1.5 s delay on a fast one, where a local guess of
-    the future is wrong (measured 314 -> 99 mm against the path played late; the shipped weights are the real
-    copter's, gentler than this loop allows)."""
+    """Local preview on a slow path; a 1.5 s delay on a fast one, where a local guess of the future is wrong
+    (judged against the path played late; the shipped weights are gentler than this loop allows)."""
     slow, fast = _slow_path(3000), _path(1500, seed=2)  # neither is the collect's path
     local = _hook(solver=load_solver(solver))
     base, e_local = _rmse(fly(_hook(), slow)["h"], slow), _rmse(fly(local, slow)["h"], slow)
