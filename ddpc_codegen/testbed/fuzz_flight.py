@@ -127,12 +127,18 @@ def envelope_excess(pos: np.ndarray, origin_xy, env: Envelope) -> tuple[float, t
     return float(np.max(out)), (float(z.min()), float(z.max())), float(rad.max())
 
 
-def rate_ratio(u: np.ndarray, step: np.ndarray) -> float:
-    """Largest one-tick change of the references ``u`` (N, m) over their bound per tick ``step`` (m,)."""
+def rate_ratio(u: np.ndarray, step: np.ndarray, flown: np.ndarray | None = None) -> float:
+    """Largest one-tick change of the references ``u`` (N, m) over their bound per tick ``step`` (m,), between
+    ticks whose references the vehicle flew (``flown`` (N,): armed in off-board as the bridge knew it; None:
+    all). A reference computed while the vehicle was disarmed or in its own mode was never flown: the first
+    engaged tick starts at the nominal reference, not from it."""
     if u.shape[0] < 2:
         return 0.0
-    du = np.abs(np.diff(u, axis=0))
-    return float(np.max(du / np.asarray(step, dtype=float)))
+    du = np.abs(np.diff(u, axis=0)) / np.asarray(step, dtype=float)
+    if flown is not None:
+        f = np.asarray(flown, dtype=bool)
+        du = du[f[:-1] & f[1:]]
+    return float(np.max(du)) if du.size else 0.0
 
 
 def _rate_step(cfg: BridgeConfig) -> np.ndarray:
@@ -197,11 +203,11 @@ def fly_in_process(cfg: BridgeConfig, work: Path, *, sim_time: float, seed: int,
         return FlightCheck("refused" if outcome.startswith("refused") else outcome, notes=[outcome])
     rows = bridge.recorder.rows.view()
     return _judge(cfg, summary, rows["u"], rows["active"], truth_path, bridge.frame.origin if bridge.engagement.flown
-                  else None)
+                  else None, rows["armed"] & rows["offboard"])
 
 
 def _judge(cfg: BridgeConfig, summary: dict, u: np.ndarray, engaged: np.ndarray, truth_path: Path,
-           origin_xy) -> FlightCheck:
+           origin_xy, flown: np.ndarray) -> FlightCheck:
     """The verdict of a flight from its applied references, the truth log and the bridge's frame origin (None: the
     bridge never flew, the vehicle's true start: a frame captured from forged telemetry is not where it is)."""
     env = cfg.envelope or Envelope()
@@ -209,7 +215,7 @@ def _judge(cfg: BridgeConfig, summary: dict, u: np.ndarray, engaged: np.ndarray,
                         stop_reason=str(summary["stop_reason"]), exit_code=int(summary["exit"]["code"]))
     check.counts = {key: int((summary.get(table) or {}).get(key, 0) if table else summary.get(key, 0))
                     for table, key in COUNTED}
-    check.rate_ratio = rate_ratio(np.asarray(u, dtype=float), _rate_step(cfg))
+    check.rate_ratio = rate_ratio(np.asarray(u, dtype=float), _rate_step(cfg), flown)
     if not truth_path.exists():
         check.notes.append("no truth log")
         return check
@@ -256,5 +262,6 @@ def fly_processes(args: list[str], cfg: BridgeConfig, work: Path, *, sim_time: f
     tl = load_ticklog(log)
     summary = json.loads(out)
     origin = summary["frame"]["origin"] if summary.get("activations") else None
-    return _judge(cfg, summary, tl.ticks["u"], tl.ticks["active"], truth, origin)
+    return _judge(cfg, summary, tl.ticks["u"], tl.ticks["active"], truth, origin,
+                  tl.ticks["armed"].astype(bool) & tl.ticks["offboard"].astype(bool))
 

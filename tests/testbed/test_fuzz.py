@@ -51,6 +51,10 @@ def test_excess_is_the_distance_outside_the_box_and_rate_the_step_over_its_bound
     assert math.isclose(envelope_excess(pos[[0]], (0.0, 0.0), env)[0], -0.5)  # inside: the closest edge, negative
     u = np.array([[1.0, 0.0], [1.1, 0.0], [1.1, -0.5]])
     assert math.isclose(rate_ratio(u, np.array([0.2, 1.0])), 0.5)
+    # a reference the vehicle never flew (disarmed, in its own mode) is no step: the first flown tick starts anew
+    jump = np.array([[0.9, 0.0], [0.0, 0.0], [0.01, 0.0]])
+    assert math.isclose(rate_ratio(jump, np.array([0.02, 1.0]), np.array([False, True, True])), 0.5)
+    assert math.isclose(rate_ratio(jump, np.array([0.02, 1.0])), 45.0)
     assert FlightCheck("flown", excess_m=TRACK_MARGIN_M + 0.01).violation
     assert FlightCheck("flown", rate_ratio=1.01).violation and not FlightCheck("flown", rate_ratio=1.0).violation
     assert not FlightCheck("refused", excess_m=5.0).violation
