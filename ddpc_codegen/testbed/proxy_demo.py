@@ -21,6 +21,7 @@ import argparse
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -34,32 +35,14 @@ from ddpc_codegen.testbed.mocap_params import lab_params
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_adapt import second_link
 from ddpc_codegen.testbed.sitl_demo import codegen
-from ddpc_codegen.testbed.sitl_observer import Observer
+from ddpc_codegen.testbed.bridge_flights import stop_process
+from ddpc_codegen.testbed.sitl_observer import Observer, wait_tcp_port, wait_udp_bound
 
 __all__ = ["KINDS", "flight", "run_ardupilot", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
 SKIP_S = 3.0  # path seconds left out of a score (the lead-in's end and the steering's warm-up)
-
-
-def _wait_port(port: int, timeout: float = 15.0) -> None:
-    """Until a UDP socket is bound on ``port`` (the proxy is up), at most ``timeout`` [s]."""
-    end = time.monotonic() + timeout
-    while f":{port:04X} " not in Path("/proc/net/udp").read_text() and time.monotonic() < end:
-        time.sleep(0.1)
-
-
-def _stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
-    """SIGINT (the proxy writes its statistics), then SIGKILL after ``timeout`` [s]."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-    return proc.returncode
 
 
 def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[str] | None, feedforward: str = "velacc",
@@ -74,7 +57,7 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
                "--vehicle", vehicle_url, "--stats", str(out / f"{name}.proxy.json"),
                "--log", str(out / f"{name}.ticks.npz"), "--overwrite", *proxy_args]
         proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
-        _wait_port(APP_PORT)
+        wait_udp_bound(APP_PORT)
         time.sleep(1.0)  # the proxy's TCP connection to the vehicle
     url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else direct_url
     cmd = [sys.executable, "-m", "ddpc_codegen.testbed.proxy_app", "--connect", url, "--path", path, "--duration",
@@ -88,7 +71,7 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
         rc = app.wait(5)
     stats = None
     if proxy is not None:
-        _stop(proxy)
+        stop_process(proxy, 15.0, signal.SIGINT)  # SIGINT: the proxy writes its statistics
         p = out / f"{name}.proxy.json"
         stats = json.loads(p.read_text()) if p.is_file() else None
     if rc != 0:
@@ -180,20 +163,13 @@ def run_ardupilot(out_dir: str, paths: list[str], duration: float = 30.0, collec
 
 
 def _observer(sitl) -> Observer:
-    """The observer on port 5762, once the SITL serves it (after its first port has a client)."""
-    import socket
+    """The observer on port 5763, once the SITL serves it (after its first port has a client)."""
     end = time.monotonic() + 60
     while not sitl._port_ready() and time.monotonic() < end:
         time.sleep(0.2)
-    keep = socket.create_connection(("127.0.0.1", 5760), timeout=2)  # ArduPilot serves 5762 once 5760 has a client
+    keep = socket.create_connection(("127.0.0.1", 5760), timeout=2)  # ArduPilot serves 5763 once 5760 has a client
     try:
-        end = time.monotonic() + 20
-        while time.monotonic() < end:
-            try:
-                socket.create_connection(("127.0.0.1", 5763), timeout=0.5).close()
-                break
-            except OSError:
-                time.sleep(0.5)
+        wait_tcp_port(5763)
         return Observer("tcp:127.0.0.1:5763")
     finally:
         keep.close()

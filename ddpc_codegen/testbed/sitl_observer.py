@@ -5,15 +5,40 @@ height, not on what the flying side believed."""
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Observer", "HOME_ALT"]
+__all__ = ["Observer", "HOME_ALT", "wait_tcp_port", "wait_udp_bound"]
 
 HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
 _SIM_STATE, _LOCAL_POSITION_NED = 108, 32
+
+
+def wait_tcp_port(port: int, timeout: float = 20.0) -> bool:
+    """Until a TCP server accepts on 127.0.0.1:``port`` (ArduCopter serves its spare ports once its first has a
+    client), at most ``timeout`` [s]; whether it did."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+            return True
+        except OSError:
+            time.sleep(0.5)
+    return False
+
+
+def wait_udp_bound(port: int, timeout: float = 15.0) -> bool:
+    """Until a UDP socket is bound on ``port`` in this network namespace (a proxy is up), at most ``timeout`` [s]."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if f":{port:04X} " in Path("/proc/net/udp").read_text():
+            return True
+        time.sleep(0.1)
+    return False
 
 
 class Observer(threading.Thread):

@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 from ddpc_codegen.testbed.sitl import missing_reason, run_isolated
-from ddpc_codegen.testbed.sitl_observer import Observer
+from ddpc_codegen.testbed.sitl_observer import Observer, wait_tcp_port, wait_udp_bound
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow, pytest.mark.realtime]
 
@@ -135,9 +135,7 @@ def proxy_flight(out_dir: str) -> dict:
                                  stderr=subprocess.STDOUT, cwd=out)
         # the app starts once the proxy's UDP port is bound: pymavlink counts on its sequence number even when a
         # send fails (nobody on the port yet), which the proxy would rightly count as a gap
-        end = time.monotonic() + 15
-        while f":{APP_PORT:04X} " not in Path("/proc/net/udp").read_text() and time.monotonic() < end:
-            time.sleep(0.1)
+        wait_udp_bound(APP_PORT)
         code = f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r}); " \
                f"from sitl.test_sitl_proxy import _app; _app({f'udpout:127.0.0.1:{APP_PORT}'!r}, {str(applog)!r})"
         # MAVLink 2 from the first frame: pymavlink switching over on the autopilot's first MAVLink 2 frame builds a
@@ -149,14 +147,7 @@ def proxy_flight(out_dir: str) -> dict:
             time.sleep(0.2)
         time.sleep(1.0)
         # the 5762 port is served once 5760 has its client (the proxy)
-        end = time.monotonic() + 20
-        while time.monotonic() < end:
-            try:
-                import socket
-                socket.create_connection(("127.0.0.1", 5762), timeout=0.5).close()
-                break
-            except OSError:
-                time.sleep(0.5)
+        wait_tcp_port(5762)
         obs = Observer("tcp:127.0.0.1:5762", rate_hz=10.0)
         # wait for HOLD_S of setpoints (bounded), then SIGKILL the app right after one was logged
         end = time.monotonic() + 140

@@ -34,11 +34,17 @@ def _read_stream(conn: socket.socket, n: int, timeout: float = 5.0) -> bytes:
     return buf
 
 
-def test_tcp_vehicle_stream_split_into_frames_both_ways_and_reconnected():
+def _vehicle_server() -> socket.socket:
+    """A TCP server on a free loopback port where the proxy connects as to ArduPilot SITL's 5760."""
     srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     srv.bind(("127.0.0.1", 0))
     srv.listen(1)
+    return srv
+
+
+def test_tcp_vehicle_stream_split_into_frames_both_ways_and_reconnected():
+    srv = _vehicle_server()
     ap = free_port()
     rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"tcp:127.0.0.1:{srv.getsockname()[1]}", reconnect_interval=0.2)
     app = Peer()
@@ -81,10 +87,7 @@ def test_tcp_vehicle_stream_split_into_frames_both_ways_and_reconnected():
 
 
 def test_into_a_stream_go_whole_frames_with_the_hooks_replacement():
-    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(1)
+    srv = _vehicle_server()
     enc = SetpointEncoder()
     ap = free_port()
     rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"tcp:127.0.0.1:{srv.getsockname()[1]}",
