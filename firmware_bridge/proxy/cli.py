@@ -86,6 +86,15 @@ def _steering(args) -> ProxySteering | None:
         return None
     if args.steer is not None and args.dither:
         raise ValueError("--dither excites a collect flight; it does not go with --steer")
+    for name, v, lo in (("--preview-delay", args.preview_delay, 0.0), ("--dither", args.dither, 0.0)):
+        if not (v >= lo and v < float("inf")):
+            raise ValueError(f"{name} must be a finite number >= {lo:g}; got {v}")
+    if not (0.0 < args.max_age < float("inf")):
+        raise ValueError(f"--max-age must be a finite number of seconds > 0; got {args.max_age}")
+    if args.dither_hold < 1:
+        raise ValueError(f"--dither-hold must be at least 1 setpoint; got {args.dither_hold}")
+    if args.max_step is not None and not (0.0 < args.max_step < float("inf")):
+        raise ValueError(f"--max-step must be a finite number of metres > 0; got {args.max_step}")
     for path in (args.collect, args.log):
         if path is not None:
             output_path(path, args.overwrite)  # refused now, not after the flight
