@@ -12,6 +12,8 @@ from pathlib import Path
 from ddpc_codegen.design.data import output_path
 from ddpc_codegen.runtime.loader import load_solver
 from firmware_bridge.cli_args import add_realtime_args, qos_request
+from firmware_bridge.link import LinkError, MavLink
+from firmware_bridge.mocap_input import MocapInput
 from firmware_bridge.proxy.core import Proxy
 from firmware_bridge.proxy.preview import make_preview
 from firmware_bridge.proxy.record import ProxyRecord
@@ -71,6 +73,13 @@ def build_proxy_parser() -> argparse.ArgumentParser:
                    help="largest steering offset from the app's height [m] (the step guard; default none)")
     s.add_argument("--max-age", type=float, default=0.2, metavar="S",
                    help="an older vehicle position is stale: the app's own setpoint goes out (default %(default)s)")
+    s.add_argument("--position-source", choices=("autopilot", "mocap"), default="autopilot",
+                   help="the measured height: the autopilot's estimate (LOCAL_POSITION_NED), or the lab's motion "
+                        "capture received on --mocap, put into the autopilot's local frame where the vehicle "
+                        "stands disarmed (default %(default)s)")
+    s.add_argument("--mocap", default=None, metavar="URL",
+                   help="where the motion capture's poses arrive (VISION_POSITION_ESTIMATE, ODOMETRY or "
+                        "ATT_POS_MOCAP), e.g. udpin:127.0.0.1:14600")
     s.add_argument("--log", type=Path, default=None, help="write every tick and the summary here (.npz)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing --collect / --log file")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
@@ -82,7 +91,7 @@ def build_proxy_parser() -> argparse.ArgumentParser:
 def _steering(args) -> ProxySteering | None:
     """The rewrite hook the options ask for (None: a transparent proxy)."""
     if args.steer is None and args.collect is None and args.log is None and not args.dither \
-            and not args.preview_delay:
+            and not args.preview_delay and args.position_source == "autopilot" and not args.mocap:
         return None
     if args.steer is not None and args.dither:
         raise ValueError("--dither excites a collect flight; it does not go with --steer")
@@ -101,10 +110,26 @@ def _steering(args) -> ProxySteering | None:
     solver = None
     if args.steer is not None:
         solver = load_solver(args.steer)
-    return ProxySteering(VehicleView(), solver=solver, preview=make_preview(args.preview_delay),
+    return ProxySteering(VehicleView(mocap=_mocap(args)), solver=solver, preview=make_preview(args.preview_delay),
                          max_age=args.max_age, max_step=args.max_step, dither=args.dither,
                          dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward,
                          coordinates=args.coordinates)
+
+
+def _mocap(args) -> MocapInput | None:
+    """The motion capture's input when the height is measured on it (its link opened; poses carry no ids)."""
+    if args.position_source != "mocap":
+        if args.mocap:
+            raise ValueError("--mocap is the measured height's source: it goes with --position-source mocap")
+        return None
+    if not args.mocap:
+        raise ValueError("--position-source mocap needs the link the poses arrive on (--mocap udpin:HOST:PORT)")
+    if args.mocap == args.vehicle:
+        raise ValueError(f"--mocap {args.mocap}: the vehicle's link (the poses need a port of their own)")
+    try:
+        return MocapInput(MavLink(args.mocap, target_system=None))
+    except LinkError as e:
+        raise ValueError(f"--mocap {args.mocap}: {e}") from None
 
 
 def _save(hook: ProxySteering, args) -> dict:

@@ -171,6 +171,7 @@ class ProxySteering:
     def _tick(self, cur, now: float) -> tuple[float | None, str]:
         """(the height to send [m, up], None: the app's own; the tick's reason)."""
         view, eng = self.view, self.engagement
+        view.pump(now)
         app = -float(cur.z)
         base = app if self.deviation else 0.0  # deviation: offsets and errors around the app's height
         r = np.array([app - base])
@@ -230,6 +231,7 @@ class ProxySteering:
     def own_messages(self, now: float) -> list[bytes]:
         """What the proxy sends of its own (:meth:`.core.Proxy.run`, between forwarded frames): the position stream
         at twice the steering's rate (every tick then has a fresh sample) when the vehicle sends it slower."""
+        self.view.pump(now)  # the poses' offset is measured before arming, when no setpoint may come
         req = self.view.stream_request(now, min(0.5 * self.tick, 0.025))
         return [] if req is None else [req]
 
@@ -238,7 +240,7 @@ class ProxySteering:
         out = {"mode": self.mode, "coordinates": self.coordinates, "dt": self.tick, "preview_delay_s": self.preview.delay,
                "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts,
                "app_period": self.period.summary(), "activations": self.engagement.activations,
-               "gate": self.gate.gate.summary(), "events": [list(e) for e in self.events.events],
+               "gate": self.gate.gate.summary(), "position_source": self.view.source_summary(), "events": [list(e) for e in self.events.events],
                "t_wall": time.time()}
         out.update(self.stage.summary())
         return out

@@ -6,12 +6,19 @@ The position goes through the companion loop's :class:`~firmware_bridge.telemetr
 time line, NED -> ENU), so the proxy judges a sample exactly as the bridge does. The profile is chosen from
 the heartbeat's autopilot field (PX4 or ArduPilot); heartbeats of other components (a camera, a gimbal, a
 ground station) are not the vehicle's.
+
+With a motion capture (``ddpc-proxy --position-source mocap``, a :class:`~firmware_bridge.mocap_input.MocapInput`)
+the measured height is the lab's: the pose's height put into the autopilot's local frame (the frame the app's
+setpoints are in) by the offset between the two heights while the vehicle stands disarmed, frozen at arming. So the
+steering follows the app's heights on the lab's measurement, not on the estimator's copy of it; with no offset yet
+(the proxy started after arming) or no fresh pose, the height is stale and nothing is steered.
 """
 
 from __future__ import annotations
 
 import math
 
+from firmware_bridge.mocap_input import MocapInput
 from firmware_bridge.plausibility import TelemetryLimits
 from firmware_bridge.profiles import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, Profile, make_profile
 from firmware_bridge.proxy.rewrite import PROXY_COMPONENT, decode_frame, mavlink
@@ -31,9 +38,11 @@ class VehicleView:
     Args:
         limits: what a plausible position sample satisfies (the profile's envelope).
         link_timeout: no heartbeat for this long: the vehicle is not heard [s].
+        mocap: the lab's poses, the measured height's source (None: the autopilot's estimate).
     """
 
-    def __init__(self, limits: TelemetryLimits | None = None, link_timeout: float = 1.5) -> None:
+    def __init__(self, limits: TelemetryLimits | None = None, link_timeout: float = 1.5,
+                 mocap: MocapInput | None = None) -> None:
         self.telem = TelemetryState("ATTITUDE", "LOCAL_POSITION_NED", limits=limits or TelemetryLimits())
         self.link_timeout = link_timeout
         self.profile: Profile | None = None
@@ -44,6 +53,9 @@ class VehicleView:
         self.requests = 0
         self._next_request = -math.inf
         self._mav = mavlink.MAVLink(None, srcSystem=PROXY_SYSTEM, srcComponent=PROXY_COMPONENT)
+        self.mocap = mocap
+        self.mocap_offset = math.nan  # the estimate's height - the pose's, disarmed [m] (nan: not yet)
+        self._offsets: list[float] = []
 
     def on_frame(self, frame: bytes, t_rx: float) -> None:
         """Fold one frame (of :data:`VIEW_MSGIDS`) received at ``t_rx`` in."""
@@ -69,24 +81,52 @@ class VehicleView:
         """A heartbeat within the link timeout."""
         return now - self.last_hb <= self.link_timeout
 
+    def pump(self, now: float, max_age: float = 0.05) -> None:
+        """Fold the pending poses in; while disarmed, with a fresh pose and a fresh estimate (younger than
+        ``max_age`` [s]), the offset between their heights is measured (the median of the last 50)."""
+        if self.mocap is None:
+            return
+        self.mocap.pump()
+        if self.armed or self.mocap.age(now) > max_age or self._estimate_age(now) > max_age:
+            return
+        self._offsets = [*self._offsets[-49:], float(self.telem.position[2]) - float(self.mocap.position[2])]
+        self.mocap_offset = float(sorted(self._offsets)[len(self._offsets) // 2])
+
     def height(self, now: float | None = None, max_advance: float = 0.05) -> float:
-        """The local height, up [m] (the setpoints' frame: LOCAL_NED's -z): the newest sample, advanced by its own
-        vertical velocity to ``now`` (at most ``max_advance`` [s]): a stream that arrives in bursts (TCP) would
-        otherwise sample a climbing vehicle up to a few ticks late, which the steering reads as noise."""
+        """The local height, up [m] (the setpoints' frame: LOCAL_NED's -z). The estimate's newest sample, advanced by
+        its own vertical velocity to ``now`` (at most ``max_advance`` [s]): a stream that arrives in bursts (TCP) would
+        otherwise sample a climbing vehicle up to a few ticks late, which the steering reads as noise. With a
+        motion capture, the newest pose's height in the same frame (nan before the offset is known)."""
+        if self.mocap is not None:
+            return float(self.mocap.position[2]) + self.mocap_offset
         z = float(self.telem.position[2])
         if now is None or not self.telem.pos.seq:
             return z
         return z + float(self.telem.velocity[2]) * min(max(now - self.telem.pos.rx, 0.0), max_advance)
 
-    def position_age(self, now: float) -> float:
-        """Seconds since the newest position sample arrived (inf: none yet)."""
+    def _estimate_age(self, now: float) -> float:
         return now - self.telem.pos.rx if self.telem.pos.seq else math.inf
+
+    def position_age(self, now: float) -> float:
+        """Seconds since the measured height's newest sample arrived (inf: none yet; with a motion capture, also
+        before the offset to the local frame is known)."""
+        if self.mocap is not None:
+            return self.mocap.age(now) if math.isfinite(self.mocap_offset) else math.inf
+        return self._estimate_age(now)
 
     def position_period(self, n: int = 20) -> float:
         """The mean gap of the last ``n`` position samples' arrivals [s] (inf before two; a mean, since a byte stream
         delivers them in bursts)."""
         h = self.telem.pos.history[-n:]
         return (h[-1][1] - h[0][1]) / (len(h) - 1) if len(h) > 1 else math.inf
+
+    def source_summary(self) -> dict:
+        """What the measured height came from (JSON-ready)."""
+        m = self.mocap
+        if m is None:
+            return {"kind": "autopilot"}
+        return {"kind": "mocap", "url": getattr(m.link, "url", None), "poses": m.seq, "dropped": m.dropped,
+                "rejected": dict(m.rejected), "offset_m": None if math.isnan(self.mocap_offset) else self.mocap_offset}
 
     def stream_request(self, now: float, period: float) -> bytes | None:
         """A SET_MESSAGE_INTERVAL asking for LOCAL_POSITION_NED every ``period`` [s] (from the proxy's own ids), when

@@ -1,6 +1,8 @@
 """A known closed loop behind the steering proxy's hook, in simulated time: an autopilot whose height answers a
 position setpoint as a damped second-order system (natural frequency ``wn``, damping ``zeta``) one setpoint
-late, streaming LOCAL_POSITION_NED and an ArduCopter GUIDED + armed heartbeat; an app streaming
+late, streaming LOCAL_POSITION_NED and an ArduCopter GUIDED + armed heartbeat (its estimate may drift off the true
+height, ``drift``; the loop then flies its estimate, as an autopilot does, and a motion capture sees the truth); an
+app streaming
 SET_POSITION_TARGET_LOCAL_NED at ``DT``. Frames are real pymavlink encodings, fed to the hook as the proxy
 would (the vehicle's through ``view.on_frame``, the app's through the hook's call)."""
 
@@ -20,8 +22,10 @@ class LoopSim:
     """The autopilot's height loop and the two MAVLink ends (see the module docstring)."""
 
     def __init__(self, wn: float = 4.0, zeta: float = 0.8, h0: float = 2.0, armed: bool = True,
-                 sag: float = 0.0) -> None:
+                 sag: float = 0.0, drift=None, arm_at: int = 0, mocap_zero: float = 0.7) -> None:
         self.wn, self.zeta, self.sag = wn, zeta, sag  # sag: a constant downward acceleration (a heavier vehicle) [m/s^2]
+        self.drift = drift or (lambda t: 0.0)  # the estimate's error at time t [s] -> [m]
+        self.arm_at, self.mocap_zero = arm_at, mocap_zero  # armed from this tick; the mocap frame's height of 0 [m]
         self.vz_late = 0.0
         self.h, self.v = h0, 0.0
         self.u_late = h0  # the setpoint applied (one setpoint late)
@@ -31,14 +35,25 @@ class LoopSim:
         self.k = 0
 
     def heartbeat(self) -> bytes:
-        base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        armed = self.armed and self.k >= self.arm_at
+        base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
         m = self.veh.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
                                       ARDUCOPTER_MODES["GUIDED"], 4)
         return bytes(m.pack(self.veh))
 
+    def estimate(self) -> float:
+        """The autopilot's estimated height [m]."""
+        return self.h + self.drift(self.k * DT)
+
     def position(self) -> bytes:
-        m = self.veh.local_position_ned_encode(int(self.k * DT * 1000), 0.0, 0.0, -self.h, 0.0, 0.0, -self.v)
+        m = self.veh.local_position_ned_encode(int(self.k * DT * 1000), 0.0, 0.0, -self.estimate(), 0.0, 0.0, -self.v)
         return bytes(m.pack(self.veh))
+
+    def pose(self, t: float):
+        """A motion capture's pose of the true height (in its own frame, ``mocap_zero`` below), stamped ``t`` [s]."""
+        m = self.veh.vision_position_estimate_encode(int(t * 1e6), 0.0, 0.0, -(self.h - self.mocap_zero), 0.0, 0.0,
+                                                     0.0)
+        return decode_frame(bytes(m.pack(self.veh)))
 
     def setpoint(self, height: float, vz_up: float | None = None):
         """(decoded message, frame) of the app's setpoint at ``height`` [m up] (with a velocity field if given)."""
@@ -56,7 +71,7 @@ class LoopSim:
         v_sp, self.vz_late = self.vz_late, vz
         d = DT / substeps
         for _ in range(substeps):
-            a = self.wn ** 2 * (h_sp - self.h) + 2.0 * self.zeta * self.wn * (v_sp - self.v) - self.sag
+            a = self.wn ** 2 * (h_sp - self.estimate()) + 2.0 * self.zeta * self.wn * (v_sp - self.v) - self.sag
             self.v += a * d
             self.h += self.v * d
         self.k += 1
@@ -73,6 +88,8 @@ def fly(hook, path: np.ndarray, sim: LoopSim | None = None, vz: np.ndarray | Non
         if k % 25 == 0:
             hook.view.on_frame(sim.heartbeat(), t - 0.002)
         hook.view.on_frame(sim.position(), t - 0.001)
+        if hook.view.mocap is not None:
+            hook.view.mocap.link.pending.append((sim.pose(t - 0.003), t - 0.001))
         msg, frame = sim.setpoint(float(z), None if vz is None else float(vz[k]))
         out = hook(msg, frame, t)
         sp = msg if out is None else decode_frame(out)
@@ -82,3 +99,17 @@ def fly(hook, path: np.ndarray, sim: LoopSim | None = None, vz: np.ndarray | Non
         sim.step(u, vz=0.0 if vz is None else -float(sp.vz))
         h.append(sim.h)
     return {"h": np.array(h), "sent": np.array(sent), "rewritten": np.array(rewritten)}
+
+
+class PoseLink:
+    """A motion capture's link in simulated time: the poses :func:`fly` queues, drained as a link would."""
+
+    def __init__(self) -> None:
+        self.pending: list = []
+
+    def drain(self) -> list:
+        out, self.pending = self.pending, []
+        return out
+
+    def close(self) -> None:
+        pass

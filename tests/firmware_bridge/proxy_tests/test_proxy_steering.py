@@ -18,7 +18,8 @@ from firmware_bridge.proxy.record import ProxyRecord
 from firmware_bridge.proxy.rewrite import decode_frame
 from firmware_bridge.proxy.steering import ProxySteering
 from firmware_bridge.proxy.vehicle_view import VehicleView
-from lti_loop import DT, LoopSim, fly
+from firmware_bridge.mocap_input import MocapInput
+from lti_loop import DT, LoopSim, PoseLink, fly
 from support.bridge_helpers import ROOT
 from support.solver_cache import cache_root, shared_build
 
@@ -205,3 +206,43 @@ def test_deviation_steering_removes_what_the_apps_own_feedforward_leaves(deviati
     print(json.dumps({"app_alone_mm": alone * 1e3, "steered_mm": steered * 1e3}))
     assert hook.coordinates == "deviation" and hook.counts["steered"] > 2000
     assert steered < 0.5 * alone
+
+
+def _drift(t: float) -> float:
+    """An estimator's height error wandering over tens of seconds once airborne (from 4 s), as PX4 SIH's
+    barometer-fed EKF does [m]; none on the ground, where the local frame is the truth's."""
+    t = max(t - 4.0, 0.0)
+    return 0.08 * np.sin(2 * np.pi * t / 23.0) + 0.05 * np.sin(2 * np.pi * t / 9.0)
+
+
+@pytest.mark.compiler
+def test_steering_on_a_motion_capture_takes_out_the_estimators_own_error(deviation_solver):
+    """The autopilot flies its estimate, which drifts off the truth: the app alone is off by the drift, whatever its
+    feed-forward. Measured on the motion capture (its own frame, put into the local frame while disarmed), the
+    steering brings the true height to the app's path; measured on the estimate it cannot see the drift."""
+    path = _slow_path(3000)
+    path[:200] = path[200]  # on the ground (disarmed) for the first 200 ticks: the frames' offset is measured
+    vz = np.gradient(path, DT)
+
+    def flight(view: VehicleView, solver=None) -> float:
+        hook = ProxySteering(view, record=ProxyRecord(), solver=solver and load_solver(solver))
+        sim = LoopSim(h0=float(path[0]), drift=_drift, arm_at=200)
+        return _rmse(fly(hook, path, sim, vz=vz)["h"], path, skip=600), hook
+
+    alone, _ = flight(VehicleView())
+    on_estimate, _ = flight(VehicleView(), deviation_solver)
+    on_mocap, hook = flight(VehicleView(mocap=MocapInput(PoseLink())), deviation_solver)
+    print(json.dumps({"app_alone_mm": alone * 1e3, "on_estimate_mm": on_estimate * 1e3, "on_mocap_mm": on_mocap * 1e3}))
+    src = hook.summary()["position_source"]
+    assert src["kind"] == "mocap" and src["offset_m"] == pytest.approx(0.7, abs=1e-6)
+    assert hook.counts["steered"] > 2500
+    assert on_mocap < 0.4 * alone and on_estimate > 0.8 * alone
+
+
+def test_a_motion_capture_without_the_frames_offset_is_never_steered():
+    """The proxy started with the vehicle already armed: no offset to the local frame, so no measured height."""
+    view = VehicleView(mocap=MocapInput(PoseLink()))
+    hook = ProxySteering(view, record=ProxyRecord(), dither=0.2)
+    out = fly(hook, _path(200))
+    assert not out["rewritten"].any() and view.position_age(2000.0) == float("inf")
+    assert view.source_summary()["offset_m"] is None and view.mocap.seq == 200
