@@ -1,7 +1,9 @@
 """The proxy's app side: the endpoints where apps and ground stations connect, each with the same
 small interface (descriptors to poll, what was read, send to one client).
 
-- ``udpin:HOST:PORT``: a UDP server; each sender address is a client (forgotten after silence).
+- ``udpin:HOST:PORT``: a UDP server; each sender address is a client from its first datagram on, however long it
+  is quiet afterwards (a ground station that only listens keeps the vehicle's stream, as on an autopilot's own
+  port). Beyond :data:`MAX_UDP_CLIENTS` senders the one silent longest is dropped.
 - ``udpout:HOST:PORT``: an app listening there (as PX4 sends to 14540); one fixed client.
 - ``tcpin:HOST:PORT``: a TCP server; each connection is a client from accept to close. Its byte
   stream is cut into frames (garbage counted and left out), and only whole frames are written to it.
@@ -11,12 +13,17 @@ from __future__ import annotations
 
 import socket
 import time
+from collections import OrderedDict
 from typing import Any
 
 from firmware_bridge.proxy.frames import split_frames
 from firmware_bridge.transports import UdpTransport, parse_url
 
-__all__ = ["UdpApps", "TcpApps", "open_app_side", "deep_receive_buffer"]
+__all__ = ["UdpApps", "TcpApps", "open_app_side", "deep_receive_buffer", "MAX_UDP_CLIENTS"]
+
+# senders a udpin endpoint sends to at once: an app, ground stations, loggers; a port scan or a flood of spoofed
+# sources cannot grow the fan-out of every vehicle message past it
+MAX_UDP_CLIENTS = 16
 
 _MAX_OUT = 1 << 16  # a TCP client this far behind misses messages rather than receiving them late
 _RCVBUF = 1 << 21  # bytes: a few hundred ms of a 10 kHz flood, so a late wake-up loses nothing
@@ -32,14 +39,20 @@ def deep_receive_buffer(sock: socket.socket | None) -> None:
 
 
 class UdpApps:
-    """A UDP endpoint of the app side (server or fixed client)."""
+    """A UDP endpoint of the app side (server or fixed client).
 
-    def __init__(self, host: str, port: int, listen: bool) -> None:
+    A server's clients are the sender addresses heard, kept however quiet (``joined`` / ``gone`` report the
+    changes); the ``max_clients`` + 1st sender replaces the one heard least recently.
+    """
+
+    def __init__(self, host: str, port: int, listen: bool, max_clients: int = MAX_UDP_CLIENTS) -> None:
         self.t = UdpTransport(host, port, listen=listen)
         deep_receive_buffer(self.t.sock)
+        self.listen, self.max_clients = listen, max_clients
         self.garbage = 0  # datagrams are forwarded whole: their garbage is counted by the proxy
         self.joined: list[Any] = [] if listen else [self.t.sock.getpeername()]
         self.gone: list[Any] = []
+        self._heard: OrderedDict[Any, None] = OrderedDict()  # a server's clients, least recently heard first
 
     @property
     def local_address(self) -> tuple[str, int]:
@@ -49,8 +62,26 @@ class UdpApps:
         return [self.t.fileno()]
 
     def read(self, fd: int) -> list[tuple[Any, bytes, float]]:
-        """(client address, datagram, receive time [s, time.time()]) of everything pending."""
-        return [(addr, data, ts if ts is not None else time.time()) for data, addr, ts in self.t.read()]
+        """(client address, datagram, receive time [s, time.time()]) of everything pending; a server notes
+        its new senders in ``joined`` (and the one replaced beyond the bound in ``gone``)."""
+        got = [(addr, data, ts if ts is not None else time.time()) for data, addr, ts in self.t.read()]
+        if self.listen:
+            for addr, _, _ in got:
+                self._hear(addr)
+        return got
+
+    def _hear(self, addr: Any) -> None:
+        heard = self._heard
+        if addr in heard:
+            heard.move_to_end(addr)
+            return
+        heard[addr] = None
+        if addr in self.gone:  # replaced and back before the proxy took note: still its client
+            self.gone.remove(addr)
+        else:
+            self.joined.append(addr)
+        if len(heard) > self.max_clients:
+            self.gone.append(heard.popitem(last=False)[0])
 
     def send(self, addr: Any, buf: bytes, frames: bytes) -> bool:
         """Send datagram ``buf`` to ``addr`` (``frames``: the same without garbage, for streams)."""

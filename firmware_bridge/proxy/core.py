@@ -2,10 +2,11 @@
 the other, every byte forwarded unchanged both ways in arrival order.
 
 - App side: one or more endpoints (:mod:`.app_side`). A UDP server (``udpin:HOST:PORT``, where apps
-  and ground stations connect as to an autopilot's port): each distinct source address is a client,
-  forgotten after ``client_timeout`` seconds of silence (it comes back with its next datagram). A
-  UDP client (``udpout:HOST:PORT``, as PX4 sends to an app listening on 14540): that address is a
-  client for as long as the proxy runs. A TCP server (``tcpin:HOST:PORT``): one client per connection.
+  and ground stations connect as to an autopilot's port): each distinct source address is a client
+  from its first datagram on, however quiet afterwards (a bounded number; beyond it the one silent
+  longest is replaced). A UDP client (``udpout:HOST:PORT``, as PX4 sends to an app listening on
+  14540): that address is a client for as long as the proxy runs. A TCP server (``tcpin:HOST:PORT``):
+  one client per connection.
 - Vehicle side: one connection (:mod:`.vehicle_side`: ``udpin:`` -- the first sender is the vehicle,
   others are counted and dropped --, ``udpout:``, ``tcp:`` client with reconnects, or a serial device).
 - Vehicle -> every client. Client -> vehicle. Client -> the other clients only with
@@ -20,7 +21,6 @@ the other, every byte forwarded unchanged both ways in arrival order.
 
 from __future__ import annotations
 
-import math
 import select
 import time
 from typing import Any, Callable
@@ -34,7 +34,7 @@ from firmware_bridge.proxy.vehicle_view import VIEW_MSGIDS, VehicleView
 
 __all__ = ["Proxy"]
 
-_POLL_S = 0.1  # housekeeping period: reconnects, client expiry, the stop check
+_POLL_S = 0.1  # housekeeping period: reconnects, the setpoint role's release, the stop check
 
 
 class Proxy:
@@ -47,8 +47,9 @@ class Proxy:
         view: the vehicle's state the hook reads, folded in from the vehicle's heartbeats and positions.
         baud: a serial vehicle's baud rate (default from the string, else 921600).
         between_clients: also forward each client's datagrams to the other clients.
-        client_timeout: forget a client silent this long [s]; a ``udpin`` vehicle silent this long is
-            replaced by the next sender (a restarted autopilot).
+        client_timeout: the app's client silent this long [s] is no longer the app (the next client to send a
+            setpoint is: a restarted app on a new port); a ``udpin`` vehicle silent this long is replaced by the
+            next sender (a restarted autopilot). Clients themselves stay (see :mod:`.app_side`).
         reconnect_interval: seconds between attempts to reopen a failed vehicle link.
     """
 
@@ -62,12 +63,12 @@ class Proxy:
         self.rewrite, self.view = rewrite, view
         self.between_clients = between_clients
         self.client_timeout = client_timeout
-        # (app endpoint index, address) -> [last heard (monotonic; inf: never expires), datagrams in, datagrams out]
+        # (app endpoint index, address) -> [last heard (monotonic), datagrams in, datagrams out]
         self.clients: dict[tuple[int, Any], list] = {}
         self.setpoint_client: Any = None  # the client whose setpoints are the app's (first to send one)
         self.setpoints = SetpointPeriod()
         self.up, self.down = DirectionStats(ring_size), DirectionStats(ring_size)  # app -> vehicle, vehicle -> apps
-        self.events = dict.fromkeys(("clients_joined", "clients_expired", "clients_left", "foreign_setpoints",
+        self.events = dict.fromkeys(("clients_joined", "clients_left", "foreign_setpoints",
                                      "rewrite_errors", "between_clients", "own_messages"), 0)
         self._poll = select.poll()
         self._fds: dict[int, int] = {}  # polled descriptor -> app endpoint index (-1: the vehicle)
@@ -88,7 +89,7 @@ class Proxy:
             self._watch_fds()
             self._forward(_POLL_S)
             self._membership()
-            self._expire(time.monotonic())
+            self._release_setpoints(time.monotonic())
         self._forward(0.0)
 
     def _own(self, now: float) -> None:
@@ -109,10 +110,11 @@ class Proxy:
                 for chunk in self.vehicle.read():
                     self._from_vehicle(*chunk)
                 continue
-            for addr, data, t_rx in self.apps[k].read(fd):
-                self._from_client((k, addr), data, t_rx)
-            if self.apps[k].joined:  # a new TCP client hears the vehicle from now on
+            got = self.apps[k].read(fd)
+            if self.apps[k].joined or self.apps[k].gone:  # a new client hears the vehicle from now on
                 self._membership()
+            for addr, data, t_rx in got:
+                self._from_client((k, addr), data, t_rx)
 
     def _watch_fds(self) -> None:
         """Poll exactly the descriptors the endpoints have now (a reopened vehicle, TCP connections)."""
@@ -128,20 +130,22 @@ class Proxy:
             self._fds = want
 
     def _membership(self) -> None:
-        """Clients that an endpoint added (a udpout app, a TCP connection) or closed."""
+        """Clients that an endpoint added (a udpout app, a UDP sender, a TCP connection) or dropped."""
         for k, a in enumerate(self.apps):
             for addr in a.joined:
-                self.clients[(k, addr)] = [math.inf, 0, 0]
-                self.events["clients_joined"] += 1
+                if (k, addr) not in self.clients:
+                    self.clients[(k, addr)] = [time.monotonic(), 0, 0]
+                    self.events["clients_joined"] += 1
             for addr in a.gone:
                 self._forget((k, addr), "clients_left")
             a.joined.clear()
             a.gone.clear()
 
-    def _expire(self, now: float) -> None:
-        old = [a for a, c in self.clients.items() if now - c[0] > self.client_timeout]
-        for a in old:
-            self._forget(a, "clients_expired")
+    def _release_setpoints(self, now: float) -> None:
+        """The app that has been silent ``client_timeout`` is no longer the app (its client stays)."""
+        c = self.clients.get(self.setpoint_client)
+        if c is not None and now - c[0] > self.client_timeout:
+            self.setpoint_client = None
 
     def _forget(self, client: tuple[int, Any], why: str) -> None:
         if self.clients.pop(client, None) is not None:
@@ -154,12 +158,9 @@ class Proxy:
         st = self.up.c
         st["datagrams"] += 1
         c = self.clients.get(client)
-        if c is None:
-            c = self.clients[client] = [0.0, 0, 0]
-            self.events["clients_joined"] += 1
-        if c[0] != math.inf:
+        if c is not None:  # (None: a UDP sender replaced within the same read; its datagram still goes out)
             c[0] = time.monotonic()
-        c[1] += 1
+            c[1] += 1
         spans, garbage, _ = split_frames(data)
         st["received"] += len(spans)
         st["garbage_bytes"] += garbage
@@ -264,8 +265,8 @@ class Proxy:
             "app_to_vehicle": up, "vehicle_to_app": self.down.summary(),
             "setpoints": {**self.setpoints.summary(),
                           "client": self._client_json(self.setpoint_client)},
-            "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2]}
-                        for a, c in self.clients.items()],
+            "clients": [{**self._client_json(a), "datagrams_in": c[1], "datagrams_out": c[2],
+                         "silent_s": time.monotonic() - c[0]} for a, c in self.clients.items()],
             "events": {**self.events, **{f"vehicle_{k}": v for k, v in self.vehicle.counts.items()}},
             "last_vehicle_error": self.vehicle.last_error,
         }
