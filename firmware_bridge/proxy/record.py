@@ -44,9 +44,12 @@ class ProxyRecord:
 
     def stretches(self, dt: float) -> list[np.ndarray]:
         """Row indices of each engaged stretch at least :data:`_MIN_STRETCH_S` long whose positions are at most
-        three ticks old (a longer hole ends the stretch: the outputs would no longer be on the ticks' grid)."""
+        three ticks old and whose setpoints came every ``dt`` (within half of it): a longer hole, or an app streaming
+        at another rate (PX4's take-off stream), ends the stretch, since its rows would no longer be on the ticks'
+        grid."""
         r = self.view()
         ok = r["engaged"] & (r["age"] <= 3.0 * dt)
+        ok[1:] &= np.abs(np.diff(r["t"]) - dt) <= 0.5 * dt
         out, start = [], None
         for k, good in enumerate(np.append(ok, False)):
             if good and start is None:

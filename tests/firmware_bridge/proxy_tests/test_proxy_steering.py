@@ -246,3 +246,14 @@ def test_a_motion_capture_without_the_frames_offset_is_never_steered():
     out = fly(hook, _path(200))
     assert not out["rewritten"].any() and view.position_age(2000.0) == float("inf")
     assert view.source_summary()["offset_m"] is None and view.mocap.seq == 200
+
+
+def test_a_collect_keeps_only_the_stretches_streamed_at_its_tick():
+    """PX4's take-off streams at 20 Hz before the app's 50 Hz path: those rows are not on the tick's grid."""
+    rec = ProxyRecord()
+    t = np.concatenate((np.arange(100) * 0.05, 5.0 + np.arange(1, 301) * DT))  # 5 s at 20 Hz, then 6 s at 50 Hz
+    for k, tk in enumerate(t):
+        rec.add(float(tk), 2.0, 2.0, 2.0, "collect", 0, 0.01, True, 0.0, k)
+    (idx,) = rec.stretches(DT)
+    assert idx[0] == 101 and idx[-1] == 399  # the first 50 Hz row still follows a 20 Hz gap
+    assert len(rec.dataset(DT).u[0]) == 299
