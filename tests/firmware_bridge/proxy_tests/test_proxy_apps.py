@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from ddpc_codegen.testbed.sitl_observer import wait_udp_bound
+
 from firmware_bridge.profiles import px4_custom_mode
 
 from mav_app import M, command, connect, drain, read_param
@@ -22,8 +24,11 @@ OFFBOARD, PX4_MAIN_MODE = px4_custom_mode(6), 0xFF << 16
 
 
 def _proxy(procs, tmp_path, ap: int, vp: int, *more: str, name: str = "proxy"):
-    return spawn_proxy(procs, "--app", f"udpin:127.0.0.1:{ap}", *more, "--vehicle", f"udpin:127.0.0.1:{vp}",
-                       "--stats", str(tmp_path / f"{name}.json"), name=name)
+    """The proxy, once it listens for apps (what an app sends earlier is lost, as with any UDP server)."""
+    px = spawn_proxy(procs, "--app", f"udpin:127.0.0.1:{ap}", *more, "--vehicle", f"udpin:127.0.0.1:{vp}",
+                     "--stats", str(tmp_path / f"{name}.json"), name=name)
+    assert wait_udp_bound(ap), procs.log(px)
+    return px
 
 
 def test_a_pymavlink_app_and_a_ground_station_fly_through_the_proxy(procs, tmp_path):
