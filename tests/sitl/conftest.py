@@ -9,6 +9,7 @@ import pytest
 
 # ~550 s each on this 2-core machine (CI of 2026-12-05: group B alone was 685 s before this split):
 # the PX4 flight, ArduCopter's climb-rate mode, the steering proxy's chain and the 4 s bridge stall | the rest
+# (among them the proxy's real clients, ~61 s, which took the place of the 58 s pymavlink-only proxy flight)
 _GROUP_A = ("test_sitl_from_the_ground.py::test_from_the_ground_to_steered_flight[px4]",
             "test_sitl_climb_rate.py::test_ardupilot_climb_rate_mode_collect_and_steer",
             "test_sitl_proxy_steer.py::test_an_app_is_collected_fitted_and_steered_through_the_proxy",
