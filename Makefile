@@ -15,6 +15,8 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[dev]'
+	@# MAVProxy as a ground station in the SITL tier; --no-deps: its GUI modules' opencv and vtk are not needed
+	@$(PY) -m pip install -q --disable-pip-version-check --no-deps 'MAVProxy>=1.8,<2'
 	@touch $(STAMP)
 	@echo "installed ddpc-codegen into $(VENV)"
 

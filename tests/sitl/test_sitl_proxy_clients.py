@@ -87,7 +87,7 @@ def _clients_missing() -> str | None:
     if server is None or not server.is_file():
         return "mavsdk's wheel brought no mavsdk_server binary for this platform"
     if _mavproxy() is None:
-        return "MAVProxy not installed (pip install MAVProxy, the dev extra)"
+        return "MAVProxy not installed (make install: pip install --no-deps MAVProxy)"
     return None
 
 
