@@ -4,8 +4,10 @@ vehicle clock's progress; the rules :class:`.telemetry.TelemetryState` applies b
 A sample that fails is dropped and counted by reason (it never reaches the frames or the setpoints);
 the stream's last accepted sample ages instead, so a run of them is stale telemetry. A sample whose
 stamp leaves the stream's time line (back in time, or ahead of what the receive clock allows) starts
-or extends a *candidate* time line; :class:`.vehicle_link.VehicleLink` takes a candidate that
-``REBOOT_SAMPLES`` samples agree on as a reboot only with a heartbeat's evidence as well.
+or extends a *candidate* time line. A line is the vehicle's once ``TIMELINE_SAMPLES`` samples advanced on it;
+until then a candidate that advanced as often replaces it (one forged or stray first sample never anchors the
+good ones), after it :class:`.vehicle_link.VehicleLink` takes a candidate that ``TIMELINE_SAMPLES`` samples agree
+on as a reboot only with a heartbeat's evidence as well.
 
 The bounds are not the reference envelope: a vehicle outside its envelope must still be seen. They
 are what no multicopter's estimator reports, with room for its resets.
@@ -17,7 +19,7 @@ import math
 from dataclasses import dataclass
 
 __all__ = ["MAX_POSITION_M", "MAX_SPEED_MPS", "MAX_ACCEL_MPS2", "MAX_BODY_RATE_RADPS", "MAX_CLOCK_RATE",
-           "CLOCK_SLACK_S", "REBOOT_SAMPLES", "TelemetryLimits", "on_timeline"]
+           "CLOCK_SLACK_S", "TIMELINE_SAMPLES", "TelemetryLimits", "on_timeline"]
 
 # EKF local frames (PX4, ArduPilot) stay within tens of km of their origin over any flight a
 # companion link reaches; a position beyond 100 km is a corrupt or forged sample.
@@ -40,8 +42,10 @@ MAX_CLOCK_RATE = 4.0
 # that, never stale telemetry (at 0.5 s, stamps 0.4 s ahead from the vehicle's address kept the telemetry stale
 # and the vehicle, flown on held measurements, left its envelope: found by make fuzz).
 CLOCK_SLACK_S = 0.04
-# A reboot needs this many samples that agree on a new time line (and a heartbeat's evidence).
-REBOOT_SAMPLES = 5
+# A time line is the vehicle's once this many samples advanced on it (before that its stamps are nobody's
+# reference, and a run that advanced as often off it replaces it); a reboot needs as many samples that agree on a
+# new time line (and a heartbeat's evidence).
+TIMELINE_SAMPLES = 5
 # With a profile's speed / acceleration limit: the vehicle may exceed its path's limits (wind, a push,
 # its own overshoot) by this factor plus the margins above, never more than the absolute bounds.
 PROFILE_LIMIT_FACTOR = 3.0

@@ -17,6 +17,12 @@ unit norm, or one that :mod:`.plausibility` finds implausible (out of physical b
 last accepted sample, a stamp off the stream's time line) is dropped and counted (``dropped``, by reason
 in ``rejected``): it never reaches the frames or the setpoints; the stream's last good sample ages
 instead, so a flood of them is stale telemetry.
+
+A stream's time line is the vehicle's only once :data:`.plausibility.TIMELINE_SAMPLES` samples advanced on it:
+until both streams' lines are (``has_data``), no stamp is anyone's reference (no tick, no vehicle clock). One
+sample cannot make itself the reference for the good ones: an unconfirmed line is re-lined onto a run of
+samples that advance together off it (a note for the caller's events), while a confirmed line leaves only on a
+reboot's evidence (:class:`.vehicle_link.VehicleLink`).
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ from ddpc_codegen.robot.frames import (
     rotate,
     wrap_pi,
 )
-from firmware_bridge.plausibility import REBOOT_SAMPLES, TelemetryLimits, on_timeline
+from firmware_bridge.plausibility import TIMELINE_SAMPLES, TelemetryLimits, on_timeline
 
 __all__ = [
     "Sample",
@@ -60,18 +66,41 @@ class Sample:
     """Newest sample of one stream.
 
     stamp: sender time [s] (time_boot_ms / time_usec); rx: local receive time [s, bridge clock];
-    seq: how many samples this stream has delivered (a tick waits for every stream to advance).
+    seq: how many samples this stream has delivered (a tick waits for every stream to advance);
+    line_n: how many of them advanced the time line (confirmed at :data:`.plausibility.TIMELINE_SAMPLES`).
     """
 
     stamp: float = math.nan
     rx: float = -math.inf
     seq: int = 0
-    # Samples off the time line that agree with each other: (stamp, rx) of the newest, how many.
+    line_n: int = 0
+    # Samples off the time line that agree with each other: (stamp, rx) of the newest, how many, how many of
+    # them advanced it.
     cand_stamp: float = math.nan
     cand_rx: float = -math.inf
     cand_n: int = 0
+    cand_adv: int = 0
     # Every sample's (stamp, rx), kept across reboots: a burst of two is two rows, none is dropped.
     history: list[tuple[float, float]] = field(default_factory=list)
+
+    @property
+    def confirmed(self) -> bool:
+        """Enough samples advanced on the time line for it to be the vehicle's."""
+        return self.line_n >= TIMELINE_SAMPLES
+
+    def candidate(self, limits: TelemetryLimits, stamp: float, rx: float) -> None:
+        """A sample off the time line: it extends the candidate line, or starts a new one."""
+        if self.cand_n > 0 and on_timeline(limits, self.cand_stamp, self.cand_rx, stamp, rx):
+            self.cand_n, self.cand_adv = self.cand_n + 1, self.cand_adv + (stamp > self.cand_stamp)
+        else:
+            self.cand_n, self.cand_adv = 1, 1
+        self.cand_stamp, self.cand_rx = stamp, rx
+
+    def new_line(self) -> Sample:
+        """This stream on its candidate time line (none: on no line), with nothing accepted yet."""
+        if self.cand_n == 0:
+            return Sample(history=self.history)
+        return Sample(stamp=self.cand_stamp, rx=self.cand_rx, line_n=self.cand_adv, history=self.history)
 
 
 @dataclass
@@ -109,12 +138,15 @@ class TelemetryState:
         self.contact_stamp = math.nan
         self.dropped = 0  # samples never used (non-finite, non-unit quaternion, implausible)
         self.rejected: Counter = Counter()  # the dropped samples by reason
+        self.relines = 0  # unconfirmed time lines replaced by the samples' own
+        self.notes: list[str] = []  # what the owner should log (see :meth:`take_notes`)
         if self.contact_name:
             self.wanted.add("NAMED_VALUE_INT")
 
     @property
     def has_data(self) -> bool:
-        return self.att.seq > 0 and self.pos.seq > 0
+        """Both streams delivered a sample on a confirmed time line (their stamps may be used)."""
+        return self.att.seq > 0 and self.pos.seq > 0 and self.att.confirmed and self.pos.confirmed
 
     def update(self, msg, rx: float) -> bool:
         """Fold one message in (it is newer by arrival). Returns True if it was a state stream."""
@@ -146,7 +178,8 @@ class TelemetryState:
             e = euler_enu_from_ned((msg.roll, msg.pitch, msg.yaw)) if typ == "ATTITUDE" else \
                 euler_from_quat(quat_enu_flu_from_ned_frd((msg.q1, msg.q2, msg.q3, msg.q4)))
             att = (e, rates_flu_from_frd((msg.rollspeed, msg.pitchspeed, msg.yawspeed)))
-        fault = self._fault(stamp, rx, att, pos)
+        names = (("att",) if att is not None else ()) + (("pos",) if pos is not None else ())
+        fault = self._stamp_fault(names, stamp, rx) or self._fault(att, pos, stamp, rx)
         if fault is not None:
             return self._reject(fault)
         if att is not None:
@@ -157,22 +190,45 @@ class TelemetryState:
             self._tick(self.pos, stamp, rx)
         return True
 
-    def _fault(self, stamp: float, rx: float, att, pos) -> str | None:
-        """Why the decoded sample (its stamp, (euler, rates) and / or (position, velocity)) is implausible."""
+    def _stamp_fault(self, names: tuple[str, ...], stamp: float, rx: float) -> str | None:
+        """"stamp" when the stamp [s] received at ``rx`` [s] is off the time line of a stream ``names`` it feeds.
+
+        Off it, the sample extends each stream's candidate line (a reboot, if the heartbeat agrees). A stream whose
+        own line is unconfirmed moves onto a candidate that advanced :data:`.plausibility.TIMELINE_SAMPLES` times
+        (its first samples, or a forged one, were the odd ones out) and the sample is used on it."""
         lim = self.limits
-        streams = ([self.att] if att is not None else []) + ([self.pos] if pos is not None else [])
-        if not all(on_timeline(lim, s.stamp, s.rx, stamp, rx) for s in streams):
-            for s in streams:  # a candidate time line (a reboot, if the heartbeat agrees)
-                agrees = s.cand_n > 0 and on_timeline(lim, s.cand_stamp, s.cand_rx, stamp, rx)
-                s.cand_stamp, s.cand_rx, s.cand_n = stamp, rx, s.cand_n + 1 if agrees else 1
-            return "stamp"
-        for s in streams:
-            s.cand_n = 0
+        streams = [getattr(self, n) for n in names]
+        if all(on_timeline(lim, s.stamp, s.rx, stamp, rx) for s in streams):
+            for s in streams:
+                if not stamp <= s.stamp:  # advanced (or the first): the old line goes on
+                    s.cand_n = s.cand_adv = 0
+            return None
+        for n, s in zip(names, streams):
+            s.candidate(lim, stamp, rx)
+            if not s.confirmed and s.cand_adv >= TIMELINE_SAMPLES:
+                self._reline(n)
+        if all(on_timeline(lim, s.stamp, s.rx, stamp, rx) for s in (getattr(self, n) for n in names)):
+            return None
+        return "stamp"
+
+    def _reline(self, name: str) -> None:
+        """Move stream ``name`` onto its candidate time line (its line was never confirmed), with a note."""
+        old = getattr(self, name)
+        setattr(self, name, old.new_line())
+        self.relines += 1
+        which = "attitude" if name == "att" else "position"
+        self.notes.append(f"{which} telemetry re-lined from {old.stamp:.3f} s to {old.cand_stamp:.3f} s: "
+                          f"{old.cand_adv} samples advanced together off a time line that never was the vehicle's "
+                          f"({old.line_n} sample(s) advanced on it); the samples before were dropped")
+
+    def _fault(self, att, pos, stamp: float, rx: float) -> str | None:
+        """Why the decoded sample ((euler, rates) and / or (position, velocity)) is implausible."""
+        lim = self.limits
         if att is not None and (f := lim.rates_fault(att[1])) is not None:
             return f
         if pos is not None:
             s = self.pos
-            last = (self.position, self.velocity) if s.seq > 0 else None
+            last = (self.position, self.velocity) if s.seq > 0 else None  # none yet on this line
             return lim.state_fault(pos[0], pos[1], last, max(rx - s.rx, stamp - s.stamp, 0.0))
         return None
 
@@ -182,11 +238,18 @@ class TelemetryState:
         return False
 
     def new_timeline(self) -> bool:
-        """A stream's last :data:`.plausibility.REBOOT_SAMPLES` samples agree on a time line that is not its own."""
-        return max(self.att.cand_n, self.pos.cand_n) >= REBOOT_SAMPLES
+        """A stream's last :data:`.plausibility.TIMELINE_SAMPLES` samples agree on a time line that is not its own."""
+        return max(self.att.cand_n, self.pos.cand_n) >= TIMELINE_SAMPLES
+
+    def take_notes(self) -> list[str]:
+        """The notes since the last call (re-lined time lines), for the owner's events."""
+        notes, self.notes = self.notes, []
+        return notes
 
     @staticmethod
     def _tick(s: Sample, stamp: float, rx: float) -> None:
+        if not stamp <= s.stamp:  # advanced (or the first): one more sample for the line
+            s.line_n += 1
         s.stamp, s.rx, s.seq = stamp, rx, s.seq + 1
         s.history.append((stamp, rx))
 
@@ -215,17 +278,14 @@ class TelemetryState:
                              euler=self.euler.copy(), body_rates=self.rates.copy(), contact=False)
 
     def restart(self, msg, rx: float) -> bool:
-        """A reboot: forget the newest samples and fold ``msg`` (the sample that completed the new time line,
-        counted as dropped a moment ago: uncounted) in as the first of the new time line."""
+        """A reboot: forget the newest samples, each stream on its candidate time line (what its samples agreed on,
+        confirmed as far as they advanced), and fold ``msg`` (the sample that completed the new time line, counted
+        as dropped a moment ago: uncounted) in as the first of it."""
         self.dropped -= 1
         self.rejected["stamp"] -= 1
-        self.reset()
-        return self.update(msg, rx)
-
-    def reset(self) -> None:
-        """Forget the newest samples (vehicle reboot: its clock restarted); the history stays."""
-        self.att, self.pos = Sample(history=self.att.history), Sample(history=self.pos.history)
+        self.att, self.pos = self.att.new_line(), self.pos.new_line()
         self.contact, self.contact_value, self.contact_stamp = None, None, math.nan
+        return self.update(msg, rx)
 
 
 _FIELDS = {

@@ -139,7 +139,10 @@ class VehicleLink:
 
     def _on_telemetry(self, msg, rx: float) -> None:
         tel = self.telem
-        if not tel.update(msg, rx):
+        used = tel.update(msg, rx)
+        for note in tel.take_notes():  # a start-up time line re-lined onto the samples' own
+            self.events(note)
+        if not used:
             if tel.new_timeline():
                 self._new_timeline(msg, rx)
             return  # dropped, or the contact flag (kept, not a state sample)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from firmware_bridge.events import EventLog
 from firmware_bridge.link import mavlink
+from firmware_bridge.plausibility import TIMELINE_SAMPLES
 from firmware_bridge.profiles import make_profile
 from firmware_bridge.telemetry import TelemetryState
 from firmware_bridge.vehicle_link import VehicleLink
@@ -73,6 +74,12 @@ def telemetry(t: float, z: float = 1.0):
     return (from_vehicle(mavlink.MAVLink_attitude_quaternion_message(ms, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
                                                                      [0.0, 0.0, 0.0, 0.0])),
             from_vehicle(mavlink.MAVLink_local_position_ned_message(ms, 0.0, 0.0, -z, 0.0, 0.0, 0.0)))
+
+
+def line(t: float, z: float = 1.0, n: int = TIMELINE_SAMPLES, dt: float = 0.005):
+    """``n`` :func:`telemetry` pairs ``dt`` [s] apart up to ``t`` [s]: a time line the bridge uses (a stream's stamps
+    are the vehicle's once ``TIMELINE_SAMPLES`` samples advanced on it; one pair alone is no reference yet)."""
+    return [m for k in range(n) for m in telemetry(t - (n - 1 - k) * dt, z)]
 
 
 def ack(command: int, result: int = mavlink.MAV_RESULT_ACCEPTED):

@@ -101,7 +101,7 @@ def test_every_telemetry_stream_gives_the_same_enu_flu_state(kind):
         np.testing.assert_allclose(tel.position, p_enu, atol=1e-6)
         np.testing.assert_allclose(tel.velocity, v_enu, atol=2e-6)
         np.testing.assert_allclose(tel.rates, w_flu, atol=1e-6)
-        assert tel.newest_stamp() == pytest.approx(1.234)
+        assert tel.att.stamp == tel.pos.stamp == pytest.approx(1.234)
 
 
 @pytest.mark.parametrize("kind", ["ATTITUDE", "ATTITUDE_QUATERNION", "ODOMETRY"])

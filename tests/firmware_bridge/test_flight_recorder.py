@@ -11,12 +11,13 @@ import pytest
 
 from ddpc_codegen.robot.state import MeasuredState
 from firmware_bridge.clock import TickTrigger
+from firmware_bridge.plausibility import TIMELINE_SAMPLES
 from firmware_bridge.reference_stage import TickReference
 from firmware_bridge.report import FlightRecorder
 from firmware_bridge.telemetry import TelemetryState
 from firmware_bridge.ticklog import REASONS, TICK_FIELDS, column_frames
 from firmware_bridge.truth import SimTruth
-from part_fakes import telemetry
+from part_fakes import line, telemetry
 
 DT = 0.005
 
@@ -60,11 +61,11 @@ def test_lockstep_ticks_on_every_pair_of_samples_and_bridges_short_gaps():
     tr = TickTrigger(DT, lockstep=True, max_gap_fill=3)
     tel = TelemetryState()
     assert tr.due(0.0, tel) == ""
-    for m in telemetry(1.0):
+    for m in line(1.0):  # a time line the vehicle's: five samples advanced on it
         tel.update(m, 0.0)
     assert tr.due(0.0, tel) == "event"
     age, t, n_new = tr.timing(0.0, tel)
-    assert (age, t, n_new) == (0.0, 1.0, 2) and tr.gap(t, tel) == (False, 0, False)
+    assert (age, t, n_new) == (0.0, 1.0, 2 * TIMELINE_SAMPLES) and tr.gap(t, tel) == (False, 0, False)
     assert tr.due(0.0, tel) == ""  # used
     for stamp, want in ((1.005, (False, 0, False)), (1.02, (True, 2, False)), (1.2, (True, 0, True))):
         for m in telemetry(stamp):
@@ -76,7 +77,7 @@ def test_lockstep_ticks_on_every_pair_of_samples_and_bridges_short_gaps():
 def test_real_time_ticks_on_the_grid_from_the_first_complete_telemetry():
     tr = TickTrigger(DT, lockstep=False, max_gap_fill=3)
     tel = TelemetryState()
-    for m in telemetry(1.0):
+    for m in line(1.0):
         tel.update(m, 5.0)
     assert tr.due(5.0, tel) == "grid" and tr.wake_in(5.0) == 0.0
     tr.done("grid", 5.001)

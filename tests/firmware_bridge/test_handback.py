@@ -20,7 +20,7 @@ from firmware_bridge.report import FlightRecorder
 from firmware_bridge.telemetry import TelemetryState
 from firmware_bridge.tick_gate import TickGate
 from firmware_bridge.ticklog import FALLBACK_REASONS, REASONS
-from part_fakes import heartbeat, telemetry, vehicle
+from part_fakes import heartbeat, line, telemetry, vehicle
 
 DT = 0.005
 RATE = np.array([0.001, 0.002])  # per tick: the gate's bound (the solver's du_max)
@@ -81,7 +81,7 @@ def test_the_tick_that_sees_a_stall_runs_at_the_wall_clocks_grid_time():
     the next one 4 s later, so the resume was re-anchored before the trajectory clock jumped and the path's 0.5 m
     jump passed the gate as the path's own motion. The late tick takes the newest grid point: one jump, there."""
     tr, tel = TickTrigger(DT, lockstep=False, max_gap_fill=3), TelemetryState()
-    for m in telemetry(1.0):
+    for m in line(1.0):
         tel.update(m, 5.0)
     assert tr.due(5.0, tel) == "grid"
     tr.done("grid", 5.001)

@@ -9,7 +9,7 @@ import time
 from firmware_bridge.link import mavlink
 from firmware_bridge.mode_requests import ModeRequests
 from firmware_bridge.setpoints import SetpointStream
-from part_fakes import FakeLink, ack, heartbeat, telemetry, vehicle
+from part_fakes import FakeLink, ack, heartbeat, line, telemetry, vehicle
 
 Q = (1.0, 0.0, 0.0, 0.0)
 
@@ -42,7 +42,7 @@ def test_arming_waits_for_telemetry_retries_and_gives_up():
     _, v, _, modes = _parts(arm=True, offboard=False)
     v.on_message(heartbeat(armed=False, offboard=False), 0.0)
     assert modes.supervise(1.0, False) is None and not v.pending(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
-    for m in telemetry(0.1):
+    for m in line(0.1):
         v.on_message(m, 1.0)
     modes.supervise(1.0, False)
     assert v.pending(mavlink.MAV_CMD_COMPONENT_ARM_DISARM) and v.arming.attempts == 1
@@ -77,7 +77,7 @@ def test_the_hand_back_asks_for_hold_and_repeats_the_last_setpoint_until_acknowl
 
 def test_the_stream_length_counts_in_vehicle_time_in_lockstep():
     _, v, _, _ = _parts()
-    for m in telemetry(5.0):
+    for m in line(5.0):
         v.on_message(m, 1.0)
     stream = SetpointStream(v, lockstep=True)
     stream.send(Q, 0.5, 5000)

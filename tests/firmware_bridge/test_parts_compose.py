@@ -16,7 +16,8 @@ from firmware_bridge.reference_stage import ReferenceStage
 from firmware_bridge.report import FlightRecorder
 from firmware_bridge.tick_gate import TickGate
 from firmware_bridge.ticklog import REASONS
-from part_fakes import FakeLink, heartbeat, telemetry, vehicle
+from firmware_bridge.plausibility import TIMELINE_SAMPLES
+from part_fakes import FakeLink, heartbeat, line, telemetry, vehicle
 
 DT = 0.005
 
@@ -32,6 +33,8 @@ def test_a_front_end_of_its_own_composes_the_parts():
                     thrust_min=0.1, thrust_max=0.9, hover_thrust=0.5, max_age=None, guard_hold=0.0)
     rec = FlightRecorder(2, 2, DT, t0=0.0, lockstep=True)
     v.on_message(heartbeat(), 0.0)
+    for m in line(1.0 - DT, n=TIMELINE_SAMPLES - 1):  # the first tick's sample is the time line's fifth
+        v.on_message(m, -DT)
     for k in range(100):
         for m in telemetry(1.0 + k * DT, z=1.0):
             v.on_message(m, k * DT)

@@ -16,6 +16,7 @@ from ddpc_codegen.testbed.fuzz_flight import (REFUSALS, TRACK_MARGIN_M, FlightCh
                                               fly_in_process, fly_processes, rate_ratio)
 from ddpc_codegen.testbed.fuzz_link import STARTUP_STAMP, fly_link_attack, forged_packets
 from ddpc_codegen.testbed.fuzz_mutants import KINDS, make_mutant, mutate_bytes, mutate_number
+from firmware_bridge.events import EventLog
 from firmware_bridge.link import mavlink
 from support.bridge_helpers import flying_solver  # noqa: F401 (fixture)
 
@@ -172,9 +173,18 @@ def test_stamps_forged_ahead_from_the_vehicles_address_keep_the_vehicle_in_its_e
 
 
 @pytest.mark.e2e
-@pytest.mark.xfail(strict=True, reason="found by the fuzzer: one sample stamped far ahead from the vehicle's address "
-                                       "before its first real one anchors the telemetry's time line (telemetry.py); "
-                                       "the bridge never engages (exit 8, the vehicle safe in its own mode)")
-def test_a_far_stamp_at_start_up_does_not_keep_the_bridge_on_the_ground(tmp_path):
+def test_a_far_stamp_at_start_up_does_not_keep_the_bridge_on_the_ground(tmp_path, monkeypatch):
+    """The regression of a finding of this fuzzer: samples stamped 2**32 - 1 ms from the vehicle's address before
+    its first real one anchored the telemetry's time line (every real sample dropped as back in time), and once
+    that line was re-lined onto the real samples, the first tick's setpoint had still anchored the stream's
+    vehicle-time length on the forged stamp: OFFBOARD was never asked for (exit 8). Stamps are used only on a
+    confirmed time line (five samples advanced on it); the forged one is re-lined, with an event."""
+    said: list[str] = []
+    record = EventLog.__call__
+    monkeypatch.setattr(EventLog, "__call__", lambda self, what: (said.append(what), record(self, what))[1])
     r = fly_link_attack(STARTUP_STAMP, 0, 1.0, tmp_path)
-    assert r["defect"] == "", r
+    assert r["defect"] == "" and not r["flight"]["violation"], r
+    assert r["injected"] > 0 and r["flight"]["engaged_ticks"] > 100 and r["flight"]["exit_code"] == 0, r
+    assert r["flight"]["counts"]["reboots"] == 0 and r["flight"]["counts"]["telemetry_dropped"] > 0, r
+    relined = [e for e in said if "telemetry re-lined from 4294967.295 s" in e]
+    assert relined and not any("left its time line" in e for e in said), said
