@@ -56,7 +56,8 @@ _PINNED = ("foreign_first_pinned",)
 # Found by this fuzzer, a liveness finding rather than a hazard (the vehicle keeps hovering in its own mode):
 # one sample stamped far ahead, from the vehicle's address before its first real sample, anchors the telemetry's
 # time line; every real sample is then dropped as off it and the bridge never engages (exit 8). Flown and
-# reported apart from the attacks above (``finding``), so a fix shows as the finding gone.
+# reported apart from the attacks above (``finding``), so a fix shows as the finding gone (fixed: stamps are used
+# only on a confirmed time line, a stray first one is re-lined; tests/testbed/test_fuzz.py flies it).
 STARTUP_STAMP = "startup_stamp"
 REAL_TIME = ("same_address_stamps", "flood")
 _IN_FLIGHT = 150  # datagrams from the vehicle before an in-flight attack starts (the bridge is flying by then)
