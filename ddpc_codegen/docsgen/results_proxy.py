@@ -94,11 +94,22 @@ def _verdict(ap: dict) -> str:
             + "\n".join(out) + "\n")
 
 
+def _setup(ap: dict) -> str:
+    """The setup in words: what measured the height (the report's own description where it has one)."""
+    detail = (ap.get("setup_detail") or {}).get("estimator")
+    base = _SETUPS.get(ap.get("setup"), ap.get("setup", "?"))
+    if not detail:
+        return base
+    src = (ap.get("setup_detail") or {}).get("position_source")
+    return f"{ap.get('setup')}: {detail}" + ("; the proxy measures the height on the motion capture"
+                                             if src == "mocap" else "")
+
+
 def _section(name: str, ap: dict) -> str:
     col = ap.get("collect") or {}
     return "\n".join([
         f"## {label(name)}\n",
-        f"Setup: {_SETUPS.get(ap.get('setup'), ap.get('setup', '?'))}. The steering was fitted on one {num(col.get('seconds'), digits=0)} s flight of the app's `{col.get('path', '?')}` "
+        f"Setup: {_setup(ap)}. The steering was fitted on one {num(col.get('seconds'), digits=0)} s flight of the app's `{col.get('path', '?')}` "
         f"path through `ddpc-proxy --collect --dither {col.get('dither_m', '?')}`; the paths below were flown after it. "
         "Errors are RMS over each path (its first seconds left out) against the height the app declared, played late "
         "by the delay for the delayed flights.\n",

@@ -30,15 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
-from ddpc_codegen.testbed.mocap import MocapConfig, MocapStandIn
-from ddpc_codegen.testbed.mocap_params import lab_params
-from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
-from ddpc_codegen.testbed.sitl_adapt import second_link
-from ddpc_codegen.testbed.sitl_demo import codegen
 from ddpc_codegen.testbed.bridge_flights import stop_process
-from ddpc_codegen.testbed.sitl_observer import Observer, wait_tcp_port, wait_udp_bound
+from ddpc_codegen.testbed.mocap import MocapConfig
+from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
+from ddpc_codegen.testbed.sitl_demo import codegen
+from ddpc_codegen.testbed.sitl_observer import SPARE_PORT, Observer, wait_tcp_port, wait_udp_bound
+from ddpc_codegen.testbed.sitl_setups import describe_setup, flown_setup, setup_params
 
-__all__ = ["KINDS", "flight", "run_ardupilot", "score", "main"]
+__all__ = ["KINDS", "CONFIGS", "flight", "run", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
@@ -111,66 +110,78 @@ def _proxy_figures(stats: dict | None) -> dict | None:
 
 
 KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
+# The steering's config per autopilot (the app sends its own feed-forward: deviation coordinates on both)
+CONFIGS = {"ardupilot": "proxy_ardupilot.toml", "px4": "proxy_px4_app.toml"}
 
 
-def run_ardupilot(out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
-                  delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab",
-                  kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep") -> dict:
-    """In a private network namespace: SITL (``setup`` "lab": on the mocap stand-in), the collect flight, codegen,
+def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
+        delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab",
+        kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep", config: str | None = None) -> dict:
+    """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`: lab, the
+    motion capture the EKF fuses on ArduCopter, the one the proxy measures on PX4), the collect flight, codegen,
     then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``).
-    Returns the report's ``ardupilot`` entry."""
+    Returns the report's entry of ``autopilot``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = MocapConfig()
-    sitl = make_sitl("ardupilot", params=lab_params("ardupilot", cfg) if setup == "lab" else None).start()
-    obs = mocap = link = None
+    sitl = make_sitl(autopilot, params=setup_params(autopilot, setup, {}, MocapConfig(seed=1))).start()
     res: dict = {"setup": setup, "z_feedforward": z_feedforward, "paths": {}, "collect": {}}
-    zff = ["--z-feedforward", z_feedforward]
     try:
-        obs = _observer(sitl)
-        if setup == "lab":
-            link = second_link(sitl).connect(timeout=30)
-            mocap = MocapStandIn(link, "ardupilot", cfg)
-            mocap.start()
-        time.sleep(5.0)
-        ground = obs.ground()
-        print(f"[proxy-demo] ardupilot ({setup}): collect through the proxy (the app's own path + a dither)", flush=True)
-        col = flight(out, "collect", "wander", collect_s, ["--dither", f"{dither:g}", "--dither-hold", str(dither_hold),
-                                                        "--collect", str(out / "collect.npz"), "--overwrite", *zff])
-        res["collect"] = {"path": "wander", "seconds": collect_s, "dither_m": dither, "dither_hold": dither_hold,
-                          "proxy": _proxy_figures(col["proxy"])}
-        solver = codegen(ROOT / "configs" / "proxy_ardupilot.toml", out / "collect.npz", out / "solver")
-        for path in paths:
-            runs = {"direct": None, "passthrough": [], "steer_local": ["--steer", str(solver), *zff],
-                    "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}", *zff]}
-            runs = {k: v for k, v in runs.items() if k in kinds}
-            res["paths"][path] = {}
-            for kind, args in runs.items():
-                print(f"[proxy-demo] ardupilot: {path}, {kind}", flush=True)
-                f = flight(out, f"{path}_{kind}", path, duration, args)
-                res["paths"][path][kind] = {**score(Path(f["app_log"]), obs, delay if kind == "steer_delay" else 0.0,
-                                                    ground=ground),
-                                            "proxy": _proxy_figures(f["proxy"])}
-        res["ground_truth_offset_mm"] = ground * 1e3
+        with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1)) as lab:
+            obs = _observer(sitl)
+            try:
+                res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold, kinds,
+                                    ["--z-feedforward", z_feedforward, *lab.bridge_args],
+                                    ROOT / "configs" / (config or CONFIGS[autopilot])))
+                res["setup_detail"] = describe_setup(autopilot, setup, lab.mocap)
+            finally:
+                obs.stop()
     finally:
-        if mocap is not None:
-            mocap.stop()
-        for x in (obs, link):
-            if x is not None:
-                x.stop() if x is obs else x.close()
         sitl.stop()
     return res
 
 
+def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, dither, hold, kinds, extra,
+             config: Path) -> dict:
+    """The collect flight, codegen and every path's flights (see :func:`run`); the report's figures."""
+    url = lab.url
+    time.sleep(10.0)  # PX4's EKF moves its height by 0.5 m in its first seconds
+    ground = obs.ground()
+    print(f"[proxy-demo] {lab.autopilot}: collect through the proxy (the app's own path + a dither)", flush=True)
+    col = flight(out, "collect", "wander", collect_s, ["--dither", f"{dither:g}", "--dither-hold", str(hold),
+                                                    "--collect", str(out / "collect.npz"), "--overwrite", *extra],
+                 vehicle_url=url, direct_url=url)
+    res = {"collect": {"path": "wander", "seconds": collect_s, "dither_m": dither, "dither_hold": hold,
+                       "config": config.name, "proxy": _proxy_figures(col["proxy"])}, "paths": {}}
+    solver = codegen(config, out / "collect.npz", out / "solver")
+    offset = ((col["proxy"] or {}).get("steering") or {}).get("position_source", {}).get("offset_m")
+    if offset is not None:  # the frames' offset measured on the ground before the collect's take-off, kept after
+        extra = [*extra, "--mocap-offset", repr(offset)]
+        res["collect"]["mocap_offset_m"] = offset
+    for path in paths:
+        runs = {"direct": None, "passthrough": [*extra], "steer_local": ["--steer", str(solver), *extra],
+                "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}", *extra]}
+        res["paths"][path] = {}
+        for kind in (k for k in runs if k in kinds):
+            print(f"[proxy-demo] {lab.autopilot}: {path}, {kind}", flush=True)
+            f = flight(out, f"{path}_{kind}", path, duration, runs[kind], vehicle_url=url, direct_url=url)
+            res["paths"][path][kind] = {**score(Path(f["app_log"]), obs, delay if kind == "steer_delay" else 0.0,
+                                                ground=ground), "proxy": _proxy_figures(f["proxy"])}
+    res["ground_truth_offset_mm"] = ground * 1e3
+    return res
+
+
 def _observer(sitl) -> Observer:
-    """The observer on port 5763, once the SITL serves it (after its first port has a client)."""
+    """The observer on the SITL's spare port (:data:`.sitl_observer.SPARE_PORT`), once the SITL serves it."""
+    if sitl.autopilot == "px4":
+        port = int(SPARE_PORT["px4"].rpartition(":")[2]) + sitl.sysid - 1  # PX4 instance N: every port + N
+        return Observer(f"udpin:127.0.0.1:{port}", autopilot="px4", sysid=sitl.sysid)
     end = time.monotonic() + 60
     while not sitl._port_ready() and time.monotonic() < end:
         time.sleep(0.2)
     keep = socket.create_connection(("127.0.0.1", 5760), timeout=2)  # ArduPilot serves 5763 once 5760 has a client
     try:
         wait_tcp_port(5763)
-        return Observer("tcp:127.0.0.1:5763")
+        return Observer(SPARE_PORT["ardupilot"])
     finally:
         keep.close()
 
@@ -182,23 +193,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--collect", type=float, default=60.0, help="seconds of the collect flight (default %(default)s)")
     p.add_argument("--delay", type=float, default=0.5, help="the declared preview delay [s] (default %(default)s)")
     p.add_argument("--setup", choices=("lab", "outdoor"), default="lab",
-                   help="lab: the EKF on the motion-capture stand-in; outdoor: GPS + barometer (default %(default)s)")
+                   help="lab: a motion-capture stand-in (ArduCopter's EKF fuses it; on PX4, whose SITL build cannot, "
+                        "the proxy measures on it); outdoor: GPS + barometer (default %(default)s)")
     p.add_argument("--z-feedforward", choices=("keep", "zero"), default="keep",
                    help="the proxy's --z-feedforward in the collect and steered flights (default %(default)s)")
-    p.add_argument("--out", type=Path, default=ROOT / "reports" / "proxy_ardupilot")
+    p.add_argument("--autopilots", default="ardupilot,px4", help="SITLs to fly (default %(default)s)")
+    p.add_argument("--kinds", default=",".join(KINDS), help="flights per path (default %(default)s)")
+    p.add_argument("--out", type=Path, default=ROOT / "reports", help="flights go to OUT/proxy_<autopilot>/")
     p.add_argument("--report", type=Path, default=ROOT / "reports" / "proxy.json")
     a = p.parse_args(argv)
-    why = missing_reason("ardupilot")
-    if why:
-        print(f"[proxy-demo] skipped: {why}", file=sys.stderr)
-        return 0
     paths = [s for s in a.paths.split(",") if s]
-    kw = {"out_dir": str(a.out), "paths": paths, "duration": a.duration, "collect_s": a.collect, "delay": a.delay,
-          "setup": a.setup, "z_feedforward": a.z_feedforward}
-    budget = 300 + a.collect + len(paths) * 4 * (a.duration + 60)
-    res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot", kw, timeout=budget)
-    update_report(a.report, {"ardupilot": res}, default=nan_as_null)
-    print(json.dumps(res["paths"], indent=1))
+    kinds = tuple(k for k in a.kinds.split(",") if k)
+    if set(kinds) - set(KINDS) or set(a.autopilots.split(",")) - set(CONFIGS):
+        p.error(f"--kinds from {KINDS}, --autopilots from {tuple(CONFIGS)}")
+    for autopilot in a.autopilots.split(","):
+        why = missing_reason(autopilot)
+        if why:
+            print(f"[proxy-demo] {autopilot} skipped: {why}", file=sys.stderr)
+            continue
+        kw = {"autopilot": autopilot, "out_dir": str(a.out / f"proxy_{autopilot}"), "paths": paths,
+              "duration": a.duration, "collect_s": a.collect, "delay": a.delay, "setup": a.setup,
+              "z_feedforward": a.z_feedforward, "kinds": kinds}
+        budget = 300 + a.collect + len(paths) * len(kinds) * (a.duration + 60)
+        res = run_isolated("ddpc_codegen.testbed.proxy_demo:run", kw, timeout=budget)
+        update_report(a.report, {autopilot: res}, default=nan_as_null)
+        print(json.dumps({autopilot: res["paths"]}, indent=1))
     return 0
 
 

@@ -1,5 +1,6 @@
-"""A watcher on a SITL's spare MAVLink port (ArduCopter's TCP 5762), independent of whatever flies the vehicle:
-the simulator's ground truth (``SIM_STATE``), the autopilot's own estimate (``LOCAL_POSITION_NED``), its
+"""A watcher on a SITL's spare MAVLink port, independent of whatever flies the vehicle: the simulator's ground
+truth (ArduCopter's ``SIM_STATE`` on its TCP 5762 / 5763, PX4 SIH's ``HIL_STATE_QUATERNION`` on the link it
+keeps for the simulator, :data:`SPARE_PORT`), the autopilot's own estimate (``LOCAL_POSITION_NED``), its
 heartbeats and status texts, each stamped on arrival (``time.time()``). A flight is then judged on the true
 height, not on what the flying side believed."""
 
@@ -12,10 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Observer", "HOME_ALT", "wait_tcp_port", "wait_udp_bound"]
+__all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_bound"]
 
 HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
-_SIM_STATE, _LOCAL_POSITION_NED = 108, 32
+_LOCAL_POSITION_NED = 32
+_TRUTH = {"ardupilot": ("SIM_STATE", 108), "px4": ("HIL_STATE_QUATERNION", 115)}
+# PX4 SITL's SIH link (UDP 19450 -> 19410, 400 kB/s) answers SET_MESSAGE_INTERVAL like any link; nothing else uses it
+SPARE_PORT = {"ardupilot": "tcp:127.0.0.1:5763", "px4": "udpin:127.0.0.1:19410"}
 
 
 def wait_tcp_port(port: int, timeout: float = 20.0) -> bool:
@@ -46,14 +50,19 @@ class Observer(threading.Thread):
 
     Args:
         url: the spare port (``tcp:127.0.0.1:5762``); rate_hz: the rate asked for both streams.
+        autopilot: whose truth message to ask for (PX4's true height counts from its first sample); sysid: the
+            vehicle's system id.
     """
 
-    def __init__(self, url: str, rate_hz: float = 50.0) -> None:
+    def __init__(self, url: str, rate_hz: float = 50.0, autopilot: str = "ardupilot", sysid: int = 1) -> None:
         super().__init__(daemon=True)
         from pymavlink import mavutil  # the testbed's optional dependency, as the SITL harness's
 
         self.c = mavutil.mavlink_connection(url, source_system=251, autoreconnect=False)
         self.interval_us = 1e6 / rate_hz
+        self.truth_type, self.truth_id = _TRUTH[autopilot]
+        self._alt0: float | None = None
+        self.sysid = sysid
         self.sim: list[tuple[float, float]] = []   # (t, true height above home [m])
         self.lpos: list[tuple[float, float]] = []  # (t, estimated height -z [m])
         self.hb: list[tuple[float, int, bool]] = []  # (t, custom_mode, armed)
@@ -66,19 +75,22 @@ class Observer(threading.Thread):
         while not self.halt.is_set():
             if time.monotonic() > next_req:  # (re)request until it streams
                 next_req = time.monotonic() + (5.0 if self.sim else 1.0)
-                for msg_id in (_SIM_STATE, _LOCAL_POSITION_NED):
-                    self.c.mav.command_long_send(1, 1, 511, 0, msg_id, self.interval_us, 0, 0, 0, 0, 0)
+                for msg_id in (self.truth_id, _LOCAL_POSITION_NED):
+                    self.c.mav.command_long_send(self.sysid, 1, 511, 0, msg_id, self.interval_us, 0, 0, 0, 0, 0)
             m = self.c.recv_match(blocking=True, timeout=0.2)
             if m is None:
                 continue
             t, typ = time.time(), m.get_type()
             if typ == "SIM_STATE":
                 self.sim.append((t, m.alt - HOME_ALT))
+            elif typ == "HIL_STATE_QUATERNION":
+                self._alt0 = m.alt * 1e-3 if self._alt0 is None else self._alt0
+                self.sim.append((t, m.alt * 1e-3 - self._alt0))
             elif typ == "LOCAL_POSITION_NED":
                 self.lpos.append((t, -m.z))
             elif typ == "STATUSTEXT":
                 self.texts.append((t, m.text))
-            elif typ == "HEARTBEAT" and m.get_srcSystem() == 1 and m.get_srcComponent() == 1:
+            elif typ == "HEARTBEAT" and m.get_srcSystem() == self.sysid and m.get_srcComponent() == 1:
                 self.hb.append((t, m.custom_mode, bool(m.base_mode & 128)))
 
     def heights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

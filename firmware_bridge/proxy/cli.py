@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
+import time
 from pathlib import Path
 
 from ddpc_codegen.design.data import output_path
@@ -44,7 +46,8 @@ def build_proxy_parser() -> argparse.ArgumentParser:
     p.add_argument("--between-clients", action="store_true",
                    help="also forward each client's messages to the other clients (as mavlink-router does)")
     p.add_argument("--client-timeout", type=float, default=5.0,
-                   help="forget a client silent this long [s] (default %(default)s)")
+                   help="a client silent this long [s] is no longer the app whose setpoints are steered (a quiet "
+                        "UDP client keeps receiving the vehicle's stream) (default %(default)s)")
     s = p.add_argument_group("steering the app's SET_POSITION_TARGET_LOCAL_NED (height)")
     s.add_argument("--steer", type=Path, default=None, metavar="SOLVER",
                    help="a generated solver folder (inputs z_ref, outputs z, at the app's setpoint rate; "
@@ -80,6 +83,10 @@ def build_proxy_parser() -> argparse.ArgumentParser:
     s.add_argument("--mocap", default=None, metavar="URL",
                    help="where the motion capture's poses arrive (VISION_POSITION_ESTIMATE, ODOMETRY or "
                         "ATT_POS_MOCAP), e.g. udpin:127.0.0.1:14600")
+    s.add_argument("--mocap-offset", type=float, default=None, metavar="M",
+                   help="the autopilot's local height minus the motion capture's, where the vehicle stands [m] (a "
+                        "lab's calibration, or the offset_m an earlier session's statistics give; default: measured "
+                        "while the vehicle stands disarmed, so start the proxy before arming)")
     s.add_argument("--log", type=Path, default=None, help="write every tick and the summary here (.npz)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing --collect / --log file")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
@@ -91,7 +98,8 @@ def build_proxy_parser() -> argparse.ArgumentParser:
 def _steering(args) -> ProxySteering | None:
     """The rewrite hook the options ask for (None: a transparent proxy)."""
     if args.steer is None and args.collect is None and args.log is None and not args.dither \
-            and not args.preview_delay and args.position_source == "autopilot" and not args.mocap:
+            and not args.preview_delay and args.position_source == "autopilot" and not args.mocap \
+            and args.mocap_offset is None:
         return None
     if args.steer is not None and args.dither:
         raise ValueError("--dither excites a collect flight; it does not go with --steer")
@@ -110,7 +118,7 @@ def _steering(args) -> ProxySteering | None:
     solver = None
     if args.steer is not None:
         solver = load_solver(args.steer)
-    return ProxySteering(VehicleView(mocap=_mocap(args)), solver=solver, preview=make_preview(args.preview_delay),
+    return ProxySteering(VehicleView(mocap=_mocap(args), mocap_offset=args.mocap_offset), solver=solver, preview=make_preview(args.preview_delay),
                          max_age=args.max_age, max_step=args.max_step, dither=args.dither,
                          dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward,
                          coordinates=args.coordinates)
@@ -119,17 +127,34 @@ def _steering(args) -> ProxySteering | None:
 def _mocap(args) -> MocapInput | None:
     """The motion capture's input when the height is measured on it (its link opened; poses carry no ids)."""
     if args.position_source != "mocap":
-        if args.mocap:
-            raise ValueError("--mocap is the measured height's source: it goes with --position-source mocap")
+        if args.mocap or args.mocap_offset is not None:
+            raise ValueError("--mocap and --mocap-offset are the measured height's source: they go with "
+                             "--position-source mocap")
         return None
+    if args.mocap_offset is not None and not math.isfinite(args.mocap_offset):
+        raise ValueError(f"--mocap-offset must be a finite number of metres; got {args.mocap_offset}")
     if not args.mocap:
         raise ValueError("--position-source mocap needs the link the poses arrive on (--mocap udpin:HOST:PORT)")
     if args.mocap == args.vehicle:
         raise ValueError(f"--mocap {args.mocap}: the vehicle's link (the poses need a port of their own)")
     try:
-        return MocapInput(MavLink(args.mocap, target_system=None))
-    except LinkError as e:
+        return MocapInput(_WallClock(MavLink(args.mocap, target_system=None)))
+    except (LinkError, OSError, ValueError) as e:
         raise ValueError(f"--mocap {args.mocap}: {e}") from None
+
+
+class _WallClock:
+    """A link whose arrival stamps are on the proxy's clock (``time.time()``; a MavLink stamps on the monotonic one)."""
+
+    def __init__(self, link: MavLink) -> None:
+        self.link, self.url = link, link.url
+
+    def drain(self) -> list:
+        shift = time.time() - time.monotonic()
+        return [(msg, rx + shift) for msg, rx in self.link.drain()]
+
+    def close(self) -> None:
+        self.link.close()
 
 
 def _save(hook: ProxySteering, args) -> dict:

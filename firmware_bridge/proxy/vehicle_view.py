@@ -39,10 +39,12 @@ class VehicleView:
         limits: what a plausible position sample satisfies (the profile's envelope).
         link_timeout: no heartbeat for this long: the vehicle is not heard [s].
         mocap: the lab's poses, the measured height's source (None: the autopilot's estimate).
+        mocap_offset: the local frame's height minus the pose's [m], when known (a lab's calibration, or what an
+            earlier session measured); None: measured while the vehicle stands disarmed.
     """
 
     def __init__(self, limits: TelemetryLimits | None = None, link_timeout: float = 1.5,
-                 mocap: MocapInput | None = None) -> None:
+                 mocap: MocapInput | None = None, mocap_offset: float | None = None) -> None:
         self.telem = TelemetryState("ATTITUDE", "LOCAL_POSITION_NED", limits=limits or TelemetryLimits())
         self.link_timeout = link_timeout
         self.profile: Profile | None = None
@@ -54,7 +56,8 @@ class VehicleView:
         self._next_request = -math.inf
         self._mav = mavlink.MAVLink(None, srcSystem=PROXY_SYSTEM, srcComponent=PROXY_COMPONENT)
         self.mocap = mocap
-        self.mocap_offset = math.nan  # the estimate's height - the pose's, disarmed [m] (nan: not yet)
+        self.mocap_offset = math.nan if mocap_offset is None else float(mocap_offset)  # [m] (nan: not yet)
+        self._fixed = mocap_offset is not None
         self._offsets: list[float] = []
 
     def on_frame(self, frame: bytes, t_rx: float) -> None:
@@ -87,7 +90,7 @@ class VehicleView:
         if self.mocap is None:
             return
         self.mocap.pump()
-        if self.armed or self.mocap.age(now) > max_age or self._estimate_age(now) > max_age:
+        if self._fixed or self.armed or self.mocap.age(now) > max_age or self._estimate_age(now) > max_age:
             return
         self._offsets = [*self._offsets[-49:], float(self.telem.position[2]) - float(self.mocap.position[2])]
         self.mocap_offset = float(sorted(self._offsets)[len(self._offsets) // 2])
@@ -126,7 +129,8 @@ class VehicleView:
         if m is None:
             return {"kind": "autopilot"}
         return {"kind": "mocap", "url": getattr(m.link, "url", None), "poses": m.seq, "dropped": m.dropped,
-                "rejected": dict(m.rejected), "offset_m": None if math.isnan(self.mocap_offset) else self.mocap_offset}
+                "rejected": dict(m.rejected), "offset_m": None if math.isnan(self.mocap_offset) else self.mocap_offset,
+                "offset_given": self._fixed}
 
     def stream_request(self, now: float, period: float) -> bytes | None:
         """A SET_MESSAGE_INTERVAL asking for LOCAL_POSITION_NED every ``period`` [s] (from the proxy's own ids), when

@@ -23,8 +23,8 @@ def test_an_app_is_collected_fitted_and_steered_through_the_proxy(tmp_path):
     why = missing_reason("ardupilot")
     if why:
         pytest.skip(why)
-    res = run_isolated("ddpc_codegen.testbed.proxy_demo:run_ardupilot",
-                       {"out_dir": str(tmp_path), "paths": ["helix"], "duration": 12.0, "collect_s": 30.0,
+    res = run_isolated("ddpc_codegen.testbed.proxy_demo:run",
+                       {"autopilot": "ardupilot", "out_dir": str(tmp_path), "paths": ["helix"], "duration": 12.0, "collect_s": 30.0,
                         "kinds": ["direct", "steer_delay"]}, timeout=420)
     runs = res["paths"]["helix"]
     direct, steered = runs["direct"], runs["steer_delay"]

@@ -26,6 +26,13 @@ def _refused(capsys, *argv: str) -> str:
     (["--dither", "0.1", "--max-age", "0"], "--max-age must be a finite number of seconds > 0"),
     (["--dither", "0.1", "--dither-hold", "0"], "--dither-hold must be at least 1 setpoint"),
     (["--dither", "0.1", "--max-step", "-1"], "--max-step must be a finite number of metres > 0"),
+    (["--mocap", "udpin:127.0.0.1:0"], "they go with --position-source mocap"),
+    (["--mocap-offset", "0.3"], "they go with --position-source mocap"),
+    (["--position-source", "mocap"], "--position-source mocap needs the link the poses arrive on"),
+    (["--position-source", "mocap", "--mocap", "udpout:127.0.0.1:9"], "the vehicle's link"),
+    (["--position-source", "mocap", "--mocap", "udpin:127.0.0.1:0", "--mocap-offset", "nan"],
+     "--mocap-offset must be a finite number"),
+    (["--position-source", "mocap", "--mocap", "bogus:x"], "--mocap bogus:x"),
 ])
 def test_bad_values_are_refused_with_the_option_named(capsys, argv, says):
     assert says in _refused(capsys, *argv)
