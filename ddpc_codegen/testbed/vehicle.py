@@ -208,6 +208,7 @@ class SimVehicle:
             gc.set_threshold(700, 10, 10)
             gc.unfreeze()
             self._write_truth()
+            self.autopilot.save_setpoint_log()
             self.link.close()
         return self.summary()
 

@@ -5,7 +5,7 @@
   GUIDED_NOGPS take the setpoints, and SET_ATTITUDE_TARGET.thrust is a climb rate unless
   GUID_OPTIONS bit 3 is set).
 * COMMAND_LONG: COMPONENT_ARM_DISARM, DO_SET_MODE, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE
-  (HEARTBEAT), each answered with a COMMAND_ACK; PARAM_REQUEST_READ / PARAM_SET for
+  (HEARTBEAT), each answered with a COMMAND_ACK; PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET for
   COM_OF_LOSS_T and MPC_THR_HOVER (PX4), GUID_OPTIONS, MOT_THST_HOVER and GUID_TIMEOUT (ArduPilot; the hover
   thrusts are the position controller's estimate, the true one unless configured; read-only).
 * SET_ATTITUDE_TARGET (quaternion FRD -> NED + thrust) goes to the flight controller while armed in
@@ -15,7 +15,9 @@
   yaw rate as ``type_mask`` enables them, read as PX4 does) is flown by the autopilot's own cascaded
   position controller (:mod:`ddpc_codegen.testbed.vehicle_position`, PX4's or ArduCopter's gains and
   limits) while armed in OFFBOARD / GUIDED; other frames and force setpoints are refused and logged.
-  Position setpoints count as the off-board signal exactly as attitude setpoints do.
+  Position setpoints count as the off-board signal exactly as attitude setpoints do. With
+  ``setpoint_log`` every one received (anyone's, before any check) is kept as a row of
+  :data:`SETPOINT_LOG_FIELDS` (a proxy's soak compares them with what the app sent).
 * Outside OFFBOARD, armed, the vehicle flies itself on the same position controller: HOLD brakes
   and holds where it stopped, LAND descends at the land speed holding its horizontal position and
   disarms on touchdown.
@@ -27,7 +29,9 @@ from __future__ import annotations
 
 import logging
 import math
+from array import array
 from collections import deque
+from pathlib import Path
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -57,7 +61,12 @@ from ddpc_codegen.testbed.vehicle_position import (
 )
 from ddpc_codegen.testbed.vehicle_telemetry import TelemetryPublisher
 
-__all__ = ["Body", "AutopilotEmulator"]
+__all__ = ["Body", "AutopilotEmulator", "SETPOINT_LOG_FIELDS"]
+
+# a received SET_POSITION_TARGET_LOCAL_NED: receive time [s, time.monotonic()], its header, then its fields
+SETPOINT_LOG_FIELDS = ("rx", "sysid", "compid", "seq", "time_boot_ms", "target_system", "target_component",
+                       "coordinate_frame", "type_mask", "x", "y", "z", "vx", "vy", "vz", "afx", "afy", "afz", "yaw",
+                       "yaw_rate")
 
 log = logging.getLogger("ddpc_codegen.testbed.vehicle")
 
@@ -120,6 +129,8 @@ class AutopilotEmulator:
         self.expect_stamp_ms = -1  # lockstep: the setpoint stamp the vehicle waits for
         self.events: list[tuple[float, str]] = []
         self.stats = {"setpoints": 0, "setpoints_ignored": 0, "position_setpoints": 0, "commands": 0}
+        # flat rows of SETPOINT_LOG_FIELDS (doubles: no per-row objects for the collector to walk)
+        self.setpoint_log = array("d") if cfg.setpoint_log else None
 
     # ------------------------------------------------------------------ state
     def event(self, what: str) -> None:
@@ -191,10 +202,13 @@ class AutopilotEmulator:
             if typ == "SET_ATTITUDE_TARGET":
                 got |= self._on_setpoint(msg, rx)
             elif typ == "SET_POSITION_TARGET_LOCAL_NED":
+                if self.setpoint_log is not None:
+                    self.setpoint_log.extend((rx, msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq(),
+                                              *(getattr(msg, f) for f in SETPOINT_LOG_FIELDS[4:])))
                 got |= self._on_position_target(msg)
             elif typ == "COMMAND_LONG":
                 self._on_command(msg)
-            elif typ in ("PARAM_REQUEST_READ", "PARAM_SET"):
+            elif typ in ("PARAM_REQUEST_READ", "PARAM_SET", "PARAM_REQUEST_LIST"):
                 self._on_param(msg)
         return got
 
@@ -354,6 +368,12 @@ class AutopilotEmulator:
     def _on_param(self, msg) -> None:
         if not self._for_me(msg):
             return
+        if msg.get_type() == "PARAM_REQUEST_LIST":  # every parameter, in index order
+            table = self._params()
+            if not self.silent():
+                for idx, (name, (val, typ)) in enumerate(table.items()):
+                    self.link.send(self.link.mav.param_value_encode(name.encode(), val, typ, len(table), idx))
+            return
         name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode(errors="ignore")
         name = name.rstrip("\x00")
         table = self._params()
@@ -372,6 +392,17 @@ class AutopilotEmulator:
             val, typ = table[name]
             idx = list(table).index(name)
             self.link.send(self.link.mav.param_value_encode(name.encode(), val, typ, len(table), idx))
+
+    def save_setpoint_log(self) -> Path | None:
+        """Write the received setpoints to ``cfg.setpoint_log`` (.npz, one array per field of
+        :data:`SETPOINT_LOG_FIELDS`, each (n,)); the path, None without a log."""
+        if self.setpoint_log is None:
+            return None
+        rows = np.frombuffer(self.setpoint_log, dtype=np.float64).reshape(-1, len(SETPOINT_LOG_FIELDS))
+        path = Path(self.cfg.setpoint_log)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(path, **{f: rows[:, i] for i, f in enumerate(SETPOINT_LOG_FIELDS)})
+        return path
 
     # ------------------------------------------------------------------ own flight modes
     def failsafe_check(self) -> None:

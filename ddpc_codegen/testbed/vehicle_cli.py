@@ -58,6 +58,9 @@ def build_vehicle_parser() -> argparse.ArgumentParser:
     p.add_argument("--silence", type=time_window, action="append", default=[], metavar="T0:T1",
                    help="send nothing during this simulated-time window (repeatable)")
     p.add_argument("--truth-log", default=None, help="write the true state per tick to this .npz")
+    p.add_argument("--setpoint-log", default=None, metavar="FILE",
+                   help="write every SET_POSITION_TARGET_LOCAL_NED received (receive time, sender, sequence, fields) "
+                        "to this .npz at exit")
     p.add_argument("--summary", default=None, help="write the summary JSON here")
     p.add_argument("--telemetry-pattern", choices=("regular", "px4-sih", "ardupilot"), default="regular",
                    help="which telemetry samples exist: regular (one per 5 ms tick, stamped with its time); "
@@ -86,6 +89,7 @@ def vehicle_main(argv: list[str] | None = None) -> int:
                             com_of_loss_t=a.com_of_loss_t, loss_action=a.loss_action, guid_options=a.guid_options,
                             hover_thrust=a.hover_thrust,
                             duration=a.duration, silence=list(a.silence), truth_log=a.truth_log,
+                            setpoint_log=a.setpoint_log,
                             rt_priority=a.rt_priority, cpu_latency_us=qos_request(a.cpu_latency_us), cpus=a.cpus,
                             verbose=a.verbose, telemetry_pattern=a.telemetry_pattern,
                             telemetry_seed=a.telemetry_seed, pushes=list(a.push))

@@ -47,6 +47,7 @@ class VehicleConfig:
         silence: simulated-time windows [(t0, t1), ...] [s] in which the vehicle sends nothing
             (a link-drop / vehicle-silent test).
         truth_log: write the true state per tick to this .npz at exit.
+        setpoint_log: write every SET_POSITION_TARGET_LOCAL_NED received to this .npz at exit.
         params: true robot parameters (a :class:`ddpc_codegen.sim.PogoXParams`; default PogoXParams()).
         pushes: external force impulses on the robot (:class:`ddpc_codegen.sim.Push` or tuples
             (t, force(3), duration[, point(3)]); plant time [s], which stands still while parked).
@@ -83,6 +84,7 @@ class VehicleConfig:
     default_rates: dict = field(default_factory=lambda: {"ATTITUDE": 10.0, "LOCAL_POSITION_NED": 10.0})
     silence: list = field(default_factory=list)
     truth_log: str | None = None
+    setpoint_log: str | None = None
     params: Any = None
     pushes: list = field(default_factory=list)
     telemetry_pattern: str = "regular"
