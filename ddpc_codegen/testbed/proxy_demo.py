@@ -1,19 +1,19 @@
-"""``make proxy-demo``: a user's own app (:mod:`.proxy_app`, plain pymavlink) flies the ArduCopter SITL directly and
-through ``ddpc-proxy``: pass-through, then steered with the local preview and with a declared preview delay,
-on paths the steering never saw. The steering is learned from the app's own flight through the proxy
+"""``make proxy-demo``: a user's own app (:mod:`.proxy_app`, plain pymavlink) flies the ArduCopter and PX4 SIH SITLs
+directly and through ``ddpc-proxy``: pass-through, then steered with the local preview and with a declared preview
+delay, on paths the steering never saw. The steering is learned from the app's own flight through the proxy
 (``--collect`` with a dither). Every flight is judged on the simulator's true height against the path the app
 declared (played late by the delay where there is one), with the autopilot's estimate and its own error beside;
 the proxy's counters and added latency come from its statistics. Writes ``reports/proxy.json``.
 
-Two estimation setups (``--setup``): "lab" (default), the EKF on the motion-capture stand-in
-(:mod:`.mocap`), as a lab flies, so that the estimate is within millimetres of the truth and the true height
-judges the steering; "outdoor", ArduCopter's stock GPS + barometer, whose own error (tens of mm here) is larger
-than the differences to judge.
+Two estimation setups (``--setup``, :mod:`.sitl_setups`): "lab" (default), a motion-capture stand-in
+(:mod:`.mocap`) whose poses reach the proxy (``--position-source mocap``: it measures the height as a lab's
+companion would) and, on ArduCopter, the EKF too (PX4's SITL build fuses no external vision: its EKF keeps GPS and
+barometer); "outdoor", the stock GPS + barometer, the proxy measuring on the autopilot's estimate.
 
-All of it runs in a private network namespace (:func:`.sitl.run_isolated`): SITL (its TCP 5760 is the proxy's
-vehicle side, or the app's when it flies directly; 5762 the mocap stand-in's; 5763 the observer's), the proxy
-and the app processes, each stopped by its pid.
-"""
+All of it runs in a private network namespace (:func:`.sitl.run_isolated`): the SITL (ArduCopter's TCP 5760, PX4's
+UDP 14540: the proxy's vehicle side, or the app's when it flies directly), the mocap stand-in on its second link,
+the observer on a spare one (:data:`.sitl_observer.SPARE_PORT`), the proxy and the app processes, each stopped by
+its pid."""
 
 from __future__ import annotations
 
@@ -56,7 +56,9 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
                "--vehicle", vehicle_url, "--stats", str(out / f"{name}.proxy.json"),
                "--log", str(out / f"{name}.ticks.npz"), "--overwrite", *proxy_args]
         proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
-        wait_udp_bound(APP_PORT)
+        if not wait_udp_bound(APP_PORT) or proxy.poll() is not None:
+            stop_process(proxy, 5.0, signal.SIGINT)
+            raise RuntimeError(f"{name}: the proxy did not start: {(out / f'{name}.proxy.err').read_text()[-1500:]}")
         time.sleep(1.0)  # the proxy's TCP connection to the vehicle
     url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else direct_url
     cmd = [sys.executable, "-m", "ddpc_codegen.testbed.proxy_app", "--connect", url, "--path", path, "--duration",
@@ -117,8 +119,8 @@ CONFIGS = {"ardupilot": "proxy_ardupilot.toml", "px4": "proxy_px4_app.toml"}
 def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
         delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab",
         kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep", config: str | None = None) -> dict:
-    """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`: lab, the
-    motion capture the EKF fuses on ArduCopter, the one the proxy measures on PX4), the collect flight, codegen,
+    """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`; in the lab the
+    proxy measures on the motion capture, which ArduCopter's EKF fuses too), the collect flight, codegen,
     then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``).
     Returns the report's entry of ``autopilot``."""
     out = Path(out_dir)
@@ -126,7 +128,7 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
     sitl = make_sitl(autopilot, params=setup_params(autopilot, setup, {}, MocapConfig(seed=1))).start()
     res: dict = {"setup": setup, "z_feedforward": z_feedforward, "paths": {}, "collect": {}}
     try:
-        with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1)) as lab:
+        with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1), measure_on_mocap=True) as lab:
             obs = _observer(sitl)
             try:
                 res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold, kinds,
@@ -155,7 +157,7 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
     solver = codegen(config, out / "collect.npz", out / "solver")
     offset = ((col["proxy"] or {}).get("steering") or {}).get("position_source", {}).get("offset_m")
     if offset is not None:  # the frames' offset measured on the ground before the collect's take-off, kept after
-        extra = [*extra, "--mocap-offset", repr(offset)]
+        extra = [*extra, f"--mocap-offset={offset:.6f}"]  # "=": argparse takes "-1e-05" for an option
         res["collect"]["mocap_offset_m"] = offset
     for path in paths:
         runs = {"direct": None, "passthrough": [*extra], "steer_local": ["--steer", str(solver), *extra],

@@ -81,22 +81,25 @@ def setup_params(autopilot: str, setup: str, base: dict[str, float], config: Moc
 
 
 @contextmanager
-def flown_setup(sitl: Any, autopilot: str, setup: str, config: MocapConfig | None = None) -> Iterator[SetupSitl]:
+def flown_setup(sitl: Any, autopilot: str, setup: str, config: MocapConfig | None = None,
+                measure_on_mocap: bool = False) -> Iterator[SetupSitl]:
     """Around a running ``sitl`` started with :func:`setup_params`: outdoor as it is; lab with the mocap stand-in
     on its second link (sent to the autopilot, and forwarded to the bridge's ``--mocap`` where the bridge steers
-    on it), stopped at the end. Yields the SITL as the flights see it; ``.mocap`` is the stand-in (None outdoors)."""
+    on it: PX4, or ``measure_on_mocap``), stopped at the end. Yields the SITL as the flights see it; ``.mocap`` is
+    the stand-in (None outdoors)."""
     if setup == "outdoor":
         yield SetupSitl(sitl)
         return
     from pymavlink import mavutil  # optional: the SITL harness only
 
-    on_mocap = LAB_SOURCE[autopilot] == "mocap"
+    fused = LAB_SOURCE[autopilot] == "autopilot"  # the autopilot's EKF fuses the poses
+    on_mocap = measure_on_mocap or not fused
     sitl.connect(timeout=90).close()  # booted: ArduCopter waits for a client on its first link before the second opens
     link = second_link(sitl).connect(timeout=30)
     fwd = (mavutil.mavlink_connection(f"udpout:127.0.0.1:{MOCAP_PORT}", source_system=1, source_component=197)
            if on_mocap else None)
     # ArduCopter fuses it: its origin set from the stream (no GPS); PX4 only forwards it (its EKF keeps its own)
-    mocap = MocapStandIn(link, autopilot, config or MocapConfig(seed=1), set_origin=not on_mocap, forward=fwd)
+    mocap = MocapStandIn(link, autopilot, config or MocapConfig(seed=1), set_origin=fused, forward=fwd)
     mocap.start()
     try:
         yield SetupSitl(sitl, ("--mocap", f"udpin:127.0.0.1:{MOCAP_PORT}", "--position-source", "mocap")
