@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # into $(VENV)/share/ddpc-codegen, never committed; generation itself then stays offline.
 LIBS_STAMP := $(VENV)/.solver-sources
 
-.PHONY: install check test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt proxy-demo clean
+.PHONY: install check test test-durations lint docs demo codegen fuzz adapt-eval bench bridge-demo sitl-demo sitl-adapt proxy-demo proxy-soak clean
 
 install: $(STAMP) $(LIBS_STAMP)
 
@@ -118,6 +118,12 @@ fuzz: install
 proxy-demo: install
 	$(PY) -m ddpc_codegen.testbed.proxy_demo
 	$(RENDER)
+
+# ddpc-proxy (transparent) in front of ddpc-vehicle: a pymavlink app at 50 Hz and a ground station for 10 minutes,
+# then 2 minutes under a 10 kHz foreign flood; every app setpoint checked at the vehicle (once, in order, unchanged),
+# the added latency from the proxy's stamps and from both ends (reports/proxy_soak.json; logs in reports/proxy_soak/).
+proxy-soak: install
+	$(PY) -m ddpc_codegen.testbed.proxy_soak --minutes 10 --flood-hz 10000 --flood-minutes 2
 
 # Online adaptation on the PX4 and ArduCopter SITLs: a motor's thrust loss and a heavier vehicle applied mid-flight
 # (by the harness, over a second MAVLink link), static vs adapted steering (ddpc-bridge --adapt) vs the prefilter;
