@@ -27,8 +27,10 @@ POS_ONLY = 0b0000_1111_1111_1000
 
 def flood(port: int, hz: float, seconds: float, ports: int = 4, stats: str | None = None) -> dict:
     """Send ``hz`` datagrams/s for ``seconds`` to 127.0.0.1:``port`` from ``ports`` sockets, each a foreign system
-    (ids 200...): garbage (no MAVLink start byte in it), heartbeats, commands, parameter reads and position setpoints
+    (ids 100 ... 100 + ports - 1, at most 140 ports: none is the vehicle's, an app's or a GCS's): garbage (no MAVLink start byte in it), heartbeats, commands, parameter reads and position setpoints
     aimed at system 99, MAVLink 1 and 2, each socket's sequence gap-free. Counts (also to ``stats``, JSON)."""
+    if not 1 <= ports <= 140:
+        raise ValueError(f"ports must be 1 ... 140 (each its own system id); got {ports}")
     rng = np.random.default_rng(0)
     socks, cycles = [], []
     for i in range(ports):
@@ -36,7 +38,7 @@ def flood(port: int, hz: float, seconds: float, ports: int = 4, stats: str | Non
         s.bind(("127.0.0.1", 0))
         s.setblocking(False)
         socks.append(s)
-        m2, m1 = v2.MAVLink(None, 200 + i, 1), v1.MAVLink(None, 200 + i, 1)
+        m2, m1 = v2.MAVLink(None, 100 + i, 1), v1.MAVLink(None, 100 + i, 1)
         kinds = [lambda m: m.heartbeat_encode(6, 8, 0, 0, 4),
                  lambda m: m.command_long_encode(99, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 0, 0, 0, 0, 0, 0, 0),
                  lambda m: m.param_request_read_encode(99, 1, b"COM_OF_LOSS_T", -1),
@@ -83,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("port", type=int, help="the proxy's UDP app port on 127.0.0.1")
     p.add_argument("--hz", type=float, required=True, help="datagrams per second, all ports together")
     p.add_argument("--seconds", type=float, required=True)
-    p.add_argument("--ports", type=int, default=4, help="source ports (and system ids 200...) (default %(default)s)")
+    p.add_argument("--ports", type=int, default=4, help="source ports, each its own system id 100... (1-140; default %(default)s)")
     p.add_argument("--stats", default=None, help="write the counts (JSON) here")
     a = p.parse_args(argv)
     print(json.dumps(flood(a.port, a.hz, a.seconds, a.ports, a.stats)))

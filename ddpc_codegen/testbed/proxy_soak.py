@@ -222,6 +222,8 @@ def run_session(out_dir: str, name: str, minutes: float, flood_hz: float = 0.0, 
     errors = _udp_errors() - errors0
     if "t_sent" not in app_out:
         raise RuntimeError(f"{name}: the app did not finish: {app_out.get('error', 'timed out')}")
+    if flood_hz > 0 and not f["flood.json"].is_file():
+        raise RuntimeError(f"{name}: the flood did not run: {(out / f'{name}.flood.err').read_text()[-1500:]}")
     px, veh = json.loads(f["proxy.json"].read_text()), json.loads(f["vehicle.json"].read_text())
     keep = ("received", "forwarded", "dropped", "seq_gaps", "garbage_bytes", "send_errors", "latency_us")
     return {"minutes": minutes, "flood_hz": flood_hz, "setpoint_log": str(f["setpoints.npz"]),
