@@ -22,8 +22,9 @@ def _ms(lat: dict | None, scale: float = 1.0) -> str:
 
 
 def _name(s: dict) -> str:
-    hz = s.get("flood_hz") or 0
-    return f"{num(s.get('minutes'), digits=0)} min" + (f", {num(hz / 1e3, digits=0)} kHz flood" if hz else "")
+    """The session's length and flood, e.g. ``2 min, 10 kHz flood`` (``0.3 min``: as given)."""
+    m, hz = s.get("minutes"), s.get("flood_hz") or 0
+    return (f"{m:g} min" if isinstance(m, (int, float)) else NA) + (f", {hz / 1e3:g} kHz flood" if hz else "")
 
 
 def _messages(sessions: dict) -> str:

@@ -28,6 +28,7 @@ REPORT = {"baseline": _session(10, 0.0, 550.0, 0.5), "flood": _session(2, 10000.
 def test_the_section_tabulates_both_sessions_against_the_targets():
     md = soak_section(REPORT)
     assert md.startswith("## Soak: a long session with a ground station, and a foreign flood")
+    assert "| 0.3 min, 2.5 kHz flood |" in soak_section({"baseline": _session(0.3, 2500.0, 1.0, 1.0)})
     assert "| 10 min | 900 / 900 | 0 / 0 / 0 / 0 | 955 / 953 / 2 / 0 | 953 | 1907 / 0 / 0 | 0 / 0 | 4 of 4 | 0 |" in md
     # the proxy's ring keeps its newest 65536 latencies: the page says so
     assert ("| 2 min, 10 kHz flood | 0.09 / 0.73 / 2.70 (last 65536 of 592405) | 0.09 / 0.99 / 0.88 | "
