@@ -112,9 +112,10 @@ fuzz: install
 	DDPC_FUZZ_EXAMPLES=1000 $(PY) -m pytest -q -p no:cacheprovider -k mutated \
 		tests/firmware_bridge/test_baseline_modes.py tests/robot/test_profile.py tests/robot/test_trajectory_files_fuzz.py
 
-# A user's own pymavlink app flown on the ArduCopter SITL directly, through ddpc-proxy in pass-through, and steered
-# (a local preview and a declared delay) on three paths, after one collect flight through the proxy and codegen;
-# the true height judges (reports/proxy.json, docs/results/proxy.md; flights and logs in reports/proxy_ardupilot/).
+# A user's own pymavlink app flown on the ArduCopter and PX4 SITLs directly, through ddpc-proxy in pass-through, and
+# steered (a local preview and a declared delay; the proxy measuring on the lab's motion capture) on three paths,
+# after one collect flight through the proxy and codegen; the true height judges (reports/proxy.json,
+# docs/results/proxy.md; flights and logs in reports/proxy_<autopilot>/).
 proxy-demo: install
 	$(PY) -m ddpc_codegen.testbed.proxy_demo
 	$(RENDER)
@@ -124,6 +125,7 @@ proxy-demo: install
 # the added latency from the proxy's stamps and from both ends (reports/proxy_soak.json; logs in reports/proxy_soak/).
 proxy-soak: install
 	$(PY) -m ddpc_codegen.testbed.proxy_soak --minutes 10 --flood-hz 10000 --flood-minutes 2
+	$(RENDER)
 
 # Online adaptation on the PX4 and ArduCopter SITLs: a motor's thrust loss and a heavier vehicle applied mid-flight
 # (by the harness, over a second MAVLink link), static vs adapted steering (ddpc-bridge --adapt) vs the prefilter;

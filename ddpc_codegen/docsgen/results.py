@@ -19,7 +19,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from ddpc_codegen.docsgen import results_bench, results_proxy, results_sim, results_sitl
+from ddpc_codegen.docsgen import results_bench, results_proxy, results_proxy_soak, results_sim, results_sitl
 from ddpc_codegen.docsgen.results_adapt import adaptation_page
 from ddpc_codegen.docsgen.results_format import label, missing, page_head
 
@@ -28,7 +28,7 @@ BEGIN = "<!-- results:begin (written by make demo: python -m ddpc_codegen.docsge
 END = "<!-- results:end -->"
 # report file -> the make target that writes it
 REPORTS = {"summary.json": "make demo", "bench.json": "make bench", "sitl.json": "make sitl-demo",
-           "proxy.json": "make proxy-demo"}
+           "proxy.json": "make proxy-demo", "proxy_soak.json": "make proxy-soak"}
 PAGES = ("index.md", "simulator.md", "bench.md", "sitl.md", "adaptation.md", "proxy.md")  # under docs/results/
 
 __all__ = ["ROOT", "BEGIN", "END", "REPORTS", "PAGES", "load_reports", "index_page", "pages", "readme_block",
@@ -73,6 +73,13 @@ def _proxy_headlines(proxy: dict | None) -> list[str]:
     return out
 
 
+def _soak_headline(soak: dict | None) -> list[str]:
+    head = "## ddpc-proxy in a long session and under a flood (`make proxy-soak`)\n"
+    if soak is None:
+        return [head, missing("make proxy-soak", "proxy_soak.json")]
+    return [head, "Messages lost or reordered and the latency the proxy adds: the [proxy page](proxy.md).\n"]
+
+
 def index_page(reports: dict[str, dict]) -> str:
     """The headline page: one short table per campaign (simulator, bench, each autopilot)."""
     summary, bench = reports.get("summary.json"), reports.get("bench.json")
@@ -89,6 +96,7 @@ def index_page(reports: dict[str, dict]) -> str:
             "[bench page](bench.md).\n", results_bench.headline(bench) if bench else missing("make bench", "bench.json")]
     out += _sitl_headlines(reports.get("sitl.json"))
     out += _proxy_headlines(reports.get("proxy.json"))
+    out += _soak_headline(reports.get("proxy_soak.json"))
     out += ["## Online adaptation (`make adapt-eval`, `make sitl-adapt`)\n",
             "Static against adapted steering after a change mid-flight: the [adaptation page](adaptation.md).\n"]
     return "\n".join(out)
@@ -99,7 +107,8 @@ def pages(reports: dict[str, dict]) -> dict[str, str]:
     summary, sitl = reports.get("summary.json"), reports.get("sitl.json")
     return {"index.md": index_page(reports), "simulator.md": results_sim.sim_page(summary),
             "bench.md": results_bench.bench_page(reports.get("bench.json")), "sitl.md": results_sitl.sitl_page(sitl),
-            "adaptation.md": adaptation_page(summary, sitl), "proxy.md": results_proxy.proxy_page(reports.get("proxy.json"))}
+            "adaptation.md": adaptation_page(summary, sitl), "proxy.md": results_proxy.proxy_page(reports.get("proxy.json")) + "\n"
+            + results_proxy_soak.soak_section(reports.get("proxy_soak.json"))}
 
 
 def readme_block(reports: dict[str, dict]) -> str:
