@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 from firmware_bridge.proxy.app_side import open_app_side
 from firmware_bridge.proxy.frames import msgid, splice, split_frames
-from firmware_bridge.proxy.rewrite import SETPOINT_MSGID, SetpointRewrite, decode_frame, has_position
+from firmware_bridge.proxy.rewrite import SETPOINT_MSGIDS, SetpointRewrite, decode_frame, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
 from firmware_bridge.proxy.vehicle_side import VehicleSide
 from firmware_bridge.proxy.vehicle_view import VIEW_MSGIDS, VehicleView
@@ -168,7 +168,7 @@ class Proxy:
         see = self.up.see
         for i, n in spans:
             see(data, i)
-            if msgid(data, i) == SETPOINT_MSGID:
+            if msgid(data, i) in SETPOINT_MSGIDS:
                 r = self._setpoint(client, data[i:i + n], t_rx)
                 if r is not None:
                     replaced[i] = r
@@ -212,7 +212,7 @@ class Proxy:
             return None
         r = bytes(r)
         spans, garbage, _ = split_frames(r)
-        if garbage or len(spans) != 1 or msgid(r, 0) != SETPOINT_MSGID:
+        if garbage or len(spans) != 1 or msgid(r, 0) != msgid(frame, 0):  # one frame of the same message
             self.events["rewrite_errors"] += 1
             return None
         self.up.c["rewritten"] += 1

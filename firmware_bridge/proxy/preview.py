@@ -12,7 +12,8 @@ An app streams only the present; the steering wants the desired height over its 
   what arrived, the newest is held. Only ever a setpoint the app sent: when the app stops, so does the
   stream (the tick is the app's own next setpoint).
 
-Heights are up (the setpoints' LOCAL_NED ``-z``) [m]; times on the ``time.time()`` clock [s].
+Heights are up (the setpoints' LOCAL_NED ``-z``, or the height the caller gives: a global setpoint's ``alt``) [m];
+times on the ``time.time()`` clock [s].
 """
 
 from __future__ import annotations
@@ -50,9 +51,9 @@ class LocalPreview:
         self._h = 0.0
         self._v = self._a = 0.0
 
-    def push(self, t: float, msg) -> None:
-        """The app's setpoint ``msg`` arrived at ``t``."""
-        h = _height(msg)
+    def push(self, t: float, msg, height: float | None = None) -> None:
+        """The app's setpoint ``msg`` arrived at ``t`` (``height``: its height [m, up], when not LOCAL_NED's ``-z``)."""
+        h = _height(msg) if height is None else height
         if self._prev is not None and t > self._prev[0]:
             self._slope = (h - self._prev[1]) / (t - self._prev[0])
         self._prev = (t, h)
@@ -84,8 +85,8 @@ class DelayedPreview:
         self._buf: deque = deque(maxlen=max_buffer)  # (t, height, msg), oldest first
         self._t0 = 0.0  # the current setpoint's arrival time
 
-    def push(self, t: float, msg) -> None:
-        self._buf.append((t, _height(msg), msg))
+    def push(self, t: float, msg, height: float | None = None) -> None:
+        self._buf.append((t, _height(msg) if height is None else height, msg))
 
     def current(self, t: float):
         """The setpoint the app sent ``delay`` before ``t`` (the oldest held while the stream is younger)."""

@@ -1,13 +1,15 @@
 """The steering proxy's tick: the app's position setpoint in, the steered one out (the proxy's rewrite hook).
 
-Each ``SET_POSITION_TARGET_LOCAL_NED`` the app sends is one tick (the app's own period is the steering's tick,
-and must match the solver's ``dt``). A tick composes the companion loop's own parts, as the bridge does:
-:class:`~firmware_bridge.engagement.Engagement` (edges: armed + off-board / guided, the vehicle heard, fresh
-position), :class:`~firmware_bridge.reference_stage.ReferenceStage` (steer: the generated solver through the
+Each position setpoint the app sends in a steered frame (:mod:`.setpoint_frames`: ``SET_POSITION_TARGET_LOCAL_NED``
+in the local frame, ``SET_POSITION_TARGET_GLOBAL_INT`` above home or sea level) is one tick (the app's own period
+is the steering's tick, and must match the solver's ``dt``). A tick composes the companion loop's own parts, as the
+bridge does: :class:`~firmware_bridge.engagement.Engagement` (edges: armed + off-board / guided, the vehicle heard,
+fresh position), :class:`~firmware_bridge.reference_stage.ReferenceStage` (steer: the generated solver through the
 steering policy and its fallbacks; passthrough; collect: the app's setpoint plus the PRBS dither) and
 :class:`~firmware_bridge.tick_gate.TickGate` (finite, rate bound, the solver's bounds, the step guard). The
-nominal reference is the app's height (``-z``); the preview comes from :mod:`.preview`; the measured output is
-the vehicle's ``LOCAL_POSITION_NED`` height, in the same frame as the setpoint.
+nominal reference is the app's height in the local frame (``-z``; a global setpoint's ``alt`` minus its frame's
+offset, measured by :class:`.vehicle_view.VehicleView`); the preview comes from :mod:`.preview`; the measured output
+is the vehicle's ``LOCAL_POSITION_NED`` height (or the motion capture's, put into the local frame).
 
 Two coordinate systems, named by the solver's signals (the generated solver is the authority on what it steers):
 
@@ -18,10 +20,12 @@ Two coordinate systems, named by the solver's signals (the generated solver is t
   an app that sends its own velocity / acceleration: the autopilot's feed-forward carries the path, and what is
   left to steer is the error around it, which an absolute model cannot separate from the path.
 
-What goes out: only the height of the app's setpoint is replaced (x, y, velocity and acceleration fields, yaw,
-``type_mask`` and the frame are the app's). A tick that is not steered (not engaged, stale, a solver failure,
-the guard) sends the app's own setpoint unchanged (with ``--preview-delay``: its delayed one), and the rate
-bound counts from there. A setpoint that does not use z in ``MAV_FRAME_LOCAL_NED`` is never steered.
+What goes out: only the height of the app's setpoint is replaced (``z``, or ``alt`` = the steered local height plus
+the frame's offset; x, y, lat, lon, velocity and acceleration fields, yaw, ``type_mask`` and the frame are the
+app's). A tick that is not steered (not engaged, stale, a solver failure, the guard, a global frame's offset not
+known) sends the app's own setpoint unchanged (with ``--preview-delay``: its delayed one), and the rate bound
+counts from there. A setpoint in another frame, or whose height ``type_mask`` ignores, is never steered. When the
+app changes frames, a delayed preview is not steered until it holds only the new frame's setpoints.
 """
 
 from __future__ import annotations
@@ -41,7 +45,8 @@ from firmware_bridge.excitation import Excitation
 from firmware_bridge.gate import SetpointGate
 from firmware_bridge.proxy.preview import DelayedPreview, LocalPreview
 from firmware_bridge.proxy.record import ProxyRecord
-from firmware_bridge.proxy.rewrite import SetpointEncoder, mavlink
+from firmware_bridge.proxy.rewrite import SetpointEncoder
+from firmware_bridge.proxy.setpoint_frames import AMSL, LOCAL, RELATIVE_ALT, app_height, height_fields, steered_frame
 from firmware_bridge.proxy.stats import SetpointPeriod
 from firmware_bridge.proxy.vehicle_view import VehicleView
 from firmware_bridge.reference_stage import ReferenceStage
@@ -49,7 +54,6 @@ from firmware_bridge.tick_gate import TickGate
 
 __all__ = ["ProxySteering", "check_proxy_solver"]
 
-_Z_IGNORE = mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE
 _WIDE = 1e4  # m: the gate's height range when no solver bounds it (passthrough, collect)
 
 
@@ -120,7 +124,12 @@ class ProxySteering:
                              thrust_min=0.0, thrust_max=1.0, hover_thrust=0.5, max_age=None, guard_hold=0.0)
         self.engagement = Engagement(self.events, max_age=max_age)
         self.encoder = SetpointEncoder()
-        self.counts = dict.fromkeys(("ticks", "steered", "rewritten", "not_steerable", "period_mismatch"), 0)
+        self.counts = dict.fromkeys(("ticks", "steered", "rewritten", "not_steerable", "period_mismatch",
+                                     "no_frame_offset"), 0)
+        self.frames = dict.fromkeys((LOCAL, RELATIVE_ALT, AMSL), 0)  # the app's setpoints per steered frame
+        self._frame: str | None = None  # the frame of the app's newest setpoint
+        self._switched = -math.inf  # when the app changed frames [s]
+        self._offset, self._offset_ok = 0.0, True  # this tick's frame offset [m]; whether it was known last tick
         self._period_said = False
         self._period: float | None = None  # the app's median period, refreshed every 16 setpoints [s]
 
@@ -131,13 +140,13 @@ class ProxySteering:
             if self.mode == "collect":
                 exc = Excitation(1, dither, hold, seed)
                 exc.prepare()
-                return ReferenceStage("collect", self.preview.desired, self.tick, excitation=exc), None, lo, hi, rate
-            return (ReferenceStage("passthrough", self.preview.desired, self.tick, policy=PassthroughPolicy()), None,
+                return ReferenceStage("collect", self._desired, self.tick, excitation=exc), None, lo, hi, rate
+            return (ReferenceStage("passthrough", self._desired, self.tick, policy=PassthroughPolicy()), None,
                     lo, hi, rate)
         steerer = ReferenceSteerer.for_solver(solver, max_step=None if max_step is None else np.array([max_step]))
         policy = SteeringPolicy(steerer, ramp_ticks=max(int(round(0.5 / self.dt)), 1))
         t_f = solver.manifest["dims"]["t_f"]
-        desired = _no_error if self.deviation else self.preview.desired
+        desired = _no_error if self.deviation else self._desired
         stage = ReferenceStage("steer", desired, self.dt, policy=policy,
                                ahead=self.dt * np.arange(t_f), steerer=steerer)
         du = (solver.manifest.get("bounds") or {}).get("du_max") or [None]
@@ -149,35 +158,56 @@ class ProxySteering:
     def __call__(self, msg, frame: bytes, t_rx: float) -> bytes | None:
         """One tick on the app's setpoint ``msg`` (received at ``t_rx`` [s, time.time()]): the frame to send
         instead, or None (the app's own frame goes out)."""
-        if int(msg.coordinate_frame) != mavlink.MAV_FRAME_LOCAL_NED or int(msg.type_mask) & _Z_IGNORE \
-                or not math.isfinite(msg.z):
+        kind = steered_frame(msg)
+        if kind is None:
             self.counts["not_steerable"] += 1
             return None
         self.counts["ticks"] += 1
+        self.frames[kind] += 1
         self.period.add(t_rx)
-        self.preview.push(t_rx, msg)
+        if kind != self._frame:
+            self._new_frame(kind, t_rx)
+        self.preview.push(t_rx, msg, app_height(msg))
         cur = self.preview.current(t_rx)
-        u, reason = self._tick(cur, t_rx)
+        h_app = app_height(cur)
+        u, reason = self._tick(h_app, self.view.frame_offset(steered_frame(cur), t_rx), t_rx)
         if reason == "steered" or reason == "collect":
             self.counts["steered"] += 1
         delayed = cur is not msg
-        if not delayed and (u is None or -u == cur.z):
+        if not delayed and (u is None or np.float32(u) == np.float32(h_app)):  # the same bytes: the app's frame
             return None
         self.counts["rewritten"] += 1
         if u is None:
-            return self.encoder.encode(cur, (cur.x, cur.y, cur.z))
-        return self.encoder.encode(cur, (cur.x, cur.y, -u), **self.ff_fields)
+            return self.encoder.encode(cur)
+        return self.encoder.encode(cur, **height_fields(cur, u), **self.ff_fields)
 
-    def _tick(self, cur, now: float) -> tuple[float | None, str]:
-        """(the height to send [m, up], None: the app's own; the tick's reason)."""
+    def _new_frame(self, kind: str, now: float) -> None:
+        """The app's setpoints are in frame ``kind`` from now on: a local preview's slope starts anew; a delayed one
+        holds the other frame's heights for its delay (not steered meanwhile: :meth:`_tick`)."""
+        if self._frame is not None:
+            self.events(f"the app's setpoints changed frame ({self._frame} -> {kind})")
+            self.preview.reset()
+            self._switched = now
+        self._frame = kind
+
+    def _desired(self, ahead: np.ndarray) -> np.ndarray:
+        """The preview's heights in the local frame, (len(ahead), 1) [m]."""
+        return self.preview.desired(ahead) - self._offset
+
+    def _tick(self, h_app: float, offset: float, now: float) -> tuple[float | None, str]:
+        """(the height to send [m, up, the app's frame], None: the app's own; the tick's reason) for the app's height
+        ``h_app`` [m, up] in a frame ``offset`` [m] above the local one (nan: unknown, the tick is stale)."""
         view, eng = self.view, self.engagement
         view.pump(now)
-        app = -float(cur.z)
+        measured = view.height(now)
+        known = self._offset_known(offset)
+        self._offset = offset if known else 0.0
+        app = h_app - offset if known else measured  # (unknown: a stand-in, never sent: the tick is stale)
         base = app if self.deviation else 0.0  # deviation: offsets and errors around the app's height
         r = np.array([app - base])
-        y = np.array([view.height(now) - base])
-        age = view.position_age(now)
-        fresh = age <= self.max_age
+        y = np.array([measured - base])
+        age = view.position_age(now) if known else math.inf
+        fresh = age <= self.max_age and now - self._switched >= self.preview.delay
         heard = view.heard(now)
         engaged = view.armed and view.offboard and heard and self._period_ok()
         eng.telemetry(now, age, fresh)
@@ -195,7 +225,19 @@ class ProxySteering:
         self.stage.applied(ref, u)
         eng.applied(u)
         self._record(now, ref, u, flags, age, engaged, base)
-        return float(u[0]) + base, ref.reason
+        return float(u[0]) + base + offset, ref.reason
+
+    def _offset_known(self, offset: float) -> bool:
+        """Whether the frame's offset is known (counted and said when that changes)."""
+        known = math.isfinite(offset)
+        if not known:
+            self.counts["no_frame_offset"] += 1
+        if known != self._offset_ok:
+            self._offset_ok = known
+            self.events(f"the app's frame is {offset:+.3f} m above the local one: its setpoints steered" if known else
+                        "the offset of the app's frame to the local one is not known (GLOBAL_POSITION_INT with "
+                        "LOCAL_POSITION_NED): its setpoints go out unsteered")
+        return known
 
     @property
     def tick(self) -> float:
@@ -230,15 +272,17 @@ class ProxySteering:
 
     def own_messages(self, now: float) -> list[bytes]:
         """What the proxy sends of its own (:meth:`.core.Proxy.run`, between forwarded frames): the position stream
-        at twice the steering's rate (every tick then has a fresh sample) when the vehicle sends it slower."""
+        at twice the steering's rate (every tick then has a fresh sample) when the vehicle sends it slower, and for an
+        app in a global frame GLOBAL_POSITION_INT (its frame's offset)."""
         self.view.pump(now)  # the poses' offset is measured before arming, when no setpoint may come
-        req = self.view.stream_request(now, min(0.5 * self.tick, 0.025))
-        return [] if req is None else [req]
+        return self.view.stream_request(now, min(0.5 * self.tick, 0.025),
+                                        global_too=self.frames[RELATIVE_ALT] + self.frames[AMSL] > 0)
 
     def summary(self) -> dict:
         """Counts, the engagement, the gate and the steering's own summary (JSON-ready)."""
         out = {"mode": self.mode, "coordinates": self.coordinates, "dt": self.tick, "preview_delay_s": self.preview.delay,
-               "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts,
+               "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts, "frames": dict(self.frames),
+               "frame_offsets": self.view.offsets.summary(self.engagement.t_last),
                "app_period": self.period.summary(), "activations": self.engagement.activations,
                "gate": self.gate.gate.summary(), "position_source": self.view.source_summary(), "events": [list(e) for e in self.events.events],
                "t_wall": time.time()}

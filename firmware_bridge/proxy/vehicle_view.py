@@ -12,6 +12,11 @@ the measured height is the lab's: the pose's height put into the autopilot's loc
 setpoints are in) by the offset between the two heights while the vehicle stands disarmed, frozen at arming. So the
 steering follows the app's heights on the lab's measurement, not on the estimator's copy of it; with no offset yet
 (the proxy started after arming) or no fresh pose, the height is stale and nothing is steered.
+
+The vehicle's ``GLOBAL_POSITION_INT`` is folded in too, paired with its ``LOCAL_POSITION_NED``: the offset that puts
+a global setpoint's altitude into the local frame (:class:`~firmware_bridge.proxy.setpoint_frames.FrameOffsets`).
+The motion capture's offset stays a local one: a global setpoint goes into the local frame by the estimator's own
+offset, and the steering measures it there on the lab's height.
 """
 
 from __future__ import annotations
@@ -22,13 +27,16 @@ from firmware_bridge.mocap_input import MocapInput
 from firmware_bridge.plausibility import TelemetryLimits
 from firmware_bridge.profiles import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, Profile, make_profile
 from firmware_bridge.proxy.rewrite import PROXY_COMPONENT, decode_frame, mavlink
+from firmware_bridge.proxy.setpoint_frames import FrameOffsets
 from firmware_bridge.telemetry import TelemetryState
 
 __all__ = ["VehicleView", "VIEW_MSGIDS"]
 
-VIEW_MSGIDS = frozenset((mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED))
+VIEW_MSGIDS = frozenset((mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+                         mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT))
 PROXY_SYSTEM = 254  # the proxy's own messages: neither the vehicle's (1) nor a ground station's (255)
 _REQUEST_EVERY = 2.0  # s between stream requests while the position comes slower than asked
+_GLOBAL_PERIOD = 0.1  # s: GLOBAL_POSITION_INT asked this often for a global app (the frames' offset, not per tick)
 _AUTOPILOTS = {MAV_AUTOPILOT_PX4: "px4", MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 
 
@@ -53,7 +61,8 @@ class VehicleView:
         self.mode_name = "?"
         self.last_hb = -math.inf
         self.requests = 0
-        self._next_request = -math.inf
+        self._next_request: dict[int, float] = {}  # message id -> earliest next stream request [s]
+        self.offsets = FrameOffsets()
         self._mav = mavlink.MAVLink(None, srcSystem=PROXY_SYSTEM, srcComponent=PROXY_COMPONENT)
         self.mocap = mocap
         self.mocap_offset = math.nan if mocap_offset is None else float(mocap_offset)  # [m] (nan: not yet)
@@ -65,10 +74,16 @@ class VehicleView:
         msg = decode_frame(frame)
         if msg is None:
             return
-        if msg.get_type() == "HEARTBEAT":
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
             self._heartbeat(msg, t_rx)
-        elif self.sysid is not None and msg.get_srcSystem() == self.sysid:
-            self.telem.update(msg, t_rx)
+        elif self.sysid is None or msg.get_srcSystem() != self.sysid:
+            return
+        elif kind == "GLOBAL_POSITION_INT":
+            self.offsets.global_position(msg, t_rx)
+        else:
+            if self.telem.update(msg, t_rx):  # (a sample the telemetry rejects pairs with no global report)
+                self.offsets.local(msg)
 
     def _heartbeat(self, msg, t_rx: float) -> None:
         name = _AUTOPILOTS.get(int(msg.autopilot))
@@ -132,14 +147,26 @@ class VehicleView:
                 "rejected": dict(m.rejected), "offset_m": None if math.isnan(self.mocap_offset) else self.mocap_offset,
                 "offset_given": self._fixed}
 
-    def stream_request(self, now: float, period: float) -> bytes | None:
-        """A SET_MESSAGE_INTERVAL asking for LOCAL_POSITION_NED every ``period`` [s] (from the proxy's own ids), when
-        the vehicle is heard and the position comes slower than that (every few seconds at most); else None."""
-        if self.sysid is None or not self.heard(now) or now < self._next_request \
-                or self.position_period() <= 1.2 * period:
-            return None
-        self._next_request = now + _REQUEST_EVERY
-        self.requests += 1
-        msg = self._mav.command_long_encode(self.sysid, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, period * 1e6, 0, 0, 0, 0, 0)
-        return bytes(msg.pack(self._mav))
+    def frame_offset(self, kind: str, now: float) -> float:
+        """The height of the setpoint frame ``kind`` (:mod:`.setpoint_frames`) minus the local one [m] (nan: unknown)."""
+        return self.offsets.offset(kind, now)
+
+    def stream_request(self, now: float, period: float, global_too: bool = False) -> list[bytes]:
+        """SET_MESSAGE_INTERVALs (from the proxy's own ids) asking for LOCAL_POSITION_NED every ``period`` [s] (and,
+        ``global_too``, GLOBAL_POSITION_INT every :data:`_GLOBAL_PERIOD`), each when the vehicle is heard and the
+        message comes slower than that (every few seconds at most)."""
+        if self.sysid is None or not self.heard(now):
+            return []
+        want = [(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, period, self.position_period())]
+        if global_too:
+            want.append((mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, _GLOBAL_PERIOD, self.offsets.period()))
+        out = []
+        for mid, p, got in want:
+            if now < self._next_request.get(mid, -math.inf) or got <= 1.2 * p:
+                continue
+            self._next_request[mid] = now + _REQUEST_EVERY
+            self.requests += 1
+            msg = self._mav.command_long_encode(self.sysid, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid, p * 1e6,
+                                                0, 0, 0, 0, 0)
+            out.append(bytes(msg.pack(self._mav)))
+        return out
