@@ -17,6 +17,7 @@ from ddpc_codegen.runtime.loader import load_solver
 from firmware_bridge.mocap_input import MocapInput
 from firmware_bridge.proxy import PROXY_COMPONENT, SetpointEncoder
 from firmware_bridge.proxy.frames import header
+from firmware_bridge.proxy.preview import DelayedPreview
 from firmware_bridge.proxy.record import ProxyRecord
 from firmware_bridge.proxy.rewrite import decode_frame
 from firmware_bridge.proxy.setpoint_frames import FrameOffsets
@@ -196,3 +197,18 @@ def test_the_proxy_hands_a_global_setpoint_to_the_hook_and_sends_its_replacement
     assert asked == ["SET_POSITION_TARGET_GLOBAL_INT"] * 2 and got[1] == sent[1]
     assert decode_frame(got[0]).alt == pytest.approx(3.5) and _payload(got[0])[:12] == _payload(sent[0])[:12]
     assert s["app_to_vehicle"]["rewritten"] == 1 and s["events"]["rewrite_errors"] == 1
+
+
+def test_an_app_that_changes_frames_is_not_steered_while_the_delay_holds_the_old_frame():
+    """--preview-delay 0.1 s: after the switch the held preview mixes the two frames' heights for 0.1 s; meanwhile
+    the app's own (delayed) setpoints go out, each converted with its own frame's offset."""
+    hook = ProxySteering(VehicleView(), record=ProxyRecord(), dither=0.2, preview=DelayedPreview(0.1))
+    sim, path, lag = LoopSim(), _path(400), 5
+    first = fly(hook, path[:200], sim)
+    out = fly(hook, path[200:], sim, frame="relative_alt", t0=1000.0 + 200 * DT)
+    played = path[200 - lag:400 - lag]  # what the app sent 0.1 s before
+    assert np.allclose(np.abs(first["sent"][20:] - path[20 - lag:200 - lag]), 0.2, atol=1e-5)
+    assert np.allclose(out["sent"][:lag], played[:lag], atol=1e-5)  # the app's own, delayed
+    assert np.allclose(np.abs(out["sent"][lag + 2:] - played[lag + 2:]), 0.2, atol=1e-3)
+    assert hook.frames == {"local": 200, "relative_alt": 200, "amsl": 0}
+    assert any("changed frame (local -> relative_alt)" in e for _, e in hook.events.events)
