@@ -42,7 +42,7 @@ class UdpApps:
     """A UDP endpoint of the app side (server or fixed client).
 
     A server's clients are the sender addresses heard, kept however quiet (``joined`` / ``gone`` report the
-    changes); the ``max_clients`` + 1st sender replaces the one heard least recently.
+    changes); the ``max_clients`` + 1st sender replaces the one heard least recently, never one in ``kept``.
     """
 
     def __init__(self, host: str, port: int, listen: bool, max_clients: int = MAX_UDP_CLIENTS) -> None:
@@ -53,6 +53,7 @@ class UdpApps:
         self.joined: list[Any] = [] if listen else [self.t.sock.getpeername()]
         self.gone: list[Any] = []
         self._heard: OrderedDict[Any, None] = OrderedDict()  # a server's clients, least recently heard first
+        self.kept: set[Any] = set()  # never replaced by a new sender (the proxy's app: a flood cannot evict it)
 
     @property
     def local_address(self) -> tuple[str, int]:
@@ -80,8 +81,11 @@ class UdpApps:
             self.gone.remove(addr)
         else:
             self.joined.append(addr)
-        if len(heard) > self.max_clients:
-            self.gone.append(heard.popitem(last=False)[0])
+        if len(heard) > self.max_clients:  # the least recently heard that is not kept (the app streaming setpoints)
+            old = next((a for a in heard if a not in self.kept), None)
+            if old is not None:
+                del heard[old]
+                self.gone.append(old)
 
     def send(self, addr: Any, buf: bytes, frames: bytes) -> bool:
         """Send datagram ``buf`` to ``addr`` (``frames``: the same without garbage, for streams)."""

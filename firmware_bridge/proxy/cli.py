@@ -48,7 +48,7 @@ def build_proxy_parser() -> argparse.ArgumentParser:
     p.add_argument("--client-timeout", type=float, default=5.0,
                    help="a client silent this long [s] is no longer the app whose setpoints are steered (a quiet "
                         "UDP client keeps receiving the vehicle's stream) (default %(default)s)")
-    s = p.add_argument_group("steering the app's SET_POSITION_TARGET_LOCAL_NED (height)")
+    s = p.add_argument_group("steering the height of the app's SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT")
     s.add_argument("--steer", type=Path, default=None, metavar="SOLVER",
                    help="a generated solver folder (inputs z_ref, outputs z, at the app's setpoint rate; "
                         "configs/proxy_*.toml): steer the height of the app's setpoints while the vehicle is armed "

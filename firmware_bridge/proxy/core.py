@@ -26,7 +26,7 @@ import time
 from typing import Any, Callable
 
 from firmware_bridge.proxy.app_side import open_app_side
-from firmware_bridge.proxy.frames import msgid, splice, split_frames
+from firmware_bridge.proxy.frames import setpoint_target, msgid, splice, split_frames
 from firmware_bridge.proxy.rewrite import SETPOINT_MSGIDS, SetpointRewrite, decode_frame, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
 from firmware_bridge.proxy.vehicle_side import VehicleSide
@@ -145,13 +145,22 @@ class Proxy:
         """The app that has been silent ``client_timeout`` is no longer the app (its client stays)."""
         c = self.clients.get(self.setpoint_client)
         if c is not None and now - c[0] > self.client_timeout:
-            self.setpoint_client = None
+            self._keep(self.setpoint_client, False)
+
+    def _keep(self, client: tuple[int, Any] | None, app: bool) -> None:
+        """``client`` becomes the app (``app``) or stops being it; while it is, its UDP endpoint never replaces it
+        with a new sender, so a flood from many ports cannot take its place."""
+        if client is not None:
+            kept = getattr(self.apps[client[0]], "kept", None)
+            if kept is not None:
+                (kept.add if app else kept.discard)(client[1])
+        self.setpoint_client = client if app else None
 
     def _forget(self, client: tuple[int, Any], why: str) -> None:
         if self.clients.pop(client, None) is not None:
             self.events[why] += 1
         if client == self.setpoint_client:
-            self.setpoint_client = None
+            self._keep(client, False)
 
     # ------------------------------------------------------------------ app -> vehicle
     def _from_client(self, client: tuple[int, Any], data: bytes, t_rx: float) -> None:
@@ -192,8 +201,12 @@ class Proxy:
                     self.events["between_clients"] += 1
 
     def _setpoint(self, client: tuple[int, Any], frame: bytes, t_rx: float) -> bytes | None:
+        sysid = None if self.view is None else self.view.sysid
+        if sysid is not None and setpoint_target(frame, 0) not in (0, sysid):
+            self.events["foreign_setpoints"] += 1  # addressed to another vehicle: never the app's
+            return None
         if self.setpoint_client is None:
-            self.setpoint_client = client
+            self._keep(client, True)
         if client != self.setpoint_client:
             self.events["foreign_setpoints"] += 1  # not the app's: never steered
             return None

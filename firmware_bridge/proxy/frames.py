@@ -62,6 +62,14 @@ def msgid(buf: bytes | bytearray, i: int) -> int:
     return buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16 if buf[i] == STX_V2 else buf[i + 5]
 
 
+def setpoint_target(buf: bytes | bytearray, i: int) -> int:
+    """The target system of the position setpoint frame at ``buf[i]`` (SET_POSITION_TARGET_LOCAL_NED and _GLOBAL_INT
+    both carry it at payload byte 50; a MAVLink 2 payload cut before it is 0, a broadcast)."""
+    v2 = buf[i] == STX_V2
+    start, n = i + (10 if v2 else 6), buf[i + 1]
+    return buf[start + 50] if n > 50 else 0
+
+
 def _crc(data: bytes) -> int:
     if _mcrf4xx is not None:
         return _mcrf4xx(data, 0xFFFF)

@@ -136,3 +136,40 @@ def test_a_restarted_app_on_a_new_port_becomes_the_app_once_the_old_one_fell_sil
             p.close()
     assert s["events"]["foreign_setpoints"] == 1 and s["setpoints"]["count"] == 2
     assert len(s["clients"]) == 2  # the old app's address still hears the vehicle
+
+
+def test_a_flood_from_many_ports_neither_evicts_the_app_nor_takes_its_setpoints():
+    """Beyond the bound, new senders replace each other, never the app; setpoints addressed to another system are
+    never the app's, even while the role is free."""
+    from firmware_bridge.proxy.vehicle_view import VehicleView
+
+    ap, vp = free_port(), free_port()
+    rp = RunningProxy(f"udpin:127.0.0.1:{ap}", f"udpin:127.0.0.1:{vp}", client_timeout=0.3, view=VehicleView())
+    veh, app = Peer(), Peer()
+    flood = [Peer() for _ in range(24)]
+    try:
+        vm = mav(2, 1, 1)
+        hb = bytes(vm.heartbeat_encode(2, 12, 0, 0, 0).pack(vm))  # a PX4 vehicle, system 1
+        veh.send(hb, vp)
+        _until(lambda: rp.proxy.vehicle.peer is not None and rp.proxy.view.sysid == 1)
+        app.send(setpoint(mav(2, 245, 190), 0, POS_ONLY), ap)
+        _until(lambda: rp.proxy.setpoint_client is not None)
+        me = rp.proxy.setpoint_client
+        for p in flood:
+            p.send(frames(mav(2, 77, 1), 1)[0], ap)
+        _until(lambda: rp.proxy.events["clients_left"] >= len(flood) - 15)
+        assert me in rp.proxy.clients and rp.proxy.setpoint_client == me
+        veh.send(hb, vp)
+        assert app.wait_for(1) == [hb]                       # still hears the vehicle
+        _until(lambda: rp.proxy.setpoint_client is None, 2.0)  # the app fell silent: the role is free
+        fm = mav(2, 77, 1)
+        sp = fm.set_position_target_local_ned_encode(0, 99, 1, 1, POS_ONLY, 0, 0, -1, 0, 0, 0, 0, 0, 0, 0, 0)
+        flood[0].send(bytes(sp.pack(fm)), ap)                # a setpoint for system 99: foreign
+        _until(lambda: rp.proxy.events["foreign_setpoints"] == 1)
+        assert rp.proxy.setpoint_client is None
+        s = rp.stop()
+    finally:
+        rp.stop()
+        for p in (veh, app, *flood):
+            p.close()
+    assert s["setpoints"]["count"] == 1
