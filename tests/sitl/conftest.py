@@ -12,7 +12,7 @@ import pytest
 # (among them the proxy's real clients, ~61 s, which took the place of the 58 s pymavlink-only proxy flight)
 _GROUP_A = ("test_sitl_from_the_ground.py::test_from_the_ground_to_steered_flight[px4]",
             "test_sitl_climb_rate.py::test_ardupilot_climb_rate_mode_collect_and_steer",
-            "test_sitl_proxy_steer.py::test_an_app_is_collected_fitted_and_steered_through_the_proxy",
+            "test_sitl_proxy_steer.py::test_an_app_is_collected_fitted_and_steered_on_the_motion_capture",
             "test_sitl_bridge_stall.py::test_a_4s_bridge_stall_mid_steer_resumes_within_the_rate_bound")
 
 
