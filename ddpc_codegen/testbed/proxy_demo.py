@@ -134,7 +134,8 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
                 res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold, kinds,
                                     ["--z-feedforward", z_feedforward, *lab.bridge_args],
                                     ROOT / "configs" / (config or CONFIGS[autopilot])))
-                res["setup_detail"] = describe_setup(autopilot, setup, lab.mocap)
+                res["setup_detail"] = {**describe_setup(autopilot, setup, lab.mocap),  # what the proxy measured on
+                                       "position_source": "mocap" if lab.mocap is not None else "autopilot"}
             finally:
                 obs.stop()
     finally:
