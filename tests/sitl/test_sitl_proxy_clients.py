@@ -319,6 +319,7 @@ def clients_flight(out_dir: str) -> dict:
         def sdk_sp() -> int:
             ev = _lines(sdklog)
             assert sdk.poll() is None, f"the MAVSDK app ended: {(out / 'mavsdk.out').read_text()[-3000:]} {ev}"
+            assert gcs.poll() is None, f"MAVProxy ended: {(out / 'mavproxy.out').read_text()[-3000:]}"
             return sum(e["ev"] == "sp" for e in ev)
 
         _wait(lambda: sdk_sp() >= MAVSDK_SP, 90, "the MAVSDK app's offboard setpoints", poll=0.05)
