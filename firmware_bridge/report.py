@@ -203,7 +203,8 @@ class FlightRecorder:
         code, why = run_outcome(RunEnd(head["stop_reason"], r["ticks"], e.activations, e.engaged, e.left_mode,
                                        e.flown_s(), c.duration, c.vehicle_lost_timeout))
         return {
-            **head, "ticks": r["ticks"], "setpoints_sent": len(stream.send_times), "rate_hz": r["rate_hz"],
+            **head, "ticks": r["ticks"], "setpoints_sent": len(stream.send_times),
+            "setpoints_repeated": stream.repeats, "rate_hz": r["rate_hz"],
             "duration_s": r["duration_s"],
             **{k: r[k] for k in ("latency_us", "missed_ticks", "max_gap_ms", "fallbacks", "fallback_reasons",
                                  "reasons", "event_ticks")},

@@ -74,6 +74,7 @@ class SetpointStream:
         self.send_times: list[float] = []   # monotonic [s] of each setpoint sent
         self.send_stamps: list[float] = []  # vehicle time of each (the clock that counts in lock-step) [s]
         self.last_msg = None                # last SET_ATTITUDE_TARGET (repeated by the hand-back)
+        self.repeats = 0                    # repeats of it sent (not setpoints of a tick: not in send_times)
         self.last_send = -math.inf
         self.since = math.inf               # start of the current uninterrupted stream [s]
         self.since_stamp = math.nan
@@ -101,7 +102,7 @@ class SetpointStream:
     def repeat_if_due(self, now: float, period: float) -> None:
         """Send the last setpoint again when a period has passed since the last send."""
         if now - self.last_send >= period and self.last_msg is not None:
-            self.vehicle.link.send(self.last_msg)
+            self.repeats += self.vehicle.link.send(self.last_msg)
             self.last_send = now
 
     def streaming(self, now: float) -> bool:

@@ -190,6 +190,8 @@ def test_a_10_khz_flood_from_another_port_misses_no_setpoint(tmp_path):
     # Counts, not timing: a starved bridge lets the kernel drop part of the flood at its full socket buffer.
     assert flood["flood_sent"] > 10_000 and flood["flood_received"] == 0
     assert 0 < s["link"]["foreign_packets"] <= flood["flood_sent"] and s["link"]["peer_changes"] == 1
-    # Every setpoint the bridge sent reached the vehicle (none lost to the flood, none sent to the flooder).
-    assert v["setpoints"] + v.get("setpoints_ignored", 0) == flood["sent"] == s["setpoints_sent"]
+    # Every setpoint the bridge sent reached the vehicle (none lost to the flood, none sent to the flooder); a tick
+    # late under load repeats the last one to keep the stream alive, counted apart.
+    assert flood["sent"] == s["setpoints_sent"]
+    assert v["setpoints"] + v.get("setpoints_ignored", 0) == s["setpoints_sent"] + s["setpoints_repeated"]
     assert s["stop_reason"].startswith("duration") and s["activations"] == 1 and s["reboots"] == 0
