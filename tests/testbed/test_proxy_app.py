@@ -55,3 +55,12 @@ def test_a_flight_on_the_declared_heights_scores_zero_and_a_bias_scores_itself(t
     assert late["rmse_z_truth_mm"] == pytest.approx(0.0, abs=1e-9) and late["delay_s"] == 0.5
     shifted = score(log, _Obs(lambda t: want(t) + 0.3, want), ground=0.3)  # the truth's origin 0.3 m lower
     assert shifted["rmse_z_truth_mm"] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("argv", [["--kinds", "direct,bogus"], ["--autopilots", "ardupilot,betaflight"]])
+def test_the_demo_refuses_unknown_kinds_and_autopilots_before_flying(capsys, argv):
+    from ddpc_codegen.testbed.proxy_demo import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2 and "--kinds from" in capsys.readouterr().err

@@ -124,3 +124,11 @@ def frames(m, n: int, start: int = 0) -> list[bytes]:
 
 __all__ = ["RunningProxy", "Peer", "spawn_proxy", "mav", "frames", "setpoint", "POS_ONLY", "VEL_ONLY", "free_port",
            "mavlink2"]
+
+
+def until(cond, timeout: float = 5.0) -> None:
+    """Wait until ``cond()`` holds (polled every 5 ms), at most ``timeout`` [s]; fails if it never does."""
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+    assert cond()

@@ -10,14 +10,8 @@ import time
 
 from firmware_bridge.proxy.app_side import UdpApps
 
-from proxy_support import POS_ONLY, Peer, RunningProxy, frames, free_port, mav, setpoint
+from proxy_support import POS_ONLY, Peer, RunningProxy, frames, free_port, mav, setpoint, until
 
-
-def _until(cond, timeout: float = 5.0) -> None:
-    end = time.monotonic() + timeout
-    while not cond() and time.monotonic() < end:
-        time.sleep(0.005)
-    assert cond()
 
 
 def _read_all(ep: UdpApps, n: int) -> list:
@@ -68,9 +62,9 @@ def test_a_quiet_ground_station_keeps_receiving_past_the_client_timeout():
     veh, gcs = Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 9), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None)
+        until(lambda: rp.proxy.vehicle.peer is not None)
         gcs.send(frames(mav(2, 255, 190), 1)[0], ap)       # one heartbeat, then it only listens
-        _until(lambda: len(veh.got) == 1)
+        until(lambda: len(veh.got) == 1)
         m, sent = mav(2, 1, 1), []
         for burst in range(6):                             # 0.6 s: three times the client timeout
             sent += frames(m, 5, len(sent))
@@ -94,10 +88,10 @@ def test_beyond_the_bound_the_longest_silent_sender_stops_receiving():
     veh, old, app, new = Peer(), Peer(), Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 9), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None)
+        until(lambda: rp.proxy.vehicle.peer is not None)
         for k, p in enumerate((old, app, new)):
             p.send(frames(mav(2, 200 + k, 190), 1)[0], ap)
-            _until(lambda: len(veh.got) == k + 1)
+            until(lambda: len(veh.got) == k + 1)
         fs = frames(mav(2, 1, 1), 10)
         for f in fs:
             veh.send(f, vp)
@@ -119,15 +113,15 @@ def test_a_restarted_app_on_a_new_port_becomes_the_app_once_the_old_one_fell_sil
     veh, first, second = Peer(), Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 9), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None)
+        until(lambda: rp.proxy.vehicle.peer is not None)
         m1, m2 = mav(2, 245, 190), mav(2, 245, 190)
         first.send(setpoint(m1, 0, POS_ONLY), ap)
-        _until(lambda: rp.proxy.setpoint_client is not None)
+        until(lambda: rp.proxy.setpoint_client is not None)
         second.send(setpoint(m2, 0, POS_ONLY), ap)        # while the first streams: not the app's
-        _until(lambda: rp.proxy.events["foreign_setpoints"] == 1)
-        _until(lambda: rp.proxy.setpoint_client is None, 2.0)  # the first fell silent: the role is free
+        until(lambda: rp.proxy.events["foreign_setpoints"] == 1)
+        until(lambda: rp.proxy.setpoint_client is None, 2.0)  # the first fell silent: the role is free
         second.send(setpoint(m2, 1, POS_ONLY), ap)
-        _until(lambda: rp.proxy.setpoint_client is not None)
+        until(lambda: rp.proxy.setpoint_client is not None)
         assert rp.proxy.setpoint_client[1] == ("127.0.0.1", second.port)
         s = rp.stop()
     finally:
@@ -151,21 +145,21 @@ def test_a_flood_from_many_ports_neither_evicts_the_app_nor_takes_its_setpoints(
         vm = mav(2, 1, 1)
         hb = bytes(vm.heartbeat_encode(2, 12, 0, 0, 0).pack(vm))  # a PX4 vehicle, system 1
         veh.send(hb, vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None and rp.proxy.view.sysid == 1)
+        until(lambda: rp.proxy.vehicle.peer is not None and rp.proxy.view.sysid == 1)
         app.send(setpoint(mav(2, 245, 190), 0, POS_ONLY), ap)
-        _until(lambda: rp.proxy.setpoint_client is not None)
+        until(lambda: rp.proxy.setpoint_client is not None)
         me = rp.proxy.setpoint_client
         for p in flood:
             p.send(frames(mav(2, 77, 1), 1)[0], ap)
-        _until(lambda: rp.proxy.events["clients_left"] >= len(flood) - 15)
+        until(lambda: rp.proxy.events["clients_left"] >= len(flood) - 15)
         assert me in rp.proxy.clients and rp.proxy.setpoint_client == me
         veh.send(hb, vp)
         assert app.wait_for(1) == [hb]                       # still hears the vehicle
-        _until(lambda: rp.proxy.setpoint_client is None, 2.0)  # the app fell silent: the role is free
+        until(lambda: rp.proxy.setpoint_client is None, 2.0)  # the app fell silent: the role is free
         fm = mav(2, 77, 1)
         sp = fm.set_position_target_local_ned_encode(0, 99, 1, 1, POS_ONLY, 0, 0, -1, 0, 0, 0, 0, 0, 0, 0, 0)
         flood[0].send(bytes(sp.pack(fm)), ap)                # a setpoint for system 99: foreign
-        _until(lambda: rp.proxy.events["foreign_setpoints"] == 1)
+        until(lambda: rp.proxy.events["foreign_setpoints"] == 1)
         assert rp.proxy.setpoint_client is None
         s = rp.stop()
     finally:

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from proxy_support import Peer, RunningProxy, frames, free_port, mav
+from proxy_support import Peer, RunningProxy, frames, free_port, mav, until
 
 
 @pytest.fixture
@@ -19,7 +19,7 @@ def rig():
     veh, app, gcs = Peer(), Peer(), Peer()
     hello = frames(mav(2, 1, 9), 1)[0]  # (the tests' own senders each start at sequence 0)
     veh.send(hello, vp)
-    _until(lambda: rp.proxy.vehicle.peer is not None)
+    until(lambda: rp.proxy.vehicle.peer is not None)
     app.send(frames(mav(2, 245, 9), 1)[0], ap)
     gcs.send(frames(mav(1, 255, 9), 1)[0], ap)
     assert len(veh.wait_for(2, 5)) == 2
@@ -31,12 +31,6 @@ def rig():
     for p in (veh, app, gcs):
         p.close()
 
-
-def _until(cond, timeout: float = 5.0) -> None:
-    end = time.monotonic() + timeout
-    while not cond() and time.monotonic() < end:
-        time.sleep(0.005)
-    assert cond()
 
 
 def _paced(send, items, every: int = 40) -> None:
@@ -105,7 +99,7 @@ def test_a_quiet_client_keeps_everything_and_one_that_went_away_costs_the_others
     rp.proxy.client_timeout = 0.3
     gone = Peer()
     gone.send(frames(mav(2, 200, 190), 1)[0], ap)
-    _until(lambda: len(rp.proxy.clients) == 3)
+    until(lambda: len(rp.proxy.clients) == 3)
     gone.close()                                            # its port is closed from now on
     m = mav(2, 1, 1)
     sent = []
@@ -128,7 +122,7 @@ def test_between_clients_forwards_each_clients_messages_to_the_others():
     veh, app, gcs = Peer(), Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 1), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None)
+        until(lambda: rp.proxy.vehicle.peer is not None)
         gcs.send(frames(mav(2, 255, 190), 1)[0], ap)
         time.sleep(0.1)
         a = frames(mav(2, 245, 190), 3)
@@ -168,9 +162,9 @@ def test_an_app_that_listens_is_sent_to_like_px4_does_beside_a_server_for_a_grou
     rp = RunningProxy([f"udpout:127.0.0.1:{listening.port}", f"udpin:127.0.0.1:{ap}"], f"udpin:127.0.0.1:{vp}")
     try:
         veh.send(frames(mav(2, 1, 9), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None)
+        until(lambda: rp.proxy.vehicle.peer is not None)
         gcs.send(frames(mav(2, 255, 9), 1)[0], ap)
-        _until(lambda: len(veh.got) == 1)
+        until(lambda: len(veh.got) == 1)
         fs = frames(mav(2, 1, 1), 20)
         for f in fs:
             veh.send(f, vp)
@@ -194,12 +188,12 @@ def test_a_restarted_vehicle_on_a_new_port_is_taken_after_the_old_one_fell_silen
     old, new, app = Peer(), Peer(), Peer()
     try:
         old.send(frames(mav(2, 1, 1), 1)[0], vp)
-        _until(lambda: rp.proxy.vehicle.peer is not None)
+        until(lambda: rp.proxy.vehicle.peer is not None)
         new.send(frames(mav(2, 1, 1), 1)[0], vp)            # a second sender while the first is alive: foreign
-        _until(lambda: rp.proxy.vehicle.counts["foreign"] == 1)
+        until(lambda: rp.proxy.vehicle.counts["foreign"] == 1)
         time.sleep(0.4)                                     # the first falls silent ...
         new.send(frames(mav(2, 1, 1), 1)[0], vp)            # ... and the new one becomes the vehicle
-        _until(lambda: rp.proxy.vehicle.counts["peer_changes"] == 1)
+        until(lambda: rp.proxy.vehicle.counts["peer_changes"] == 1)
         app.send(frames(mav(2, 245, 190), 1)[0], ap)
         assert len(new.wait_for(1)) == 1 and old.got == []
     finally:
