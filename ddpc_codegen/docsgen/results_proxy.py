@@ -77,6 +77,35 @@ def _link(ap: dict) -> str:
                   "vehicle msgs with no app yet", "vehicle sequence gaps", "added p50 [us]", "added p99 [us]"], rows)
 
 
+def _ms(v) -> str:
+    return NA if not isinstance(v, (int, float)) else f"{v * 1e3:.0f}"
+
+
+def _stops(ap: dict) -> str:
+    """When the app stops (every flight's end) and when the proxy dies: the last setpoint out of the proxy and the
+    autopilot's own reaction, directly and through the proxy."""
+    rows = []
+    for path, runs in ap["paths"].items():
+        for k in (k for k in KINDS if k in runs):
+            a = (runs.get(k) or {}).get("app_stops")
+            if a:
+                rows.append([path, _NAMES[k], _ms(a.get("proxy_last_out_s")), _ms(a.get("failsafe_s")),
+                             f"{a.get('mode_before') or NA} -> {a.get('mode_after') or 'unchanged'}",
+                             _ms(a.get("heartbeat_period_s"))])
+    d = ap.get("proxy_death")
+    if d and "error" not in d:
+        rows.append(["(any)", "the proxy killed mid-flight", NA, _ms(d.get("failsafe_s")),
+                     f"{d.get('mode_before') or NA} -> {d.get('mode_after') or 'unchanged'}",
+                     _ms(d.get("heartbeat_period_s"))])
+    if not rows:
+        return ""
+    return ("When the app stops streaming (the end of each flight; the proxy stays up) or the proxy itself dies: the "
+            "proxy's last setpoint to the vehicle after the app's last, and the autopilot's own reaction (the first "
+            "heartbeat in another mode, timed to the heartbeat period beside it; 'unchanged': none within 3 s):\n\n"
+            + table(["app path", "flight", "last setpoint out after the app's [ms]", "mode change after [ms]",
+                     "mode", "heartbeat period [ms]"], rows))
+
+
 def _verdict(ap: dict) -> str:
     """Which preview wins on which path (a sentence per path, from the figures)."""
     out, better, n = [], 0, 0
@@ -115,7 +144,7 @@ def _section(name: str, ap: dict) -> str:
         "by the delay for the delayed flights.\n",
         _errors(ap), _verdict(ap), "Messages and the latency the proxy added (its own receive and send stamps; the "
         "vehicle's messages before the app joined have nobody to go to):\n",
-        _link(ap)])
+        _link(ap), _stops(ap)])
 
 
 def proxy_page(report: dict | None) -> str:

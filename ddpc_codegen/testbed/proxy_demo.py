@@ -36,18 +36,23 @@ from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_demo import codegen
 from ddpc_codegen.testbed.sitl_observer import SPARE_PORT, Observer, wait_tcp_port, wait_udp_bound
 from ddpc_codegen.testbed.sitl_setups import describe_setup, flown_setup, setup_params
+from ddpc_codegen.values.config import SteeringConfig
 
 __all__ = ["KINDS", "CONFIGS", "flight", "run", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
 SKIP_S = 3.0  # path seconds left out of a score (the lead-in's end and the steering's warm-up)
+WATCH_S = 3.0  # s watched after the app's last setpoint (the proxy still up): the autopilot's setpoint-loss failsafe
+DEATH_AT_S = 10.0  # path seconds into the proxy-death flight when the proxy is killed
 
 
 def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[str] | None, feedforward: str = "velacc",
-           height: float = 2.5, vehicle_url: str = "tcp:127.0.0.1:5760", direct_url: str = "tcp:127.0.0.1:5760") -> dict:
+           height: float = 2.5, vehicle_url: str = "tcp:127.0.0.1:5760", direct_url: str = "tcp:127.0.0.1:5760",
+           kill_proxy_at: float | None = None) -> dict:
     """One app flight, directly (``proxy_args`` None: the app on ``direct_url``) or through a proxy started with
-    ``proxy_args`` (its vehicle side ``vehicle_url``)."""
+    ``proxy_args`` (its vehicle side ``vehicle_url``); :data:`WATCH_S` watched after the app's end, the proxy still
+    up. ``kill_proxy_at``: SIGKILL the proxy that many path seconds in (its death, not the app's)."""
     applog = out / f"{name}.app.jsonl"
     applog.unlink(missing_ok=True)
     proxy = None
@@ -65,11 +70,13 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
            f"{duration:g}", "--feedforward", feedforward, "--height", f"{height:g}", "--log", str(applog)]
     app = subprocess.Popen(cmd, env={**os.environ, "MAVLINK20": "1"}, stdout=subprocess.DEVNULL,
                            stderr=open(out / f"{name}.app.err", "w"), cwd=out)
+    t_kill = _kill_at(proxy, applog, kill_proxy_at) if kill_proxy_at is not None else None
     try:
         rc = app.wait(duration + 200)
     except subprocess.TimeoutExpired:
         app.kill()
         rc = app.wait(5)
+    time.sleep(WATCH_S)  # the autopilot's own reaction to the app's silence, watched with the proxy still up
     stats = None
     if proxy is not None:
         stop_process(proxy, 15.0, signal.SIGINT)  # SIGINT: the proxy writes its statistics
@@ -77,7 +84,48 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
         stats = json.loads(p.read_text()) if p.is_file() else None
     if rc != 0:
         raise RuntimeError(f"{name}: the app failed ({rc}): {(out / f'{name}.app.err').read_text()[-1500:]}")
-    return {"name": name, "path": path, "app_log": str(applog), "proxy": stats}
+    return {"name": name, "path": path, "app_log": str(applog), "proxy": stats, "t_proxy_killed": t_kill}
+
+
+def _kill_at(proxy: subprocess.Popen | None, applog: Path, path_s: float) -> float | None:
+    """SIGKILL ``proxy`` once the app's log reaches path time ``path_s`` [s]; the kill's time.time() (None: no
+    proxy, or the app never got there within 300 s)."""
+    end = time.monotonic() + 300
+    while proxy is not None and time.monotonic() < end:
+        rows = applog.read_text().splitlines()[-1:] if applog.is_file() else []
+        if rows and rows[0].endswith("}") and json.loads(rows[0])["tp"] >= path_s:
+            proxy.kill()
+            return time.time()
+        time.sleep(0.05)
+    return None
+
+
+def failsafe(applog: Path, obs: Observer, ticks: Path | None = None, since: float | None = None) -> dict:
+    """The vehicle's reaction to the end of the app's stream: seconds from the app's last setpoint (or ``since``,
+    e.g. the proxy's death) to the first heartbeat whose mode or arming differs from the one then (None: none
+    within :data:`WATCH_S`); ``ticks``: the proxy's tick log, whose last setpoint to the vehicle is given after the
+    app's last [s] (the proxy stamps it on receipt and sends it in the same call)."""
+    rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip().endswith("}")]
+    t0 = since if since is not None else rows[-1]["t"]
+    hb = [h for h in list(obs.hb) if h[0] <= t0 + WATCH_S]
+    before = [h for h in hb if h[0] <= t0]
+    after = [h for h in hb if h[0] > t0]
+    base = before[-1][1:] if before else None
+    fired = next((h for h in after if base is not None and h[1:] != base), None)
+    out = {"from": "proxy death" if since is not None else "app's last setpoint",
+           "failsafe_s": None if fired is None else fired[0] - t0,
+           "mode_before": None if base is None else obs.mode_name(base[0]) + ("" if base[1] else ", disarmed"),
+           "mode_after": None if fired is None else obs.mode_name(fired[1]) + ("" if fired[2] else ", disarmed"),
+           "heartbeat_period_s": _period([h[0] for h in hb])}
+    if ticks is not None and ticks.is_file():
+        t_out = np.load(ticks)["rows"]["t"]
+        out["proxy_last_out_s"] = float(t_out[-1] - rows[-1]["t"]) if len(t_out) else None
+    return out
+
+
+def _period(ts: list[float]) -> float | None:
+    """The median spacing of the heartbeats [s] (the failsafe time's resolution)."""
+    return float(np.median(np.diff(ts))) if len(ts) > 2 else None
 
 
 def score(applog: Path, obs: Observer, delay: float = 0.0, skip: float = SKIP_S, ground: float = 0.0) -> dict:
@@ -118,11 +166,13 @@ CONFIGS = {"ardupilot": "proxy_ardupilot.toml", "px4": "proxy_px4_app.toml"}
 
 def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
         delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab",
-        kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep", config: str | None = None) -> dict:
+        kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep", config: str | None = None,
+        proxy_death: bool = True) -> dict:
     """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`; in the lab the
     proxy measures on the motion capture, which ArduCopter's EKF fuses too), the collect flight, codegen,
-    then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``).
-    Returns the report's entry of ``autopilot``."""
+    then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``), each
+    with the vehicle's reaction to the app's end (:func:`failsafe`); ``proxy_death``: one more steered flight whose
+    proxy is killed mid-path. Returns the report's entry of ``autopilot``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     sitl = make_sitl(autopilot, params=setup_params(autopilot, setup, {}, MocapConfig(seed=1))).start()
@@ -131,7 +181,8 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
         with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1), measure_on_mocap=True) as lab:
             obs = _observer(sitl)
             try:
-                res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold, kinds,
+                res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold,
+                                    (*kinds, *(("proxy_death",) if proxy_death else ())),
                                     ["--z-feedforward", z_feedforward, *lab.bridge_args],
                                     ROOT / "configs" / (config or CONFIGS[autopilot])))
                 res["setup_detail"] = {**describe_setup(autopilot, setup, lab.mocap),  # what the proxy measured on
@@ -150,11 +201,13 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
     time.sleep(10.0)  # PX4's EKF moves its height by 0.5 m in its first seconds
     ground = obs.ground()
     print(f"[proxy-demo] {lab.autopilot}: collect through the proxy (the app's own path + a dither)", flush=True)
+    coords = "deviation" if SteeringConfig.from_toml(config).input_names == ("z_offset",) else "absolute"
     col = flight(out, "collect", "wander", collect_s, ["--dither", f"{dither:g}", "--dither-hold", str(hold),
-                                                    "--collect", str(out / "collect.npz"), "--overwrite", *extra],
+                                                    "--coordinates", coords, "--collect", str(out / "collect.npz"),
+                                                    "--overwrite", *extra],
                  vehicle_url=url, direct_url=url)
     res = {"collect": {"path": "wander", "seconds": collect_s, "dither_m": dither, "dither_hold": hold,
-                       "config": config.name, "proxy": _proxy_figures(col["proxy"])}, "paths": {}}
+                       "config": config.name, "coordinates": coords, "proxy": _proxy_figures(col["proxy"])}, "paths": {}}
     solver = codegen(config, out / "collect.npz", out / "solver")
     offset = ((col["proxy"] or {}).get("steering") or {}).get("position_source", {}).get("offset_m")
     if offset is not None:  # the frames' offset measured on the ground before the collect's take-off, kept after
@@ -168,7 +221,15 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
             print(f"[proxy-demo] {lab.autopilot}: {path}, {kind}", flush=True)
             f = flight(out, f"{path}_{kind}", path, duration, runs[kind], vehicle_url=url, direct_url=url)
             res["paths"][path][kind] = {**score(Path(f["app_log"]), obs, delay if kind == "steer_delay" else 0.0,
-                                                ground=ground), "proxy": _proxy_figures(f["proxy"])}
+                                                ground=ground), "proxy": _proxy_figures(f["proxy"]),
+                                        "app_stops": failsafe(Path(f["app_log"]), obs,
+                                                              None if runs[kind] is None else out / f"{path}_{kind}.ticks.npz")}
+    if "proxy_death" in kinds and paths:
+        print(f"[proxy-demo] {lab.autopilot}: the proxy killed mid-flight", flush=True)
+        f = flight(out, "proxy_death", paths[0], duration, ["--steer", str(solver), *extra], vehicle_url=url,
+                   direct_url=url, kill_proxy_at=DEATH_AT_S)
+        res["proxy_death"] = failsafe(Path(f["app_log"]), obs, since=f["t_proxy_killed"]) \
+            if f["t_proxy_killed"] is not None else {"error": "the app never reached the kill time"}
     res["ground_truth_offset_mm"] = ground * 1e3
     return res
 

@@ -17,6 +17,7 @@ __all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_boun
 
 HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
 _LOCAL_POSITION_NED = 32
+_HEARTBEAT = 0  # asked at the streams' rate: a mode change (a failsafe) is timed to a tick, not to 1 s
 _TRUTH = {"ardupilot": ("SIM_STATE", 108), "px4": ("HIL_STATE_QUATERNION", 115)}
 # PX4 SITL's SIH link (UDP 19450 -> 19410, 400 kB/s) answers SET_MESSAGE_INTERVAL like any link; nothing else uses it
 SPARE_PORT = {"ardupilot": "tcp:127.0.0.1:5763", "px4": "udpin:127.0.0.1:19410"}
@@ -60,6 +61,7 @@ class Observer(threading.Thread):
 
         self.c = mavutil.mavlink_connection(url, source_system=251, autoreconnect=False)
         self.interval_us = 1e6 / rate_hz
+        self.autopilot = autopilot
         self.truth_type, self.truth_id = _TRUTH[autopilot]
         self._alt0: float | None = None
         self.sysid = sysid
@@ -75,7 +77,7 @@ class Observer(threading.Thread):
         while not self.halt.is_set():
             if time.monotonic() > next_req:  # (re)request until it streams
                 next_req = time.monotonic() + (5.0 if self.sim else 1.0)
-                for msg_id in (self.truth_id, _LOCAL_POSITION_NED):
+                for msg_id in (self.truth_id, _LOCAL_POSITION_NED, _HEARTBEAT):
                     self.c.mav.command_long_send(self.sysid, 1, 511, 0, msg_id, self.interval_us, 0, 0, 0, 0, 0)
             m = self.c.recv_match(blocking=True, timeout=0.2)
             if m is None:
@@ -114,6 +116,14 @@ class Observer(threading.Thread):
         t = b[b[:, 0] > b[-1, 0] - seconds, 0]
         truth = np.interp(t, a[:, 0], a[:, 1])
         return float(np.median(truth - np.interp(t, b[:, 0], b[:, 1])))
+
+    def mode_name(self, custom_mode: int) -> str:
+        """A heartbeat's ``custom_mode`` in the autopilot's words (``OFFBOARD``, ``GUIDED``, ``LOITER``)."""
+        from pymavlink import mavutil
+
+        if self.autopilot == "px4":
+            return mavutil.interpret_px4_mode(1, custom_mode)  # 1: MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        return mavutil.mode_mapping_acm.get(custom_mode, str(custom_mode))
 
     def stop(self) -> None:
         self.halt.set()

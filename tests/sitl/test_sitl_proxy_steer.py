@@ -8,7 +8,10 @@ the SITL.
 What it holds: the whole chain runs on a real autopilot (collect, fit, generate, steer), the steering engages once
 and steers nearly every tick, nothing is dropped or reordered, and the steered flight's true height is at least
 twice closer to the app's path than the app's own flight: this PX4 build's EKF (GPS and barometer) drifts off the
-truth by more than the app's tracking error, and the proxy closes its loop on the lab's measurement."""
+truth by more than the app's tracking error, and the proxy closes its loop on the lab's measurement. When the app
+stops at the end of each flight, the proxy's last setpoint to the vehicle follows the app's last by less than one
+app period plus one tick, and PX4's offboard-loss failsafe fires as long after it as without the proxy, within one
+app period + 10 ms beyond the heartbeats' resolution."""
 
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ def test_an_app_is_collected_fitted_and_steered_on_the_motion_capture(tmp_path):
         pytest.skip(why)
     res = run_isolated("ddpc_codegen.testbed.proxy_demo:run",
                        {"autopilot": "px4", "out_dir": str(tmp_path), "paths": ["helix"], "duration": 15.0,
-                        "collect_s": 40.0, "kinds": ["direct", "steer_local"]}, timeout=480)
+                        "collect_s": 40.0, "kinds": ["direct", "steer_local"], "proxy_death": False}, timeout=480)
     runs = res["paths"]["helix"]
     direct, steered = runs["direct"], runs["steer_local"]
     print(f"[proxy-steer] PX4 helix true height: direct {direct['rmse_z_truth_mm']:.1f} mm, steered (local preview, "
@@ -37,3 +40,11 @@ def test_an_app_is_collected_fitted_and_steered_on_the_motion_capture(tmp_path):
     st = p["steering"]
     assert st["activations"] == 1 and st["steered"] > 0.9 * st["ticks"]
     assert steered["rmse_z_truth_mm"] < 0.5 * direct["rmse_z_truth_mm"]
+    gone, alone = steered["app_stops"], direct["app_stops"]
+    print(f"[proxy-steer] the app's end: the proxy's last setpoint {gone['proxy_last_out_s'] * 1e3:.1f} ms after the "
+          f"app's; failsafe {alone['failsafe_s']} s direct, {gone['failsafe_s']} s steered "
+          f"({gone['mode_before']} -> {gone['mode_after']}, heartbeats every {gone['heartbeat_period_s']} s)")
+    assert gone["proxy_last_out_s"] < 0.02 + 0.02  # one app period + one tick (both 50 Hz)
+    assert alone["failsafe_s"] is not None and gone["failsafe_s"] is not None
+    assert abs(gone["failsafe_s"] - alone["failsafe_s"]) <= 0.02 + 0.01 + gone["heartbeat_period_s"]
+

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.testbed.proxy_app import PATHS, path_point
-from ddpc_codegen.testbed.proxy_demo import score
+from ddpc_codegen.testbed.proxy_demo import WATCH_S, failsafe, score
 
 
 def test_the_helix_derivatives_match_its_closed_form():
@@ -35,8 +35,11 @@ def test_every_path_starts_near_its_origin_and_stays_flyable(name):
 class _Obs:
     """An observer whose truth and estimate are given functions of time."""
 
-    def __init__(self, truth, est):
-        self.truth, self.est = truth, est
+    def __init__(self, truth, est, hb=()):
+        self.truth, self.est, self.hb = truth, est, list(hb)
+
+    def mode_name(self, custom_mode):
+        return {6 << 16: "OFFBOARD", (4 << 16) | (3 << 24): "LOITER"}[custom_mode]
 
     def heights(self, t):
         return self.truth(t), self.est(t)
@@ -64,3 +67,21 @@ def test_the_demo_refuses_unknown_kinds_and_autopilots_before_flying(capsys, arg
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2 and "--kinds from" in capsys.readouterr().err
+
+
+def test_the_vehicles_reaction_to_the_apps_end_is_timed_from_its_last_setpoint(tmp_path):
+    log, ticks = tmp_path / "app.jsonl", tmp_path / "ticks.npz"
+    log.write_text("".join(json.dumps({"t": 100.0 + k * 0.02, "tp": k * 0.02, "x": 0, "y": 0, "z": -2}) + "\n"
+                           for k in range(51)) + '{"t": 101.0')  # a line cut by the app's kill is not a setpoint
+    np.savez(ticks, rows=np.array([(100.0 + k * 0.02 + 4e-4,) for k in range(51)], dtype=[("t", "<f8")]))
+    off, loiter = 6 << 16, (4 << 16) | (3 << 24)
+    hb = [(99.0 + k * 0.02, off, True) for k in range(100)] + [(101.0 + k * 0.02, off, True) for k in range(50)] \
+        + [(102.02 + k * 0.02, loiter, True) for k in range(50)]
+    f = failsafe(log, _Obs(None, None, hb), ticks)
+    assert f["failsafe_s"] == pytest.approx(1.02) and f["mode_before"] == "OFFBOARD" and f["mode_after"] == "LOITER"
+    assert f["proxy_last_out_s"] == pytest.approx(4e-4) and f["heartbeat_period_s"] == pytest.approx(0.02)
+    held = failsafe(log, _Obs(None, None, [h for h in hb if h[1] == off]))  # e.g. ArduCopter holding in GUIDED
+    assert held["failsafe_s"] is None and held["mode_after"] is None and "proxy_last_out_s" not in held
+    late = failsafe(log, _Obs(None, None, hb + [(101.0 + WATCH_S + 0.5, off, False)]), since=101.5)
+    assert late["failsafe_s"] == pytest.approx(0.52) and late["from"] == "proxy death"
+
