@@ -91,19 +91,19 @@ def _stops(ap: dict) -> str:
             if a:
                 rows.append([path, _NAMES[k], _ms(a.get("proxy_last_out_s")), _ms(a.get("failsafe_s")),
                              f"{a.get('mode_before') or NA} -> {a.get('mode_after') or 'unchanged'}",
-                             _ms(a.get("heartbeat_period_s"))])
+                             a.get("timed_by") or NA])
     d = ap.get("proxy_death")
     if d and "error" not in d:
         rows.append(["(any)", "the proxy killed mid-flight", NA, _ms(d.get("failsafe_s")),
                      f"{d.get('mode_before') or NA} -> {d.get('mode_after') or 'unchanged'}",
-                     _ms(d.get("heartbeat_period_s"))])
+                     d.get("timed_by") or NA])
     if not rows:
         return ""
     return ("When the app stops streaming (the end of each flight; the proxy stays up) or the proxy itself dies: the "
             "proxy's last setpoint to the vehicle after the app's last, and the autopilot's own reaction (the first "
-            "heartbeat in another mode, timed to the heartbeat period beside it; 'unchanged': none within 3 s):\n\n"
+            "mode, from the autopilot's heartbeats and its CURRENT_MODE messages; 'unchanged': none within 3 s):\n\n"
             + table(["app path", "flight", "last setpoint out after the app's [ms]", "mode change after [ms]",
-                     "mode", "heartbeat period [ms]"], rows))
+                     "mode", "timed by"], rows))
 
 
 def _verdict(ap: dict) -> str:

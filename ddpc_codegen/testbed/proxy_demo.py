@@ -102,21 +102,25 @@ def _kill_at(proxy: subprocess.Popen | None, applog: Path, path_s: float) -> flo
 
 def failsafe(applog: Path, obs: Observer, ticks: Path | None = None, since: float | None = None) -> dict:
     """The vehicle's reaction to the end of the app's stream: seconds from the app's last setpoint (or ``since``,
-    e.g. the proxy's death) to the first heartbeat whose mode or arming differs from the one then (None: none
-    within :data:`WATCH_S`); ``ticks``: the proxy's tick log, whose last setpoint to the vehicle is given after the
-    app's last [s] (the proxy stamps it on receipt and sends it in the same call)."""
+    e.g. the proxy's death) to the first mode or arming other than the one then (None: none within
+    :data:`WATCH_S`), from its heartbeats and its ``CURRENT_MODE`` messages (PX4 sends one on each change, but
+    heartbeats at 1 Hz only); ``ticks``: the proxy's tick log, whose last setpoint to the vehicle is given after the
+    app's last [s] (the proxy stamps it on receipt and sends it in that call)."""
     rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip().endswith("}")]
     t0 = since if since is not None else rows[-1]["t"]
     hb = [h for h in list(obs.hb) if h[0] <= t0 + WATCH_S]
-    before = [h for h in hb if h[0] <= t0]
-    after = [h for h in hb if h[0] > t0]
+    armed = lambda t: next((h[2] for h in reversed(hb) if h[0] <= t), True)  # noqa: E731
+    modes = [m for m in list(getattr(obs, "modes", [])) if m[0] <= t0 + WATCH_S]
+    seen = sorted(hb + [(t, cm, armed(t)) for t, cm in modes])
+    before = [h for h in seen if h[0] <= t0]
     base = before[-1][1:] if before else None
-    fired = next((h for h in after if base is not None and h[1:] != base), None)
+    fired = next((h for h in seen if h[0] > t0 and base is not None and h[1:] != base), None)
     out = {"from": "proxy death" if since is not None else "app's last setpoint",
            "failsafe_s": None if fired is None else fired[0] - t0,
            "mode_before": None if base is None else obs.mode_name(base[0]) + ("" if base[1] else ", disarmed"),
            "mode_after": None if fired is None else obs.mode_name(fired[1]) + ("" if fired[2] else ", disarmed"),
-           "heartbeat_period_s": _period([h[0] for h in hb])}
+           "timed_by": "CURRENT_MODE, sent on a change" if modes else
+           f"heartbeats every {(_period([h[0] for h in hb]) or float('nan')) * 1e3:.0f} ms"}
     if ticks is not None and ticks.is_file():
         t_out = np.load(ticks)["rows"]["t"]
         out["proxy_last_out_s"] = float(t_out[-1] - rows[-1]["t"]) if len(t_out) else None
@@ -162,10 +166,14 @@ def _proxy_figures(stats: dict | None) -> dict | None:
 KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
 # The steering's config per autopilot (the app sends its own feed-forward: deviation coordinates on both)
 CONFIGS = {"ardupilot": "proxy_ardupilot.toml", "px4": "proxy_px4_app.toml"}
+# The collect's dither [m] per autopilot. ArduCopter's height loop is not linear in the size of a move (its position
+# controller's square-root law): +-0.15 m steps identify a loop slower than the one the steering's small moves meet,
+# and the steering then rings. PX4's offsets mostly carry its estimator's drift, steered well with +-0.15 m.
+DITHERS = {"ardupilot": 0.05, "px4": 0.15}
 
 
 def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
-        delay: float = 0.5, dither: float = 0.15, dither_hold: int = 10, setup: str = "lab",
+        delay: float = 0.5, dither: float | None = None, dither_hold: int = 10, setup: str = "lab",
         kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep", config: str | None = None,
         proxy_death: bool = True) -> dict:
     """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`; in the lab the
@@ -177,6 +185,7 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
     out.mkdir(parents=True, exist_ok=True)
     sitl = make_sitl(autopilot, params=setup_params(autopilot, setup, {}, MocapConfig(seed=1))).start()
     res: dict = {"setup": setup, "z_feedforward": z_feedforward, "paths": {}, "collect": {}}
+    dither = DITHERS[autopilot] if dither is None else dither
     try:
         with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1), measure_on_mocap=True) as lab:
             obs = _observer(sitl)

@@ -17,7 +17,7 @@ __all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_boun
 
 HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
 _LOCAL_POSITION_NED = 32
-_HEARTBEAT = 0  # asked at the streams' rate: a mode change (a failsafe) is timed to a tick, not to 1 s
+_HEARTBEAT = 0  # asked at the streams' rate: ArduPilot honours it; PX4 keeps 1 Hz but sends CURRENT_MODE on a change
 _TRUTH = {"ardupilot": ("SIM_STATE", 108), "px4": ("HIL_STATE_QUATERNION", 115)}
 # PX4 SITL's SIH link (UDP 19450 -> 19410, 400 kB/s) answers SET_MESSAGE_INTERVAL like any link; nothing else uses it
 SPARE_PORT = {"ardupilot": "tcp:127.0.0.1:5763", "px4": "udpin:127.0.0.1:19410"}
@@ -69,6 +69,7 @@ class Observer(threading.Thread):
         self.lpos: list[tuple[float, float]] = []  # (t, estimated height -z [m])
         self.hb: list[tuple[float, int, bool]] = []  # (t, custom_mode, armed)
         self.texts: list[tuple[float, str]] = []
+        self.modes: list[tuple[float, int]] = []  # (t, custom_mode) of CURRENT_MODE (PX4: sent on each change)
         self.halt = threading.Event()
         self.start()
 
@@ -90,6 +91,8 @@ class Observer(threading.Thread):
                 self.sim.append((t, m.alt * 1e-3 - self._alt0))
             elif typ == "LOCAL_POSITION_NED":
                 self.lpos.append((t, -m.z))
+            elif typ == "CURRENT_MODE" and m.get_srcSystem() == self.sysid:
+                self.modes.append((t, m.custom_mode))
             elif typ == "STATUSTEXT":
                 self.texts.append((t, m.text))
             elif typ == "HEARTBEAT" and m.get_srcSystem() == self.sysid and m.get_srcComponent() == 1:

@@ -195,13 +195,13 @@ def test_the_proxy_page_says_which_preview_wins_on_each_path():
                                              "steer_local": _proxy_run(12.0, 11.0, 990),
                                              "steer_delay": _proxy_run(8.0, 7.5, 1000, 0.5)}},
                          "proxy_death": {"failsafe_s": 0.5, "mode_before": "OFFBOARD", "mode_after": "LOITER",
-                                         "heartbeat_period_s": 0.02}}}
+                                         "timed_by": "CURRENT_MODE, sent on a change"}}}
     rep["ardupilot"]["paths"]["helix"]["steer_local"]["app_stops"] = {
         "proxy_last_out_s": 0.0004, "failsafe_s": None, "mode_before": "GUIDED", "mode_after": None,
-        "heartbeat_period_s": 1.0}
+        "timed_by": "heartbeats every 18 ms"}
     page = results.pages({"proxy.json": rep})["proxy.md"]
-    assert "| helix | steered, local preview | 0 | -- | GUIDED -> unchanged | 1000 |" in page
-    assert "| (any) | the proxy killed mid-flight | -- | 500 | OFFBOARD -> LOITER | 20 |" in page
+    assert "| helix | steered, local preview | 0 | -- | GUIDED -> unchanged | heartbeats every 18 ms |" in page
+    assert "| (any) | the proxy killed mid-flight | -- | 500 | OFFBOARD -> LOITER | CURRENT_MODE, sent on a change |" in page
     assert "- helix: the declared delay wins (8.0 mm against 12.0 mm; the app alone 40.0 mm)." in page
     assert "| helix | steered, delay 0.5 s | 8.0 | 7.5 | 2.0 | 5.00 |" in page
     assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 0 | 0 | 120 | 480 |" in page

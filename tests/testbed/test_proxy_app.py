@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.testbed.proxy_app import PATHS, path_point
-from ddpc_codegen.testbed.proxy_demo import WATCH_S, failsafe, score
+from ddpc_codegen.testbed.proxy_demo import failsafe, score
 
 
 def test_the_helix_derivatives_match_its_closed_form():
@@ -75,13 +75,15 @@ def test_the_vehicles_reaction_to_the_apps_end_is_timed_from_its_last_setpoint(t
                            for k in range(51)) + '{"t": 101.0')  # a line cut by the app's kill is not a setpoint
     np.savez(ticks, rows=np.array([(100.0 + k * 0.02 + 4e-4,) for k in range(51)], dtype=[("t", "<f8")]))
     off, loiter = 6 << 16, (4 << 16) | (3 << 24)
-    hb = [(99.0 + k * 0.02, off, True) for k in range(100)] + [(101.0 + k * 0.02, off, True) for k in range(50)] \
-        + [(102.02 + k * 0.02, loiter, True) for k in range(50)]
-    f = failsafe(log, _Obs(None, None, hb), ticks)
-    assert f["failsafe_s"] == pytest.approx(1.02) and f["mode_before"] == "OFFBOARD" and f["mode_after"] == "LOITER"
-    assert f["proxy_last_out_s"] == pytest.approx(4e-4) and f["heartbeat_period_s"] == pytest.approx(0.02)
+    hb = [(99.5, off, True), (100.5, off, True), (101.5, off, True), (102.5, loiter, True), (103.5, loiter, True)]
+    f = failsafe(log, _Obs(None, None, hb), ticks)  # heartbeats only (1 Hz): timed to them
+    assert f["failsafe_s"] == pytest.approx(1.5) and f["mode_before"] == "OFFBOARD" and f["mode_after"] == "LOITER"
+    assert f["proxy_last_out_s"] == pytest.approx(4e-4) and f["timed_by"] == "heartbeats every 1000 ms"
+    obs = _Obs(None, None, hb)  # PX4's CURRENT_MODE: every 0.5 s and on the change at 102.04 s
+    obs.modes = [(99.6 + 0.5 * k, off) for k in range(5)] + [(102.04, loiter), (102.1, loiter)]
+    f = failsafe(log, obs, ticks)
+    assert f["failsafe_s"] == pytest.approx(1.04) and f["mode_after"] == "LOITER" and "CURRENT_MODE" in f["timed_by"]
     held = failsafe(log, _Obs(None, None, [h for h in hb if h[1] == off]))  # e.g. ArduCopter holding in GUIDED
     assert held["failsafe_s"] is None and held["mode_after"] is None and "proxy_last_out_s" not in held
-    late = failsafe(log, _Obs(None, None, hb + [(101.0 + WATCH_S + 0.5, off, False)]), since=101.5)
-    assert late["failsafe_s"] == pytest.approx(0.52) and late["from"] == "proxy death"
-
+    late = failsafe(log, _Obs(None, None, hb), since=101.7)
+    assert late["failsafe_s"] == pytest.approx(0.8) and late["from"] == "proxy death"

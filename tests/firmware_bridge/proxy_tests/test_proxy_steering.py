@@ -58,6 +58,19 @@ def test_collect_adds_exactly_its_dither_and_records_what_was_sent():
     assert np.allclose(u, out["sent"][eng][:len(u)]) and len(u) >= 1400
 
 
+def test_ordinary_flights_teach_the_absolute_loop_but_nothing_in_deviation_coordinates():
+    """An app's own flights (no dither) excite z_ref with its path; the offset of deviation coordinates never moves,
+    and the fit says so instead of learning a loop from nothing."""
+    from ddpc_codegen.design.predictor import fit_predictor
+    from ddpc_codegen.errors import ExcitationError
+
+    hook = _hook()
+    fly(hook, _path(1500))
+    fit_predictor(hook.record.dataset(hook.tick, coordinates="absolute"), t_ini=10, t_f=30)
+    with pytest.raises(ExcitationError, match="near-constant input channel.*z_offset"):
+        fit_predictor(hook.record.dataset(hook.tick, coordinates="deviation"), t_ini=10, t_f=30)
+
+
 def test_an_unarmed_vehicle_is_never_steered_and_collect_refuses_an_empty_record():
     hook = _hook(dither=0.2)
     out = fly(hook, _path(300), LoopSim(armed=False))
