@@ -122,15 +122,18 @@ class App:
         p = list(p) + [0.0] * (7 - len(p))
         self.c.mav.command_long_send(self.c.target_system, self.c.target_component, cmd, 0, *p)
 
-    def setpoint(self, pos_up: np.ndarray, vel_up: np.ndarray, acc_up: np.ndarray, mask: int, t_path: float) -> None:
-        """One setpoint at ``pos_up`` (x, y, up) [m] (NED on the wire), logged."""
+    def setpoint(self, pos_up: np.ndarray, vel_up: np.ndarray, acc_up: np.ndarray, mask: int,
+                 t_path: float | None) -> None:
+        """One setpoint at ``pos_up`` (x, y, up) [m] (NED on the wire), logged (with its path time ``t_path`` [s]
+        where it has one: a scored point)."""
         ned = lambda v: (float(v[0]), float(v[1]), -float(v[2]))  # noqa: E731 (x north, y east here)
         (x, y, z), (vx, vy, vz), (ax, ay, az) = ned(pos_up), ned(vel_up), ned(acc_up)
         self.c.mav.set_position_target_local_ned_send(int(1e3 * (time.monotonic() - self.t0)), self.c.target_system,
                                                       self.c.target_component, M.MAV_FRAME_LOCAL_NED, mask,
                                                       x, y, z, vx, vy, vz, ax, ay, az, 0.0, 0.0)
         if self.log is not None:
-            self.log.write(json.dumps({"t": time.time(), "tp": round(t_path, 4), "x": x, "y": y, "z": z}) + "\n")
+            row = {"t": time.time(), "x": x, "y": y, "z": z}
+            self.log.write(json.dumps(row if t_path is None else {**row, "tp": round(t_path, 4)}) + "\n")
 
 
 def _take_off(app: App, home: np.ndarray, height: float) -> None:
@@ -161,9 +164,10 @@ def _take_off(app: App, home: np.ndarray, height: float) -> None:
 
 
 def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: str = "velacc",
-        height: float = 2.5, log: Path | None = None, lead_in: float = 6.0) -> int:
+        height: float = 2.5, log: Path | None = None, lead_in: float = 6.0, hold: float = 1.0) -> int:
     """Fly ``path`` for ``duration`` [s] at ``rate`` [Hz] around ``height`` [m] above the local origin (taking off
-    first when on the ground)."""
+    first when on the ground), then hold its end for ``hold`` [s] (zero velocity and acceleration: the stream's last
+    setpoint, also after a proxy's preview delay shorter than ``hold``; logged without a path time)."""
     app = App(url, log)
     if not app.wait(lambda: app.hb is not None and app.lpos is not None, 60.0,
                     lambda: app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20_000) if app.hb else None):
@@ -187,6 +191,10 @@ def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: s
         app.pump()
         k += 1
         time.sleep(max(0.0, t0 + k * period - time.monotonic()))
+    end = origin + path_point(path, duration)[0]
+    for j in range(int(round(hold * rate))):  # the end: a hold (ArduCopter flies on along the last setpoint's
+        app.setpoint(end, zero, zero, MASKS[feedforward], None)  # velocity and acceleration for GUID_TIMEOUT)
+        time.sleep(max(0.0, t0 + (k + j + 1) * period - time.monotonic()))
     if app.log is not None:
         app.log.close()
     return 0

@@ -93,7 +93,7 @@ def _kill_at(proxy: subprocess.Popen | None, applog: Path, path_s: float) -> flo
     end = time.monotonic() + 300
     while proxy is not None and time.monotonic() < end:
         rows = applog.read_text().splitlines()[-1:] if applog.is_file() else []
-        if rows and rows[0].endswith("}") and json.loads(rows[0])["tp"] >= path_s:
+        if rows and rows[0].endswith("}") and json.loads(rows[0]).get("tp", path_s) >= path_s:
             proxy.kill()
             return time.time()
         time.sleep(0.05)

@@ -17,7 +17,8 @@ __all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_boun
 
 HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
 _LOCAL_POSITION_NED = 32
-_HEARTBEAT = 0  # asked at the streams' rate: ArduPilot honours it; PX4 keeps 1 Hz but sends CURRENT_MODE on a change
+_HEARTBEAT = 0  # asked at the streams' rate: ArduPilot honours it; PX4 keeps 1 Hz ...
+_CURRENT_MODE = 436  # ... but streams CURRENT_MODE once asked, and sends one more on each change
 _TRUTH = {"ardupilot": ("SIM_STATE", 108), "px4": ("HIL_STATE_QUATERNION", 115)}
 # PX4 SITL's SIH link (UDP 19450 -> 19410, 400 kB/s) answers SET_MESSAGE_INTERVAL like any link; nothing else uses it
 SPARE_PORT = {"ardupilot": "tcp:127.0.0.1:5763", "px4": "udpin:127.0.0.1:19410"}
@@ -78,7 +79,7 @@ class Observer(threading.Thread):
         while not self.halt.is_set():
             if time.monotonic() > next_req:  # (re)request until it streams
                 next_req = time.monotonic() + (5.0 if self.sim else 1.0)
-                for msg_id in (self.truth_id, _LOCAL_POSITION_NED, _HEARTBEAT):
+                for msg_id in (self.truth_id, _LOCAL_POSITION_NED, _HEARTBEAT, _CURRENT_MODE):
                     self.c.mav.command_long_send(self.sysid, 1, 511, 0, msg_id, self.interval_us, 0, 0, 0, 0, 0)
             m = self.c.recv_match(blocking=True, timeout=0.2)
             if m is None:
