@@ -101,7 +101,7 @@ def _stops(ap: dict) -> str:
         return ""
     return ("When the app stops streaming (the end of each flight; the proxy stays up) or the proxy itself dies: the "
             "proxy's last setpoint to the vehicle after the app's last, and the autopilot's own reaction (the first "
-            "mode, from the autopilot's heartbeats and its CURRENT_MODE messages; 'unchanged': none within 3 s):\n\n"
+            "change of mode or arming, seen in its heartbeats and CURRENT_MODE messages; 'unchanged': none within 3 s):\n\n"
             + table(["app path", "flight", "last setpoint out after the app's [ms]", "mode change after [ms]",
                      "mode", "timed by"], rows))
 
