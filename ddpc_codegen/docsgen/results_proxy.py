@@ -106,6 +106,13 @@ def _stops(ap: dict) -> str:
                      "mode", "timed by"], rows))
 
 
+def _realtime(ap: dict) -> str:
+    """How the proxy was scheduled in the path flights ("SCHED_FIFO 20, mlockall", "best effort")."""
+    seen = {((r or {}).get("proxy") or {}).get("realtime") for runs in ap["paths"].values() for r in runs.values()}
+    seen.discard(None)
+    return " / ".join(sorted(seen)) if seen else "best effort"
+
+
 def _verdict(ap: dict) -> str:
     """Which preview wins on which path (a sentence per path, from the figures)."""
     out, better, n = [], 0, 0
@@ -143,7 +150,8 @@ def _section(name: str, ap: dict) -> str:
         "Errors are RMS over each path (its first seconds left out) against the height the app declared, played late "
         "by the delay for the delayed flights.\n",
         _errors(ap), _verdict(ap), "Messages and the latency the proxy added (its own receive and send stamps; the "
-        "vehicle's messages before the app joined have nobody to go to):\n",
+        f"vehicle's messages before the app joined have nobody to go to; the proxy ran {_realtime(ap)}, beside the "
+        "SITL, the motion-capture stand-in, the observer and the app on this machine):\n",
         _link(ap), _stops(ap)])
 
 

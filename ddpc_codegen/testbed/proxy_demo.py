@@ -51,15 +51,15 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
            height: float = 2.5, vehicle_url: str = "tcp:127.0.0.1:5760", direct_url: str = "tcp:127.0.0.1:5760",
            kill_proxy_at: float | None = None) -> dict:
     """One app flight, directly (``proxy_args`` None: the app on ``direct_url``) or through a proxy started with
-    ``proxy_args`` (its vehicle side ``vehicle_url``); :data:`WATCH_S` watched after the app's end, the proxy still
-    up. ``kill_proxy_at``: SIGKILL the proxy that many path seconds in (its death, not the app's)."""
+    ``proxy_args`` (its vehicle side ``vehicle_url``; SCHED_FIFO 20, as the guide runs it on a robot, where this
+    machine permits); :data:`WATCH_S` watched after the app's end, the proxy still up. ``kill_proxy_at``: SIGKILL the proxy that many path seconds in (its death, not the app's)."""
     applog = out / f"{name}.app.jsonl"
     applog.unlink(missing_ok=True)
     proxy = None
     if proxy_args is not None:
         cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
                "--vehicle", vehicle_url, "--stats", str(out / f"{name}.proxy.json"),
-               "--log", str(out / f"{name}.ticks.npz"), "--overwrite", *proxy_args]
+               "--log", str(out / f"{name}.ticks.npz"), "--overwrite", "--rt-priority", "20", *proxy_args]
         proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
         if not wait_udp_bound(APP_PORT) or proxy.poll() is not None:
             stop_process(proxy, 5.0, signal.SIGINT)
@@ -157,7 +157,8 @@ def _proxy_figures(stats: dict | None) -> dict | None:
     up, down = stats["app_to_vehicle"], stats["vehicle_to_app"]
     keep = ("received", "forwarded", "rewritten", "dropped", "seq_gaps", "send_errors")
     st = stats.get("steering") or {}
-    return {"app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
+    return {"realtime": stats.get("realtime"),
+            "app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
             "latency_us": {"app_to_vehicle": up["latency_us"], "vehicle_to_app": down["latency_us"]},
             "steering": {k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
                                                 "period_mismatch", "preview_delay_s")} if st else None}
