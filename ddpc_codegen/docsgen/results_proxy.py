@@ -81,22 +81,19 @@ def _ms(v) -> str:
     return NA if not isinstance(v, (int, float)) else f"{v * 1e3:.0f}"
 
 
+def _stop_row(path: str, flight: str, a: dict) -> list[str]:
+    return [path, flight, _ms(a.get("proxy_last_out_s")), _ms(a.get("failsafe_s")),
+            f"{a.get('mode_before') or NA} -> {a.get('mode_after') or 'unchanged'}", a.get("timed_by") or NA]
+
+
 def _stops(ap: dict) -> str:
     """When the app stops (every flight's end) and when the proxy dies: the last setpoint out of the proxy and the
     autopilot's own reaction, directly and through the proxy."""
-    rows = []
-    for path, runs in ap["paths"].items():
-        for k in (k for k in KINDS if k in runs):
-            a = (runs.get(k) or {}).get("app_stops")
-            if a:
-                rows.append([path, _NAMES[k], _ms(a.get("proxy_last_out_s")), _ms(a.get("failsafe_s")),
-                             f"{a.get('mode_before') or NA} -> {a.get('mode_after') or 'unchanged'}",
-                             a.get("timed_by") or NA])
+    rows = [_stop_row(path, _NAMES[k], runs[k]["app_stops"]) for path, runs in ap["paths"].items()
+            for k in KINDS if (runs.get(k) or {}).get("app_stops")]
     d = ap.get("proxy_death")
     if d and "error" not in d:
-        rows.append(["(any)", "the proxy killed mid-flight", NA, _ms(d.get("failsafe_s")),
-                     f"{d.get('mode_before') or NA} -> {d.get('mode_after') or 'unchanged'}",
-                     d.get("timed_by") or NA])
+        rows.append(_stop_row("(any)", "the proxy killed mid-flight", d))
     if not rows:
         return ""
     return ("When the app stops streaming (the end of each flight; the proxy stays up) or the proxy itself dies: the "

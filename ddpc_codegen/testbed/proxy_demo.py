@@ -52,7 +52,8 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
            kill_proxy_at: float | None = None) -> dict:
     """One app flight, directly (``proxy_args`` None: the app on ``direct_url``) or through a proxy started with
     ``proxy_args`` (its vehicle side ``vehicle_url``; SCHED_FIFO 20, as the guide runs it on a robot, where this
-    machine permits); :data:`WATCH_S` watched after the app's end, the proxy still up. ``kill_proxy_at``: SIGKILL the proxy that many path seconds in (its death, not the app's)."""
+    machine permits); :data:`WATCH_S` watched after the app's end, the proxy still up. ``kill_proxy_at``: SIGKILL
+    the proxy that many path seconds in (its death, not the app's)."""
     applog = out / f"{name}.app.jsonl"
     applog.unlink(missing_ok=True)
     proxy = None
@@ -92,12 +93,22 @@ def _kill_at(proxy: subprocess.Popen | None, applog: Path, path_s: float) -> flo
     proxy, or the app never got there within 300 s)."""
     end = time.monotonic() + 300
     while proxy is not None and time.monotonic() < end:
-        rows = applog.read_text().splitlines()[-1:] if applog.is_file() else []
-        if rows and rows[0].endswith("}") and json.loads(rows[0]).get("tp", path_s) >= path_s:
+        last = _last_line(applog)
+        if last.endswith("}") and json.loads(last).get("tp", path_s) >= path_s:
             proxy.kill()
             return time.time()
         time.sleep(0.05)
     return None
+
+
+def _last_line(path: Path, tail: int = 512) -> str:
+    """The last whole line of a growing text file (its last ``tail`` bytes read; "" before it exists)."""
+    if not path.is_file():
+        return ""
+    with path.open("rb") as f:
+        f.seek(max(0, f.seek(0, os.SEEK_END) - tail))
+        lines = f.read().decode(errors="replace").splitlines()
+    return lines[-1] if lines else ""
 
 
 def failsafe(applog: Path, obs: Observer, ticks: Path | None = None, since: float | None = None) -> dict:
@@ -108,9 +119,9 @@ def failsafe(applog: Path, obs: Observer, ticks: Path | None = None, since: floa
     app's last [s] (the proxy stamps it on receipt and sends it in that call)."""
     rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip().endswith("}")]
     t0 = since if since is not None else rows[-1]["t"]
-    hb = [h for h in list(obs.hb) if h[0] <= t0 + WATCH_S]
+    near = lambda rec: [r for r in list(rec) if t0 - WATCH_S < r[0] <= t0 + WATCH_S]  # noqa: E731 (a session's
+    hb, modes = near(obs.hb), near(obs.modes)  # heartbeats: ArduPilot sends them at the streams' 50 Hz)
     armed = lambda t: next((h[2] for h in reversed(hb) if h[0] <= t), True)  # noqa: E731
-    modes = [m for m in list(getattr(obs, "modes", [])) if m[0] <= t0 + WATCH_S]
     seen = sorted(hb + [(t, cm, armed(t)) for t, cm in modes])
     before = [h for h in seen if h[0] <= t0]
     base = before[-1][1:] if before else None

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.testbed.proxy_app import PATHS, path_point
-from ddpc_codegen.testbed.proxy_demo import failsafe, score
+from ddpc_codegen.testbed.proxy_demo import _last_line, failsafe, score
 
 
 def test_the_helix_derivatives_match_its_closed_form():
@@ -36,7 +36,7 @@ class _Obs:
     """An observer whose truth and estimate are given functions of time."""
 
     def __init__(self, truth, est, hb=()):
-        self.truth, self.est, self.hb = truth, est, list(hb)
+        self.truth, self.est, self.hb, self.modes = truth, est, list(hb), []
 
     def mode_name(self, custom_mode):
         return {6 << 16: "OFFBOARD", (4 << 16) | (3 << 24): "LOITER"}[custom_mode]
@@ -87,3 +87,14 @@ def test_the_vehicles_reaction_to_the_apps_end_is_timed_from_its_last_setpoint(t
     assert held["failsafe_s"] is None and held["mode_after"] is None and "proxy_last_out_s" not in held
     late = failsafe(log, _Obs(None, None, hb), since=101.7)
     assert late["failsafe_s"] == pytest.approx(0.8) and late["from"] == "proxy death"
+
+
+def test_the_kill_watch_reads_only_the_growing_logs_last_line(tmp_path):
+    log = tmp_path / "app.jsonl"
+    assert _last_line(log) == ""  # not written yet
+    log.write_text("".join(json.dumps({"t": k, "tp": k * 0.02, "pad": "x" * 80}) + "\n" for k in range(400)))
+    assert json.loads(_last_line(log))["t"] == 399
+    with log.open("a") as f:
+        f.write('{"t": 400, "tp"')  # a line being written: not whole yet
+    assert not _last_line(log).endswith("}")
+
