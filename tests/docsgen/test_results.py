@@ -206,8 +206,21 @@ def test_the_proxy_page_says_which_preview_wins_on_each_path():
     assert "| helix | steered, delay 0.5 s | 8.0 | 7.5 | 2.0 | 5.00 |" in page
     assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 0 | 0 | 120 | 480 |" in page
     assert "The steered app (its better preview) below the app alone on 1 of 1 paths." in page
+    assert "-33 % to -33 % of the error" in page and "cut the error by up to 33 %" in page
     index = results.pages({"proxy.json": rep})["index.md"]
     assert "| helix | 40.0 | 8.0 (steered, delay) | 5.00 |" in index
+
+
+def test_the_proxy_page_says_where_steering_made_it_worse_and_what_a_file_preview_would_add():
+    runs = {"direct": {**_proxy_run(40.0, 39.0), "proxy": None}, "passthrough": _proxy_run(41.0, 40.0),
+            "steer_local": _proxy_run(50.0, 49.0, 990), "steer_delay": _proxy_run(52.0, 51.0, 1000, 0.5)}
+    rep = {"px4": {"setup": "lab", "collect": {"path": "wander", "seconds": 60, "dither_m": 0.15},
+                   "paths": {"steps": runs}}}
+    page = results.pages({"proxy.json": rep})["proxy.md"]
+    assert "- steps: the local preview wins (50.0 mm against 52.0 mm; the app alone 40.0 mm: the steering made it " \
+           "worse)." in page
+    assert "below the app alone on 0 of 1 paths" in page
+    assert "+4 % to +4 % of the error" in page and "so it is not offered" in page
 
 
 def _run(cond: dict, estimator: str = "") -> dict:
