@@ -230,6 +230,14 @@ class GeneratedSolver:
         finally:
             self._give(None)
 
+    def predict(self, u_ini, y_ini, u_f) -> np.ndarray:
+        """(Tf, p) the outputs the predictor expects after the window ``u_ini`` (Tini, m), ``y_ini`` (Tini, p) under
+        the references ``u_f`` (Tf, m), in the signals' units: what a result's ``y_pred`` is for the solver's own
+        references, here for any (e.g. those the loop applied)."""
+        nominal = np.zeros((self.t_f, self.m)) if self.has_nominal else None
+        theta = self.theta(u_ini, y_ini, np.zeros((self.t_f, self.p)), nominal)
+        return self._predict(theta, np.asarray(u_f, dtype=float).reshape(-1))[0]
+
     def _predict(self, theta: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         theta, u = np.ascontiguousarray(theta, dtype=float), np.ascontiguousarray(u, dtype=float)
         if theta.shape != (self.n_theta,) or u.size != self.n_u:  # C reads n_theta and n_u doubles

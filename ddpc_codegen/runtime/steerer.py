@@ -16,6 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ddpc_codegen.runtime.prediction_watch import PredictionWatch
 from ddpc_codegen.values.solve_result import BOUND_TOL, SteeringResult
 from ddpc_codegen.stats import percentiles
 
@@ -61,6 +62,8 @@ class ReferenceSteerer:
         has_nominal: pass ``u_nom`` to the solver (R_mode "offset").
         max_step: (m,) largest allowed |u_steered - u_nom| per channel; larger -> fallback
             (a guard against a predictor driven outside its data).
+        watch: a :class:`~ddpc_codegen.runtime.prediction_watch.PredictionWatch` fed the same history; while it
+            finds the predictor wrong, the tick falls back ("model_mismatch") without a solve.
     """
 
     solver: SolverLike
@@ -72,6 +75,7 @@ class ReferenceSteerer:
     u_max: np.ndarray | None = None
     has_nominal: bool = True
     max_step: np.ndarray | None = None
+    watch: PredictionWatch | None = None
     counts: Counter = field(default_factory=Counter)
     solve_us: list = field(default_factory=list)
 
@@ -106,6 +110,8 @@ class ReferenceSteerer:
     def reset(self) -> None:
         """Forget the history (e.g. after a mode change or a telemetry gap)."""
         self._n = 0
+        if self.watch is not None:
+            self.watch.reset()
         if hasattr(self.solver, "reset"):
             self.solver.reset()
 
@@ -116,6 +122,8 @@ class ReferenceSteerer:
         self._u[-1] = u_applied
         self._y[-1] = y_measured
         self._n += 1
+        if self.watch is not None:
+            self.watch.push(self._u[-1], self._y[-1])
 
     def fill_gap(self, n_missing: int, y_now: np.ndarray) -> None:
         """Bridge ``n_missing`` lost ticks instead of forgetting the history.
@@ -142,6 +150,8 @@ class ReferenceSteerer:
         self._u[:] = u_ini
         self._y[:] = y_ini
         self._n = max(self._n, self.t_ini)
+        if self.watch is not None:
+            self.watch.amend(self._u, self._y)
 
     def step(self, y_des: np.ndarray, u_nom: np.ndarray) -> SteerOutcome:
         """Decide this tick's reference.
@@ -159,6 +169,10 @@ class ReferenceSteerer:
         if not (np.isfinite(self._u).all() and np.isfinite(self._y).all() and np.isfinite(y_des).all()
                 and np.isfinite(u_nom).all()):
             return self._fallback(fallback, "nonfinite_input")
+        if self.watch is not None:
+            self.watch.poll()
+            if not self.watch.ok:
+                return self._fallback(fallback, "model_mismatch")
         t0 = time.perf_counter()
         try:
             res = self.solver.solve(self._u, self._y, y_des, u_nom if self.has_nominal else None)
@@ -193,4 +207,5 @@ class ReferenceSteerer:
             "fallback_reasons": {k.split(":", 1)[1]: v for k, v in self.counts.items() if k.startswith("fallback:")},
             "solve_us": percentiles(self.solve_us),
             "max_step": None if self.max_step is None else [float(v) for v in self.max_step],
+            "prediction_watch": None if self.watch is None else self.watch.summary(),
         }

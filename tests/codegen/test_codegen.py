@@ -375,3 +375,18 @@ max_output_noise = [5e-4, 1e-3]
     w = noise_warning(cfg, np.array([2e-3, 9e-4]))
     assert w and "z 2 mm, pitch 0.9 mrad" in w and "max_output_noise z 0.5 mm, pitch 1 mrad" in w
     assert noise_warning(cfg.replace(max_output_noise=None), np.array([1.0, 1.0])) is None
+
+
+def test_predict_is_the_interpreted_predictors_and_the_plants_response_to_any_references(problem, plant, solvers):
+    """``GeneratedSolver.predict`` under references the solver did not choose (what the loop applied): the
+    interpreted predictor's answer, and the LTI plant's exact response within the fit's own error."""
+    sys_ = plant[0]
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        u = rng.uniform(-0.4, 0.4, (TI + TF, M))
+        y, _ = sys_.simulate(u, 0.3 * rng.standard_normal(4))
+        ref = problem.predictor.predict(u[:TI], y[:TI], u[TI:])[0]
+        for s in solvers.values():
+            got = s.predict(u[:TI], y[:TI], u[TI:])
+            np.testing.assert_allclose(got, ref, atol=1e-9)
+            assert np.abs(got - y[TI:]).max() <= 1e-2 * np.abs(y[TI:]).max()
