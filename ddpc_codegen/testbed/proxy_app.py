@@ -4,6 +4,11 @@ arms and takes off when on the ground, moves to the path's start, then streams `
 at a fixed rate along a named path, with its own velocity and acceleration feed-forward (``--feedforward``),
 and holds the last point. Every setpoint it sends is logged (one JSON line: wall time, path time, position NED).
 
+``--frame global``: after the take-off (home is set at arming) the app flies the same path as
+``SET_POSITION_TARGET_GLOBAL_INT`` in ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, as an app that thinks in latitude,
+longitude and height above home does: one ``GLOBAL_POSITION_INT`` beside the ``LOCAL_POSITION_NED`` of the same
+instant anchors the local frame (flat earth over the few metres flown; its log stays in local NED).
+
 ``python -m ddpc_codegen.testbed.proxy_app --connect udpout:127.0.0.1:14541 --path helix --duration 30``
 """
 
@@ -18,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 from pymavlink import mavutil
+
+from firmware_bridge.truth import EARTH_RADIUS_M
 
 __all__ = ["PATHS", "path_point", "main"]
 
@@ -75,6 +82,8 @@ class App:
         self.log = open(log, "a") if log else None
         self.hb = None
         self.lpos = None
+        self.gpos = None
+        self.anchor: tuple[float, float, float] | None = None  # global frame: (lat0, lon0 [deg], home's offset [m])
         self.t0 = time.monotonic()
 
     def beat(self) -> None:
@@ -89,6 +98,8 @@ class App:
                 self.c.target_system, self.c.target_component = m.get_srcSystem(), m.get_srcComponent()
             elif typ == "LOCAL_POSITION_NED":
                 self.lpos = m
+            elif typ == "GLOBAL_POSITION_INT":
+                self.gpos = m
             m = self.c.recv_match(blocking=False)
 
     def wait(self, what, timeout: float, every=None, period: float = 1.0) -> bool:
@@ -128,12 +139,38 @@ class App:
         where it has one: a scored point)."""
         ned = lambda v: (float(v[0]), float(v[1]), -float(v[2]))  # noqa: E731 (x north, y east here)
         (x, y, z), (vx, vy, vz), (ax, ay, az) = ned(pos_up), ned(vel_up), ned(acc_up)
-        self.c.mav.set_position_target_local_ned_send(int(1e3 * (time.monotonic() - self.t0)), self.c.target_system,
-                                                      self.c.target_component, M.MAV_FRAME_LOCAL_NED, mask,
-                                                      x, y, z, vx, vy, vz, ax, ay, az, 0.0, 0.0)
+        ms = int(1e3 * (time.monotonic() - self.t0))
+        if self.anchor is None:
+            self.c.mav.set_position_target_local_ned_send(ms, self.c.target_system, self.c.target_component,
+                                                          M.MAV_FRAME_LOCAL_NED, mask, x, y, z, vx, vy, vz, ax, ay, az,
+                                                          0.0, 0.0)
+        else:
+            lat0, lon0, home = self.anchor
+            lat = lat0 + math.degrees(x / EARTH_RADIUS_M)
+            lon = lon0 + math.degrees(y / (EARTH_RADIUS_M * math.cos(math.radians(lat0))))
+            self.c.mav.set_position_target_global_int_send(ms, self.c.target_system, self.c.target_component,
+                                                           M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mask,
+                                                           int(round(lat * 1e7)), int(round(lon * 1e7)), -z - home,
+                                                           vx, vy, vz, ax, ay, az, 0.0, 0.0)
         if self.log is not None:
             row = {"t": time.time(), "x": x, "y": y, "z": z}
             self.log.write(json.dumps(row if t_path is None else {**row, "tp": round(t_path, 4)}) + "\n")
+
+
+def _anchor(app: App) -> None:
+    """The global frame from one ``GLOBAL_POSITION_INT`` and the ``LOCAL_POSITION_NED`` of its instant (the vehicle
+    hovering): the local origin's latitude and longitude, and home's height in the local frame."""
+    app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 33, 20_000)
+    app.gpos = None
+    paired = lambda: (app.gpos is not None and app.lpos is not None  # noqa: E731
+                      and abs(app.gpos.time_boot_ms - app.lpos.time_boot_ms) <= 30)
+    if not app.wait(paired, 10.0):
+        raise SystemExit("proxy_app: no GLOBAL_POSITION_INT beside LOCAL_POSITION_NED within 10 s (--frame global)")
+    g, lp = app.gpos, app.lpos
+    lat, lon = g.lat * 1e-7, g.lon * 1e-7
+    lat0 = lat - math.degrees(lp.x / EARTH_RADIUS_M)
+    lon0 = lon - math.degrees(lp.y / (EARTH_RADIUS_M * math.cos(math.radians(lat0))))
+    app.anchor = (lat0, lon0, -lp.z - g.relative_alt * 1e-3)
 
 
 def _take_off(app: App, home: np.ndarray, height: float) -> None:
@@ -164,10 +201,12 @@ def _take_off(app: App, home: np.ndarray, height: float) -> None:
 
 
 def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: str = "velacc",
-        height: float = 2.5, log: Path | None = None, lead_in: float = 6.0, hold: float = 1.0) -> int:
+        height: float = 2.5, log: Path | None = None, lead_in: float = 6.0, hold: float = 1.0,
+        frame: str = "local") -> int:
     """Fly ``path`` for ``duration`` [s] at ``rate`` [Hz] around ``height`` [m] above the local origin (taking off
     first when on the ground), then hold its end for ``hold`` [s] (zero velocity and acceleration: the stream's last
-    setpoint, also after a proxy's preview delay shorter than ``hold``; logged without a path time)."""
+    setpoint, also after a proxy's preview delay shorter than ``hold``; logged without a path time). ``frame``
+    "global": from the lead-in on, as ``SET_POSITION_TARGET_GLOBAL_INT`` above home (the module docstring)."""
     app = App(url, log)
     if not app.wait(lambda: app.hb is not None and app.lpos is not None, 60.0,
                     lambda: app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20_000) if app.hb else None):
@@ -175,6 +214,8 @@ def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: s
     origin = np.array([0.0, 0.0, height])  # the local frame's origin is the take-off point
     if not (app.armed_in_mode() and -app.lpos.z > 0.5):
         _take_off(app, np.array([app.lpos.x, app.lpos.y, 0.0]), height)
+    if frame == "global":
+        _anchor(app)
     start = origin + path_point(path, 0.0)[0]
     pos = np.array([app.lpos.x, app.lpos.y, -app.lpos.z])
     zero, period, k, t0 = np.zeros(3), 1.0 / rate, 0, time.monotonic()
@@ -210,8 +251,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="the app's own feed-forward fields (default %(default)s)")
     p.add_argument("--height", type=float, default=2.5, help="the path's base height above the local origin (the take-off point) [m]")
     p.add_argument("--log", type=Path, default=None, help="append each setpoint sent as a JSON line here")
+    p.add_argument("--frame", choices=("local", "global"), default="local",
+                   help="local: SET_POSITION_TARGET_LOCAL_NED; global: SET_POSITION_TARGET_GLOBAL_INT above home "
+                        "after the take-off (default %(default)s)")
     a = p.parse_args(argv)
-    return fly(a.connect, a.path, a.duration, a.rate, a.feedforward, a.height, a.log)
+    return fly(a.connect, a.path, a.duration, a.rate, a.feedforward, a.height, a.log, frame=a.frame)
 
 
 if __name__ == "__main__":

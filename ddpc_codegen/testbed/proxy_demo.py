@@ -49,11 +49,12 @@ DEATH_AT_S = 10.0  # path seconds into the proxy-death flight when the proxy is 
 
 def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[str] | None, feedforward: str = "velacc",
            height: float = 2.5, vehicle_url: str = "tcp:127.0.0.1:5760", direct_url: str = "tcp:127.0.0.1:5760",
-           kill_proxy_at: float | None = None) -> dict:
+           kill_proxy_at: float | None = None, frame: str = "local") -> dict:
     """One app flight, directly (``proxy_args`` None: the app on ``direct_url``) or through a proxy started with
     ``proxy_args`` (its vehicle side ``vehicle_url``; SCHED_FIFO 20, as the guide runs it on a robot, where this
     machine permits); :data:`WATCH_S` watched after the app's end, the proxy still up. ``kill_proxy_at``: SIGKILL
-    the proxy that many path seconds in (its death, not the app's)."""
+    the proxy that many path seconds in (its death, not the app's). ``frame``: the app's setpoints' frame
+    (:mod:`.proxy_app`'s ``--frame``)."""
     applog = out / f"{name}.app.jsonl"
     applog.unlink(missing_ok=True)
     proxy = None
@@ -68,7 +69,8 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
         time.sleep(1.0)  # the proxy's TCP connection to the vehicle
     url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else direct_url
     cmd = [sys.executable, "-m", "ddpc_codegen.testbed.proxy_app", "--connect", url, "--path", path, "--duration",
-           f"{duration:g}", "--feedforward", feedforward, "--height", f"{height:g}", "--log", str(applog)]
+           f"{duration:g}", "--feedforward", feedforward, "--height", f"{height:g}", "--log", str(applog),
+           "--frame", frame]
     app = subprocess.Popen(cmd, env={**os.environ, "MAVLINK20": "1"}, stdout=subprocess.DEVNULL,
                            stderr=open(out / f"{name}.app.err", "w"), cwd=out)
     t_kill = _kill_at(proxy, applog, kill_proxy_at) if kill_proxy_at is not None else None
@@ -187,16 +189,17 @@ DITHERS = {"ardupilot": 0.05, "px4": 0.15}
 def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
         delay: float = 0.5, dither: float | None = None, dither_hold: int = 10, setup: str = "lab",
         kinds: tuple[str, ...] = KINDS, z_feedforward: str = "keep", config: str | None = None,
-        proxy_death: bool = True) -> dict:
+        proxy_death: bool = True, frame: str = "local") -> dict:
     """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`; in the lab the
     proxy measures on the motion capture, which ArduCopter's EKF fuses too), the collect flight, codegen,
     then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``), each
     with the vehicle's reaction to the app's end (:func:`failsafe`); ``proxy_death``: one more steered flight whose
-    proxy is killed mid-path. Returns the report's entry of ``autopilot``."""
+    proxy is killed mid-path; ``frame``: the app's frame in the path flights (the collect's is local). Returns the
+    report's entry of ``autopilot``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     sitl = make_sitl(autopilot, params=setup_params(autopilot, setup, {}, MocapConfig(seed=1))).start()
-    res: dict = {"setup": setup, "z_feedforward": z_feedforward, "paths": {}, "collect": {}}
+    res: dict = {"setup": setup, "z_feedforward": z_feedforward, "app_frame": frame, "paths": {}, "collect": {}}
     dither = DITHERS[autopilot] if dither is None else dither
     try:
         with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1), measure_on_mocap=True) as lab:
@@ -205,7 +208,7 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
                 res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold,
                                     (*kinds, *(("proxy_death",) if proxy_death else ())),
                                     ["--z-feedforward", z_feedforward, *lab.bridge_args],
-                                    ROOT / "configs" / (config or CONFIGS[autopilot])))
+                                    ROOT / "configs" / (config or CONFIGS[autopilot]), frame))
                 res["setup_detail"] = {**describe_setup(autopilot, setup, lab.mocap),  # what the proxy measured on
                                        "position_source": "mocap" if lab.mocap is not None else "autopilot"}
             finally:
@@ -216,7 +219,7 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
 
 
 def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, dither, hold, kinds, extra,
-             config: Path) -> dict:
+             config: Path, frame: str = "local") -> dict:
     """The collect flight, codegen and every path's flights (see :func:`run`); the report's figures."""
     url = lab.url
     time.sleep(10.0)  # PX4's EKF moves its height by 0.5 m in its first seconds
@@ -240,7 +243,7 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
         res["paths"][path] = {}
         for kind in (k for k in runs if k in kinds):
             print(f"[proxy-demo] {lab.autopilot}: {path}, {kind}", flush=True)
-            f = flight(out, f"{path}_{kind}", path, duration, runs[kind], vehicle_url=url, direct_url=url)
+            f = flight(out, f"{path}_{kind}", path, duration, runs[kind], vehicle_url=url, direct_url=url, frame=frame)
             res["paths"][path][kind] = {**score(Path(f["app_log"]), obs, delay if kind == "steer_delay" else 0.0,
                                                 ground=ground), "proxy": _proxy_figures(f["proxy"]),
                                         "app_stops": failsafe(Path(f["app_log"]), obs,
@@ -248,7 +251,7 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
     if "proxy_death" in kinds and paths:
         print(f"[proxy-demo] {lab.autopilot}: the proxy killed mid-flight", flush=True)
         f = flight(out, "proxy_death", paths[0], duration, ["--steer", str(solver), *extra], vehicle_url=url,
-                   direct_url=url, kill_proxy_at=DEATH_AT_S)
+                   direct_url=url, kill_proxy_at=DEATH_AT_S, frame=frame)
         res["proxy_death"] = failsafe(Path(f["app_log"]), obs, since=f["t_proxy_killed"]) \
             if f["t_proxy_killed"] is not None else {"error": "the app never reached the kill time"}
     res["ground_truth_offset_mm"] = ground * 1e3

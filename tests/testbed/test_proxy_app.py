@@ -98,3 +98,34 @@ def test_the_kill_watch_reads_only_the_growing_logs_last_line(tmp_path):
         f.write('{"t": 400, "tp"')  # a line being written: not whole yet
     assert not _last_line(log).endswith("}")
 
+
+
+def test_a_global_app_sends_its_local_point_as_latitude_longitude_and_height_above_home():
+    """``--frame global``: the setpoint's great-circle distance and bearing from the anchored origin (haversine on
+    the same sphere) are the local point's, within the degE7 integers' 1.1 cm; its alt is the height above home."""
+    import socket
+
+    from pymavlink.dialects.v20 import common
+
+    from ddpc_codegen.testbed.proxy_app import MASKS, App
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(5.0)
+    try:
+        app = App(f"udpout:127.0.0.1:{sock.getsockname()[1]}", None)
+        lat0, lon0 = 47.3977418, 8.5455939
+        app.anchor = (lat0, lon0, 0.7)  # home 0.7 m above the local origin
+        app.setpoint(np.array([3.0, -2.0, 2.5]), np.zeros(3), np.zeros(3), MASKS["vel"], 0.0)
+        msg = common.MAVLink(None).parse_char(sock.recv(512))
+    finally:
+        sock.close()
+    assert msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"
+    assert msg.coordinate_frame == common.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT and msg.type_mask == MASKS["vel"]
+    p1, p2, dl = np.radians(lat0), np.radians(msg.lat_int * 1e-7), np.radians(msg.lon_int * 1e-7 - lon0)
+    a = np.sin((p2 - p1) / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dl / 2) ** 2
+    dist = 2 * 6378137.0 * np.arcsin(np.sqrt(a))
+    bearing = np.arctan2(np.sin(dl) * np.cos(p2), np.cos(p1) * np.sin(p2) - np.sin(p1) * np.cos(p2) * np.cos(dl))
+    assert dist == pytest.approx(np.hypot(3.0, -2.0), abs=0.015)
+    assert bearing == pytest.approx(np.arctan2(-2.0, 3.0), abs=0.01)
+    assert msg.alt == pytest.approx(2.5 - 0.7, abs=1e-6)
