@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -31,10 +32,11 @@ class PredictionWatch:
         reference_rmse: (p,) the held-out horizon RMSE per output, in the outputs' units.
         ratio: the predictor is wrong above this many times ``reference_rmse``.
         every: ticks between checks; span: checks averaged; resume: good checks in a row to trust it again.
+        on_change: called with (ok, score) when the verdict changes (a front end's event log).
     """
 
-    def __init__(self, solver, reference_rmse, ratio: float = 3.0, every: int = 5, span: int = 10,
-                 resume: int = 10) -> None:
+    def __init__(self, solver, reference_rmse, ratio: float = 8.0, every: int = 5, span: int = 10,
+                 resume: int = 10, on_change: Callable[[bool, float], None] | None = None) -> None:
         d = solver.manifest["dims"]
         self.solver, self.t_ini, self.t_f = solver, d["t_ini"], d["t_f"]
         ref = np.asarray(reference_rmse, dtype=float).reshape(-1)
@@ -53,9 +55,10 @@ class PredictionWatch:
         self.score = math.nan  # the last averaged error [held-out RMSEs]
         self.worst = 0.0
         self.counts = {"checks": 0, "trips": 0, "resumes": 0}
+        self.on_change = on_change
 
     @classmethod
-    def for_solver(cls, solver, ratio: float = 3.0, **kw) -> "PredictionWatch | None":
+    def for_solver(cls, solver, ratio: float = 8.0, **kw) -> "PredictionWatch | None":
         """The watch of ``solver`` from its manifest's held-out error (None: the manifest has none)."""
         rmse = ((solver.manifest.get("dataset") or {}).get("holdout") or {}).get("rmse")
         if not rmse or not all(isinstance(v, (int, float)) and v > 0 and math.isfinite(v) for v in rmse):
@@ -97,6 +100,7 @@ class PredictionWatch:
             return
         self.score = math.sqrt(sum(self._mse) / len(self._mse))
         self.worst = max(self.worst, self.score)
+        was = self.ok
         if self.score > self.ratio:
             self.counts["trips"] += self.ok
             self.ok, self._good = False, 0
@@ -105,6 +109,8 @@ class PredictionWatch:
             if self._good >= self.resume:
                 self.ok = True
                 self.counts["resumes"] += 1
+        if self.ok != was and self.on_change is not None:
+            self.on_change(self.ok, self.score)
 
     def summary(self) -> dict:
         """Counts, the ratio and the worst averaged error [held-out RMSEs]."""

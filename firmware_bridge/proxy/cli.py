@@ -74,6 +74,9 @@ def build_proxy_parser() -> argparse.ArgumentParser:
                         "steers)")
     s.add_argument("--max-step", type=float, default=None, metavar="M",
                    help="largest steering offset from the app's height [m] (the step guard; default none)")
+    s.add_argument("--model-watch", type=float, default=8.0, metavar="RATIO",
+                   help="while the steering's predictor misses the flight by more than RATIO times its held-out "
+                        "error (its manifest), send the app's own setpoints (default %(default)s; 0: off)")
     s.add_argument("--max-age", type=float, default=0.2, metavar="S",
                    help="an older vehicle position is stale: the app's own setpoint goes out (default %(default)s)")
     s.add_argument("--position-source", choices=("autopilot", "mocap"), default="autopilot",
@@ -110,6 +113,8 @@ def _steering(args) -> ProxySteering | None:
         raise ValueError(f"--max-age must be a finite number of seconds > 0; got {args.max_age}")
     if args.dither_hold < 1:
         raise ValueError(f"--dither-hold must be at least 1 setpoint; got {args.dither_hold}")
+    if not (args.model_watch == 0.0 or 1.0 < args.model_watch < float("inf")):
+        raise ValueError(f"--model-watch must be 0 (off) or a finite ratio > 1; got {args.model_watch}")
     if args.max_step is not None and not (0.0 < args.max_step < float("inf")):
         raise ValueError(f"--max-step must be a finite number of metres > 0; got {args.max_step}")
     for path in (args.collect, args.log):
@@ -121,7 +126,7 @@ def _steering(args) -> ProxySteering | None:
     return ProxySteering(VehicleView(mocap=_mocap(args), mocap_offset=args.mocap_offset), solver=solver, preview=make_preview(args.preview_delay),
                          max_age=args.max_age, max_step=args.max_step, dither=args.dither,
                          dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward,
-                         coordinates=args.coordinates)
+                         coordinates=args.coordinates, model_watch=args.model_watch)
 
 
 def _mocap(args) -> MocapInput | None:

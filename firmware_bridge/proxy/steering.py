@@ -37,6 +37,7 @@ import numpy as np
 
 from ddpc_codegen.runtime.baselines import PassthroughPolicy
 from ddpc_codegen.runtime.policy import SteeringPolicy
+from ddpc_codegen.runtime.prediction_watch import PredictionWatch
 from ddpc_codegen.runtime.steerer import ReferenceSteerer, solver_input_bounds
 
 from firmware_bridge.engagement import Engagement
@@ -97,13 +98,16 @@ class ProxySteering:
         coordinates: collect / passthrough: what the record's dataset holds (a solver brings its own).
         z_feedforward: "zero": a rewritten setpoint's z velocity and acceleration are 0 (the steered height carries
             the lead; the loop collected and steered is then the position loop alone); "keep": the app's.
+        model_watch: steer: while the predictor's error on the flight exceeds this many times its held-out error,
+            the app's own setpoints go out (:class:`~ddpc_codegen.runtime.prediction_watch.PredictionWatch`;
+            0: no watch).
     """
 
     def __init__(self, view: VehicleView, *, solver=None, preview: LocalPreview | DelayedPreview | None = None,
                  dt: float | None = None, max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
                  dither_hold: int = 3, seed: int = 0, period_tolerance: float = 0.25, offset_rate: float = 1.0,
                  events: EventLog | None = None, record: ProxyRecord | None = None,
-                 z_feedforward: str = "keep", coordinates: str = "absolute") -> None:
+                 z_feedforward: str = "keep", coordinates: str = "absolute", model_watch: float = 8.0) -> None:
         if z_feedforward not in ("zero", "keep"):
             raise ValueError(f"z_feedforward must be 'zero' or 'keep'; got {z_feedforward!r}")
         self.ff_fields = {"vz": 0.0, "afz": 0.0} if z_feedforward == "zero" else {}
@@ -117,6 +121,7 @@ class ProxySteering:
         self.record = record
         self.period = SetpointPeriod(ring_size=64)
         self.mode = "steer" if solver is not None else "collect" if dither > 0 else "passthrough"
+        self.model_watch = model_watch
         self.stage, self.steerer, lo, hi, rate = self._stage(solver, max_step, dither, dither_hold, seed)
         rate = np.minimum(rate, offset_rate * self.tick)  # the envelope's offset rate, as the bridge's gate
         self.gate = TickGate(SetpointGate(lo, hi, None if self.mode == "collect" else rate), self.events,
@@ -143,7 +148,8 @@ class ProxySteering:
                 return ReferenceStage("collect", self._desired, self.tick, excitation=exc), None, lo, hi, rate
             return (ReferenceStage("passthrough", self._desired, self.tick, policy=PassthroughPolicy()), None,
                     lo, hi, rate)
-        steerer = ReferenceSteerer.for_solver(solver, max_step=None if max_step is None else np.array([max_step]))
+        steerer = ReferenceSteerer.for_solver(solver, max_step=None if max_step is None else np.array([max_step]),
+                                              watch=self._watch(solver))
         policy = SteeringPolicy(steerer, ramp_ticks=max(int(round(0.5 / self.dt)), 1))
         t_f = solver.manifest["dims"]["t_f"]
         desired = _no_error if self.deviation else self._desired
@@ -153,6 +159,20 @@ class ProxySteering:
         rate = np.array([np.inf if du[0] is None else float(du[0])])
         lo, hi = solver_input_bounds(solver)
         return stage, steerer, lo, hi, rate
+
+    def _watch(self, solver) -> PredictionWatch | None:
+        """The steering's prediction watch (None: switched off, or the solver's manifest has no held-out error)."""
+        if not self.model_watch:
+            return None
+        watch = PredictionWatch.for_solver(solver, self.model_watch, on_change=self._watch_changed)
+        if watch is None:
+            self.events("the solver's manifest has no held-out prediction error: no prediction watch (regenerate it)")
+        return watch
+
+    def _watch_changed(self, ok: bool, score: float) -> None:
+        self.events(f"the predictor describes the flight again ({score:.1f}x its held-out error): steering" if ok else
+                    f"the predictor is {score:.1f}x its held-out error on this flight, over {self.model_watch:g}x: the "
+                    "app's own setpoints go out until it is back under")
 
     # ------------------------------------------------------------------ the hook
     def __call__(self, msg, frame: bytes, t_rx: float) -> bytes | None:

@@ -53,7 +53,9 @@ def fly(watch: PredictionWatch, gains: np.ndarray, noise: float = 0.0, seed: int
 
 
 def test_the_right_predictor_stays_trusted_and_a_wrong_loop_trips_it_until_the_loop_is_back():
-    watch = PredictionWatch(FirSolver(H), [0.01], ratio=3.0, every=2, span=4, resume=4)
+    said = []
+    watch = PredictionWatch(FirSolver(H), [0.01], ratio=3.0, every=2, span=4, resume=4,
+                            on_change=lambda ok, score: said.append((ok, score)))
     gains = np.r_[np.ones(200), 3.0 * np.ones(200), np.ones(200)]  # the loop's gain triples for 200 ticks
     ok = fly(watch, gains, noise=0.005)
     assert ok[:200].all()  # noise at half the held-out error: never tripped
@@ -62,6 +64,7 @@ def test_the_right_predictor_stays_trusted_and_a_wrong_loop_trips_it_until_the_l
     assert not ok[first_bad:400].any()
     assert ok[-50:].all() and watch.counts["trips"] == 1 and watch.counts["resumes"] == 1
     assert watch.worst > 3.0 and watch.summary()["ok"]
+    assert [ok for ok, _ in said] == [False, True] and said[0][1] > 3.0 >= said[1][1]
 
 
 @settings(max_examples=25, deadline=None)
@@ -94,7 +97,7 @@ def test_a_reset_forgets_the_history_but_not_the_verdict_and_checks_wait_for_a_f
 
 def test_a_manifest_without_a_held_out_error_has_no_watch_and_bad_settings_are_refused():
     assert PredictionWatch.for_solver(FirSolver(H, holdout=())) is None
-    assert PredictionWatch.for_solver(FirSolver(H)).ratio == 3.0
+    assert PredictionWatch.for_solver(FirSolver(H)).ratio == 8.0
     with pytest.raises(ValueError, match="reference_rmse"):
         PredictionWatch(FirSolver(H), [0.0])
     with pytest.raises(ValueError, match="ratio > 1"):

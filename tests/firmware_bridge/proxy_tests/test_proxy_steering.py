@@ -108,10 +108,10 @@ def solver(tmp_path_factory):
         hook = _hook(dither=0.3, dither_hold=3, seed=1)
         fly(hook, _path(6000, seed=5))
         hook.record.dataset(hook.tick).save(folder / "collect.npz")
-        build_solver(SteeringConfig.from_toml(CONFIG), folder / "collect.npz", folder / "solver")
+        build_solver(SteeringConfig.from_toml(CONFIG), folder / "collect.npz", folder / "solver", holdout=0.2)
 
     folder = shared_build(cache_root(tmp_path_factory.getbasetemp()),
-                          {"test": "proxy_lti", "config": CONFIG.read_text()}, build)
+                          {"test": "proxy_lti", "config": CONFIG.read_text(), "holdout": 0.2}, build)
     return folder / "solver"
 
 
@@ -141,6 +141,35 @@ def test_steering_tracks_the_apps_path_closer_than_the_app_alone(solver):
     print(json.dumps({"slow_mm": [base * 1e3, e_local * 1e3], "fast_mm": [base_fast * 1e3, e_delay * 1e3]}))
     assert local.counts["steered"] > 2800 and late.counts["steered"] > 1200
     assert e_local < 0.25 * base and e_delay < 0.4 * base_fast
+
+
+@pytest.mark.compiler
+def test_a_loop_the_predictor_does_not_describe_gets_the_apps_own_setpoints_until_it_is_back(solver):
+    """The vehicle's height loop turns slow and underdamped for 20 s (wn 4 -> 1.5 rad/s, zeta 0.8 -> 0.15): the
+    prediction watch trips, says so, and the app's own setpoints go out; the loop back, the steering resumes. With
+    the watch off the same flight is steered throughout, and its error in the changed part is over twice as large."""
+    path = _slow_path(3000)
+    runs = {}
+    for ratio in (8.0, 0.0):
+        hook, sim, h = _hook(solver=load_solver(solver), model_watch=ratio), LoopSim(h0=float(path[0])), []
+        for k0, k1, wn, zeta in ((0, 1000, 4.0, 0.8), (1000, 2000, 1.5, 0.15), (2000, 3000, 4.0, 0.8)):
+            sim.wn, sim.zeta = wn, zeta
+            out = fly(hook, path[k0:k1], sim, t0=1000.0 + k0 * DT)
+            h.append(out["h"])
+            runs.setdefault(ratio, []).append(out["rewritten"].mean())
+        runs[ratio].append(_rmse(np.concatenate(h)[1000:2000], path[1000:2000], skip=0))
+        if ratio:
+            watch = hook.stage.summary()["steering"]["prediction_watch"]
+            said = [e for _, e in hook.events.events if "predictor" in e]
+            assert watch["trips"] >= 1 and watch["resumes"] >= 1 and watch["ok"], watch
+            assert "the app's own setpoints go out" in said[0] and "steering" in said[-1]
+            reasons = hook.stage.summary()["steering"]["fallback_reasons"]
+            assert reasons.get("model_mismatch", 0) > 300, reasons
+    watched, blind = runs[8.0], runs[0.0]
+    print(json.dumps({"rewritten_share": {"watch": watched[:3], "no_watch": blind[:3]},
+                      "changed_part_mm": {"watch": watched[3] * 1e3, "no_watch": blind[3] * 1e3}}))
+    assert watched[0] > 0.9 and watched[2] > 0.5 and watched[1] < 0.7  # steered, handed back, steered again
+    assert min(blind[:3]) > 0.9 and watched[3] < 0.5 * blind[3]
 
 
 @pytest.mark.compiler
@@ -199,10 +228,11 @@ def deviation_solver(tmp_path_factory):
         fly(hook, path, LoopSim(h0=2.0, sag=1.0), vz=np.gradient(path, DT))
         hook.record.dataset(hook.tick, coordinates="deviation").save(folder / "collect.npz")
         build_solver(SteeringConfig.from_toml(ROOT / "configs" / "proxy_ardupilot.toml"), folder / "collect.npz",
-                     folder / "solver")
+                     folder / "solver", holdout=0.2)
 
     folder = shared_build(cache_root(tmp_path_factory.getbasetemp()),
-                          {"test": "proxy_lti_deviation", "config": (ROOT / "configs" / "proxy_ardupilot.toml").read_text()},
+                          {"test": "proxy_lti_deviation", "config": (ROOT / "configs" / "proxy_ardupilot.toml").read_text(),
+                           "holdout": 0.2},
                           build)
     return folder / "solver"
 
