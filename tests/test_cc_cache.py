@@ -89,6 +89,23 @@ def test_identical_steps_reuse_the_object_and_changes_compile_again(tmp_path):
 
 @needs_cc
 @pytest.mark.compiler
+def test_the_same_step_started_twice_at_once_compiles_once(tmp_path):
+    """Two processes (xdist workers) reach one step together: the second waits for the first's object."""
+    real, log = _fake_compiler(tmp_path)
+    slow = tmp_path / "slowcc"  # a compile that takes long enough for the second step to start meanwhile
+    slow.write_text(f'#!/bin/sh\ncase " $* " in *" -E "*|*" -M "*) ;; *) sleep 1;; esac\nexec "{real}" "$@"\n')
+    slow.chmod(0o755)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(slow)}))
+    folders = [_program(tmp_path / k, "41") for k in ("a", "b")]
+    steps = [subprocess.Popen([env["CC"], "-I", str(f / "inc"), "-c", str(f / "main.c"), "-o", str(f / "main.o")],
+                              env=env) for f in folders]
+    assert [p.wait(timeout=60) for p in steps] == [0, 0]
+    assert len(log.read_text().splitlines()) == 1
+    assert all((f / "main.o").read_bytes() == (folders[0] / "main.o").read_bytes() for f in folders)
+
+
+@needs_cc
+@pytest.mark.compiler
 def test_a_step_writing_a_dependency_file_reuses_the_object_and_still_writes_the_file(tmp_path):
     real, log = _fake_compiler(tmp_path)
     env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))

@@ -30,6 +30,7 @@ the object store ``$DDPC_CC_CACHE``.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -40,6 +41,8 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 SOURCE_SUFFIXES = (".c",)
@@ -154,6 +157,15 @@ def _renamed_copy(cached: Path, was: dict[str, str], now: dict[str, str], obj: s
         return subprocess.run([objcopy, f"--redefine-syms={syms.name}", str(cached), obj]).returncode == 0
 
 
+@contextmanager
+def _key_lock(cache: Path, key: str) -> Iterator[None]:
+    """Hold the exclusive lock of ``key`` (``flock``, released by the kernel if the holder dies)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    with open(cache / f".{key}.lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield
+
+
 def _store(entry: Path, obj: bytes, names: dict[str, str], messages: bytes) -> None:
     """Write a cache entry (a folder) atomically, first writer wins (xdist workers may race on a key)."""
     entry.parent.mkdir(parents=True, exist_ok=True)
@@ -177,14 +189,25 @@ def run(args: list[str], real: list[str], cache: Path | None) -> int:
     if key is None:
         return subprocess.run([*real, *args]).returncode
     entry, now = cache / key, names[1] if names else {}
-    if (entry.is_dir() and _renamed_copy(entry / "obj.o", json.loads((entry / "names.json").read_text()), now, step[1])
-            and (not dep or write_dependencies(real, step[0], step[2], dep))):
+
+    def reused() -> bool:
+        if not (entry.is_dir() and _renamed_copy(entry / "obj.o", json.loads((entry / "names.json").read_text()), now,
+                                                 step[1]) and (not dep or write_dependencies(real, step[0], step[2], dep))):
+            return False
         sys.stderr.buffer.write((entry / "messages").read_bytes())
+        return True
+
+    if reused():
         return 0
-    res = subprocess.run([*real, *args], stderr=subprocess.PIPE)
-    sys.stderr.buffer.write(res.stderr)
-    if res.returncode == 0 and os.path.exists(step[1]):
-        _store(entry, Path(step[1]).read_bytes(), now, res.stderr)
+    # xdist workers start alike and reach the same library sources together: the first compiles, the others
+    # wait for its object instead of compiling the same step again
+    with _key_lock(cache, key):
+        if reused():
+            return 0
+        res = subprocess.run([*real, *args], stderr=subprocess.PIPE)
+        sys.stderr.buffer.write(res.stderr)
+        if res.returncode == 0 and os.path.exists(step[1]):
+            _store(entry, Path(step[1]).read_bytes(), now, res.stderr)
     return res.returncode
 
 
