@@ -4,10 +4,11 @@ arms and takes off when on the ground, moves to the path's start, then streams `
 at a fixed rate along a named path, with its own velocity and acceleration feed-forward (``--feedforward``),
 and holds the last point. Every setpoint it sends is logged (one JSON line: wall time, path time, position NED).
 
-``--frame global``: after the take-off (home is set at arming) the app flies the same path as
-``SET_POSITION_TARGET_GLOBAL_INT`` in ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, as an app that thinks in latitude,
-longitude and height above home does: one ``GLOBAL_POSITION_INT`` beside the ``LOCAL_POSITION_NED`` of the same
-instant anchors the local frame (flat earth over the few metres flown; its log stays in local NED).
+``--frame relative_alt`` / ``amsl``: after the take-off (home is set at arming) the app flies the same path as
+``SET_POSITION_TARGET_GLOBAL_INT``, its altitude above home (``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``) or above sea
+level (``MAV_FRAME_GLOBAL_INT``), as an app that thinks in latitude, longitude and altitude does: one
+``GLOBAL_POSITION_INT`` beside the ``LOCAL_POSITION_NED`` of the same instant anchors the local frame (flat earth
+over the few metres flown; its log stays in local NED).
 
 ``python -m ddpc_codegen.testbed.proxy_app --connect udpout:127.0.0.1:14541 --path helix --duration 30``
 """
@@ -36,6 +37,7 @@ _ACC = M.POSITION_TARGET_TYPEMASK_AX_IGNORE | M.POSITION_TARGET_TYPEMASK_AY_IGNO
     M.POSITION_TARGET_TYPEMASK_AZ_IGNORE
 _YAW = M.POSITION_TARGET_TYPEMASK_YAW_IGNORE | M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 MASKS = {"none": _POS | _ACC | _YAW, "vel": _ACC | _YAW, "velacc": _YAW}
+FRAMES = {"relative_alt": M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, "amsl": M.MAV_FRAME_GLOBAL_INT}  # --frame: global
 
 
 def _helix(t: np.ndarray) -> np.ndarray:
@@ -83,7 +85,8 @@ class App:
         self.hb = None
         self.lpos = None
         self.gpos = None
-        self.anchor: tuple[float, float, float] | None = None  # global frame: (lat0, lon0 [deg], home's offset [m])
+        # a global frame: (MAV_FRAME, lat0, lon0 [deg] of the local origin, the frame's altitude of it [m])
+        self.anchor: tuple[int, float, float, float] | None = None
         self.t0 = time.monotonic()
 
     def beat(self) -> None:
@@ -145,32 +148,33 @@ class App:
                                                           M.MAV_FRAME_LOCAL_NED, mask, x, y, z, vx, vy, vz, ax, ay, az,
                                                           0.0, 0.0)
         else:
-            lat0, lon0, home = self.anchor
+            mav_frame, lat0, lon0, alt0 = self.anchor
             lat = lat0 + math.degrees(x / EARTH_RADIUS_M)
             lon = lon0 + math.degrees(y / (EARTH_RADIUS_M * math.cos(math.radians(lat0))))
             self.c.mav.set_position_target_global_int_send(ms, self.c.target_system, self.c.target_component,
-                                                           M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mask,
-                                                           int(round(lat * 1e7)), int(round(lon * 1e7)), -z - home,
+                                                           mav_frame, mask,
+                                                           int(round(lat * 1e7)), int(round(lon * 1e7)), alt0 - z,
                                                            vx, vy, vz, ax, ay, az, 0.0, 0.0)
         if self.log is not None:
             row = {"t": time.time(), "x": x, "y": y, "z": z}
             self.log.write(json.dumps(row if t_path is None else {**row, "tp": round(t_path, 4)}) + "\n")
 
 
-def _anchor(app: App) -> None:
-    """The global frame from one ``GLOBAL_POSITION_INT`` and the ``LOCAL_POSITION_NED`` of its instant (the vehicle
-    hovering): the local origin's latitude and longitude, and home's height in the local frame."""
+def _anchor(app: App, frame: str) -> None:
+    """The global ``frame`` ("relative_alt", "amsl") from one ``GLOBAL_POSITION_INT`` and the ``LOCAL_POSITION_NED``
+    of its instant (the vehicle hovering): the local origin's latitude, longitude and altitude in that frame."""
     app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 33, 20_000)
     app.gpos = None
     paired = lambda: (app.gpos is not None and app.lpos is not None  # noqa: E731
                       and abs(app.gpos.time_boot_ms - app.lpos.time_boot_ms) <= 30)
     if not app.wait(paired, 10.0):
-        raise SystemExit("proxy_app: no GLOBAL_POSITION_INT beside LOCAL_POSITION_NED within 10 s (--frame global)")
+        raise SystemExit(f"proxy_app: no GLOBAL_POSITION_INT beside LOCAL_POSITION_NED within 10 s (--frame {frame})")
     g, lp = app.gpos, app.lpos
     lat, lon = g.lat * 1e-7, g.lon * 1e-7
     lat0 = lat - math.degrees(lp.x / EARTH_RADIUS_M)
     lon0 = lon - math.degrees(lp.y / (EARTH_RADIUS_M * math.cos(math.radians(lat0))))
-    app.anchor = (lat0, lon0, -lp.z - g.relative_alt * 1e-3)
+    alt = g.relative_alt if frame == "relative_alt" else g.alt
+    app.anchor = (FRAMES[frame], lat0, lon0, alt * 1e-3 + lp.z)  # the altitude at the vehicle minus its local height
 
 
 def _take_off(app: App, home: np.ndarray, height: float) -> None:
@@ -206,7 +210,7 @@ def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: s
     """Fly ``path`` for ``duration`` [s] at ``rate`` [Hz] around ``height`` [m] above the local origin (taking off
     first when on the ground), then hold its end for ``hold`` [s] (zero velocity and acceleration: the stream's last
     setpoint, also after a proxy's preview delay shorter than ``hold``; logged without a path time). ``frame``
-    "global": from the lead-in on, as ``SET_POSITION_TARGET_GLOBAL_INT`` above home (the module docstring)."""
+    "relative_alt" / "amsl": from the lead-in on, as ``SET_POSITION_TARGET_GLOBAL_INT`` (the module docstring)."""
     app = App(url, log)
     if not app.wait(lambda: app.hb is not None and app.lpos is not None, 60.0,
                     lambda: app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20_000) if app.hb else None):
@@ -214,8 +218,8 @@ def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: s
     origin = np.array([0.0, 0.0, height])  # the local frame's origin is the take-off point
     if not (app.armed_in_mode() and -app.lpos.z > 0.5):
         _take_off(app, np.array([app.lpos.x, app.lpos.y, 0.0]), height)
-    if frame == "global":
-        _anchor(app)
+    if frame != "local":
+        _anchor(app, frame)
     start = origin + path_point(path, 0.0)[0]
     pos = np.array([app.lpos.x, app.lpos.y, -app.lpos.z])
     zero, period, k, t0 = np.zeros(3), 1.0 / rate, 0, time.monotonic()
@@ -251,9 +255,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the app's own feed-forward fields (default %(default)s)")
     p.add_argument("--height", type=float, default=2.5, help="the path's base height above the local origin (the take-off point) [m]")
     p.add_argument("--log", type=Path, default=None, help="append each setpoint sent as a JSON line here")
-    p.add_argument("--frame", choices=("local", "global"), default="local",
-                   help="local: SET_POSITION_TARGET_LOCAL_NED; global: SET_POSITION_TARGET_GLOBAL_INT above home "
-                        "after the take-off (default %(default)s)")
+    p.add_argument("--frame", choices=("local", *FRAMES), default="local",
+                   help="local: SET_POSITION_TARGET_LOCAL_NED; relative_alt / amsl: SET_POSITION_TARGET_GLOBAL_INT "
+                        "above home / sea level after the take-off (default %(default)s)")
     a = p.parse_args(argv)
     return fly(a.connect, a.path, a.duration, a.rate, a.feedforward, a.height, a.log, frame=a.frame)
 

@@ -2,8 +2,11 @@
 PX4 SIH SITL in the lab setup, as ``make proxy-demo`` flies it, shorter: one collect flight through the proxy
 (``--collect --dither``), ``ddpc-codegen codegen`` on it, then the helix flown directly (the app's own velocity and
 acceleration feed-forward, on PX4's own estimate) and steered with the local preview, the proxy measuring on the
-motion-capture stand-in (``--position-source mocap``), both judged on the simulator's true height. Skipped without
-the SITL.
+motion-capture stand-in (``--position-source mocap``), both judged on the simulator's true height. The app flies the
+path as SET_POSITION_TARGET_GLOBAL_INT above sea level (``proxy_app --frame amsl``; ``make proxy-demo`` flies
+LOCAL_NED): the proxy steers it in the local frame through the offset the vehicle's own reports give. Not above home:
+this PX4 build flies MAV_FRAME_GLOBAL_RELATIVE_ALT_INT setpoints off by twice home's height above its origin (a
+direct flight of the app tried so: 2.4 m RMS). Skipped without the SITL.
 
 What it holds: the whole chain runs on a real autopilot (collect, fit, generate, steer), the steering engages once
 and steers nearly every tick, nothing is dropped or reordered, and the steered flight's true height is at least
@@ -30,7 +33,8 @@ def test_an_app_is_collected_fitted_and_steered_on_the_motion_capture(tmp_path):
         pytest.skip(why)
     res = run_isolated("ddpc_codegen.testbed.proxy_demo:run",
                        {"autopilot": "px4", "out_dir": str(tmp_path), "paths": ["helix"], "duration": 15.0,
-                        "collect_s": 40.0, "kinds": ["direct", "steer_local"], "proxy_death": False}, timeout=480)
+                        "collect_s": 40.0, "kinds": ["direct", "steer_local"], "proxy_death": False, "frame": "amsl"},
+                       timeout=480)
     runs = res["paths"]["helix"]
     direct, steered = runs["direct"], runs["steer_local"]
     print(f"[proxy-steer] PX4 helix true height: direct {direct['rmse_z_truth_mm']:.1f} mm, steered (local preview, "
@@ -45,6 +49,7 @@ def test_an_app_is_collected_fitted_and_steered_on_the_motion_capture(tmp_path):
     rows, steered_code = log["rows"], list(log["reasons"]).index("steered")
     since = rows[int(np.argmax(rows["engaged"])):]
     assert st["activations"] == 1 and st["steered"] == int(np.sum(since["reason"] == steered_code))
+    assert st["frames"]["amsl"] > 0.9 * len(since) and res["app_frame"] == "amsl"
     assert st["steered"] > 0.95 * len(since), (st, len(since))
     assert steered["rmse_z_truth_mm"] < 0.5 * direct["rmse_z_truth_mm"]
     gone, alone = steered["app_stops"], direct["app_stops"]

@@ -101,7 +101,7 @@ def test_the_kill_watch_reads_only_the_growing_logs_last_line(tmp_path):
 
 
 def test_a_global_app_sends_its_local_point_as_latitude_longitude_and_height_above_home():
-    """``--frame global``: the setpoint's great-circle distance and bearing from the anchored origin (haversine on
+    """``--frame relative_alt``: the setpoint's great-circle distance and bearing from the anchored origin (haversine on
     the same sphere) are the local point's, within the degE7 integers' 1.1 cm; its alt is the height above home."""
     import socket
 
@@ -115,7 +115,7 @@ def test_a_global_app_sends_its_local_point_as_latitude_longitude_and_height_abo
     try:
         app = App(f"udpout:127.0.0.1:{sock.getsockname()[1]}", None)
         lat0, lon0 = 47.3977418, 8.5455939
-        app.anchor = (lat0, lon0, 0.7)  # home 0.7 m above the local origin
+        app.anchor = (common.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, lat0, lon0, -0.7)  # home 0.7 m above the origin
         app.setpoint(np.array([3.0, -2.0, 2.5]), np.zeros(3), np.zeros(3), MASKS["vel"], 0.0)
         msg = common.MAVLink(None).parse_char(sock.recv(512))
     finally:
