@@ -17,6 +17,8 @@ the other, every byte forwarded unchanged both ways in arrival order.
   datagram; into a byte stream only whole frames are written (garbage cannot desync the stream).
 - Frames are located and their checksums checked (:mod:`.frames`) to count them; only a candidate
   for rewriting is decoded, and only the rewrite hook (:mod:`.rewrite`) can change bytes.
+- The bytes go out as soon as they are decided: counters, the sequence check, the app's setpoint period, the hook's
+  own bookkeeping (:mod:`.rewrite`: ``settle``, a passive hook's call) and the vehicle's state come after the send.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Any, Callable
 
 from firmware_bridge.proxy.app_side import open_app_side
 from firmware_bridge.proxy.frames import setpoint_target, msgid, splice, split_frames
-from firmware_bridge.proxy.rewrite import SETPOINT_MSGIDS, SetpointRewrite, decode_frame, has_position
+from firmware_bridge.proxy.rewrite import SETPOINT_MSGIDS, SetpointRewrite, decode_setpoint, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
 from firmware_bridge.proxy.vehicle_side import VehicleSide
 from firmware_bridge.proxy.vehicle_view import VIEW_MSGIDS, VehicleView
@@ -164,21 +166,14 @@ class Proxy:
 
     # ------------------------------------------------------------------ app -> vehicle
     def _from_client(self, client: tuple[int, Any], data: bytes, t_rx: float) -> None:
-        st = self.up.c
-        st["datagrams"] += 1
-        c = self.clients.get(client)
-        if c is not None:  # (None: a UDP sender replaced within the same read; its datagram still goes out)
-            c[0] = time.monotonic()
-            c[1] += 1
+        """Forward one datagram (or a stream's frames) of ``client``: the bytes go out as soon as they are decided
+        (the hook's replacements); counting, the sequence check and the hook's bookkeeping come after the send."""
         spans, garbage, _ = split_frames(data)
-        st["received"] += len(spans)
-        st["garbage_bytes"] += garbage
         replaced: dict[int, bytes] = {}
-        see = self.up.see
+        later: list[tuple[bytes, Any]] = []  # the setpoints (frame, decoded or None) whose hook work comes after
         for i, n in spans:
-            see(data, i)
             if msgid(data, i) in SETPOINT_MSGIDS:
-                r = self._setpoint(client, data[i:i + n], t_rx)
+                r = self._setpoint(client, data[i:i + n], t_rx, later)
                 if r is not None:
                     replaced[i] = r
         if self.vehicle.datagram:
@@ -187,20 +182,46 @@ class Proxy:
             out = b"".join(replaced.get(i) or data[i:i + n] for i, n in spans)
         else:
             out = data
-        if out and self.vehicle.write(out):
-            st["forwarded"] += len(spans)
+        sent = bool(out) and self.vehicle.write(out)
+        if sent:
             self.up.latency.add(time.time() - t_rx)
+        self._after_client(client, data, spans, garbage, len(replaced), sent, bool(out), t_rx, later)
+
+    def _after_client(self, client: tuple[int, Any], data: bytes, spans: list[tuple[int, int]], garbage: int,
+                      rewritten: int, sent: bool, nonempty: bool, t_rx: float, later: list) -> None:
+        """What a datagram of ``client`` leaves to do once it is out: counters, the sequence check, the app's
+        setpoint period, the hook's settling, and the other clients' copies (``between_clients``)."""
+        st = self.up.c
+        st["datagrams"] += 1
+        c = self.clients.get(client)
+        if c is not None:  # (None: a UDP sender replaced within the same read; its datagram still went out)
+            c[0] = time.monotonic()
+            c[1] += 1
+        st["received"] += len(spans)
+        st["garbage_bytes"] += garbage
+        st["rewritten"] += rewritten
+        see = self.up.see
+        for i, _n in spans:
+            see(data, i)
+        if sent:
+            st["forwarded"] += len(spans)
         else:
             st["dropped"] += len(spans)
-            if out and self.vehicle.ready:  # not merely "the vehicle is not heard yet"
+            if nonempty and self.vehicle.ready:  # not merely "the vehicle is not heard yet"
                 st["send_errors"] += 1
+        for _ in later:
+            self.setpoints.add(t_rx)
+        for frame, msg in later:
+            self._settle(frame, msg, t_rx)
         if self.between_clients:
             clean = data if not garbage else b"".join(data[i:i + n] for i, n in spans)
             for a in list(self.clients):
                 if a != client and self._to_client(a, data, clean):
                     self.events["between_clients"] += 1
 
-    def _setpoint(self, client: tuple[int, Any], frame: bytes, t_rx: float) -> bytes | None:
+    def _setpoint(self, client: tuple[int, Any], frame: bytes, t_rx: float, later: list) -> bytes | None:
+        """The frame to send instead of the setpoint ``frame``, or None; the setpoint is noted in ``later`` when it
+        is the app's (its hook work after the send: a passive hook's whole call, a settling hook's settle)."""
         sysid = None if self.view is None else self.view.sysid
         if sysid is not None and setpoint_target(frame, 0) not in (0, sysid):
             self.events["foreign_setpoints"] += 1  # addressed to another vehicle: never the app's
@@ -210,14 +231,18 @@ class Proxy:
         if client != self.setpoint_client:
             self.events["foreign_setpoints"] += 1  # not the app's: never steered
             return None
-        self.setpoints.add(t_rx)
-        if self.rewrite is None:
+        hook = self.rewrite
+        if hook is None or getattr(hook, "passive", False):  # (a passive hook never replaces: it runs after)
+            later.append((frame, None))
             return None
-        msg = decode_frame(frame)
+        msg = decode_setpoint(frame)
         if msg is None or not has_position(msg):
+            later.append((frame, False))
             return None
+        decide = getattr(hook, "decide", None)
+        later.append((frame, msg if decide is not None else False))
         try:
-            r = self.rewrite(msg, frame, t_rx)
+            r = (decide or hook)(msg, frame, t_rx)
         except Exception:  # any fault of the hook: the app's own setpoint goes out
             self.events["rewrite_errors"] += 1
             return None
@@ -228,21 +253,28 @@ class Proxy:
         if garbage or len(spans) != 1 or msgid(r, 0) != msgid(frame, 0):  # one frame of the same message
             self.events["rewrite_errors"] += 1
             return None
-        self.up.c["rewritten"] += 1
         return r
+
+    def _settle(self, frame: bytes, msg: Any, t_rx: float) -> None:
+        """The hook's work on the app's setpoint ``frame`` after the send: a passive hook's call (``msg`` None: its
+        answer is never a replacement), a settling hook's ``settle()`` (``msg`` decoded); False: nothing."""
+        hook = self.rewrite
+        if hook is None or msg is False:
+            return
+        try:
+            if msg is None:
+                m = decode_setpoint(frame)
+                if m is not None and has_position(m):
+                    hook(m, frame, t_rx)
+            else:
+                hook.settle()
+        except Exception:  # the setpoint is out: a fault here is counted, the next one is decided anew
+            self.events["rewrite_errors"] += 1
 
     # ------------------------------------------------------------------ vehicle -> apps
     def _from_vehicle(self, outs: list[tuple[bytes, int]], spans: list[tuple[int, int]], buf: bytes, garbage: int,
                       t_rx: float) -> None:
         st = self.down.c
-        st["datagrams"] += 1
-        view = self.view
-        for i, n in spans:
-            self.down.see(buf, i)
-            if view is not None and msgid(buf, i) in VIEW_MSGIDS:
-                view.on_frame(buf[i:i + n], t_rx)
-        st["received"] += len(spans)
-        st["garbage_bytes"] += garbage
         lat = self.down.latency
         for out, frames in outs:
             if not self.clients:
@@ -257,6 +289,15 @@ class Proxy:
                 else:
                     st["dropped"] += frames
                     st["send_errors"] += 1
+        # after the sends (the view is read by the hook on the next setpoint, which comes after this returns)
+        st["datagrams"] += 1
+        st["received"] += len(spans)
+        st["garbage_bytes"] += garbage
+        view = self.view
+        for i, n in spans:
+            self.down.see(buf, i)
+            if view is not None and msgid(buf, i) in VIEW_MSGIDS:
+                view.on_frame(buf[i:i + n], t_rx)
 
     def _to_client(self, client: tuple[int, Any], buf: bytes, frames: bytes) -> bool:
         if not self.apps[client[0]].send(client[1], buf, frames):

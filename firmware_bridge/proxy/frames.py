@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 from pymavlink.dialects.v20 import common as mavlink
 
-__all__ = ["STX_V1", "STX_V2", "MAX_FRAME", "Header", "frame_size", "header", "msgid", "checksum_ok", "split_frames",
+__all__ = ["STX_V1", "STX_V2", "MAX_FRAME", "Header", "frame_size", "header", "msgid", "checksum_ok", "crc16", "split_frames",
            "splice"]
 
 STX_V1, STX_V2 = 0xFE, 0xFD
@@ -70,7 +70,8 @@ def setpoint_target(buf: bytes | bytearray, i: int) -> int:
     return buf[start + 50] if n > 50 else 0
 
 
-def _crc(data: bytes) -> int:
+def crc16(data: bytes) -> int:
+    """MAVLink's checksum (CRC-16/MCRF4XX) of ``data`` (a frame's bytes after the start byte, then its crc_extra)."""
     if _mcrf4xx is not None:
         return _mcrf4xx(data, 0xFFFF)
     return mavlink.x25crc(data).crc
@@ -84,7 +85,7 @@ def checksum_ok(buf: bytes | bytearray, i: int, n: int) -> bool | None:
     if extra is None:
         return None
     end = i + (10 if v2 else 6) + buf[i + 1]  # header + payload (the signature is not covered)
-    crc = _crc(bytes(buf[i + 1:end]) + bytes((extra,)))
+    crc = crc16(bytes(buf[i + 1:end]) + bytes((extra,)))
     return buf[end] | buf[end + 1] << 8 == crc
 
 

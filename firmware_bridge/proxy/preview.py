@@ -18,6 +18,7 @@ times on the ``time.time()`` clock [s].
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -59,8 +60,8 @@ class LocalPreview:
         self._prev = (t, h)
         self.msg, self._h = msg, h
         mask = int(msg.type_mask)
-        self._v = -float(msg.vz) if not mask & _VZ_IGNORE and np.isfinite(msg.vz) else self._slope
-        self._a = -float(msg.afz) if not mask & _AZ_IGNORE and np.isfinite(msg.afz) else 0.0
+        self._v = -float(msg.vz) if not mask & _VZ_IGNORE and math.isfinite(msg.vz) else self._slope
+        self._a = -float(msg.afz) if not mask & _AZ_IGNORE and math.isfinite(msg.afz) else 0.0
 
     def current(self, t: float):
         """The setpoint to steer at ``t`` (the newest)."""

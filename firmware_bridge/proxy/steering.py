@@ -116,8 +116,7 @@ class ProxySteering:
         self.dt, self.coordinates = check_proxy_solver(solver) if solver is not None else (dt, coordinates)
         if self.coordinates not in COORDINATES:
             raise ValueError(f"coordinates must be one of {sorted(COORDINATES)}; got {coordinates!r}")
-        self.deviation = self.coordinates == "deviation"
-        self.max_age, self.period_tolerance = max_age, period_tolerance
+        self.period_tolerance = period_tolerance
         self.record = record
         self.period = SetpointPeriod(ring_size=64)
         self.mode = "steer" if solver is not None else "collect" if dither > 0 else "passthrough"
@@ -137,6 +136,17 @@ class ProxySteering:
         self._offset, self._offset_ok = 0.0, True  # this tick's frame offset [m]; whether it was known last tick
         self._period_said = False
         self._period: float | None = None  # the app's median period, refreshed every 16 setpoints [s]
+        self._pending: tuple | None = None  # what :meth:`settle` does of the last tick (after the send)
+
+    @property
+    def deviation(self) -> bool:
+        """Whether the steering is in deviation coordinates (see the module docstring)."""
+        return self.coordinates == "deviation"
+
+    @property
+    def max_age(self) -> float:
+        """An older position sample is stale [s] (the engagement's limit)."""
+        return self.engagement.max_age
 
     def _stage(self, solver, max_step, dither, hold, seed):
         """(reference stage, steerer or None, lo (1,), hi (1,), rate per tick (1,)) of the mode."""
@@ -176,8 +186,41 @@ class ProxySteering:
 
     # ------------------------------------------------------------------ the hook
     def __call__(self, msg, frame: bytes, t_rx: float) -> bytes | None:
-        """One tick on the app's setpoint ``msg`` (received at ``t_rx`` [s, time.time()]): the frame to send
-        instead, or None (the app's own frame goes out)."""
+        """One whole tick on the app's setpoint ``msg`` (received at ``t_rx`` [s, time.time()]): the frame to send
+        instead, or None (the app's own frame goes out). The proxy splits it: :meth:`decide`, the send, :meth:`settle`
+        (or, :attr:`passive`, the whole call after the send)."""
+        try:
+            return self.decide(msg, frame, t_rx)
+        finally:
+            self.settle()
+
+    @property
+    def passive(self) -> bool:
+        """Whether every tick sends the app's own frame (passthrough without a delay): the proxy then runs the whole
+        tick after the send."""
+        return self.mode == "passthrough" and self.preview.delay == 0
+
+    def settle(self) -> None:
+        """The rest of the tick :meth:`decide` left for after the send: what the steering's next tick starts from
+        (the gate's rate bound, the steering history, the engagement's last applied reference) and the record."""
+        p, self._pending = self._pending, None
+        if p is None:
+            return
+        now, ref, u, flags, age, engaged, base, steered = p
+        if steered:
+            self.stage.applied(ref, u)
+            self.engagement.applied(u)
+        else:  # the app's own setpoint, from this tick on (the rate bound counts from it)
+            self.gate.gate.passed(u)
+            self.stage.applied(ref, u)
+        self._record(now, ref, u, flags, age, engaged, base)
+        watch = None if self.steerer is None else self.steerer.watch
+        if watch is not None:  # a due check of the predictor, off the next tick's latency
+            watch.poll()
+
+    def decide(self, msg, frame: bytes, t_rx: float) -> bytes | None:
+        """What goes out for the app's setpoint ``msg`` (see :meth:`__call__`); :meth:`settle` before the next."""
+        self.settle()  # (a previous tick not settled yet)
         kind = steered_frame(msg)
         if kind is None:
             self.counts["not_steerable"] += 1
@@ -187,13 +230,15 @@ class ProxySteering:
         self.period.add(t_rx)
         if kind != self._frame:
             self._new_frame(kind, t_rx)
-        self.preview.push(t_rx, msg, app_height(msg))
+        h_app = app_height(msg)
+        self.preview.push(t_rx, msg, h_app)
         cur = self.preview.current(t_rx)
-        h_app = app_height(cur)
-        u, reason = self._tick(h_app, self.view.frame_offset(steered_frame(cur), t_rx), t_rx)
+        delayed = cur is not msg
+        if delayed:
+            h_app, kind = app_height(cur), steered_frame(cur)
+        u, reason = self._tick(h_app, self.view.frame_offset(kind, t_rx), t_rx)
         if reason == "steered" or reason == "collect":
             self.counts["steered"] += 1
-        delayed = cur is not msg
         if not delayed and (u is None or np.float32(u) == np.float32(h_app)):  # the same bytes: the app's frame
             return None
         self.counts["rewritten"] += 1
@@ -235,16 +280,11 @@ class ProxySteering:
             self.stage.reset()
         r_nom, hold = eng.reference(r, y, now, self.tick, heard=heard, engaged=engaged, fresh=fresh)
         ref = self.stage.step(r_nom, y, 0.0, hold)
-        if ref.reason not in ("steered", "collect") and ref.candidate is None:
-            # not steered: the app's own setpoint, from this tick on (the rate bound counts from it)
-            self.gate.gate.passed(r_nom)
-            self.stage.applied(ref, r_nom)
-            self._record(now, ref, r_nom, 0, age, engaged, base)
+        if ref.reason not in ("steered", "collect") and ref.candidate is None:  # not steered: the app's own
+            self._pending = (now, ref, r_nom, 0, age, engaged, base, False)
             return None, ref.reason
         u, flags = self.gate.reference(ref)
-        self.stage.applied(ref, u)
-        eng.applied(u)
-        self._record(now, ref, u, flags, age, engaged, base)
+        self._pending = (now, ref, u, flags, age, engaged, base, True)  # (:meth:`settle`, after the send)
         return float(u[0]) + base + offset, ref.reason
 
     def _offset_known(self, offset: float) -> bool:
@@ -300,6 +340,7 @@ class ProxySteering:
 
     def summary(self) -> dict:
         """Counts, the engagement, the gate and the steering's own summary (JSON-ready)."""
+        self.settle()
         out = {"mode": self.mode, "coordinates": self.coordinates, "dt": self.tick, "preview_delay_s": self.preview.delay,
                "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts, "frames": dict(self.frames),
                "frame_offsets": self.view.offsets.summary(self.engagement.t_last),

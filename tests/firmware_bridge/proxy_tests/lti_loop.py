@@ -107,12 +107,13 @@ class LoopSim:
 
 
 def fly(hook, path: np.ndarray, sim: LoopSim | None = None, vz: np.ndarray | None = None, frame: str = "local",
-        global_every: int = 1, t0: float = 1000.0) -> dict:
+        global_every: int = 1, t0: float = 1000.0, split: bool = False) -> dict:
     """Fly the app's heights ``path`` (n,) [m, local] through ``hook``, its setpoints in ``frame`` (see
     :meth:`LoopSim.setpoint`): each tick the vehicle's position (and each second a heartbeat; for a global app every
     ``global_every`` ticks its GLOBAL_POSITION_INT) reaches the proxy, then the app's setpoint. Returns arrays: ``h``
     the vehicle's height after each setpoint's period, ``sent`` the height sent (local), ``rewritten`` whether the
-    hook replaced the frame, and ``frames`` the (app's, sent) frames. The first tick is at ``t0`` [s]."""
+    hook replaced the frame, and ``frames`` the (app's, sent) frames. The first tick is at ``t0`` [s]. ``split``: the
+    hook is driven as the proxy drives it (``decide``, the send, ``settle``; a passive hook's whole call after it)."""
     sim = sim or LoopSim(h0=float(path[0]))
     h, sent, rewritten, frames = [], [], [], []
     for k, z in enumerate(path):
@@ -125,7 +126,13 @@ def fly(hook, path: np.ndarray, sim: LoopSim | None = None, vz: np.ndarray | Non
         if hook.view.mocap is not None:
             hook.view.mocap.link.pending.append((sim.pose(t - 0.003), t - 0.001))
         msg, app_frame = sim.setpoint(float(z), None if vz is None else float(vz[k]), frame)
-        out = hook(msg, app_frame, t)
+        if not split:
+            out = hook(msg, app_frame, t)
+        elif hook.passive:
+            out = hook(msg, app_frame, t) and None  # (after the send: its answer is never a replacement)
+        else:
+            out = hook.decide(msg, app_frame, t)
+            hook.settle()
         sp = msg if out is None else decode_frame(out)
         u = sim.local_height(sp)
         sent.append(u)

@@ -144,6 +144,29 @@ def test_steering_tracks_the_apps_path_closer_than_the_app_alone(solver):
 
 
 @pytest.mark.compiler
+@pytest.mark.parametrize("kw", [{}, {"dither": 0.2}, {"steer": True}, {"steer": True, "delay": 0.1}],
+                         ids=["passthrough", "collect", "steer", "steer_delayed"])
+def test_the_proxys_split_tick_sends_and_records_what_the_whole_tick_does(solver, kw):
+    """The proxy decides the bytes, sends, then settles (a passthrough's whole tick after the send): the same
+    frames and the same record as one whole tick per setpoint (the solve's own time aside)."""
+    def run(split: bool):
+        k = dict(kw)
+        if k.pop("steer", False):
+            k["solver"] = load_solver(solver)
+        if "delay" in k:
+            k["preview"] = DelayedPreview(k.pop("delay"))
+        hook = _hook(**k)
+        out = fly(hook, _path(600, seed=3), LoopSim(h0=2.0, arm_at=50), split=split)
+        rows = hook.record.view()
+        return hook, out["frames"], {f: rows[f] for f in rows.dtype.names if f != "solve_us"}
+
+    whole, split = run(False), run(True)
+    assert split[0].passive == (kw == {}) and split[1] == whole[1]
+    assert all(np.array_equal(whole[2][f], split[2][f]) for f in whole[2])
+    assert kw == {} or any(a != b for a, b in split[1])  # (something was rewritten)
+
+
+@pytest.mark.compiler
 def test_a_loop_the_predictor_does_not_describe_gets_the_apps_own_setpoints_until_it_is_back(solver):
     """The vehicle's height loop turns slow and underdamped for 20 s (wn 4 -> 1.5 rad/s, zeta 0.8 -> 0.15): the
     prediction watch trips, says so, and the app's own setpoints go out; the loop back, the steering resumes. With
