@@ -57,9 +57,17 @@ def _errors(ap: dict) -> str:
             r = runs.get(k) or {}
             rows.append([path, _NAMES[k] + (f" {r.get('delay_s', 0):g} s" if k == "steer_delay" else ""),
                          num(r.get("rmse_z_truth_mm")), num(r.get("rmse_z_mm")), num(r.get("estimator_rms_mm")),
-                         ratio(d, _judged(r)) if k != "direct" else NA])
+                         ratio(d, _judged(r)) if k != "direct" else NA, _handed_back(r)])
     return table(["app path", "flight", "true height [mm]", "estimate [mm]", "estimator error [mm]",
-                  "app direct / this"], rows)
+                  "app direct / this", "handed back by the prediction watch"], rows)
+
+
+def _handed_back(run: dict) -> str:
+    """The share of a steered flight's ticks the prediction watch handed back to the app ("--" unsteered or unwatched)."""
+    st = (run.get("proxy") or {}).get("steering") or {}
+    if st.get("mode") != "steer" or st.get("prediction_watch") is None or not st.get("ticks"):
+        return NA
+    return f"{100.0 * st.get('model_mismatch', 0) / st['ticks']:.0f} % ({st['prediction_watch'].get('trips', 0)} trips)"
 
 
 def _link(ap: dict) -> str:

@@ -170,11 +170,14 @@ def _proxy_figures(stats: dict | None) -> dict | None:
     up, down = stats["app_to_vehicle"], stats["vehicle_to_app"]
     keep = ("received", "forwarded", "rewritten", "dropped", "seq_gaps", "send_errors")
     st = stats.get("steering") or {}
+    solver = st.get("steering") or {}  # the steerer's own counts (steer only)
     return {"realtime": stats.get("realtime"),
             "app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
             "latency_us": {"app_to_vehicle": up["latency_us"], "vehicle_to_app": down["latency_us"]},
-            "steering": {k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
-                                                "period_mismatch", "preview_delay_s")} if st else None}
+            "steering": {**{k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
+                                                   "period_mismatch", "preview_delay_s")},
+                         "model_mismatch": (solver.get("fallback_reasons") or {}).get("model_mismatch", 0),
+                         "prediction_watch": solver.get("prediction_watch")} if st else None}
 
 
 KINDS = ("direct", "passthrough", "steer_local", "steer_delay")

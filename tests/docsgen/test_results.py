@@ -199,7 +199,10 @@ def test_the_proxy_page_says_which_preview_wins_on_each_path():
     rep["ardupilot"]["paths"]["helix"]["steer_local"]["app_stops"] = {
         "proxy_last_out_s": 0.0004, "failsafe_s": None, "mode_before": "GUIDED", "mode_after": None,
         "timed_by": "heartbeats every 18 ms"}
+    rep["ardupilot"]["paths"]["helix"]["steer_local"]["proxy"]["steering"] = {
+        "mode": "steer", "ticks": 1000, "model_mismatch": 250, "prediction_watch": {"trips": 2}}
     page = results.pages({"proxy.json": rep})["proxy.md"]
+    assert "| helix | steered, local preview | 12.0 | 11.0 | 2.0 | 3.33 | 25 % (2 trips) |" in page
     assert "| helix | steered, local preview | 0 | -- | GUIDED -> unchanged | heartbeats every 18 ms |" in page
     assert "| (any) | the proxy killed mid-flight | -- | 500 | OFFBOARD -> LOITER | CURRENT_MODE, sent on a change |" in page
     assert "- helix: the declared delay wins (8.0 mm against 12.0 mm; the app alone 40.0 mm)." in page
