@@ -27,7 +27,7 @@ from pymavlink import mavutil
 
 from firmware_bridge.truth import EARTH_RADIUS_M
 
-__all__ = ["PATHS", "path_point", "main"]
+__all__ = ["PATHS", "App", "path_point", "await_telemetry", "take_off", "fly", "main"]
 
 M = mavutil.mavlink
 GUIDED, PX4_OFFBOARD = 4, 6 << 16
@@ -177,7 +177,7 @@ def _anchor(app: App, frame: str) -> None:
     app.anchor = (FRAMES[frame], lat0, lon0, alt * 1e-3 + lp.z)  # the altitude at the vehicle minus its local height
 
 
-def _take_off(app: App, home: np.ndarray, height: float) -> None:
+def take_off(app: App, home: np.ndarray, height: float) -> None:
     """GUIDED / OFFBOARD, armed, at ``height`` [m] above ``home``; raises on a refusal that does not pass."""
     zero = np.zeros(3)
     target = home + np.array([0.0, 0.0, height])
@@ -204,6 +204,14 @@ def _take_off(app: App, home: np.ndarray, height: float) -> None:
         raise SystemExit("proxy_app: the take-off did not reach its height within 30 s")
 
 
+def await_telemetry(app: App, url: str, timeout: float = 60.0) -> None:
+    """Until the vehicle's heartbeat and its ``LOCAL_POSITION_NED`` (asked at 50 Hz) arrive through ``url``;
+    raises SystemExit after ``timeout`` [s]."""
+    if not app.wait(lambda: app.hb is not None and app.lpos is not None, timeout,
+                    lambda: app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20_000) if app.hb else None):
+        raise SystemExit(f"proxy_app: no heartbeat and position through {url} within {timeout:g} s")
+
+
 def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: str = "velacc",
         height: float = 2.5, log: Path | None = None, lead_in: float = 6.0, hold: float = 1.0,
         frame: str = "local") -> int:
@@ -212,12 +220,10 @@ def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: s
     setpoint, also after a proxy's preview delay shorter than ``hold``; logged without a path time). ``frame``
     "relative_alt" / "amsl": from the lead-in on, as ``SET_POSITION_TARGET_GLOBAL_INT`` (the module docstring)."""
     app = App(url, log)
-    if not app.wait(lambda: app.hb is not None and app.lpos is not None, 60.0,
-                    lambda: app.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20_000) if app.hb else None):
-        raise SystemExit(f"proxy_app: no heartbeat and position through {url} within 60 s")
+    await_telemetry(app, url)
     origin = np.array([0.0, 0.0, height])  # the local frame's origin is the take-off point
     if not (app.armed_in_mode() and -app.lpos.z > 0.5):
-        _take_off(app, np.array([app.lpos.x, app.lpos.y, 0.0]), height)
+        take_off(app, np.array([app.lpos.x, app.lpos.y, 0.0]), height)
     if frame != "local":
         _anchor(app, frame)
     start = origin + path_point(path, 0.0)[0]

@@ -38,7 +38,7 @@ from ddpc_codegen.testbed.sitl_observer import SPARE_PORT, Observer, wait_tcp_po
 from ddpc_codegen.testbed.sitl_setups import describe_setup, flown_setup, setup_params
 from ddpc_codegen.values.config import SteeringConfig
 
-__all__ = ["KINDS", "CONFIGS", "flight", "run", "score", "main"]
+__all__ = ["KINDS", "CONFIGS", "flight", "failsafe", "mode_change_after", "observer", "run", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
@@ -114,13 +114,22 @@ def _last_line(path: Path, tail: int = 512) -> str:
 
 
 def failsafe(applog: Path, obs: Observer, ticks: Path | None = None, since: float | None = None) -> dict:
-    """The vehicle's reaction to the end of the app's stream: seconds from the app's last setpoint (or ``since``,
-    e.g. the proxy's death) to the first mode or arming other than the one then (None: none within
-    :data:`WATCH_S`), from its heartbeats and its ``CURRENT_MODE`` messages (PX4 sends one on each change, but
-    heartbeats at 1 Hz only); ``ticks``: the proxy's tick log, whose last setpoint to the vehicle is given after the
-    app's last [s] (the proxy stamps it on receipt and sends it in that call)."""
+    """The vehicle's reaction to the end of the app's stream (:func:`mode_change_after`) from the app's last
+    setpoint (or ``since``, e.g. the proxy's death); ``ticks``: the proxy's tick log, whose last setpoint to the
+    vehicle is given after the app's last [s] (the proxy stamps it on receipt and sends it in that call)."""
     rows = [json.loads(s) for s in applog.read_text().splitlines() if s.strip().endswith("}")]
     t0 = since if since is not None else rows[-1]["t"]
+    out = {"from": "proxy death" if since is not None else "app's last setpoint", **mode_change_after(obs, t0)}
+    if ticks is not None and ticks.is_file():
+        t_out = np.load(ticks)["rows"]["t"]
+        out["proxy_last_out_s"] = float(t_out[-1] - rows[-1]["t"]) if len(t_out) else None
+    return out
+
+
+def mode_change_after(obs: Observer, t0: float) -> dict:
+    """Seconds from ``t0`` [s, time.time()] to the vehicle's first mode or arming other than the one at ``t0``
+    (``failsafe_s``; None: none within :data:`WATCH_S`), from its heartbeats and its ``CURRENT_MODE`` messages (PX4
+    sends one on each change, but heartbeats at 1 Hz only); the modes before and after, and what timed it."""
     near = lambda rec: [r for r in list(rec) if t0 - WATCH_S < r[0] <= t0 + WATCH_S]  # noqa: E731 (a session's
     hb, modes = near(obs.hb), near(obs.modes)  # heartbeats: ArduPilot sends them at the streams' 50 Hz)
     armed = lambda t: next((h[2] for h in reversed(hb) if h[0] <= t), True)  # noqa: E731
@@ -128,16 +137,11 @@ def failsafe(applog: Path, obs: Observer, ticks: Path | None = None, since: floa
     before = [h for h in seen if h[0] <= t0]
     base = before[-1][1:] if before else None
     fired = next((h for h in seen if h[0] > t0 and base is not None and h[1:] != base), None)
-    out = {"from": "proxy death" if since is not None else "app's last setpoint",
-           "failsafe_s": None if fired is None else fired[0] - t0,
-           "mode_before": None if base is None else obs.mode_name(base[0]) + ("" if base[1] else ", disarmed"),
-           "mode_after": None if fired is None else obs.mode_name(fired[1]) + ("" if fired[2] else ", disarmed"),
-           "timed_by": "CURRENT_MODE, sent on a change" if modes else
-           f"heartbeats every {(_period([h[0] for h in hb]) or float('nan')) * 1e3:.0f} ms"}
-    if ticks is not None and ticks.is_file():
-        t_out = np.load(ticks)["rows"]["t"]
-        out["proxy_last_out_s"] = float(t_out[-1] - rows[-1]["t"]) if len(t_out) else None
-    return out
+    return {"failsafe_s": None if fired is None else fired[0] - t0,
+            "mode_before": None if base is None else obs.mode_name(base[0]) + ("" if base[1] else ", disarmed"),
+            "mode_after": None if fired is None else obs.mode_name(fired[1]) + ("" if fired[2] else ", disarmed"),
+            "timed_by": "CURRENT_MODE, sent on a change" if modes else
+            f"heartbeats every {(_period([h[0] for h in hb]) or float('nan')) * 1e3:.0f} ms"}
 
 
 def _period(ts: list[float]) -> float | None:
@@ -206,7 +210,7 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
     dither = DITHERS[autopilot] if dither is None else dither
     try:
         with flown_setup(sitl, autopilot, setup, MocapConfig(seed=1), measure_on_mocap=True) as lab:
-            obs = _observer(sitl)
+            obs = observer(sitl)
             try:
                 res.update(_flights(lab, obs, out, paths, duration, collect_s, delay, dither, dither_hold,
                                     (*kinds, *(("proxy_death",) if proxy_death else ())),
@@ -261,7 +265,7 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
     return res
 
 
-def _observer(sitl) -> Observer:
+def observer(sitl) -> Observer:
     """The observer on the SITL's spare port (:data:`.sitl_observer.SPARE_PORT`), once the SITL serves it."""
     if sitl.autopilot == "px4":
         port = int(SPARE_PORT["px4"].rpartition(":")[2]) + sitl.sysid - 1  # PX4 instance N: every port + N
