@@ -111,6 +111,40 @@ def _stops(ap: dict) -> str:
                      "mode", "timed by"], rows))
 
 
+_VERDICTS = {"within target": "shown (the interval lies inside +-{t} ms)",
+             "target missed": "missed (the interval lies outside +-{t} ms)",
+             "unresolved": "not resolved (the interval crosses +-{t} ms: more trials needed)",
+             "too few trials": "not judged (too few trials)"}
+
+
+def _repeats(ap: dict) -> str:
+    """The repeated off-board-loss trials (``failsafe_repeats``): per arm, the difference and its interval."""
+    rep = ap.get("failsafe_repeats")
+    if not rep or "stats" not in rep:
+        return ""
+    st, params = rep["stats"], rep.get("params") or {}
+    rows = [[arm, str(a["n"]), num(a["mean_s"], 1e3), num(a["median_s"], 1e3), num(a["std_s"], 1e3),
+             f"{_ms(a['min_s'])}-{_ms(a['max_s'])}"] for arm, a in ((k, st[k]) for k in ("direct", "proxy"))]
+    ci, t = st.get("ci95_s"), _ms(st.get("target_s"))
+    diff = NA if st.get("mean_diff_s") is None else f"{st['mean_diff_s'] * 1e3:+.1f} ms"
+    ci_txt = NA if not ci else f"{ci[0] * 1e3:+.1f} to {ci[1] * 1e3:+.1f} ms"
+    out = [v for v in rep.get("proxy_last_out_s") or [] if isinstance(v, (int, float))]
+    last = f"{min(out) * 1e3:+.2f} to {max(out) * 1e3:+.2f} ms" if out else NA
+    return (f"The off-board-loss failsafe over {len(rep.get('trials', []))} trials of one flight, the app connected "
+            "directly and through a transparent proxy alternately (it streams its position at "
+            f"{num(rep.get('app_rate_hz'), digits=0)} Hz for about {num(rep.get('stream_s'))} s while asking for OFFBOARD, "
+            "then stops; "
+            f"loss action COM_OBL_RC_ACT {num(params.get('COM_OBL_RC_ACT'), digits=0)} (Hold), COM_OF_LOSS_T "
+            f"{num(params.get('COM_OF_LOSS_T'))} s, read back): the time from the app's last setpoint to the mode "
+            "change [ms]:\n\n"
+            + table(["app", "trials", "mean", "median", "SD", "range"], rows)
+            + f"\n\nThrough the proxy minus direct: {diff} (95 % interval {ci_txt}, {st.get('ci_method', '?')}); the "
+            f"issue's target, within {t} ms (one app period + 10 ms): "
+            + _VERDICTS.get(st.get("verdict"), str(st.get("verdict"))).format(t=t)
+            + f". The proxy's last setpoint out, stamped on its receipt, against the app's own stamp after its last send: "
+            f"{last}.\n")
+
+
 def _realtime(ap: dict) -> str:
     """How the proxy was scheduled in the path flights ("SCHED_FIFO 20, mlockall", "best effort")."""
     seen = {((r or {}).get("proxy") or {}).get("realtime") for runs in ap["paths"].values() for r in runs.values()}
@@ -169,7 +203,7 @@ def _section(name: str, ap: dict) -> str:
         _errors(ap), _verdict(ap), "Messages and the latency the proxy added (its own receive and send stamps; the "
         f"vehicle's messages before the app joined have nobody to go to; the proxy ran {_realtime(ap)}, beside the "
         "SITL, the motion-capture stand-in, the observer and the app on this machine):\n",
-        _link(ap), _stops(ap)])
+        _link(ap), _stops(ap), *filter(None, [_repeats(ap)])])
 
 
 def proxy_page(report: dict | None) -> str:

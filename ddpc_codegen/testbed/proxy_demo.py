@@ -1,9 +1,11 @@
 """``make proxy-demo``: a user's own app (:mod:`.proxy_app`, plain pymavlink) flies the ArduCopter and PX4 SIH SITLs
 directly and through ``ddpc-proxy``: pass-through, then steered with the local preview and with a declared preview
-delay, on paths the steering never saw. The steering is learned from the app's own flight through the proxy
-(``--collect`` with a dither). Every flight is judged on the simulator's true height against the path the app
-declared (played late by the delay where there is one), with the autopilot's estimate and its own error beside;
-the proxy's counters and added latency come from its statistics. Writes ``reports/proxy.json``.
+delay, on paths the steering never saw; on PX4 it then times the off-board-loss failsafe over many trials, the app
+directly against through the proxy (:mod:`.proxy_failsafe`, ``--failsafe-repeats``). The steering is learned from the
+app's own flight through the proxy (``--collect`` with a dither). Every flight is judged on the simulator's true
+height against the path the app declared (played late by the delay where there is one), with the autopilot's estimate
+and its own error beside; the proxy's counters and added latency come from its statistics. Writes
+``reports/proxy.json``.
 
 Two estimation setups (``--setup``, :mod:`.sitl_setups`): "lab" (default), a motion-capture stand-in
 (:mod:`.mocap`) whose poses reach the proxy (``--position-source mocap``: it measures the height as a lab's
@@ -294,6 +296,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the proxy's --z-feedforward in the collect and steered flights (default %(default)s)")
     p.add_argument("--autopilots", default="ardupilot,px4", help="SITLs to fly (default %(default)s)")
     p.add_argument("--kinds", default=",".join(KINDS), help="flights per path (default %(default)s)")
+    p.add_argument("--failsafe-repeats", type=int, default=20, metavar="N",
+                   help="PX4: N off-board-loss trials, direct and through the proxy alternately, after the flights "
+                        "(ddpc_codegen.testbed.proxy_failsafe; 0: none; default %(default)s)")
     p.add_argument("--out", type=Path, default=ROOT / "reports", help="flights go to OUT/proxy_<autopilot>/")
     p.add_argument("--report", type=Path, default=ROOT / "reports" / "proxy.json")
     a = p.parse_args(argv)
@@ -311,6 +316,12 @@ def main(argv: list[str] | None = None) -> int:
               "z_feedforward": a.z_feedforward, "kinds": kinds}
         budget = 300 + a.collect + len(paths) * len(kinds) * (a.duration + 60)
         res = run_isolated("ddpc_codegen.testbed.proxy_demo:run", kw, timeout=budget)
+        if autopilot == "px4" and a.failsafe_repeats > 0:  # one flight's failsafe time varies more than the target
+            print(f"[proxy-demo] px4: {a.failsafe_repeats} off-board-loss trials, direct / proxy", flush=True)
+            res["failsafe_repeats"] = run_isolated("ddpc_codegen.testbed.proxy_failsafe:run",
+                                                   {"out_dir": str(a.out / "proxy_px4_failsafe"),
+                                                    "repeats": a.failsafe_repeats},
+                                                   timeout=180 + 10 * a.failsafe_repeats)
         update_report(a.report, {autopilot: res}, default=nan_as_null)
         print(json.dumps({autopilot: res["paths"]}, indent=1))
     return 0

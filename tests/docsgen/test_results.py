@@ -262,3 +262,24 @@ def test_the_sitl_page_shows_both_setups_side_by_side_and_says_which_figure_judg
     # a lab-only entry (no outdoor run stored yet): only the lab's tables
     only_lab = results_sitl.sitl_page({"px4": {"lab": lab}})
     assert "| the ellipse flight | PX4 lab |" in only_lab and "### True height RMSE" not in only_lab
+
+
+def test_the_proxy_page_gives_the_repeated_failsafe_trials_and_the_interval_of_their_difference():
+    arm = lambda m: {"n": 10, "mean_s": m, "median_s": m - 0.001, "std_s": 0.0061, "min_s": m - 0.02,  # noqa: E731
+                     "max_s": m + 0.03}
+    rep = {"px4": {"setup": "outdoor", "collect": {}, "paths": {},
+                   "failsafe_repeats": {"app_rate_hz": 50.0, "stream_s": 1.5, "trials": [{}] * 20,
+                                        "params": {"COM_OBL_RC_ACT": 5.0, "COM_OF_LOSS_T": 1.0},
+                                        "proxy_last_out_s": [-0.00024, None, 0.0004],
+                                        "stats": {"direct": arm(1.04), "proxy": arm(1.0452), "mean_diff_s": 0.0052,
+                                                  "ci95_s": [-0.0004, 0.0108], "ci_method": "Welch t",
+                                                  "target_s": 0.03, "verdict": "within target"}}}}
+    page = results.pages({"proxy.json": rep})["proxy.md"]
+    assert "over 20 trials of one flight" in page and "COM_OBL_RC_ACT 5 (Hold), COM_OF_LOSS_T 1.0 s" in page
+    assert "| direct | 10 | 1040.0 | 1039.0 | 6.1 | 1020-1070 |" in page
+    assert "| proxy | 10 | 1045.2 | 1044.2 | 6.1 | 1025-1075 |" in page
+    assert ("Through the proxy minus direct: +5.2 ms (95 % interval -0.4 to +10.8 ms, Welch t); the issue's target, "
+            "within 30 ms (one app period + 10 ms): shown (the interval lies inside +-30 ms)") in page
+    assert "against the app's own stamp after its last send: -0.24 to +0.40 ms." in page
+    rep["px4"]["failsafe_repeats"]["stats"]["verdict"] = "unresolved"
+    assert "not resolved (the interval crosses +-30 ms" in results.pages({"proxy.json": rep})["proxy.md"]
