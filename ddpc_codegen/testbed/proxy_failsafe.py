@@ -122,6 +122,14 @@ def _trial(app: App, obs, hover: np.ndarray) -> dict:
     return {"t_last": t_last, "entered_offboard": t_off is not None, **mode_change_after(obs, t_last)}
 
 
+def _settle(obs, timeout: float = 10.0) -> None:
+    """Until the vehicle has left OFFBOARD (at most ``timeout`` [s]), then :data:`SETTLE_S` more."""
+    end = time.monotonic() + timeout
+    while _mode(obs) == "OFFBOARD" and time.monotonic() < end:
+        time.sleep(0.05)
+    time.sleep(SETTLE_S)
+
+
 def _hover(app: App) -> np.ndarray:
     """The vehicle's current position (x, y, up) [m] from the app's telemetry."""
     app.pump(0.05)
@@ -161,6 +169,7 @@ def run(out_dir: str, repeats: int = 20, height: float = 2.5) -> dict:
         if params["COM_OBL_RC_ACT"] != HOLD_ACTION["COM_OBL_RC_ACT"]:
             raise RuntimeError(f"PX4 did not take the off-board-loss action Hold: {params}")
         take_off(app, np.array([app.lpos.x, app.lpos.y, 0.0]), height)
+        _settle(obs)  # the take-off's own stream ends in a failsafe too: the first trial starts from Hold as the rest
         port = int(sitl.url.rpartition(":")[2]) + 40  # PX4's off-board link listens on 14580 + instance
         direct = App(f"udpout:127.0.0.1:{port}", None)
         direct.c.target_system, direct.c.target_component = app.c.target_system, app.c.target_component
@@ -171,10 +180,7 @@ def run(out_dir: str, repeats: int = 20, height: float = 2.5) -> dict:
             trials.append({"arm": arm, **t})
             print(f"[proxy-failsafe] {i + 1}/{repeats} {arm}: {t['failsafe_s']} s ({t['mode_before']} -> "
                   f"{t['mode_after']})", flush=True)
-            end = time.monotonic() + 10.0
-            while _mode(obs) == "OFFBOARD" and time.monotonic() < end:
-                time.sleep(0.05)
-            time.sleep(SETTLE_S)
+            _settle(obs)
             if not (t["entered_offboard"] and t["mode_after"] == "LOITER"):
                 break  # the vehicle did not hold: later trials would start from elsewhere
     finally:
