@@ -138,7 +138,7 @@ def _repeats(ap: dict) -> str:
             f"{num(params.get('COM_OF_LOSS_T'))} s, read back): the time from the app's last setpoint to the mode "
             "change [ms]:\n\n"
             + table(["app", "trials", "mean", "median", "SD", "range"], rows)
-            + f"\n\nThrough the proxy minus direct: {diff} (95 % interval {ci_txt}, {st.get('ci_method', '?')}); the "
+            + f"\nThrough the proxy minus direct: {diff} (95 % interval {ci_txt}, {st.get('ci_method', '?')}); the "
             f"issue's target, within {t} ms (one app period + 10 ms): "
             + _VERDICTS.get(st.get("verdict"), str(st.get("verdict"))).format(t=t)
             + f". The proxy's last setpoint out, stamped on its receipt, against the app's own stamp after its last send: "
