@@ -83,6 +83,7 @@ class ReferenceSteerer:
         self._u = np.zeros((self.t_ini, self.m))
         self._y = np.zeros((self.t_ini, self.p))
         self._n = 0
+        self._tolerant: tuple | None = None  # (u_min, u_max, widened u_min, widened u_max) of the bounds in use
         for k in ("u_min", "u_max", "max_step"):
             v = getattr(self, k)
             if v is not None:
@@ -185,13 +186,23 @@ class ReferenceSteerer:
         u = res.u[0]
         if not np.isfinite(u).all():
             return self._fallback(fallback, "nonfinite_solution", us, res)
-        if (self.u_min is not None and np.any(u < self.u_min - BOUND_TOL * np.maximum(1.0, np.abs(self.u_min)))) or (
-                self.u_max is not None and np.any(u > self.u_max + BOUND_TOL * np.maximum(1.0, np.abs(self.u_max)))):
+        lo, hi = self._tolerant_bounds()
+        if (lo is not None and np.any(u < lo)) or (hi is not None and np.any(u > hi)):
             return self._fallback(fallback, "out_of_bounds", us, res)
         if self.max_step is not None and np.any(np.abs(u - fallback) > self.max_step):
             return self._fallback(fallback, "step_too_large", us, res)
         self.counts["steered"] += 1
         return SteerOutcome(u.copy(), True, "steered", us, res)
+
+    def _tolerant_bounds(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(u_min, u_max) widened by BOUND_TOL of their size (at least absolutely); made once per bounds (an
+        assigned bound is new; per tick they would be a dozen array operations on the way to the send)."""
+        c = self._tolerant
+        if c is None or c[0] is not self.u_min or c[1] is not self.u_max:
+            lo, hi = self.u_min, self.u_max
+            c = self._tolerant = (lo, hi, None if lo is None else lo - BOUND_TOL * np.maximum(1.0, np.abs(lo)),
+                                  None if hi is None else hi + BOUND_TOL * np.maximum(1.0, np.abs(hi)))
+        return c[2], c[3]
 
     def _fallback(self, u, reason, us=float("nan"), res=None) -> SteerOutcome:
         self.counts["fallbacks"] += 1

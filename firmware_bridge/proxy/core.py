@@ -28,7 +28,7 @@ import time
 from typing import Any, Callable
 
 from firmware_bridge.proxy.app_side import open_app_side
-from firmware_bridge.proxy.frames import setpoint_target, msgid, splice, split_frames
+from firmware_bridge.proxy.frames import checksum_ok, frame_size, msgid, setpoint_target, splice, split_frames
 from firmware_bridge.proxy.rewrite import SETPOINT_MSGIDS, SetpointRewrite, decode_setpoint, has_position
 from firmware_bridge.proxy.stats import DirectionStats, SetpointPeriod
 from firmware_bridge.proxy.vehicle_side import VehicleSide
@@ -249,8 +249,8 @@ class Proxy:
         if r is None:
             return None
         r = bytes(r)
-        spans, garbage, _ = split_frames(r)
-        if garbage or len(spans) != 1 or msgid(r, 0) != msgid(frame, 0):  # one frame of the same message
+        n = len(r)  # one whole frame, its checksum valid, of the same message:
+        if not n or frame_size(r, 0) != n or not checksum_ok(r, 0, n) or msgid(r, 0) != msgid(frame, 0):
             self.events["rewrite_errors"] += 1
             return None
         return r

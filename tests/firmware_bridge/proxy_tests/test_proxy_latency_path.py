@@ -1,7 +1,7 @@
 """The app -> vehicle setpoint path decides the outgoing bytes first and does the rest after the send: a settling
 hook's ``settle`` and a passive hook's whole call come after the vehicle's write, with the same bytes out; the
-faster pieces on that path (the setpoint decode, the replacement's encoding, the app's period) give exactly what
-pymavlink and numpy give."""
+faster pieces on that path (the setpoint decode, the replacement's encoding, the app's period, the steerer's bound
+check) give exactly what pymavlink, numpy and the bounds give."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ import time
 
 import numpy as np
 
+from ddpc_codegen.runtime.steerer import ReferenceSteerer
+from ddpc_codegen.values.solve_result import BOUND_TOL, SteeringResult
 from firmware_bridge.proxy.rewrite import PROXY_COMPONENT, SetpointEncoder, decode_frame, decode_setpoint, mavlink
 from firmware_bridge.proxy.stats import SetpointPeriod
 
@@ -140,3 +142,32 @@ def test_a_passive_hook_runs_after_the_send_and_the_apps_bytes_go_out():
     log, sent, got, s = _run(passive=True)
     assert log == ["write", "call"] * 20
     assert got == sent and s["app_to_vehicle"]["rewritten"] == 0 and s["setpoints"]["count"] == 20
+
+
+class _Fixed:
+    """A solver whose answer is ``u`` over the whole horizon."""
+
+    def __init__(self) -> None:
+        self.u = 0.0
+
+    def solve(self, u_ini, y_ini, y_des, u_nom=None) -> SteeringResult:
+        return SteeringResult(np.full((3, 1), self.u), status="solved")
+
+
+def test_the_steerers_bound_check_follows_its_bounds_whatever_they_are_set_to():
+    """The widened bounds are made once per bounds, not per tick: a bound assigned later is the one checked."""
+    solver = _Fixed()
+    st = ReferenceSteerer(solver, 2, 3, 1, 1, u_min=np.array([-1.0]), u_max=np.array([2.0]), has_nominal=False)
+    for _ in range(2):
+        st.observe(np.zeros(1), np.zeros(1))
+
+    def reason(u: float) -> str:
+        solver.u = u
+        return st.step(np.zeros((3, 1)), np.zeros((3, 1))).reason
+
+    assert reason(2.0 + 1.5 * BOUND_TOL) == "steered" and reason(2.0 + 2.5 * BOUND_TOL) == "out_of_bounds"
+    assert reason(-1.0 - 0.5 * BOUND_TOL) == "steered" and reason(-1.0 - 1.5 * BOUND_TOL) == "out_of_bounds"
+    st.u_max = np.array([3.0])
+    assert reason(2.5) == "steered" and reason(3.1) == "out_of_bounds"
+    st.u_min, st.u_max = None, None
+    assert reason(-50.0) == "steered" and reason(50.0) == "steered"
