@@ -326,3 +326,12 @@ def test_the_value_layer_loads_numpy_only():
             "print(','.join(own + heavy))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "", f"loaded by the value layer: {out.stdout.strip()}"
+
+
+def test_no_two_test_files_share_a_name():
+    """The test folders are not packages (``pythonpath = ["tests"]``): pytest imports each test file by its basename,
+    and refuses a session holding two files of the same name ("import file mismatch")."""
+    seen: dict[str, list[str]] = {}
+    for path in (ROOT / "tests").rglob("test_*.py"):
+        seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
+    assert not {k: v for k, v in seen.items() if len(v) > 1}
