@@ -181,7 +181,7 @@ def _proxy_figures(stats: dict | None) -> dict | None:
             "app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
             "latency_us": {"app_to_vehicle": up["latency_us"], "vehicle_to_app": down["latency_us"]},
             "steering": {**{k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
-                                                   "period_mismatch", "preview_delay_s")},
+                                                   "period_mismatch", "preview_delay_s", "frames")},
                          "model_mismatch": (solver.get("fallback_reasons") or {}).get("model_mismatch", 0),
                          "prediction_watch": solver.get("prediction_watch")} if st else None}
 
