@@ -27,6 +27,15 @@ class RunningProxy:
         self.thread = threading.Thread(target=self.proxy.run, kwargs={"stop": self._stop.is_set}, daemon=True)
         self.thread.start()
 
+    def wait_vehicle(self, timeout: float = 10.0) -> None:
+        """Until the proxy has heard the vehicle's first datagram (its udpin link pinned): a proxy thread starved
+        under load would otherwise read the app's first datagrams before the vehicle's and drop them, as it must
+        while no vehicle is heard."""
+        end = time.monotonic() + timeout
+        while not self.proxy.vehicle.ready:
+            assert time.monotonic() < end, f"the proxy did not hear the vehicle within {timeout} s"
+            time.sleep(0.005)
+
     def stop(self) -> dict:
         self._stop.set()
         self.thread.join(5)

@@ -181,7 +181,7 @@ def test_the_proxy_hands_a_global_setpoint_to_the_hook_and_sends_its_replacement
     veh, app = Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 1), 1)[0], vp)
-        time.sleep(0.05)
+        rp.wait_vehicle()
         sim = LoopSim()
         sent = [_global(sim, 2.5, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)[1],
                 _global(sim, 490.0, mavlink.MAV_FRAME_GLOBAL_INT)[1]]

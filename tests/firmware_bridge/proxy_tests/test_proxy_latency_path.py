@@ -117,7 +117,7 @@ def _run(passive: bool):
     veh, app = Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 1), 1)[0], vp)
-        time.sleep(0.05)
+        rp.wait_vehicle()
         a = mav(2, 245, 190)
         sent = [setpoint(a, k, POS_ONLY) for k in range(20)]
         for f in sent:

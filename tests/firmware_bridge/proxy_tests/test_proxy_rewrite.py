@@ -22,7 +22,7 @@ def _fly(hook, n: int = 200):
     veh, app, gcs = Peer(), Peer(), Peer()
     try:
         veh.send(frames(mav(2, 1, 1), 1)[0], vp)
-        time.sleep(0.05)
+        rp.wait_vehicle()
         a, g = mav(2, 245, 190), mav(2, 255, 190)
         sent = []
         for k in range(n):
