@@ -323,3 +323,15 @@ def test_a_collect_keeps_only_the_stretches_streamed_at_its_tick():
     (idx,) = rec.stretches(DT)
     assert idx[0] == 101 and idx[-1] == 399  # the first 50 Hz row still follows a 20 Hz gap
     assert len(rec.dataset(DT).u[0]) == 299
+
+
+@pytest.mark.compiler
+def test_a_solver_without_a_held_out_error_steers_without_a_watch_and_says_so(solver):
+    s = load_solver(solver)
+    s.manifest["dataset"].pop("holdout")  # as `ddpc-codegen codegen --holdout 0` writes it
+    hook = _hook(solver=s)
+    assert hook.steerer.watch is None
+    assert any("no held-out prediction error: no prediction watch" in e for _, e in hook.events.events)
+    off = _hook(solver=load_solver(solver), model_watch=0.0)
+    assert off.steerer.watch is None and not any("prediction watch" in e for _, e in off.events.events)
+    assert _hook(solver=load_solver(solver)).steerer.watch.ratio == 8.0
