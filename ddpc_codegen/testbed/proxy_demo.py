@@ -40,7 +40,7 @@ from ddpc_codegen.testbed.sitl_observer import SPARE_PORT, Observer, wait_tcp_po
 from ddpc_codegen.testbed.sitl_setups import describe_setup, flown_setup, setup_params
 from ddpc_codegen.values.config import SteeringConfig
 
-__all__ = ["KINDS", "CONFIGS", "flight", "failsafe", "mode_change_after", "observer", "run", "score", "main"]
+__all__ = ["KINDS", "CONFIGS", "flight", "start_proxy", "failsafe", "mode_change_after", "observer", "run", "score", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 APP_PORT = 14541
@@ -61,13 +61,7 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
     applog.unlink(missing_ok=True)
     proxy = None
     if proxy_args is not None:
-        cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
-               "--vehicle", vehicle_url, "--stats", str(out / f"{name}.proxy.json"),
-               "--log", str(out / f"{name}.ticks.npz"), "--overwrite", "--rt-priority", "20", *proxy_args]
-        proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
-        if not wait_udp_bound(APP_PORT) or proxy.poll() is not None:
-            stop_process(proxy, 5.0, signal.SIGINT)
-            raise RuntimeError(f"{name}: the proxy did not start: {(out / f'{name}.proxy.err').read_text()[-1500:]}")
+        proxy = start_proxy(out, name, vehicle_url, proxy_args)
         time.sleep(1.0)  # the proxy's TCP connection to the vehicle
     url = f"udpout:127.0.0.1:{APP_PORT}" if proxy else direct_url
     cmd = [sys.executable, "-m", "ddpc_codegen.testbed.proxy_app", "--connect", url, "--path", path, "--duration",
@@ -90,6 +84,20 @@ def flight(out: Path, name: str, path: str, duration: float, proxy_args: list[st
     if rc != 0:
         raise RuntimeError(f"{name}: the app failed ({rc}): {(out / f'{name}.app.err').read_text()[-1500:]}")
     return {"name": name, "path": path, "app_log": str(applog), "proxy": stats, "t_proxy_killed": t_kill}
+
+
+def start_proxy(out: Path, name: str, vehicle_url: str, args: list[str]) -> subprocess.Popen:
+    """``ddpc-proxy`` with ``args``, its apps on :data:`APP_PORT`, its vehicle side ``vehicle_url``, at SCHED_FIFO 20
+    where this machine permits (as the guide runs it on a robot); statistics, tick log and stderr in ``out`` as
+    ``name``.proxy.json, .ticks.npz, .proxy.err. Raises when it does not bind its port."""
+    cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
+           "--vehicle", vehicle_url, "--stats", str(out / f"{name}.proxy.json"),
+           "--log", str(out / f"{name}.ticks.npz"), "--overwrite", "--rt-priority", "20", *args]
+    proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / f"{name}.proxy.err", "w"), cwd=out)
+    if not wait_udp_bound(APP_PORT) or proxy.poll() is not None:
+        stop_process(proxy, 5.0, signal.SIGINT)
+        raise RuntimeError(f"{name}: the proxy did not start: {(out / f'{name}.proxy.err').read_text()[-1500:]}")
+    return proxy
 
 
 def _kill_at(proxy: subprocess.Popen | None, applog: Path, path_s: float) -> float | None:

@@ -20,8 +20,6 @@ import math
 import os
 import signal
 import struct
-import subprocess
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,9 +29,8 @@ from pymavlink import mavutil
 
 from ddpc_codegen.testbed.bridge_flights import stop_process
 from ddpc_codegen.testbed.proxy_app import MASKS, App, M, await_telemetry, take_off
-from ddpc_codegen.testbed.proxy_demo import APP_PORT, WATCH_S, mode_change_after, observer
+from ddpc_codegen.testbed.proxy_demo import APP_PORT, WATCH_S, mode_change_after, observer, start_proxy
 from ddpc_codegen.testbed.sitl import make_sitl
-from ddpc_codegen.testbed.sitl_observer import wait_udp_bound
 
 __all__ = ["ARMS", "HOLD_ACTION", "TARGET_S", "compare", "run"]
 
@@ -137,18 +134,6 @@ def _hover(app: App) -> np.ndarray:
     return np.array([lp.x, lp.y, -lp.z])
 
 
-def _start_proxy(out: Path, vehicle_url: str) -> subprocess.Popen:
-    """A transparent proxy (SCHED_FIFO 20 where permitted), as :func:`.proxy_demo.flight` starts one."""
-    cmd = [sys.executable, "-m", "firmware_bridge.proxy.cli", "--app", f"udpin:127.0.0.1:{APP_PORT}",
-           "--vehicle", vehicle_url, "--stats", str(out / "failsafe.proxy.json"), "--log",
-           str(out / "failsafe.ticks.npz"), "--overwrite", "--rt-priority", "20"]
-    proxy = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(out / "failsafe.proxy.err", "w"), cwd=out)
-    if not wait_udp_bound(APP_PORT) or proxy.poll() is not None:
-        stop_process(proxy, 5.0, signal.SIGINT)
-        raise RuntimeError(f"the proxy did not start: {(out / 'failsafe.proxy.err').read_text()[-1500:]}")
-    return proxy
-
-
 def run(out_dir: str, repeats: int = 20, height: float = 2.5) -> dict:
     """``repeats`` trials (see the module docstring), direct and proxy alternately, direct first, ``height`` [m]
     above the take-off point; they stop early when the vehicle does not hold after a failsafe. Returns the trials,
@@ -162,7 +147,7 @@ def run(out_dir: str, repeats: int = 20, height: float = 2.5) -> dict:
     proxy = obs = None
     try:
         obs = observer(sitl)
-        proxy = _start_proxy(out, sitl.url)
+        proxy = start_proxy(out, "failsafe", sitl.url, [])  # transparent
         app = App(f"udpout:127.0.0.1:{APP_PORT}", None)
         await_telemetry(app, "the proxy")
         params = {n: _read_param(app, n) for n in (*HOLD_ACTION, "COM_OF_LOSS_T")}
