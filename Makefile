@@ -89,9 +89,11 @@ data/hopping_raw.npz: | install
 codegen: install data/flying.npz data/hopping_raw.npz
 	$(VENV)/bin/ddpc-codegen codegen configs/flying.toml configs/hopping.toml
 
-# Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights.
+# Vehicle and bridge as two processes over UDP on 127.0.0.1: collect, codegen, baseline and steered flights, the
+# steered flight again quiet and under a 10 kHz flood from foreign addresses; reports/bridge.json, docs/results/bench.md.
 bridge-demo: install
 	$(PY) -m ddpc_codegen.testbed.bridge_demo $(if $(SCENARIO),--scenario $(SCENARIO))
+	$(RENDER)
 
 # Real autopilots (docs/guides/px4.md and ardupilot.md say how to build them; found through DDPC_ARDUPILOT_SITL and
 # DDPC_PX4_SITL): from the ground, baseline -> collect -> codegen -> steer, each SITL in a private

@@ -1,7 +1,7 @@
 """Render the measured results into the docs: the pages under ``docs/results/`` and the README's table.
 
-Each measuring make target (``make demo``, ``make bench``, ``make sitl-demo``, ``make sitl-adapt``, ``make
-adapt-eval``) ends with ``python -m ddpc_codegen.docsgen.results``, which rewrites every results page from
+Each measuring make target (``make demo``, ``make bench``, ``make bridge-demo``, ``make sitl-demo``, ``make
+sitl-adapt``, ``make adapt-eval``) ends with ``python -m ddpc_codegen.docsgen.results``, which rewrites every results page from
 whichever of ``reports/summary.json``, ``reports/bench.json`` and ``reports/sitl.json`` exist, copies the demo's
 figures to ``docs/figures/`` and replaces the README's table between its marker comments. A report that does
 not exist yet is named on its page with the target that writes it; nothing is copied by hand.
@@ -19,7 +19,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from ddpc_codegen.docsgen import results_bench, results_proxy, results_proxy_soak, results_sim, results_sitl
+from ddpc_codegen.docsgen import results_bench, results_bridge, results_proxy, results_proxy_soak, results_sim, results_sitl
 from ddpc_codegen.docsgen.results_adapt import adaptation_page
 from ddpc_codegen.docsgen.results_format import label, missing, page_head
 
@@ -28,7 +28,7 @@ BEGIN = "<!-- results:begin (written by make demo: python -m ddpc_codegen.docsge
 END = "<!-- results:end -->"
 # report file -> the make target that writes it
 REPORTS = {"summary.json": "make demo", "bench.json": "make bench", "sitl.json": "make sitl-demo",
-           "proxy.json": "make proxy-demo", "proxy_soak.json": "make proxy-soak"}
+           "proxy.json": "make proxy-demo", "proxy_soak.json": "make proxy-soak", "bridge.json": "make bridge-demo"}
 PAGES = ("index.md", "simulator.md", "bench.md", "sitl.md", "adaptation.md", "proxy.md")  # under docs/results/
 
 __all__ = ["ROOT", "BEGIN", "END", "REPORTS", "PAGES", "load_reports", "index_page", "pages", "readme_block",
@@ -94,6 +94,7 @@ def index_page(reports: dict[str, dict]) -> str:
             missing("make demo", "summary.json")]
     out += ["## Solver timing (`make bench`)\n", "The generated solver's call per tick; details on the "
             "[bench page](bench.md).\n", results_bench.headline(bench) if bench else missing("make bench", "bench.json")]
+    out += results_bridge.index_lines(reports.get("bridge.json"))
     out += _sitl_headlines(reports.get("sitl.json"))
     out += _proxy_headlines(reports.get("proxy.json"))
     out += _soak_headline(reports.get("proxy_soak.json"))
@@ -106,7 +107,8 @@ def pages(reports: dict[str, dict]) -> dict[str, str]:
     """Every results page (name under ``docs/results/`` -> Markdown) from the loaded reports (any subset)."""
     summary, sitl = reports.get("summary.json"), reports.get("sitl.json")
     return {"index.md": index_page(reports), "simulator.md": results_sim.sim_page(summary),
-            "bench.md": results_bench.bench_page(reports.get("bench.json")), "sitl.md": results_sitl.sitl_page(sitl),
+            "bench.md": results_bench.bench_page(reports.get("bench.json")) + "\n"
+            + results_bridge.bridge_section(reports.get("bridge.json")), "sitl.md": results_sitl.sitl_page(sitl),
             "adaptation.md": adaptation_page(summary, sitl), "proxy.md": results_proxy.proxy_page(reports.get("proxy.json")) + "\n"
             + results_proxy_soak.soak_section(reports.get("proxy_soak.json"))}
 

@@ -13,16 +13,20 @@ see :mod:`firmware_bridge.realtime`):
    keeps the file's "pem", which is biased on this data);
 3. baseline: the model-based controller alone over the link (``--mode passthrough``), 20 s;
 4. steered: the generated solver in the loop (``--mode steer``), 20 s;
-5. the same baseline / steered flights in-process (:func:`ddpc_codegen.sim.simulate` with the
+5. flood round (:mod:`.bridge_flood`): the steered flight again, quiet and then under a 10 kHz flood from
+   foreign addresses (``--flood-hz``; 0 skips it), back to back;
+6. the same baseline / steered flights in-process (:func:`ddpc_codegen.sim.simulate` with the
    same solver), for the "within 20 % of in-process" check.
 
 Writes ``reports/bridge.json``::
 
     {"rate_hz", "latency_us": {"p50", "p99", "max"}, "missed_ticks", "fallbacks",
-     "rmse_z": {"baseline", "steered"}, ...}
+     "rmse_z": {"baseline", "steered"}, "flood_round": {"quiet", "flood"}, ...}
 
-Timing figures (rate, latency, missed ticks) are over all three link runs (collect, baseline,
-steered); ``fallbacks`` counts fallback ticks of the steered run. ``rmse_z`` is the true height
+``latency_us`` is :func:`.bridge_flood.tick_latency_us`: telemetry receive -> setpoint sent on the ticks with new
+telemetry (the wait for the bridge's grid boundary included, see :func:`.bridge_flood.latency_parts`). Timing
+figures (rate, latency, missed ticks) are over all three link runs (collect, baseline,
+steered; the flood round's flights are reported apart); ``fallbacks`` counts fallback ticks of the steered run. ``rmse_z`` is the true height
 error (vehicle truth log) against the desired height, after the 3 s settle time, like the
 in-process metrics; ``rmse_z_telemetry`` the same from the bridge's telemetry.
 """
@@ -42,6 +46,7 @@ import numpy as np
 from ddpc_codegen.flight_metrics import flight_metrics
 from ddpc_codegen.stats import percentiles
 from ddpc_codegen.testbed.bridge_demo_hopping import run_hopping_demo
+from ddpc_codegen.testbed.bridge_flood import FLOOD_HZ, flood_round, flood_rows, tick_latency_us
 from ddpc_codegen.testbed.bridge_flights import ROOT, child_env, fly, free_udp_port, python_m, write_report, write_toml
 from firmware_bridge.realtime import kernel_preemption
 from ddpc_codegen.experiments.policy_hook import PolicyHook
@@ -92,7 +97,7 @@ def in_process(solver_dir: Path, duration: float, seed: int, max_step=(0.3, 0.5)
 def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float = 20.0, solver: Path | None = None,
              config: Path = ROOT / "configs" / "flying.toml", predictor: str = "lsq", rt_priority: int = 30,
              cpu_latency_us: int = 0, probe_s: float = 4.0, pin: bool = False, seed: int = 1,
-             log=print) -> dict:
+             flood_hz: float = FLOOD_HZ, flood_s: float | None = None, log=print) -> dict:
     """The whole job (see the module docstring). ``predictor``: "config" keeps the config's
     [predictor]; "lsq" / "pem" override it (the demo's copy of the config is written to ``work``).
     The bridge runs at SCHED_FIFO ``rt_priority`` and the vehicle 10 below (if permitted): on the
@@ -100,7 +105,8 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     Both hold a ``cpu_latency_us`` PM QoS request (-1: none). First, for ``probe_s`` seconds per
     CPU, a 1 kHz real-time sleeper measures this machine's wake-up latency without and with that
     request (:func:`firmware_bridge.realtime.measure_wakeup_latency`; 0: skip), so the timing
-    figures come with the machine they were measured on."""
+    figures come with the machine they were measured on. ``flood_hz`` > 0: the flood round, each flight
+    ``flood_s`` s (default ``flight_s``)."""
     import tomllib
 
     work.mkdir(parents=True, exist_ok=True)
@@ -131,7 +137,13 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
     log(f"4. steered: {flight_s:g} s, generated solver {solver} in the loop")
     runs["steered"] = fly("steered", work, ["--mode", "steer", "--solver", str(solver)], duration=flight_s,
                           seed=seed + 1, rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, pin=pin, log=log)
-    log("5. in-process reference (simulate, same solver)")
+    flood = None
+    if flood_hz > 0:
+        log(f"5. flood round: the steered flight quiet, then under {flood_hz:g} datagrams/s from foreign addresses")
+        flood = flood_round(work, solver, duration=flood_s or flight_s, seed=seed + 1, hz=flood_hz,
+                            rt_priority=rt_priority, cpu_latency_us=cpu_latency_us, pin=pin, load=os.getloadavg,
+                            log=log)
+    log("6. in-process reference (simulate, same solver)")
     ip = in_process(solver, flight_s, seed + 1)
 
     report = _report(runs, ip, solver, {"collect_s": collect_s if "collect" in runs else None, "flight_s": flight_s,
@@ -139,6 +151,7 @@ def run_demo(out: Path, work: Path, *, collect_s: float = 60.0, flight_s: float 
                                         "rt_priority": rt_priority, "cpu_latency_us": cpu_latency_us, "pin": pin,
                                         "settle_s": 3.0})
     report["machine_wakeup_latency"] = machine
+    report["flood_round"] = flood
     return write_report(report, out, t_start, format_table, log)
 
 
@@ -148,7 +161,7 @@ def _report(runs: dict[str, dict], ip: dict, solver: Path, settings: dict) -> di
     for name, rr in runs.items():
         s = rr["summary"]
         tl = load_ticklog(rr["ticks"]).ticks
-        lat.append(tl["latency_us"][tl["event"]])
+        lat.append(tick_latency_us(tl))
         sent += s["setpoints_sent"]
         dur += s["duration_s"]
         missed += s["missed_ticks"]
@@ -202,6 +215,7 @@ def format_table(r: dict) -> str:
          f"{f(r['rmse_z']['steered'], '{:.4f}')} / {f(r['rmse_z_in_process']['steered'], '{:.4f}')} m",
          f"ratio {r['steered_vs_in_process']:.2f} (<= 1.2)"),
     ]
+    rows += flood_rows(r.get("flood_round"))
     w = max(len(a) for a, _, _ in rows)
     v = max(len(b) for _, b, _ in rows)
     lines = ["", f"bridge demo over UDP loopback ({r['scheduling'] or 'best effort'}; "
@@ -234,6 +248,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="seconds per CPU of the machine wake-up latency probe before the flights (0: skip)")
     p.add_argument("--pin", action="store_true", help="pin the bridge and the vehicle to different CPUs")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--flood-hz", type=float, default=FLOOD_HZ,
+                   help="flood round: datagrams/s from foreign addresses against the steered flight (0: no round)")
+    p.add_argument("--flood-flight", type=float, default=None,
+                   help="seconds of each flood-round flight (default: --flight)")
     p.add_argument("--scenario", choices=("flying", "hopping"), default="flying",
                    help="hopping: ddpc_codegen.testbed.bridge_demo_hopping (collect -> codegen configs/hopping.toml -> baseline -> "
                         "steered; default out reports/bridge_hopping.json, 120 s collect, lock-step)")
@@ -252,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     run_demo(Path(a.out), Path(a.work), collect_s=a.collect or 60.0, flight_s=a.flight,
              solver=Path(a.solver) if a.solver else None, config=Path(a.config), predictor=a.predictor,
              rt_priority=a.rt_priority, cpu_latency_us=a.cpu_latency_us, probe_s=a.probe, pin=a.pin, seed=a.seed,
-             log=lambda s: print(s, flush=True))
+             flood_hz=a.flood_hz, flood_s=a.flood_flight, log=lambda s: print(s, flush=True))
     return 0
 
 

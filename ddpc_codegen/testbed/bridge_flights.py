@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 __all__ = ["ROOT", "free_udp_port", "python_m", "child_env", "stop_process", "write_toml", "fly", "write_report",
            "pin_args"]
@@ -72,23 +73,31 @@ def write_toml(raw: dict, path: Path) -> Path:
 
 
 def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed: int, rt_priority: int,
-        cpu_latency_us: int = 0, pin: bool = False, log=print, vehicle_args: list[str] = ()) -> dict:
-    """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths + summary.
-    ``vehicle_args``: more ``ddpc-vehicle`` flags (e.g. --scenario hopping --lockstep)."""
+        cpu_latency_us: int = 0, pin: bool = False, log=print, vehicle_args: list[str] = (),
+        beside: Callable[[int], list[str]] | None = None) -> dict:
+    """One flight: a fresh vehicle process + a bridge process over UDP loopback. Returns file paths, the bridge's
+    summary and the vehicle's (``vehicle``: what reached it). ``vehicle_args``: more ``ddpc-vehicle`` flags (e.g.
+    --scenario hopping --lockstep). ``beside(port)``: the ``python -m`` arguments of a third process (a peer on
+    another address, e.g. :mod:`.proxy_flood`) started before the bridge and ended with SIGTERM after it."""
     port = free_udp_port()
     truth = work / f"{name}_truth.npz"
     ticks = work / f"{name}.npz"
     summ = work / f"{name}_summary.json"
-    for f in (truth, ticks, summ):
+    veh_summ = work / f"{name}_vehicle.json"
+    for f in (truth, ticks, summ, veh_summ):
         f.unlink(missing_ok=True)
-    veh = br = None
+    veh = br = side = None
     veh_err = open(work / f"{name}_vehicle.log", "w")
     try:
         veh = subprocess.Popen(
             python_m() + ["ddpc_codegen.testbed.vehicle_cli", f"udpout:127.0.0.1:{port}", "--seed", str(seed),
-                     "--truth-log", str(truth), "--rt-priority", str(max(0, rt_priority - 10)),
+                     "--truth-log", str(truth), "--summary", str(veh_summ), "--rt-priority", str(max(0, rt_priority - 10)),
                      "--cpu-latency-us", str(cpu_latency_us)] + pin_args(pin, "vehicle") + list(vehicle_args),
             env=child_env(), stdout=subprocess.DEVNULL, stderr=veh_err)
+        if beside is not None:
+            with open(work / f"{name}_beside.log", "w") as side_err:
+                side = subprocess.Popen(python_m() + beside(port), env=child_env(), stdout=subprocess.DEVNULL,
+                                        stderr=side_err)
         cmd = python_m() + ["firmware_bridge.cli", "bridge", f"udpin:127.0.0.1:{port}", "--offboard", "--duration",
                        str(duration), "--log", str(ticks), "--overwrite", "--summary", str(summ), "--rt-priority", str(rt_priority),
                        "--cpu-latency-us", str(cpu_latency_us), *pin_args(pin, "bridge"),
@@ -100,10 +109,12 @@ def fly(name: str, work: Path, bridge_args: list[str], *, duration: float, seed:
             raise RuntimeError(f"bridge ({name}) failed with {br.returncode}:\n{br.stderr}\n{br.stdout}")
         log("    " + br.stdout.strip().replace("\n", "\n    ") + f"\n    ({time.monotonic() - t0:.1f} s wall)")
     finally:
+        stop_process(side)
         stop_process(veh)
         veh_err.close()
     summary = json.loads(summ.read_text())
-    return {"truth": truth, "ticks": ticks, "summary": summary}
+    vehicle = json.loads(veh_summ.read_text()) if veh_summ.is_file() else None
+    return {"truth": truth, "ticks": ticks, "summary": summary, "vehicle": vehicle}
 
 
 def write_report(report: dict, out: Path, t_start: float, table, log=print) -> dict:

@@ -28,7 +28,8 @@ POS_ONLY = 0b0000_1111_1111_1000
 def flood(port: int, hz: float, seconds: float, ports: int = 4, stats: str | None = None) -> dict:
     """Send ``hz`` datagrams/s for ``seconds`` to 127.0.0.1:``port`` from ``ports`` sockets, each a foreign system
     (ids 100 ... 100 + ports - 1, at most 140 ports: none is the vehicle's, an app's or a GCS's): garbage (no MAVLink start byte in it), heartbeats, commands, parameter reads and position setpoints
-    aimed at system 99, MAVLink 1 and 2, each socket's sequence gap-free. Counts (also to ``stats``, JSON)."""
+    aimed at system 99, MAVLink 1 and 2, each socket's sequence gap-free. Counts (also to ``stats``, JSON); ``received``:
+    the datagrams that came back to the sockets (a proxy's vehicle stream; from a bridge: none)."""
     if not 1 <= ports <= 140:
         raise ValueError(f"ports must be 1 ... 140 (each its own system id); got {ports}")
     rng = np.random.default_rng(0)
@@ -53,7 +54,7 @@ def flood(port: int, hz: float, seconds: float, ports: int = 4, stats: str | Non
         cycles.append(cycle)
     halt = []
     signal.signal(signal.SIGTERM, lambda *_: halt.append(1))
-    sent = frames_sent = garbage = 0
+    sent = frames_sent = garbage = received = 0
     t0 = time.monotonic()
     while not halt and (now := time.monotonic()) - t0 < seconds:
         due = min(int((now - t0) * hz) - sent, int(hz * 0.05) + 1)
@@ -66,15 +67,15 @@ def flood(port: int, hz: float, seconds: float, ports: int = 4, stats: str | Non
                 frames_sent += 1
             else:
                 garbage += len(d)
-        for s in socks:  # what the proxy sends them (the vehicle's stream) is read: no kernel drops to count
+        for s in socks:  # what comes back (a proxy's vehicle stream) is read and counted: no kernel drops to count
             try:
                 while s.recv(65536):
-                    pass
+                    received += 1
             except OSError:
                 pass
         time.sleep(0.001)
     res = {"rate_hz": hz, "ports": ports, "seconds": time.monotonic() - t0, "datagrams": sent,
-           "frames": frames_sent, "garbage_bytes": garbage}
+           "frames": frames_sent, "garbage_bytes": garbage, "received": received}
     if stats:
         Path(stats).write_text(json.dumps(res))
     return res
