@@ -63,6 +63,10 @@ class AttitudeSetpoints:
 class SetpointStream:
     """SET_ATTITUDE_TARGET out, with the stream's times.
 
+    The stream's length is what the vehicle has seen: it starts again after a pause of the stream and after a
+    reboot of the vehicle (its reboot count moved), which a lock-stepped stream need never pause for, and whose
+    stamps are on a new time line.
+
     Args:
         vehicle: the link the setpoints go out on.
         lockstep: the stream's length counts in vehicle time (a lock-stepped vehicle's clock is not the wall's).
@@ -77,7 +81,8 @@ class SetpointStream:
         self.repeats = 0                    # repeats of it sent (not setpoints of a tick: not in send_times)
         self.last_send = -math.inf
         self.since = math.inf               # start of the current uninterrupted stream [s]
-        self.since_stamp = math.nan
+        self.since_stamp = math.nan         # ... in vehicle time [s], on the time line of ...
+        self.since_boot = -1                # ... the vehicle's boot (its reboot count) the stream started in
         self.prev_t = -math.inf
 
     def send(self, q_ned: tuple, field: float, stamp_ms: int) -> bool:
@@ -93,9 +98,11 @@ class SetpointStream:
             self.send_times.append(t)
             self.send_stamps.append(self.vehicle.vehicle_now(t, self.lockstep))
             # Continuous streaming since when (PX4 wants a live stream before it accepts OFFBOARD).
-            if not math.isfinite(self.since) or t - self.prev_t > 0.5:
+            if (not math.isfinite(self.since) or t - self.prev_t > 0.5 or self._rebooted()
+                    or (self.lockstep and not math.isfinite(self.since_stamp))):
                 self.since = t
                 self.since_stamp = self.vehicle.telem.newest_stamp()
+                self.since_boot = self.vehicle.counts["reboots"]
             self.prev_t = t
         return ok
 
@@ -110,7 +117,14 @@ class SetpointStream:
         return math.isfinite(self.since) and now - self.prev_t < 0.1
 
     def streamed(self, now: float) -> float:
-        """How long the current stream has run [s] (lock-step: in vehicle time)."""
+        """How long the current stream has run [s] (lock-step: in vehicle time); 0 after a reboot until the
+        next setpoint (none reached the vehicle since it came back)."""
+        if self._rebooted():
+            return 0.0
         if self.lockstep:
             return self.vehicle.telem.newest_stamp() - self.since_stamp
         return now - self.since
+
+    def _rebooted(self) -> bool:
+        """The vehicle rebooted since the current stream started (its time line is another)."""
+        return math.isfinite(self.since) and self.vehicle.counts["reboots"] != self.since_boot

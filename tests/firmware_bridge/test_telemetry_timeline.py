@@ -4,23 +4,28 @@ ones (it is re-lined onto them, with an event); a confirmed line leaves only on 
 
 Found by make fuzz's start-up stamp attack: samples stamped 2**32 - 1 ms before the vehicle's first real one kept
 every real sample "back in time" (exit 8), and a first tick on that stamp kept the setpoint stream's length in
-vehicle time negative (no OFFBOARD request) even once the line was re-lined."""
+vehicle time negative (no OFFBOARD request) even once the line was re-lined. The same length across a genuine reboot
+in lock-step (firmware_bridge/setpoints.py): the stream never pauses there, so it restarts on the reboot itself."""
 
 from __future__ import annotations
 
 import math
+import time
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_bridge.clock import TickTrigger
 from firmware_bridge.plausibility import TIMELINE_SAMPLES
+from firmware_bridge.setpoints import SetpointStream
 from firmware_bridge.telemetry import TelemetryState
 from part_fakes import heartbeat, line, telemetry, vehicle
 
 DT = 0.005
 T0, RX0 = 10.0, 100.0  # the vehicle's clock at its first real sample [s], the bridge's receive clock then [s]
 FAR_MS = 2**32 - 1     # the largest stamp a MAVLink time_boot_ms carries
+Q = (1.0, 0.0, 0.0, 0.0)
 
 
 def _real(k: int, z: float = 1.0):
@@ -130,3 +135,48 @@ def test_a_reboot_with_heartbeat_evidence_starts_on_a_confirmed_line():
             v.on_message(m, RX0 + 1.0 + DT * k)
     assert v.counts["reboots"] == 1 and v.telem.relines == 0 and v.telem.has_data
     assert v.telem.newest_stamp() == 0.2 + DT * (TIMELINE_SAMPLES - 1)
+
+
+# The vehicle's clock before a reboot [ms] and after it: back (a fresh boot) or far ahead of what the receive clock
+# allows; both off the old time line.
+_reboot_clocks = st.integers(1000, 4_000_000).flatmap(
+    lambda pre: st.tuples(st.just(pre), st.one_of(st.integers(0, pre - 500), st.integers(pre + 60_000, FAR_MS - 1000))))
+
+
+@settings(max_examples=60, deadline=None)
+@given(clocks=_reboot_clocks, evidence=st.sampled_from(["silence", "state"]),
+       n_before=st.integers(TIMELINE_SAMPLES, 40), n_after=st.integers(0, 40))
+def test_a_reboot_in_lockstep_restarts_the_setpoint_streams_length_on_the_new_time_line(clocks, evidence, n_before,
+                                                                                        n_after):
+    """Lock-step (the stream's length counts in vehicle time): a setpoint goes out on every tick, so the stream never
+    pauses on the wall clock, across a genuine reboot (a new time line and the heartbeat's evidence). Its length is
+    then the new line's, from the first setpoint on it: never a difference across the two lines (negative after a
+    fresh boot: no OFFBOARD request; huge after a jump ahead: an OFFBOARD request before the vehicle had a stream)."""
+    t_pre, t_new = clocks[0] / 1000.0, clocks[1] / 1000.0
+    trigger = TickTrigger(DT, lockstep=True, max_gap_fill=3)
+    v = vehicle(on_reboot=trigger.restart_samples)
+    stream, tel = SetpointStream(v, lockstep=True), v.telem
+    v.on_message(heartbeat(), RX0)
+
+    def sample(t: float, rx: float) -> None:
+        for m in telemetry(t):
+            v.on_message(m, rx)
+        if trigger.due(rx, tel):  # the bridge's lock-step tick: a setpoint stamped with the newest sample
+            trigger.consumed(tel)
+            stream.send(Q, 0.5, int(round(tel.newest_stamp() * 1000)))
+
+    for k in range(n_before):
+        sample(t_pre - DT * (n_before - 1 - k), RX0 + DT * k)
+    rx = RX0 + DT * n_before
+    before = DT * (n_before - TIMELINE_SAMPLES)  # from the first tick on the confirmed line
+    assert stream.streamed(time.monotonic()) == pytest.approx(before)
+    if evidence == "silence":
+        rx += 1.0  # silent past the link timeout
+        v.on_message(heartbeat(), rx)
+    else:
+        v.on_message(heartbeat(armed=False), rx)  # a fresh boot comes back disarmed
+    for k in range(TIMELINE_SAMPLES + n_after):
+        sample(t_new + DT * k, rx + DT * (k + 1))
+        done = k - (TIMELINE_SAMPLES - 1)  # ticks on the new line since its first (the sample that completed it)
+        assert stream.streamed(time.monotonic()) == pytest.approx(before if done < 0 else DT * done, abs=1e-9)
+    assert v.counts["reboots"] == 1 and tel.newest_stamp() == pytest.approx(t_new + DT * (TIMELINE_SAMPLES - 1 + n_after))
