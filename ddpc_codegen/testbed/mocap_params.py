@@ -13,7 +13,8 @@ from pathlib import Path
 
 from ddpc_codegen.testbed.mocap import MocapConfig
 
-__all__ = ["lab_params", "ARDUPILOT_LAB", "PX4_LAB", "EV_NOISE_FLOOR_M", "px4_has_external_vision"]
+__all__ = ["lab_params", "ARDUPILOT_LAB", "ARDUPILOT_SITL_LINK", "PX4_LAB", "EV_NOISE_FLOOR_M",
+           "transport_allowance_ms", "px4_has_external_vision"]
 
 # ArduPilot EKF3: ExternalNav (6) for position, height and yaw; velocity too when ODOMETRY carries it.
 ARDUPILOT_LAB: dict[str, float] = {
@@ -25,6 +26,27 @@ ARDUPILOT_LAB: dict[str, float] = {
     "EK3_SRC1_VELZ": 0,
     "GPS1_TYPE": 0,          # indoors: no GPS
 }
+
+# The stand-in's link on the ArduCopter SITL: its SERIAL1 TCP server (:func:`.sitl_setups.second_link`), declared
+# at 12.5 Mbaud. ArduPilot dates each pose by its jitter correction, from the instant the bytes arrived minus their
+# transmit time at the port's declared baud (10 bits a byte: the message and every byte still queued behind it).
+# SERIAL1's default 57600 baud makes that 22 ms for one VISION_POSITION_ESTIMATE and up to 65 ms with a queue, on a
+# loopback that takes ~0.1 ms: EKF3 took every pose for ~30 ms older than it was and its height ran that far ahead
+# of the truth (7-25 mm RMS in moving flights, 1-4 mm after). Above 10 Mbaud the allowance is 0 (whole
+# microseconds a byte). A real companion's port declares its real baud: there the transmit time is real.
+ARDUPILOT_SITL_LINK: dict[str, float] = {"SERIAL1_BAUD": 12_500_000}
+_VISION_POSITION_ESTIMATE_BYTES = 129  # MAVLink 2: 117 bytes of payload (with covariance) + 12 of framing
+
+
+def transport_allowance_ms(baud: float, queued_bytes: int = 0) -> float:
+    """What ArduPilot subtracts from a VISION_POSITION_ESTIMATE's arrival for its transmit time [ms] on a port
+    declared at ``baud`` (ArduPilot's ``SERIALn_BAUD`` value: a code such as 57 or 921, or a rate above 2000), with
+    ``queued_bytes`` more waiting behind it (its integer arithmetic: whole microseconds a byte)."""
+    codes = {57: 57600, 115: 115200, 230: 230400, 460: 460800, 500: 500000, 921: 921600, 1500: 1500000,
+             2000: 2000000}
+    rate = int(codes.get(int(baud), baud))
+    return (10_000_000 // rate) * (_VISION_POSITION_ESTIMATE_BYTES + queued_bytes) * 1e-3
+
 
 # PX4 EKF2: external vision for horizontal position, height (the height reference) and yaw.
 PX4_LAB: dict[str, float] = {
@@ -45,7 +67,8 @@ EV_NOISE_FLOOR_M = 0.01
 
 def lab_params(autopilot: str, config: MocapConfig | None = None) -> dict[str, float]:
     """The lab set of ``autopilot`` ("ardupilot" or "px4") for the stream ``config`` describes: the fixed
-    set above plus the delay [ms] (the stream's latency) and the noise floors [m, rad, m/s].
+    set above plus the delay [ms] (the stream's latency) and the noise floors [m, rad, m/s]; on ArduPilot the
+    stand-in's SITL link too (:data:`ARDUPILOT_SITL_LINK`).
 
     Raises:
         ValueError: unknown autopilot.
@@ -56,7 +79,7 @@ def lab_params(autopilot: str, config: MocapConfig | None = None) -> dict[str, f
     vel = max(c.vel_noise_mps, EV_NOISE_FLOOR_M)
     odometry = c.message == "odometry"
     if autopilot == "ardupilot":
-        p = dict(ARDUPILOT_LAB)
+        p = {**ARDUPILOT_LAB, **ARDUPILOT_SITL_LINK}
         p.update({"VISO_DELAY_MS": delay_ms, "VISO_POS_M_NSE": pos, "VISO_YAW_M_NSE": att, "VISO_VEL_M_NSE": vel})
         if odometry:
             p.update({"EK3_SRC1_VELXY": 6, "EK3_SRC1_VELZ": 6})

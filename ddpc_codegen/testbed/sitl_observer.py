@@ -2,7 +2,18 @@
 truth (ArduCopter's ``SIM_STATE`` on its TCP 5762 / 5763, PX4 SIH's ``HIL_STATE_QUATERNION`` on the link it
 keeps for the simulator, :data:`SPARE_PORT`), the autopilot's own estimate (``LOCAL_POSITION_NED``), its
 heartbeats and status texts, each stamped on arrival (``time.time()``). A flight is then judged on the true
-height, not on what the flying side believed."""
+height, not on what the flying side believed.
+
+The true height is refined below the grid the message reports it on (ArduCopter: whole centimetres, truncated;
+PX4: millimetres) with its vertical velocity, by the motion-capture stand-in's own
+:class:`~ddpc_codegen.testbed.mocap.Dequantizer`: on the raw centimetres a moving flight's estimate - truth
+carries the grid's ~2.9 mm RMS, and a hover up to 5 mm of offset, that neither estimate nor steering has. On the
+ground both refine to the same cell's middle, so the frames' offset measured there (:meth:`Observer.ground`) is
+the mocap's origin in flight. Truth and estimate are paired by arrival: both are sent from the autopilot's same
+loop on the same link and arrive in the same bursts (measured on ArduCopter: SIM_STATE within 0.3 ms of the
+LOCAL_POSITION_NED beside it, while the bursts themselves lag the autopilot's clock by 0-23 ms);
+:meth:`Observer.estimate_lag` measures what lag is left between them.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_bound"]
+from ddpc_codegen.testbed.mocap import TRUTH_GRID, Dequantizer
+
+__all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_bound", "estimate_lag"]
 
 HOME_ALT = 584.0  # m AMSL, the ArduCopter SITL's --home altitude (SIM_STATE.alt is AMSL)
 _LOCAL_POSITION_NED = 32
@@ -47,6 +60,22 @@ def wait_udp_bound(port: int, timeout: float = 15.0) -> bool:
     return False
 
 
+def estimate_lag(t: np.ndarray, truth: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray],
+                 max_lag: float = 0.1, step: float = 0.001) -> tuple[float, float]:
+    """The lag [s] of an estimate behind the truth over the instants ``t`` [s] (n,): the shift of the truth that
+    leaves the least spread (std) of estimate - truth, searched over +-``max_lag`` [s] in ``step`` [s]; positive: the
+    estimate is late. ``truth`` / ``est``: (times (m,), values (m,)) each. Returns (lag [s], that spread [m])."""
+    ok = (t - max_lag >= truth[0][0]) & (t + max_lag <= truth[0][-1]) & (t >= est[0][0]) & (t <= est[0][-1])
+    t = t[ok]
+    if t.size < 3:
+        return float("nan"), float("nan")
+    e = np.interp(t, *est)
+    lags = np.arange(-max_lag, max_lag + step / 2, step)
+    spread = np.array([np.std(e - np.interp(t - lag, *truth)) for lag in lags])
+    k = int(np.argmin(spread))
+    return float(lags[k]), float(spread[k])
+
+
 class Observer(threading.Thread):
     """Records the SITL's truth and estimate (see the module docstring) until :meth:`stop`.
 
@@ -54,25 +83,31 @@ class Observer(threading.Thread):
         url: the spare port (``tcp:127.0.0.1:5762``); rate_hz: the rate asked for both streams.
         autopilot: whose truth message to ask for (PX4's true height counts from its first sample); sysid: the
             vehicle's system id.
+        connect: False: no connection and no thread (feed :meth:`record` yourself).
     """
 
-    def __init__(self, url: str, rate_hz: float = 50.0, autopilot: str = "ardupilot", sysid: int = 1) -> None:
+    def __init__(self, url: str, rate_hz: float = 50.0, autopilot: str = "ardupilot", sysid: int = 1,
+                 connect: bool = True) -> None:
         super().__init__(daemon=True)
-        from pymavlink import mavutil  # the testbed's optional dependency, as the SITL harness's
-
-        self.c = mavutil.mavlink_connection(url, source_system=251, autoreconnect=False)
         self.interval_us = 1e6 / rate_hz
         self.autopilot = autopilot
         self.truth_type, self.truth_id = _TRUTH[autopilot]
         self._alt0: float | None = None
+        # the true height refined below its grid (truncated: the truth lies in [q, q + grid) above a reported q)
+        self._fine = Dequantizer(TRUTH_GRID[self.truth_type], (0.0, 1.0))
         self.sysid = sysid
-        self.sim: list[tuple[float, float]] = []   # (t, true height above home [m])
+        self.sim: list[tuple[float, float]] = []   # (t, true height above home [m], refined)
         self.lpos: list[tuple[float, float]] = []  # (t, estimated height -z [m])
         self.hb: list[tuple[float, int, bool]] = []  # (t, custom_mode, armed)
         self.texts: list[tuple[float, str]] = []
         self.modes: list[tuple[float, int]] = []  # (t, custom_mode) of CURRENT_MODE (PX4: sent on each change)
         self.halt = threading.Event()
-        self.start()
+        self.c = None
+        if connect:
+            from pymavlink import mavutil  # the testbed's optional dependency, as the SITL harness's
+
+            self.c = mavutil.mavlink_connection(url, source_system=251, autoreconnect=False)
+            self.start()
 
     def run(self) -> None:
         next_req = 0.0
@@ -82,22 +117,25 @@ class Observer(threading.Thread):
                 for msg_id in (self.truth_id, _LOCAL_POSITION_NED, _HEARTBEAT, _CURRENT_MODE):
                     self.c.mav.command_long_send(self.sysid, 1, 511, 0, msg_id, self.interval_us, 0, 0, 0, 0, 0)
             m = self.c.recv_match(blocking=True, timeout=0.2)
-            if m is None:
-                continue
-            t, typ = time.time(), m.get_type()
-            if typ == "SIM_STATE":
-                self.sim.append((t, m.alt - HOME_ALT))
-            elif typ == "HIL_STATE_QUATERNION":
-                self._alt0 = m.alt * 1e-3 if self._alt0 is None else self._alt0
-                self.sim.append((t, m.alt * 1e-3 - self._alt0))
-            elif typ == "LOCAL_POSITION_NED":
-                self.lpos.append((t, -m.z))
-            elif typ == "CURRENT_MODE" and m.get_srcSystem() == self.sysid:
-                self.modes.append((t, m.custom_mode))
-            elif typ == "STATUSTEXT":
-                self.texts.append((t, m.text))
-            elif typ == "HEARTBEAT" and m.get_srcSystem() == self.sysid and m.get_srcComponent() == 1:
-                self.hb.append((t, m.custom_mode, bool(m.base_mode & 128)))
+            if m is not None:
+                self.record(m, time.time())
+
+    def record(self, m, t: float) -> None:
+        """Fold in one message ``m`` received at ``t`` [s, time.time()]."""
+        typ = m.get_type()
+        if typ == "SIM_STATE":
+            self.sim.append((t, self._fine.update(m.alt - HOME_ALT, -m.vd, t)))
+        elif typ == "HIL_STATE_QUATERNION":
+            self._alt0 = m.alt * 1e-3 if self._alt0 is None else self._alt0
+            self.sim.append((t, self._fine.update(m.alt * 1e-3 - self._alt0, -m.vz * 0.01, t)))
+        elif typ == "LOCAL_POSITION_NED":
+            self.lpos.append((t, -m.z))
+        elif typ == "CURRENT_MODE" and m.get_srcSystem() == self.sysid:
+            self.modes.append((t, m.custom_mode))
+        elif typ == "STATUSTEXT":
+            self.texts.append((t, m.text))
+        elif typ == "HEARTBEAT" and m.get_srcSystem() == self.sysid and m.get_srcComponent() == 1:
+            self.hb.append((t, m.custom_mode, bool(m.base_mode & 128)))
 
     def heights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(true, estimated) heights [m] at the times ``t`` [s, time.time()], interpolated (nan outside)."""
@@ -109,6 +147,15 @@ class Observer(threading.Thread):
             a = np.array(rec)
             out.append(np.interp(t, a[:, 0], a[:, 1], left=np.nan, right=np.nan))
         return out[0], out[1]
+
+    def estimate_lag(self, t0: float, t1: float, max_lag: float = 0.1) -> tuple[float, float]:
+        """:func:`estimate_lag` of the estimate behind the truth between ``t0`` and ``t1`` [s, time.time()], on a
+        5 ms grid: (lag [s], the spread of estimate - truth left at that lag [m]); nan without both streams."""
+        sim, est = list(self.sim), list(self.lpos)
+        if len(sim) < 2 or len(est) < 2:
+            return float("nan"), float("nan")
+        a, b = np.array(sim), np.array(est)
+        return estimate_lag(np.arange(t0, t1, 0.005), (a[:, 0], a[:, 1]), (b[:, 0], b[:, 1]), max_lag)
 
     def ground(self, seconds: float = 3.0) -> float:
         """The true height where the local frame's origin is: median of truth - estimate over the last ``seconds``
@@ -131,5 +178,6 @@ class Observer(threading.Thread):
 
     def stop(self) -> None:
         self.halt.set()
-        self.join(3)
-        self.c.close()
+        if self.c is not None:
+            self.join(3)
+            self.c.close()

@@ -12,7 +12,8 @@ import pytest
 
 from ddpc_codegen.testbed.mocap import (MAV_FRAME_LOCAL_NED, Dequantizer, MocapConfig, MocapPose, MocapSampler,
                                         MocapStandIn, TruthBuffer, odometry_fields, vision_position_fields)
-from ddpc_codegen.testbed.mocap_params import ARDUPILOT_LAB, PX4_LAB, lab_params, px4_has_external_vision
+from ddpc_codegen.testbed.mocap_params import (ARDUPILOT_LAB, PX4_LAB, lab_params, px4_has_external_vision,
+                                               transport_allowance_ms)
 from firmware_bridge.truth import EARTH_RADIUS_M
 
 LAT0, LON0, ALT0 = -35.363261, 149.165230, 584.09
@@ -165,6 +166,16 @@ def test_parameter_sets_follow_the_stream():
     assert lab_params("px4", MocapConfig(message="odometry"))["EKF2_EV_CTRL"] == 15
     with pytest.raises(ValueError, match="unknown autopilot"):
         lab_params("inav")
+
+
+def test_the_stand_ins_arducopter_link_declares_no_transmit_time():
+    """ArduPilot dates a pose by its arrival minus its bytes' transmit time at the port's declared baud: the SITL's
+    TCP link takes ~0.1 ms, so the stand-in's port (SERIAL1) must declare a baud that makes that allowance 0, even
+    with a queue behind the pose; SERIAL1's default 57600 dated each pose ~30 ms early (the EKF ran ahead)."""
+    baud = lab_params("ardupilot")["SERIAL1_BAUD"]
+    assert transport_allowance_ms(baud, queued_bytes=2000) == 0.0
+    assert transport_allowance_ms(57) > 20.0 and transport_allowance_ms(921, 1000) > 10.0
+    assert "SERIAL1_BAUD" not in lab_params("px4")
 
 
 def test_config_is_checked():
