@@ -7,6 +7,8 @@ nothing is imported from here).
 - One BLAS thread per test process and its children (unless the environment sets one): the tests'
   matrices are small, and OpenBLAS's spinning threads cost several times the CPU when xdist workers or
   other processes share the cores.
+- The xdist workers share the rewriting of the test modules' asserts (:mod:`support.rewrite_share`): on a
+  fresh clone each module is rewritten about once per run instead of once per worker.
 - C compiles go through :mod:`support.cc_cache` (``CC`` for the session, its subprocesses included): the
   library sources every generated folder carries are compiled once per run, not once per solver.
   ``DDPC_TEST_CC_CACHE=0`` compiles everything afresh.
@@ -33,6 +35,7 @@ from support.durations import (
 )
 from support.cc_cache import install as install_cc_cache
 from support.lti import random_lti
+from support.rewrite_share import share_rewrites
 from support.solver_cache import cache_root
 
 _FIXTURE_PROP = "ddpc_fixture_setup"
@@ -80,6 +83,10 @@ def pytest_configure(config: pytest.Config) -> None:
         config.pluginmanager.register(FixtureTimer(), "ddpc-fixture-timer")
         if not os.environ.get("PYTEST_XDIST_WORKER"):
             config.pluginmanager.register(DurationRecorder(config), "ddpc-duration-recorder")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    share_rewrites(session.config)
 
 
 @pytest.hookimpl(tryfirst=True)  # before -m deselects, so that `-m "not slow"` sees the measured markers

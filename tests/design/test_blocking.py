@@ -1,7 +1,6 @@
 """Knots over the horizon (design.blocking) and the blocked steering QP, against independent references:
 np.interp for the basis, and cvxpy (Clarabel) on the uncondensed problem in the full u with u in range(B)."""
 
-import cvxpy as cp
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -95,6 +94,8 @@ def _params(sys_, rng, scale):
 
 def _cvxpy_in_range(prob: SteeringProblem, u_ini, y_ini, y_des, u_nom) -> np.ndarray:
     """The uncondensed problem in the full u (n_u), every bound on every tick, with u = B v (Clarabel)."""
+    import cvxpy as cp  # heavy (~1 s): imported by the worker that runs this, not by every one that collects
+
     c, pr = prob.config, prob.predictor
     u, v = cp.Variable(M * TF), cp.Variable(prob.n_z)
     w = np.r_[np.ravel(u_ini), np.ravel(y_ini)]

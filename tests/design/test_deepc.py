@@ -8,8 +8,6 @@ import pytest
 from support.lti import random_lti
 from ddpc_codegen import DeePCProblem, IODataset, SteeringConfig
 
-cp = pytest.importorskip("cvxpy")
-
 TI, TF, M, P = 4, 6, 2, 2
 
 
@@ -36,6 +34,7 @@ def _hankel(w, L):
 
 
 def _cvxpy_deepc(ds, c, lambda_g, u_ini, y_ini, y_des, u_nom):
+    cp = pytest.importorskip("cvxpy")  # heavy (~1 s): imported where it is used, not while every worker collects
     Hu, Hy = _hankel(ds.u[0], TI + TF), _hankel(ds.y[0], TI + TF)
     Up, Uf, Yp, Yf = Hu[: M * TI], Hu[M * TI :], Hy[: P * TI], Hy[P * TI :]
     g = cp.Variable(Hu.shape[1])

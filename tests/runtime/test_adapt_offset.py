@@ -4,6 +4,7 @@ window than the offset in use), applied by the interpreted twin, recorded by the
 
 from __future__ import annotations
 
+import functools
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -36,7 +37,13 @@ def _problem(form: str = "absolute", bounds: dict | None = None) -> SteeringProb
     return SteeringProblem(pred, cfg)
 
 
-PROBLEMS = {form: _problem(form) for form in ("absolute", "incremental")}
+FORMS = ("absolute", "incremental")
+
+
+@functools.cache
+def problem(form: str) -> SteeringProblem:
+    """The module's problem of ``form``, built on first use (not while every xdist worker collects)."""
+    return _problem(form)
 
 
 def _signal(seed: int, d: np.ndarray, T: int = 120) -> tuple[np.ndarray, np.ndarray]:
@@ -69,11 +76,11 @@ def _feed(twin: AdaptiveProblem, u: np.ndarray, y: np.ndarray) -> None:
         twin.adapt_push(uk, yk)
 
 
-@given(form=st.sampled_from(sorted(PROBLEMS)), seed=st.integers(0, 10**6),
+@given(form=st.sampled_from(sorted(FORMS)), seed=st.integers(0, 10**6),
        d=st.lists(st.floats(-2.0, 2.0), min_size=2, max_size=2), window=st.integers(40, 90))
 @settings(max_examples=12, deadline=None)
 def test_the_staged_offset_is_the_mean_residual_of_the_recent_window_in_data_units(form, seed, d, window):
-    prob = PROBLEMS[form]
+    prob = problem(form)
     # every G refused (the gain check, or for the incremental form, which has none, the excitation check)
     st_ = AdaptSettings(enabled=True, window=window, offset=True, max_gain_change=0.0, min_excitation=1.0,
                         max_offset=1e6)
@@ -98,7 +105,7 @@ def test_the_staged_offset_is_the_mean_residual_of_the_recent_window_in_data_uni
 
 
 def test_after_a_g_swap_the_offset_in_use_is_the_new_gs():
-    prob = PROBLEMS["absolute"]
+    prob = problem("absolute")
     twin = AdaptiveProblem(prob, AdaptSettings(enabled=True, window=60, offset=True, forgetting=0.95, max_change=1.0,
                                                min_excitation=1e-6, max_gain_change=1e6))
     u, y = _signal(3, np.array([0.3, -0.2]), T=300)
@@ -114,7 +121,7 @@ def test_after_a_g_swap_the_offset_in_use_is_the_new_gs():
 @pytest.mark.parametrize("max_offset, clipped", [(0.05, [0.05, 0.05]), ((10.0, 0.01), [None, 0.01]),
                                                  (10.0, [None, None])])
 def test_the_offset_is_clipped_per_output_and_counted(max_offset, clipped):
-    prob = PROBLEMS["absolute"]
+    prob = problem("absolute")
     st_ = AdaptSettings(enabled=True, window=50, offset=True, max_gain_change=0.0, max_offset=max_offset)
     twin = AdaptiveProblem(prob, st_)
     u, y = _signal(1, np.array([1.0, -1.0]))
@@ -130,7 +137,7 @@ def test_the_offset_is_clipped_per_output_and_counted(max_offset, clipped):
 
 
 def test_the_twin_steers_toward_y_des_minus_the_offset():
-    prob = PROBLEMS["absolute"]
+    prob = problem("absolute")
     twin = AdaptiveProblem(prob, AdaptSettings(enabled=True, window=50, offset=True, max_gain_change=0.0))
     u, y = _signal(2, np.array([0.5, 0.1]))
     _feed(twin, u, y)
@@ -149,7 +156,7 @@ def test_the_twin_steers_toward_y_des_minus_the_offset():
 
 
 def test_without_offset_nothing_is_staged_and_the_loop_records_the_norm():
-    prob = PROBLEMS["absolute"]
+    prob = problem("absolute")
     u, y = _signal(5, np.array([0.5, 0.1]), T=200)
     norms = {}
     for on in (False, True):
@@ -182,7 +189,7 @@ def test_offset_with_output_bounds_is_refused():
 def test_a_bad_max_offset_is_refused_by_the_update(value):
     with pytest.raises(DataError, match=r"^\[adapt\] max_offset must be one number > 0 or 2 of them \(one per "
                                         rf"output\); got {__import__('re').escape(repr(value))}$"):
-        adapter(PROBLEMS["absolute"], AdaptSettings(enabled=True, offset=True, max_offset=value))
+        adapter(problem("absolute"), AdaptSettings(enabled=True, offset=True, max_offset=value))
 
 
 @pytest.mark.parametrize("table, message", [
@@ -214,7 +221,7 @@ def _own_signal(seed: int, d=(0.0, 0.0), T: int = 300) -> tuple[np.ndarray, np.n
 
 
 def _probe_twin(form: str) -> AdaptiveProblem:
-    return AdaptiveProblem(PROBLEMS[form], AdaptSettings(enabled=True, window=60, offset=True))
+    return AdaptiveProblem(problem(form), AdaptSettings(enabled=True, window=60, offset=True))
 
 
 def _absurd(y: np.ndarray, probe: str, seed: int) -> np.ndarray:
@@ -230,10 +237,10 @@ def _absurd(y: np.ndarray, probe: str, seed: int) -> np.ndarray:
 
 def test_the_default_max_offset_is_finite_from_the_fit_data():
     ad = _probe_twin("absolute").adapter
-    scale_y = np.asarray(PROBLEMS["absolute"].predictor.options["channel_scale"])[2:]
+    scale_y = np.asarray(problem("absolute").predictor.options["channel_scale"])[2:]
     np.testing.assert_allclose(ad.max_offset, OFFSET_SPAN * scale_y, rtol=1e-12)
     inc = _probe_twin("incremental").adapter  # increments accumulate over the horizon: Tf of their scale
-    scale_dy = np.asarray(PROBLEMS["incremental"].predictor.options["channel_scale"])[2:]
+    scale_dy = np.asarray(problem("incremental").predictor.options["channel_scale"])[2:]
     np.testing.assert_allclose(inc.max_offset, OFFSET_SPAN * T_F * scale_dy, rtol=1e-12)
     assert np.all(np.isfinite(inc.max_offset))
 
@@ -247,11 +254,11 @@ def test_a_genuine_offset_change_is_installed():
     done = twin.adapt_swap()
     assert done.offset and twin.adapt_counts()["offset_rejected"] == 0
     if not done.g:  # the shipped G's mean residual (y_ini carries d too: not d itself)
-        np.testing.assert_allclose(twin.adapt_offset(), _reference_offset(PROBLEMS["absolute"], u, y, 60), atol=1e-9)
+        np.testing.assert_allclose(twin.adapt_offset(), _reference_offset(problem("absolute"), u, y, 60), atol=1e-9)
     assert np.abs(twin.adapt_offset()).max() > 0.05
 
 
-@pytest.mark.parametrize("form", sorted(PROBLEMS))
+@pytest.mark.parametrize("form", sorted(FORMS))
 @pytest.mark.parametrize("probe", ["outliers", "1e300"])
 def test_absurd_columns_install_no_offset(form, probe):
     """1 % outliers drag the mean far (clipped to the finite max_offset), 1e300 samples make it absurd: the
@@ -274,7 +281,7 @@ def test_absurd_columns_install_no_offset(form, probe):
         est = twin.adapter.offset_estimate
         assert est is None or np.all(np.abs(est) <= np.tile(twin.adapter.max_offset, T_F))
         rng = np.random.default_rng(0)
-        r = twin.solve(rng.standard_normal((PROBLEMS[form].predictor.t_ini, 2)) * 0.1,
-                       rng.standard_normal((PROBLEMS[form].predictor.t_ini, 2)) * 0.1,
+        r = twin.solve(rng.standard_normal((problem(form).predictor.t_ini, 2)) * 0.1,
+                       rng.standard_normal((problem(form).predictor.t_ini, 2)) * 0.1,
                        np.zeros((T_F, 2)), np.zeros((T_F, 2)))
         assert r.status == "solved"
