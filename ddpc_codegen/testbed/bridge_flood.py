@@ -24,6 +24,7 @@ __all__ = ["FLOOD_HZ", "tick_latency_us", "latency_parts", "round_figures", "flo
 
 FLOOD_HZ = 10_000.0
 FLOOD_PORTS = 4
+_EDGE_PERCENTILE = 0.5  # the grid's deadlines sit at this percentile of the ticks' phases (see latency_parts)
 
 
 def tick_latency_us(ticks: dict[str, np.ndarray]) -> np.ndarray:
@@ -36,21 +37,26 @@ def tick_latency_us(ticks: dict[str, np.ndarray]) -> np.ndarray:
 def latency_parts(ticks: dict[str, np.ndarray], period: float) -> dict:
     """Where the tick latency goes, per event tick [us] (percentiles of each part):
 
-    ``compute``: tick start -> setpoint sent (the tick's work); ``receive_to_start``: telemetry receive -> tick start
+    ``compute``: tick start -> setpoint sent (the tick's work; ``solve``: its solver call); ``receive_to_start``: telemetry receive -> tick start
     (latency - compute), split into ``receive_to_deadline`` (waiting for the grid boundary; negative when the sample
     arrived after the deadline, before the late wake-up) and ``wake`` (deadline -> tick start). The deadlines are
-    the grid ``period`` [s] placed at the least-late tick's phase, so ``wake`` is the lateness above that tick's."""
+    the grid ``period`` [s] placed at the phase of the least-late ticks (the 0.5th percentile), so ``wake`` is the
+    lateness above theirs."""
     ev = np.asarray(ticks["event"], bool)
     lat, comp = np.asarray(ticks["latency_us"], float), np.asarray(ticks["compute_us"], float)
     t = np.asarray(ticks["t_wall"], float)
+    solve = np.asarray(ticks["solve_us"], float) if "solve_us" in ticks else np.full(t.shape, np.nan)
     if t.size == 0:
-        return {k: percentiles(()) for k in ("compute", "receive_to_start", "receive_to_deadline", "wake")}
+        return {k: percentiles(()) for k in ("compute", "solve", "receive_to_start", "receive_to_deadline", "wake")}
     phase = np.mod(t, period)
     centre = float(np.median(phase))
-    dev = np.mod(phase - centre + period / 2, period) - period / 2  # around the typical phase: no wrap at 0 / period
-    wake = (dev - dev.min()) * 1e6
+    # Around the typical tick's phase, which is close to the deadline: from a quarter period before it (no tick
+    # wakes before its deadline) to three quarters after. The deadline is the lower edge of that cluster: a low
+    # percentile, not the least value, which a tick later than three quarters of a period would be, wrapped round.
+    dev = np.mod(phase - centre + period / 4, period) - period / 4
+    wake = (dev - np.percentile(dev, _EDGE_PERCENTILE)) * 1e6
     start = lat - comp
-    return {"compute": percentiles(comp[ev]), "receive_to_start": percentiles(start[ev]),
+    return {"compute": percentiles(comp[ev]), "solve": percentiles(solve[ev]), "receive_to_start": percentiles(start[ev]),
             "receive_to_deadline": percentiles((start - wake)[ev]), "wake": percentiles(wake[ev])}
 
 

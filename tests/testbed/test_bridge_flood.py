@@ -20,14 +20,16 @@ P = 0.005
 
 def _ticks(n: int = 400, rx_before: float = 300e-6, wake: float = 20e-6, compute: float = 400e-6,
            grid0: float = 1.0023) -> dict:
-    """Ticks on a grid ``grid0 + k P`` [s]: each wakes ``wake`` s late (every 50th 1 ms late), its telemetry arrived
+    """Ticks on a grid ``grid0 + k P`` [s]: each wakes ``wake`` s late (every 50th 1 ms, the 10th 3 ms, the 14th 4.5 ms), its telemetry arrived
     ``rx_before`` s before the deadline, compute ``compute`` s; every 4th tick has no new telemetry."""
     k = np.arange(n)
     late = np.full(n, wake)
     late[::50] = 1e-3
+    late[9] = 3e-3  # more than half a period late: still late, not early
+    late[13] = 4.5e-3  # so late its phase wraps round to just before the deadline: no deadline is placed there
     t_wall = grid0 + k * P + late
     return {"t_wall": t_wall, "latency_us": (rx_before + late + compute) * 1e6,
-            "compute_us": np.full(n, compute * 1e6), "event": k % 4 != 3}
+            "compute_us": np.full(n, compute * 1e6), "solve_us": np.full(n, 30.0), "event": k % 4 != 3}
 
 
 def test_the_reported_latency_is_receive_to_send_on_ticks_with_new_telemetry():
@@ -42,9 +44,10 @@ def test_latency_parts_split_the_wait_for_the_grid_from_the_wake_up_and_the_work
     assert parts["compute"]["p50"] == pytest.approx(400.0)
     assert parts["receive_to_start"]["p50"] == pytest.approx(320.0, abs=1e-3)
     # the deadlines sit at the least-late tick's phase (20 us late): the wake-up is measured above it
-    assert parts["wake"]["p50"] == pytest.approx(0.0, abs=1e-3) and parts["wake"]["max"] == pytest.approx(980.0, abs=1e-3)
-    assert parts["receive_to_deadline"]["max"] == pytest.approx(320.0, abs=1e-3)
-    assert parts["compute"]["n"] == 300
+    assert parts["wake"]["p50"] == pytest.approx(0.0, abs=1e-3) and parts["wake"]["max"] == pytest.approx(2980.0, abs=1e-3)
+    # (the 4.5 ms late tick's wake-up, wrapped round, is counted as waiting for the grid: one tick, not the p99)
+    assert parts["receive_to_deadline"]["p99"] == pytest.approx(320.0, abs=1e-3)
+    assert parts["compute"]["n"] == 300 and parts["solve"]["p99"] == pytest.approx(30.0)
 
 
 def test_latency_parts_of_no_ticks_are_empty():
@@ -65,7 +68,7 @@ def test_one_flights_figures_count_setpoints_at_both_ends_and_the_flood_against_
     r = round_figures(SUMMARY, VEHICLE, _ticks(), P, FLOOD)
     assert (r["setpoints_sent"], r["setpoints_received"], r["setpoints_lost"]) == (403, 401, 2)
     assert r["vehicle_failsafes"] == 1 and r["missed_ticks"] == 1 and r["event_ticks"] == 300
-    assert r["latency_over_1ms"] == 8  # the 1 ms late wake-ups (k = 0, 50, ... 350: all event ticks)
+    assert r["latency_over_1ms"] == 10  # the late wake-ups (k = 0, 50, ... 350, 9 and 13: all event ticks)
     assert r["foreign"]["foreign_packets"] == 9000 and r["foreign"]["peer_changes"] == 1 and r["flood"] is FLOOD
     assert r["latency_us"]["p50"] == pytest.approx(720.0)
     quiet = round_figures({**SUMMARY, "link": {}}, None, _ticks(), P, None)
