@@ -63,14 +63,19 @@ def latency_parts(ticks: dict[str, np.ndarray], period: float) -> dict:
 def round_figures(summary: dict, vehicle: dict | None, ticks: dict[str, np.ndarray], period: float,
                   flood: dict | None) -> dict:
     """One flight's figures from the bridge's ``summary``, the vehicle's summary, the tick log's ``ticks`` (period
-    [s]) and the flooder's counts (None: no flood)."""
+    [s]) and the flooder's counts (None: no flood). ``waited_a_period``: event ticks whose sample arrived after the
+    previous tick's boundary (the two processes' free-running grids drifted into each other)."""
     link = summary.get("link") or {}
     sent = int(summary.get("setpoints_sent", 0)) + int(summary.get("setpoints_repeated", 0))
     got = None if vehicle is None else int(vehicle.get("setpoints", 0)) + int(vehicle.get("setpoints_ignored", 0))
     lat = tick_latency_us(ticks)
+    # a sample that arrived after a tick's boundary waits for the next one: about a period
+    waited = tick_latency_us({"latency_us": np.asarray(ticks["latency_us"]) - np.asarray(ticks["compute_us"]),
+                              "event": ticks["event"]}) > period * 1e6 / 2
     return {
         "latency_us": percentiles(lat), "latency_parts_us": latency_parts(ticks, period),
         "latency_over_1ms": int(np.sum(lat > 1000.0)), "event_ticks": int(lat.size),
+        "waited_a_period": int(np.sum(waited)),
         "ticks": int(summary.get("ticks", 0)), "missed_ticks": int(summary.get("missed_ticks", 0)),
         "grid_skipped": int(summary.get("grid_skipped", 0)), "max_gap_ms": summary.get("max_gap_ms"),
         "telemetry_gaps": summary.get("telemetry_gaps"), "fallbacks": int(summary.get("fallbacks", 0)),

@@ -12,7 +12,7 @@ def _flight(p99: float, compute: float, sent: int, received: int, flood: dict | 
     return {"latency_us": pct(p99), "latency_parts_us": {"compute": pct(compute), "solve": pct(61.0),
                                                           "receive_to_start": pct(p99 - compute),
                                                           "receive_to_deadline": pct(310.0), "wake": pct(180.0)},
-            "latency_over_1ms": 7, "event_ticks": 3900, "missed_ticks": 0, "setpoints_sent": sent,
+            "latency_over_1ms": 7, "event_ticks": 3900, "waited_a_period": 2, "missed_ticks": 0, "setpoints_sent": sent,
             "setpoints_received": received, "setpoints_lost": sent - received, "flood": flood,
             "foreign": {"foreign_packets": 190000 if flood else 0, "foreign_heartbeats": 0, "unpinned": 18,
                         "foreign": 6800 if flood else 0, "bad_data": 2300 if flood else 0, "parse_errors": 0,
@@ -37,8 +37,8 @@ def test_the_timing_page_shows_the_flights_and_the_flood_round_with_the_load():
     assert "receive to the grid boundary and the wake-up, not only the tick's work" in md  # which latency it is
     assert "| 200.0 | 560 / 930 / 5100 | 2 | 100 | 0 | 41.2 / 40.5 | 10.1 / 9.5 |" in md
     assert "under a 10 kHz flood (garbage and valid MAVLink of other system ids) from 4 foreign ports" in md
-    assert "| no flood | 0.42 | 912 | 545 | 61 | 310 | 180 | 7 of 3900 | 0 | 4005 / 4005 | 0 | -- | -- |" in md
-    assert "| 10 kHz flood | 1.37 | 988 | 560 | 61 | 310 | 180 | 7 of 3900 | 0 | 4004 / 4004 | 205000 | 190000 / 9100 | 0 |" in md
+    assert "| no flood | 0.42 | 912 | 545 | 61 | 310 | 180 | 7 of 3900 | 2 | 0 | 4005 / 4005 | 0 | -- | -- |" in md
+    assert "| 10 kHz flood | 1.37 | 988 | 560 | 61 | 310 | 180 | 7 of 3900 | 2 | 0 | 4004 / 4004 | 205000 | 190000 / 9100 | 0 |" in md
 
 
 def test_the_index_gives_the_p99_quiet_and_flooded_and_links_the_section():

@@ -70,7 +70,7 @@ def test_one_flights_figures_count_setpoints_at_both_ends_and_the_flood_against_
     assert r["vehicle_failsafes"] == 1 and r["missed_ticks"] == 1 and r["event_ticks"] == 300
     assert r["latency_over_1ms"] == 10  # the late wake-ups (k = 0, 50, ... 350, 9 and 13: all event ticks)
     assert r["foreign"]["foreign_packets"] == 9000 and r["foreign"]["peer_changes"] == 1 and r["flood"] is FLOOD
-    assert r["latency_us"]["p50"] == pytest.approx(720.0)
+    assert r["latency_us"]["p50"] == pytest.approx(720.0) and r["waited_a_period"] == 2  # the 3 and 4.5 ms late ticks
     quiet = round_figures({**SUMMARY, "link": {}}, None, _ticks(), P, None)
     assert quiet["setpoints_received"] is None and quiet["setpoints_lost"] is None and quiet["foreign"]["unpinned"] == 0
 
