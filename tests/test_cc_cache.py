@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from support.cc_cache import compile_step, dependency_flags, install
+from support.cc_cache import compile_step, cross_wrapper, dependency_flags, install
 
 CC = shutil.which("cc") or shutil.which("gcc")
 needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler")
@@ -85,6 +85,39 @@ def test_identical_steps_reuse_the_object_and_changes_compile_again(tmp_path):
     assert _build_and_run(env, _program(tmp_path / "c", "42"))[1] == "42" and n_compiles() == 2
     assert _build_and_run(env, _program(tmp_path / "d", "VALUE2"), "-DVALUE2=7")[1] == "7" and n_compiles() == 3
     assert _build_and_run(env, _program(tmp_path / "e", "41"), "-O1")[1] == "41" and n_compiles() == 4
+
+
+@needs_cc
+@pytest.mark.compiler
+def test_a_macro_the_source_never_reads_reuses_the_object(tmp_path):
+    """-D/-U are not in the key as arguments: what they change is in the preprocessed source, which is."""
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
+    n_compiles = lambda: len(log.read_text().splitlines()) if log.exists() else 0  # noqa: E731
+
+    assert _build_and_run(env, _program(tmp_path / "a", "41"))[1] == "41" and n_compiles() == 1
+    assert _build_and_run(env, _program(tmp_path / "b", "41"), "-DUNREAD=3", "-U", "OTHER")[1] == "41"
+    assert n_compiles() == 1
+    assert _build_and_run(env, _program(tmp_path / "c", "READ"), "-D", "READ=5")[1] == "5" and n_compiles() == 2
+
+
+@needs_cc
+@pytest.mark.compiler
+def test_a_cross_wrapper_stores_under_its_own_compiler(tmp_path, monkeypatch):
+    """cross_wrapper(real): real's objects are its own (not the host compiler's for the same step), reused
+    like CC's; without a session store it is real itself."""
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": CC}))
+    monkeypatch.setenv("DDPC_CC_CACHE", env["DDPC_CC_CACHE"])
+    cross = cross_wrapper(str(real))
+    assert cross != str(real) and Path(cross).parent == Path(env["DDPC_CC_CACHE"]).parent
+    assert _build_and_run(env, _program(tmp_path / "host", "41"))[1] == "41" and not log.exists()
+    cross_env = dict(env, CC=cross)
+    assert _build_and_run(cross_env, _program(tmp_path / "a", "41"))[1] == "41"
+    assert _build_and_run(cross_env, _program(tmp_path / "b", "41"))[1] == "41"
+    assert len(log.read_text().splitlines()) == 1
+    monkeypatch.delenv("DDPC_CC_CACHE")
+    assert cross_wrapper(str(real)) == str(real)
 
 
 @needs_cc

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from ddpc_codegen.codegen import standalone
+from support.cc_cache import cross_wrapper
 
 pytestmark = pytest.mark.compiler
 
@@ -16,7 +17,8 @@ def arm_tools():
     tools = standalone.aarch64_tools()
     if tools is None:
         pytest.skip(standalone.MISSING_AARCH64)
-    return tools
+    # the cross compiler through the session's compile cache too: the three builds share the library objects
+    return cross_wrapper(tools[0]), tools[1]
 
 
 # hopping x osqp is left out: ADMM on its hard vectors costs about a minute under emulation

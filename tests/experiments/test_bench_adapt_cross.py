@@ -18,6 +18,7 @@ from ddpc_codegen.errors import CodegenError
 from ddpc_codegen.experiments import bench_adapt_cross as cross
 from ddpc_codegen.experiments.bench_adapt import adapt_lines
 from ddpc_codegen.values.adapt import REJECTIONS, AdaptSettings
+from support.cc_cache import cross_wrapper
 from support.lti import random_lti
 
 pytestmark = pytest.mark.compiler
@@ -48,10 +49,13 @@ def test_missing_tools_give_no_figures_and_say_why(monkeypatch, tmp_path):
     assert adapt_lines([row])[-1].endswith(standalone.MISSING_AARCH64)
 
 
-def test_aarch64_timing_under_qemu_agrees_with_the_native_build(tmp_path):
+def test_aarch64_timing_under_qemu_agrees_with_the_native_build(tmp_path, monkeypatch):
     tools = standalone.aarch64_tools()
     if tools is None:
         pytest.skip(standalone.MISSING_AARCH64)
+    # the cross compiler through the session's compile cache (the library objects of tests/codegen/test_cross.py)
+    tools = (cross_wrapper(tools[0]), tools[1])
+    monkeypatch.setattr(standalone, "aarch64_tools", lambda: tools)
     prob, st = _problem(), AdaptSettings(enabled=True, offset=True, window=40)
     lay = fit_layout(prob.predictor)
     wins = np.random.default_rng(0).standard_normal((300, lay.depth * (lay.m + lay.p))) * 0.05  # the bench's recipe

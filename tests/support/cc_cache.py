@@ -8,8 +8,8 @@ is ``CC`` for the test session (:func:`install`; the cffi builds, ``make`` and C
 under test runs unchanged: only *how* an identical object file is obtained changes.
 
 What makes two compile steps identical (the key): the real compiler (path, size, mtime), every argument
-except the output path, the source path and ``-I`` directories (generated folders live in fresh temporary
-directories), and the source as preprocessed with those arguments (``-E -P``: headers and macros
+except the output path, the source path, ``-I`` directories (generated folders live in fresh temporary
+directories) and ``-D``/``-U`` macros, and the source as preprocessed with all of them (``-E -P``: headers and macros
 included, so an edited header or ``-D`` is a different key). A hit copies the object file and replays
 the compiler's messages; anything other than a plain ``-c one.c -o one.o`` step (linking, dependency
 files without a named ``-MF``, ``-E``, response files ...) runs the real compiler untouched; a step that also
@@ -128,14 +128,17 @@ def compile_step(args: list[str]) -> tuple[str, str, list[str]] | None:
     return src, obj, rest
 
 
-def _without_include_dirs(args: list[str]) -> list[str]:
+def _key_arguments(args: list[str]) -> list[str]:
+    """``args`` less the ``-I`` directories (temporary folders) and the ``-D``/``-U`` macros (what they change is
+    in the preprocessed source the key holds: ``make``'s ``CFLAGS=-O3 -DX`` and ``-O3`` then share objects of a
+    source that never reads ``X``)."""
     out, skip = [], False
     for a in args:
         if skip:
             skip = False
-        elif a == "-I":
+        elif a in ("-I", "-D", "-U"):
             skip = True
-        elif not a.startswith("-I"):
+        elif not a.startswith(("-I", "-D", "-U")):
             out.append(a)
     return out
 
@@ -184,7 +187,7 @@ def step_key(real: list[str], src: str, rest: list[str], names: tuple[str, dict[
     exe = which(real[0]) or real[0]
     st = os.stat(exe)
     h = hashlib.sha256()
-    for part in (os.path.realpath(exe), str(st.st_size), str(st.st_mtime_ns), *real[1:], *_without_include_dirs(rest),
+    for part in (os.path.realpath(exe), str(st.st_size), str(st.st_mtime_ns), *real[1:], *_key_arguments(rest),
                  " ".join(sorted(names[1])) if names else "-"):
         h.update(part.encode() + b"\0")
     h.update(pre)
@@ -278,6 +281,27 @@ def install(root: str | os.PathLike, env: dict[str, str]) -> dict[str, str]:
         os.chmod(tmp, 0o755)
         os.replace(tmp, script)  # atomic: every xdist worker installs the same script
     return {"CC": script, "DDPC_CC_REAL": real, "DDPC_CC_CACHE": os.path.join(root, "objects")}
+
+
+def cross_wrapper(real: str) -> str:
+    """A wrapper like ``CC``'s around another compiler ``real`` (a cross compiler, named in the key; its own
+    binutils' ``objcopy`` renames), storing in this session's object store; ``real`` itself when the session
+    has none (``DDPC_TEST_CC_CACHE=0``)."""
+    import shlex  # here, not at the top: the wrapper (the script) never needs it
+
+    store = os.environ.get("DDPC_CC_CACHE")
+    if not store:
+        return real
+    objcopy = which(real[: -len("gcc")] + "objcopy") if real.endswith("gcc") else None
+    env = f"export DDPC_CC_REAL={shlex.quote(real)}\n" + (f"export OBJCOPY={shlex.quote(objcopy)}\n" if objcopy else "")
+    text = f'#!/bin/sh\n{env}exec "{sys.executable}" -S "{os.path.realpath(__file__)}" "$@"\n'
+    script = os.path.join(os.path.dirname(store), "cc-" + os.path.basename(real))
+    if not os.path.exists(script) or _read(script) != text:
+        tmp = f"{script}.{os.getpid()}"
+        _write(tmp, text)
+        os.chmod(tmp, 0o755)
+        os.replace(tmp, script)
+    return script
 
 
 def real_compiler(text: str) -> list[str]:
