@@ -35,7 +35,7 @@ from firmware_bridge.truth import TRUTH_MESSAGES, SimTruth
 
 __all__ = ["MocapConfig", "MocapPose", "TruthBuffer", "MocapSampler", "MocapStandIn", "pose_from_truth",
            "vision_position_fields", "odometry_fields", "MESSAGES",
-           "Dequantizer", "TRUTH_GRID"]
+           "Dequantizer", "TRUTH_GRID", "LinkClock", "CLOCK_PARTNER"]
 
 MESSAGES = ("vision_position", "odometry")
 MAV_FRAME_LOCAL_NED = 1
@@ -183,6 +183,70 @@ class Dequantizer:
         return self._integral + 0.5 * (lo + hi)
 
 
+# ArduCopter sends the truth in bursts (TCP; 0-23 ms after its loop sent them, measured): stamped on arrival a moving
+# truth is off by its speed times that, and a velocity integral over arrival gaps breaks the Dequantizer's cells. A
+# message with the autopilot's time, asked at the truth's rate, leaves in the same loop and arrives beside it
+# (SIM_STATE within 0.3 ms of it): :class:`LinkClock` stamps the truth with that time. PX4 SIH sends no such pair.
+CLOCK_PARTNER = {"ardupilot": ("ATTITUDE", 30)}
+
+
+class LinkClock:
+    """A link's truth samples stamped with the sender's clock. Each one is matched, first come first matched, with a
+    message carrying the sender's ``time_boot_ms`` that arrived within ``pair_s`` of it, before or after (the two
+    leave the sender's same loop, in either order), and takes that time, mapped onto the receiver's clock by the
+    smallest arrival - boot offset of the last ``window_s`` (the link's quickest transit; the window follows a SITL
+    clock that slips behind). A truth sample with no partner keeps its arrival time.
+
+    Feed every message in arrival order: :meth:`stamped` (the partner) and :meth:`truth`; both return the truth
+    samples now placed, as (message, time [s, the receiver's clock]) in arrival order."""
+
+    def __init__(self, pair_s: float = 0.002, window_s: float = 2.0) -> None:
+        self.pair_s, self.window_s = pair_s, window_s
+        self._offsets: deque[tuple[float, float]] = deque()  # (rx, rx - boot), offsets increasing: a running min
+        self._stamps: deque[tuple[float, float]] = deque()   # (rx, boot) not matched yet
+        self._truth: deque[tuple[Any, float]] = deque()      # (message, rx) not matched yet
+        self.paired = self.unpaired = 0
+
+    def _expire(self, rx: float) -> list[tuple[Any, float]]:
+        while self._stamps and rx - self._stamps[0][0] > self.pair_s:
+            self._stamps.popleft()
+        out = []
+        while self._truth and rx - self._truth[0][1] > self.pair_s:  # no partner came: its arrival time
+            self.unpaired += 1
+            out.append(self._truth.popleft())
+        return out
+
+    def at(self, boot_s: float) -> float:
+        """The sender's time ``boot_s`` [s] on the receiver's clock [s] (after a :meth:`stamped`)."""
+        return boot_s + self._offsets[0][1]
+
+    def stamped(self, boot_s: float, rx: float) -> list[tuple[Any, float]]:
+        """A message with the sender's time ``boot_s`` [s] arrived at ``rx`` [s]."""
+        off = rx - boot_s
+        while self._offsets and self._offsets[-1][1] >= off:
+            self._offsets.pop()
+        self._offsets.append((rx, off))
+        while self._offsets[0][0] < rx - self.window_s:
+            self._offsets.popleft()
+        out = self._expire(rx)
+        if self._truth:
+            self.paired += 1
+            out.append((self._truth.popleft()[0], self.at(boot_s)))
+        else:
+            self._stamps.append((rx, boot_s))
+        return out
+
+    def truth(self, msg: Any, rx: float) -> list[tuple[Any, float]]:
+        """A truth sample arrived at ``rx`` [s]: placed now if its partner came first, else when it comes."""
+        out = self._expire(rx)
+        if self._stamps:
+            self.paired += 1
+            out.append((msg, self.at(self._stamps.popleft()[1])))
+        else:
+            self._truth.append((msg, rx))
+        return out
+
+
 class MocapSampler:
     """The stand-in's measurement, without I/O: truth messages in, late noisy poses out.
 
@@ -296,6 +360,8 @@ class MocapStandIn(threading.Thread):
         self.sampler = MocapSampler(self.config)
         self.set_origin = autopilot == "ardupilot" if set_origin is None else set_origin
         self.stats = MocapStats()
+        self.clock_partner = CLOCK_PARTNER.get(autopilot)
+        self.clock = LinkClock() if self.clock_partner is not None else None
         self._halt = threading.Event()
         self._admin_ticks = 0
 
@@ -307,6 +373,7 @@ class MocapStandIn(threading.Thread):
 
     def run(self) -> None:
         msg_name, msg_id = TRUTH_MESSAGES[self.autopilot]
+        types = [msg_name, *((self.clock_partner[0],) if self.clock is not None else ())]
         period = 1.0 / self.config.rate_hz
         next_send = next_admin = time.monotonic()
         try:
@@ -320,22 +387,35 @@ class MocapStandIn(threading.Thread):
                     if next_send < now:  # late (a loaded machine): skip, do not burst
                         next_send = now + period
                     self._send(now)
-                msg = self.conn.recv_match(type=msg_name, blocking=True, timeout=max(0.0, min(next_send, next_admin)
-                                                                                    - time.monotonic()))
+                msg = self.conn.recv_match(type=types, blocking=True, timeout=max(0.0, min(next_send, next_admin)
+                                                                                 - time.monotonic()))
                 if msg is not None:
-                    self.sampler.feed(msg, time.monotonic())
-                    self.stats.truth += 1
-                    if self.stats.origin_sent == 0:
-                        self._send_origin()  # at the first truth, not a second later
+                    self._receive(msg, time.monotonic())
         except Exception as e:  # noqa: BLE001 - a dead link ends the stream; the owner reads why
             self.stats.errors.append(f"{type(e).__name__}: {e}")
+
+    def _receive(self, msg: Any, rx: float) -> None:
+        """A truth or clock message received at ``rx`` [s]: the truth into the sampler, on the autopilot's clock where
+        the link has one (:class:`LinkClock`)."""
+        if self.clock is None:
+            placed = [(msg, rx)]
+        elif msg.get_type() == self.clock_partner[0]:
+            placed = self.clock.stamped(msg.time_boot_ms * 1e-3, rx)
+        else:
+            placed = self.clock.truth(msg, rx)
+        for m, t in placed:
+            self.sampler.feed(m, t)
+            self.stats.truth += 1
+            if self.stats.origin_sent == 0:
+                self._send_origin()  # at the first truth, not a second later
 
     def _admin(self, msg_id: int) -> None:
         mav = self.conn.mav
         mav.heartbeat_send(18, 8, 0, 0, 0)  # MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID
         if self.stats.truth == 0 or self._admin_ticks % 5 == 0:
-            mav.command_long_send(self.conn.target_system, self.conn.target_component, 511, 0, msg_id,
-                                  _TRUTH_INTERVAL_US, 0, 0, 0, 0, 0)  # MAV_CMD_SET_MESSAGE_INTERVAL
+            for mid in (msg_id, *((self.clock_partner[1],) if self.clock is not None else ())):
+                mav.command_long_send(self.conn.target_system, self.conn.target_component, 511, 0, mid,
+                                      _TRUTH_INTERVAL_US, 0, 0, 0, 0, 0)  # MAV_CMD_SET_MESSAGE_INTERVAL
         self._admin_ticks += 1
         self._send_origin()
 

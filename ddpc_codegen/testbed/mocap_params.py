@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ddpc_codegen.testbed.mocap import MocapConfig
 
-__all__ = ["lab_params", "ARDUPILOT_LAB", "ARDUPILOT_SITL_LINK", "PX4_LAB", "EV_NOISE_FLOOR_M",
+__all__ = ["lab_params", "ARDUPILOT_LAB", "ARDUPILOT_SITL_LINK", "EKF3_HALF_STEP_MS", "PX4_LAB", "EV_NOISE_FLOOR_M",
            "transport_allowance_ms", "px4_has_external_vision"]
 
 # ArduPilot EKF3: ExternalNav (6) for position, height and yaw; velocity too when ODOMETRY carries it.
@@ -48,6 +48,13 @@ def transport_allowance_ms(baud: float, queued_bytes: int = 0) -> float:
     return (10_000_000 // rate) * (_VISION_POSITION_ESTIMATE_BYTES + queued_bytes) * 1e-3
 
 
+# EKF3 dates every ExternalNav pose half its 10 ms filter step earlier than (arrival - VISO_DELAY_MS)
+# (NavEKF3_core::writeExtNavData: "average intersampling delay"), meant for poses stamped on the filter's step. The
+# stand-in's are stamped where they were measured: with VISO_DELAY_MS = its 5 ms latency, the estimate ran 6-8 ms
+# ahead of the truth in moving flights (dataflash SIM2 vs XKF1 and the observer alike), 0 ms with 5 ms less.
+EKF3_HALF_STEP_MS = 5.0
+
+
 # PX4 EKF2: external vision for horizontal position, height (the height reference) and yaw.
 PX4_LAB: dict[str, float] = {
     "EKF2_EV_CTRL": 11,      # bits: 1 horizontal position, 2 vertical position, 8 yaw (+4 velocity with ODOMETRY)
@@ -67,8 +74,9 @@ EV_NOISE_FLOOR_M = 0.01
 
 def lab_params(autopilot: str, config: MocapConfig | None = None) -> dict[str, float]:
     """The lab set of ``autopilot`` ("ardupilot" or "px4") for the stream ``config`` describes: the fixed
-    set above plus the delay [ms] (the stream's latency) and the noise floors [m, rad, m/s]; on ArduPilot the
-    stand-in's SITL link too (:data:`ARDUPILOT_SITL_LINK`).
+    set above plus the delay [ms] (the stream's latency; on ArduPilot less the half filter step EKF3 takes off
+    itself, :data:`EKF3_HALF_STEP_MS`) and the noise floors [m, rad, m/s]; on ArduPilot the stand-in's SITL link
+    too (:data:`ARDUPILOT_SITL_LINK`).
 
     Raises:
         ValueError: unknown autopilot.
@@ -80,7 +88,7 @@ def lab_params(autopilot: str, config: MocapConfig | None = None) -> dict[str, f
     odometry = c.message == "odometry"
     if autopilot == "ardupilot":
         p = {**ARDUPILOT_LAB, **ARDUPILOT_SITL_LINK}
-        p.update({"VISO_DELAY_MS": delay_ms, "VISO_POS_M_NSE": pos, "VISO_YAW_M_NSE": att, "VISO_VEL_M_NSE": vel})
+        p.update({"VISO_DELAY_MS": max(0.0, delay_ms - EKF3_HALF_STEP_MS), "VISO_POS_M_NSE": pos, "VISO_YAW_M_NSE": att, "VISO_VEL_M_NSE": vel})
         if odometry:
             p.update({"EK3_SRC1_VELXY": 6, "EK3_SRC1_VELZ": 6})
         return p

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.testbed.mocap import TRUTH_GRID, Dequantizer
+from ddpc_codegen.testbed.mocap import TRUTH_GRID, Dequantizer, LinkClock
 
 __all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_bound", "estimate_lag"]
 
@@ -95,6 +95,8 @@ class Observer(threading.Thread):
         self._alt0: float | None = None
         # the true height refined below its grid (truncated: the truth lies in [q, q + grid) above a reported q)
         self._fine = Dequantizer(TRUTH_GRID[self.truth_type], (0.0, 1.0))
+        # ArduCopter: truth and estimate on its clock (LOCAL_POSITION_NED's time_boot_ms; PX4 sends them apart)
+        self.clock = LinkClock() if autopilot == "ardupilot" else None
         self.sysid = sysid
         self.sim: list[tuple[float, float]] = []   # (t, true height above home [m], refined)
         self.lpos: list[tuple[float, float]] = []  # (t, estimated height -z [m])
@@ -124,11 +126,16 @@ class Observer(threading.Thread):
         """Fold in one message ``m`` received at ``t`` [s, time.time()]."""
         typ = m.get_type()
         if typ == "SIM_STATE":
-            self.sim.append((t, self._fine.update(m.alt - HOME_ALT, -m.vd, t)))
+            for msg, ts in self.clock.truth(m, t) if self.clock is not None else [(m, t)]:
+                self.sim.append((ts, self._fine.update(msg.alt - HOME_ALT, -msg.vd, ts)))
         elif typ == "HIL_STATE_QUATERNION":
             self._alt0 = m.alt * 1e-3 if self._alt0 is None else self._alt0
             self.sim.append((t, self._fine.update(m.alt * 1e-3 - self._alt0, -m.vz * 0.01, t)))
         elif typ == "LOCAL_POSITION_NED":
+            if self.clock is not None:
+                for msg, ts in self.clock.stamped(m.time_boot_ms * 1e-3, t):
+                    self.sim.append((ts, self._fine.update(msg.alt - HOME_ALT, -msg.vd, ts)))
+                t = self.clock.at(m.time_boot_ms * 1e-3)
             self.lpos.append((t, -m.z))
         elif typ == "CURRENT_MODE" and m.get_srcSystem() == self.sysid:
             self.modes.append((t, m.custom_mode))
@@ -137,33 +144,38 @@ class Observer(threading.Thread):
         elif typ == "HEARTBEAT" and m.get_srcSystem() == self.sysid and m.get_srcComponent() == 1:
             self.hb.append((t, m.custom_mode, bool(m.base_mode & 128)))
 
+    def series(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(truth, estimate) as time-ordered (n, 2) arrays of (t [s, time.time()], height [m]); None without both (a
+        truth sample left unpaired keeps its arrival, later than its neighbours' send times)."""
+        sim, est = list(self.sim), list(self.lpos)
+        if len(sim) < 2 or len(est) < 2:
+            return None
+        a, b = np.array(sim), np.array(est)
+        return a[np.argsort(a[:, 0], kind="stable")], b[np.argsort(b[:, 0], kind="stable")]
+
     def heights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(true, estimated) heights [m] at the times ``t`` [s, time.time()], interpolated (nan outside)."""
-        out = []
-        for rec in (list(self.sim), list(self.lpos)):
-            if len(rec) < 2:
-                out.append(np.full(len(t), np.nan))
-                continue
-            a = np.array(rec)
-            out.append(np.interp(t, a[:, 0], a[:, 1], left=np.nan, right=np.nan))
-        return out[0], out[1]
+        s = self.series()
+        if s is None:
+            return np.full(len(t), np.nan), np.full(len(t), np.nan)
+        return tuple(np.interp(t, a[:, 0], a[:, 1], left=np.nan, right=np.nan) for a in s)
 
     def estimate_lag(self, t0: float, t1: float, max_lag: float = 0.1) -> tuple[float, float]:
         """:func:`estimate_lag` of the estimate behind the truth between ``t0`` and ``t1`` [s, time.time()], on a
         5 ms grid: (lag [s], the spread of estimate - truth left at that lag [m]); nan without both streams."""
-        sim, est = list(self.sim), list(self.lpos)
-        if len(sim) < 2 or len(est) < 2:
+        s = self.series()
+        if s is None:
             return float("nan"), float("nan")
-        a, b = np.array(sim), np.array(est)
+        a, b = s
         return estimate_lag(np.arange(t0, t1, 0.005), (a[:, 0], a[:, 1]), (b[:, 0], b[:, 1]), max_lag)
 
     def ground(self, seconds: float = 3.0) -> float:
         """The true height where the local frame's origin is: median of truth - estimate over the last ``seconds``
         (call it with the vehicle on the ground, before take-off) [m]; 0 without both streams."""
-        sim, est = list(self.sim), list(self.lpos)
-        if len(sim) < 2 or len(est) < 2:
+        s = self.series()
+        if s is None:
             return 0.0
-        a, b = np.array(sim), np.array(est)
+        a, b = s
         t = b[b[:, 0] > b[-1, 0] - seconds, 0]
         truth = np.interp(t, a[:, 0], a[:, 1])
         return float(np.median(truth - np.interp(t, b[:, 0], b[:, 1])))

@@ -10,8 +10,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ddpc_codegen.testbed.mocap import (MAV_FRAME_LOCAL_NED, Dequantizer, MocapConfig, MocapPose, MocapSampler,
-                                        MocapStandIn, TruthBuffer, odometry_fields, vision_position_fields)
+from ddpc_codegen.testbed.mocap import (MAV_FRAME_LOCAL_NED, Dequantizer, LinkClock, MocapConfig, MocapPose,
+                                        MocapSampler, MocapStandIn, TruthBuffer, odometry_fields,
+                                        vision_position_fields)
 from ddpc_codegen.testbed.mocap_params import (ARDUPILOT_LAB, PX4_LAB, lab_params, px4_has_external_vision,
                                                transport_allowance_ms)
 from firmware_bridge.truth import EARTH_RADIUS_M
@@ -128,6 +129,43 @@ def test_dequantizer_restarts_when_the_cells_contradict_the_integral():
     assert d.update(1.50, 0.0, 0.1) == pytest.approx(1.505)  # a jump no rate explains: this cell again
 
 
+@pytest.mark.parametrize("truth_first", [True, False])
+def test_link_clock_puts_bursty_truth_on_the_senders_clock(truth_first):
+    """ArduCopter's loop sends the truth and a stamped message together every 5 ms; TCP delivers several loops at
+    once, 0-20 ms late. Matched first come first matched (in either order), each truth sample takes its loop's time
+    on the receiver's clock (the quickest transit's offset), not its arrival."""
+    rng = np.random.default_rng(0)
+    clock, placed, sent = LinkClock(), [], []
+    boot0, transit = 100.0, 0.0001  # the sender's clock is 100 s ahead of the receiver's
+    delay = 0.0
+    for k in range(400):
+        boot = boot0 + 0.005 * k
+        if k % 4 == 0:
+            delay = rng.uniform(0.0, 0.02)  # a new burst: four loops arrive together
+        rx = boot - boot0 + transit + delay
+        first, second = ("truth", "stamp") if truth_first else ("stamp", "truth")
+        for i, what in enumerate((first, second)):
+            if what == "truth":
+                placed += clock.truth(k, rx + 1e-5 * i)
+            else:
+                placed += clock.stamped(boot, rx + 1e-5 * i)
+        sent.append(boot - boot0 + transit)
+    got = dict(placed)
+    assert clock.paired == len(placed) == 400 and clock.unpaired == 0
+    err = np.array([got[k] - sent[k] for k in range(400)])
+    assert err.min() > -1e-6 and err.max() < 0.02  # never before it was sent, never later than it arrived
+    assert np.abs(err[100:]).max() < 5e-4  # once a quick burst set the offset: its send time, whatever its delay
+
+
+def test_link_clock_keeps_the_arrival_of_a_truth_sample_without_partner():
+    clock = LinkClock(pair_s=0.002)
+    assert clock.stamped(10.0, 1.0) == []
+    assert clock.truth("a", 1.0005) == [("a", pytest.approx(1.0))]  # its loop's stamp
+    assert clock.truth("b", 1.010) == []  # none yet: held
+    assert clock.truth("c", 1.020) == [("b", 1.010)]  # none came within 2 ms: its arrival
+    assert clock.at(10.5) == pytest.approx(1.5) and clock.unpaired == 1
+
+
 def test_truth_buffer_interpolates_and_wraps_the_yaw():
     b = TruthBuffer()
     z = np.zeros(3)
@@ -157,7 +195,8 @@ def test_parameter_sets_follow_the_stream():
     cfg = MocapConfig(latency_s=0.008, pos_noise_m=0.0005)
     ap, px4 = lab_params("ardupilot", cfg), lab_params("px4", cfg)
     assert set(ARDUPILOT_LAB) <= set(ap) and set(PX4_LAB) <= set(px4)
-    assert ap["VISO_DELAY_MS"] == 8 and px4["EKF2_EV_DELAY"] == 8
+    assert ap["VISO_DELAY_MS"] == 8 - 5 and px4["EKF2_EV_DELAY"] == 8  # EKF3 takes 5 ms (half its step) itself
+    assert lab_params("ardupilot", MocapConfig(latency_s=0.002))["VISO_DELAY_MS"] == 0
     assert ap["EK3_SRC1_POSZ"] == 6 and ap["GPS1_TYPE"] == 0 and ap["EK3_SRC1_VELZ"] == 0
     assert px4["EKF2_HGT_REF"] == 3 and px4["EKF2_GPS_CTRL"] == 0 and px4["EKF2_BARO_CTRL"] == 0
     assert ap["VISO_POS_M_NSE"] == px4["EKF2_EVP_NOISE"] == 0.01  # the EKFs' floor, not 0.5 mm

@@ -23,8 +23,8 @@ def sim_state(up: float, vu: float) -> SimpleNamespace:
                            lon_int=0, vn=0.0, ve=0.0, roll=0.0, pitch=0.0, yaw=0.0)
 
 
-def lpos(up: float) -> SimpleNamespace:
-    return SimpleNamespace(get_type=lambda: "LOCAL_POSITION_NED", z=-up)
+def lpos(up: float, boot_s: float) -> SimpleNamespace:
+    return SimpleNamespace(get_type=lambda: "LOCAL_POSITION_NED", z=-up, time_boot_ms=int(round(boot_s * 1e3)))
 
 
 def flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -37,13 +37,14 @@ def flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def fly_observer(estimate_at, t: np.ndarray, burst: np.ndarray | None = None) -> Observer:
     """An observer fed the flight's SIM_STATE and LOCAL_POSITION_NED (``estimate_at(i)``: the estimate sent with
-    the i-th sample) at 50 Hz, both delayed on arrival by ``burst`` [s] (n,) (the link's common bursts)."""
+    the i-th sample, stamped with its time ``t``) at 50 Hz, both delayed on arrival by ``burst`` [s] (n,) (the
+    link's common bursts)."""
     obs = Observer("", connect=False)
     up, vu = flight(t)
     late = np.zeros_like(t) if burst is None else burst
     for i, ti in enumerate(t):
         obs.record(sim_state(up[i], vu[i]), ti + late[i])
-        obs.record(lpos(estimate_at(i)), ti + late[i] + 1e-4)
+        obs.record(lpos(estimate_at(i), ti), ti + late[i] + 1e-4)
     return obs
 
 
@@ -76,19 +77,24 @@ def test_an_exact_estimate_on_the_mocap_is_within_a_millimetre_on_the_ground_and
     assert np.sqrt(np.mean(err[t[1:-1] > 8.0] ** 2)) < 0.001    # in flight
 
 
-def test_truth_and_estimate_paired_by_arrival_show_no_lag_through_the_links_bursts():
-    """Both streams leave the autopilot's same loop and arrive in the same bursts (0-20 ms late, as measured on
-    ArduCopter's TCP link): paired by arrival an exact estimate stays on the truth and no lag appears."""
+def test_truth_and_estimate_on_the_autopilots_clock_through_the_links_bursts():
+    """Both streams leave the autopilot's same loop and arrive in the same bursts, 0-20 ms late (as measured on
+    ArduCopter's TCP link): placed on the estimate's time_boot_ms, the truth is where it was when sent (on arrival
+    it would be off by its speed times the burst), an exact estimate stays on it and no lag appears."""
     t = np.arange(0.0, 30.0, 0.02)
     up, _ = flight(t)
     rng = np.random.default_rng(3)
     burst = np.repeat(rng.uniform(0.0, 0.02, len(t) // 4 + 1), 4)[:len(t)]
     obs = fly_observer(lambda i: up[i], t, burst)
     k = (t > 8.0) & (t < 29.0)
-    truth, e = obs.heights(t[k] + 0.01)
-    assert np.sqrt(np.mean((e - truth) ** 2)) < 0.002
+    truth, e = obs.heights(t[k])
+    assert np.sqrt(np.mean((e - truth) ** 2)) < 0.001
+    assert np.sqrt(np.mean((truth - up[k]) ** 2)) < 0.001
     lag, spread = obs.estimate_lag(8.0, 29.0)
-    assert abs(lag) <= 0.003 and spread < 0.002
+    assert abs(lag) <= 0.002 and spread < 0.001
+    px4 = Observer("", autopilot="px4", connect=False)  # PX4 sends them apart: on arrival
+    px4.record(lpos(1.0, 100.0), 5.0)
+    assert px4.clock is None and px4.lpos == [(5.0, 1.0)]
 
 
 @pytest.mark.parametrize("late", [0.03, -0.02])
