@@ -61,14 +61,17 @@ def wait_udp_bound(port: int, timeout: float = 15.0) -> bool:
 
 
 def estimate_lag(t: np.ndarray, truth: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray],
-                 max_lag: float = 0.1, step: float = 0.001) -> tuple[float, float]:
+                 max_lag: float = 0.1, step: float = 0.001, min_motion: float = 0.05) -> tuple[float, float]:
     """The lag [s] of an estimate behind the truth over the instants ``t`` [s] (n,): the shift of the truth that
     leaves the least spread (std) of estimate - truth, searched over +-``max_lag`` [s] in ``step`` [s]; positive: the
-    estimate is late. ``truth`` / ``est``: (times (m,), values (m,)) each. Returns (lag [s], that spread [m])."""
+    estimate is late. ``truth`` / ``est``: (times (m,), values (m,)) each. Returns (lag [s], that spread [m]); the lag
+    is nan where the truth moved less than ``min_motion`` [m] (a hover: no lag to see)."""
     ok = (t - max_lag >= truth[0][0]) & (t + max_lag <= truth[0][-1]) & (t >= est[0][0]) & (t <= est[0][-1])
     t = t[ok]
     if t.size < 3:
         return float("nan"), float("nan")
+    if np.ptp(np.interp(t, *truth)) < min_motion:
+        return float("nan"), float(np.std(np.interp(t, *est) - np.interp(t, *truth)))
     e = np.interp(t, *est)
     lags = np.arange(-max_lag, max_lag + step / 2, step)
     spread = np.array([np.std(e - np.interp(t - lag, *truth)) for lag in lags])

@@ -5,7 +5,8 @@
   PX4 SIH, so the true-height figures there say what the estimator allows, not what the steering does.
 * ``lab``: a motion capture (:class:`~ddpc_codegen.testbed.mocap.MocapStandIn`, from the SITL's truth) as a
   lab flies. ArduCopter's EKF3 fuses it as its position, height and yaw source (the lab parameters of
-  :func:`~ddpc_codegen.testbed.mocap_params.lab_params`, GPS off) and the bridge steers on that estimate;
+  :func:`~ddpc_codegen.testbed.mocap_params.lab_params`, GPS off; the stand-in's link, SERIAL1 (:func:`second_link`),
+  declared fast enough that EKF3 dates its poses right) and the bridge steers on that estimate;
   the shared PX4 build has no EKF2 external vision, so PX4's EKF keeps its own sensors and the bridge steers
   on the poses the stand-in forwards to it (``--position-source mocap``), as a lab's companion would. Either
   way the height the loop measures is within a few mm of the truth: the true-height figures judge the steering.

@@ -105,3 +105,5 @@ def test_estimate_lag_finds_an_estimate_late_or_early(late):
     lag, spread = estimate_lag(np.arange(2.0, 18.0, 0.005), (t, truth), (t, est))
     assert lag == pytest.approx(late, abs=0.0011) and spread < 0.001
     assert math.isnan(estimate_lag(np.array([1.0]), (t, truth), (t, est))[0])
+    still = np.full_like(t, 1.0) + 0.001 * np.sin(t)  # a hover's millimetres: no lag to see
+    assert math.isnan(estimate_lag(np.arange(2.0, 18.0, 0.005), (t, still), (t, still))[0])
