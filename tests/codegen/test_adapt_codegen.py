@@ -347,9 +347,10 @@ def test_a_resolve_in_another_thread_releases_the_gil_while_the_tick_thread_push
 
     def work():
         # The same snapshot re-solves to the same answer, so a loaded machine (the main thread not scheduled
-        # during one ~2 ms call) gets more calls, until one call has pushes completing inside it.
+        # during one ~2 ms call) gets more calls, until one call has pushes completing inside it (50 calls were
+        # not always enough with four test workers and other jobs on two cores).
         pushing.wait(10.0)
-        for _ in range(50):
+        for _ in range(300):
             t0 = time.perf_counter()
             codes.append(lib.ad_adapt_resolve(ws))
             spans.append((t0, time.perf_counter()))
