@@ -8,7 +8,8 @@ the SITL harness and the demos live in :mod:`ddpc_codegen.testbed`.
   filtering, reply pinning, reconnects, COMMAND_LONG retries.
 * :mod:`.profiles` -- PX4 / ArduPilot Copter mode encoding and SET_ATTITUDE_TARGET thrust semantics.
 * :mod:`.telemetry` -- NED/FRD telemetry -> the controller's ENU/FLU state (newest sample, age).
-* :mod:`.truth` -- the simulators' ground truth (ArduCopter SIM_STATE) beside the estimate.
+* :mod:`.truth` -- the simulators' ground truth (ArduCopter SIM_STATE) beside the estimate;
+  :mod:`.truth_refine` -- the truth below its message's grid and on the autopilot's clock.
 * :mod:`.preflight` -- before the first tick: the heartbeat's autopilot, parameters, thrust semantics.
 * :mod:`.bridge_config` -- the bridge's settings (``BridgeConfig``), checked on construction.
 * :mod:`.baseline_modes` -- the prefilter and feedforward (ILC table) modes, checked before flying.

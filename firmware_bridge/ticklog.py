@@ -144,7 +144,7 @@ def tick_fields(m: int, p: int) -> dict[str, tuple[int, Any]]:
         "truth_position": (3, float),  # world ENU [m]: east / north from the first sample, up from the take-off point
         "truth_velocity": (3, float),  # world ENU [m/s]
         "truth_euler": (3, float),     # roll, pitch (body FLU), yaw from east [rad]
-        "truth_age_ms": (0, float),    # since the newest SIM_STATE arrived [ms]
+        "truth_age_ms": (0, float),    # since the newest truth sample (ArduCopter: its loop's time; else arrival) [ms]
         # The position sources (:mod:`.position_source`): the autopilot's estimate in the trajectory frame (=
         # ``position`` with --position-source autopilot), the motion capture's pose (--mocap; nan while stale)
         "estimate_position": (3, float),  # trajectory frame [m]

@@ -26,34 +26,46 @@ bridge's telemetry (:mod:`.telemetry`):
   captures the EKF's ``z0`` (while the vehicle is disarmed: where it stands), so the true height
   and the trajectory's heights count from the same ground;
 * velocity ENU = (ve, vn, -vd); attitude as ENU / FLU Euler angles (``euler_enu_from_ned``).
+
+The position is refined below the message's grid with the velocity (:class:`.truth_refine.Dequantizer`: SIM_STATE's
+altitude comes in whole centimetres, truncated), and, given a ``partner`` (a stream with the autopilot's
+``time_boot_ms`` sent from the truth's loop at its rate: ArduCopter's), each sample is placed on the autopilot's
+clock, not on its arrival (:class:`.truth_refine.LinkClock`), the way the test bed's observer and motion-capture
+stand-in read it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ddpc_codegen.robot.frames import euler_enu_from_ned, euler_from_quat
+from firmware_bridge.truth_refine import DEG7_M, EARTH_RADIUS_M, TRUTH_GRID, Dequantizer, LinkClock
 
-__all__ = ["SimTruth", "EARTH_RADIUS_M", "TRUTH_MESSAGES"]
+__all__ = ["SimTruth", "EARTH_RADIUS_M", "TRUTH_MESSAGES", "CLOCK_PARTNER"]
 
 # The ground-truth message of each SITL (MAVLink id), by autopilot profile name.
 TRUTH_MESSAGES = {"ardupilot": ("SIM_STATE", 108), "px4": ("HIL_STATE_QUATERNION", 115)}
 
-EARTH_RADIUS_M = 6378137.0  # WGS-84 equatorial radius (what ArduPilot's flat-earth offsets use)
+# The stream that places ArduCopter's truth on its clock (sent from the same loop when asked at the same rate).
+CLOCK_PARTNER = "LOCAL_POSITION_NED"
 
 
 @dataclass
 class SimTruth:
-    """The newest SIM_STATE in local ENU (nan until one arrives).
+    """The newest SIM_STATE / HIL_STATE_QUATERNION in local ENU (nan until one arrives), refined below its grid.
 
     Attributes:
         position: east, north, up [m] from (lat0, lon0) and the take-off altitude alt0.
         velocity: ENU [m/s]; euler: roll, pitch, yaw ENU / FLU [rad].
-        rx: receive time of the newest sample [s, bridge clock]; seq: samples received.
-        lat0, lon0: horizontal origin [deg] (first sample); alt0: take-off altitude [m AMSL].
+        rx: time of the newest sample [s, receiver clock]: its loop's time on the autopilot's clock when a
+            ``partner`` places it, else its arrival; seq: samples folded in.
+        lat0, lon0: horizontal origin [deg] (first sample); alt0: take-off altitude [m AMSL] (the first
+            sample's reported altitude until :meth:`capture_ground`, then the refined one there).
+        partner: the message type whose ``time_boot_ms`` places the truth ("": arrival times).
     """
 
     position: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
@@ -65,15 +77,36 @@ class SimTruth:
     lon0: float = math.nan
     alt0: float = math.nan
     source: str = ""
+    partner: str = ""
     _alt: float = math.nan
+    _fine: list[Dequantizer] = field(default_factory=list)  # east, north, altitude
+    clock: LinkClock | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.partner and self.clock is None:
+            self.clock = LinkClock()
+
+    @classmethod
+    def for_link(cls, autopilot: str, streams: Iterable[str]) -> SimTruth:
+        """The truth as read beside the telemetry ``streams`` (asked at the truth's rate) from ``autopilot``
+        ("ardupilot", "px4"): on ArduCopter's clock when LOCAL_POSITION_NED is one of them."""
+        return cls(partner=CLOCK_PARTNER if autopilot == "ardupilot" and CLOCK_PARTNER in set(streams) else "")
 
     @property
     def present(self) -> bool:
         return self.seq > 0
 
     def update(self, msg, rx: float) -> None:
-        """Fold in one SIM_STATE or HIL_STATE_QUATERNION message received at ``rx`` [s]."""
+        """Fold in one message received at ``rx`` [s]: a SIM_STATE or HIL_STATE_QUATERNION, or the ``partner``
+        (a truth sample waits up to the clock's pairing window for it)."""
+        for m, t in [(msg, rx)] if self.clock is None else self.clock.place(msg, rx, self.partner):
+            self._fold(m, t)
+
+    def _fold(self, msg, t: float) -> None:
+        """One truth sample at ``t`` [s] into the state (any other message: ignored)."""
         typ = msg.get_type()
+        if typ not in TRUTH_GRID:
+            return
         if typ == "HIL_STATE_QUATERNION":
             lat, lon, alt = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
             v_ned = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
@@ -86,24 +119,30 @@ class SimTruth:
             return  # not yet valid (PX4 sends zeros before SIH has a position)
         if not math.isfinite(self.lat0):
             self.lat0, self.lon0 = lat, lon
+            cos0 = math.cos(math.radians(lat))
+            self._fine = [Dequantizer(DEG7_M * cos0, (-1.0, 1.0)), Dequantizer(DEG7_M, (-1.0, 1.0)),
+                          Dequantizer(TRUTH_GRID[typ], (0.0, 1.0))]
         if not math.isfinite(self.alt0):
             self.alt0 = alt  # until the take-off point is captured: the first sample
-        self._alt = alt
         north = math.radians(lat - self.lat0) * EARTH_RADIUS_M
         east = math.radians(lon - self.lon0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat0))
-        self.position[:] = (east, north, self._alt - self.alt0)
         self.velocity[:] = (v_ned[1], v_ned[0], -v_ned[2])
+        east, north, self._alt = (f.update(q, float(v), t) for f, q, v in zip(self._fine, (east, north, alt),
+                                                                               self.velocity))
+        self.position[:] = (east, north, self._alt - self.alt0)
         self.euler[:] = euler_enu_from_ned(rpy)
-        self.rx, self.seq, self.source = rx, self.seq + 1, typ
+        self.rx, self.seq, self.source = t, self.seq + 1, typ
 
     def capture_ground(self) -> None:
         """Heights count from where the vehicle is now (call while it stands disarmed)."""
         if math.isfinite(self._alt):
             self.alt0 = self._alt
             self.position[2] = 0.0
+            # standing still the refined altitude is its cell's middle, as the motion-capture stand-in's ground (and
+            # the observer's): heights count from the ground the lab setup's estimate counts from
 
     def age(self, now: float) -> float:
-        """Seconds since the newest sample arrived (inf before any)."""
+        """Seconds since the newest sample (its placed time, :attr:`rx`; inf before any)."""
         return now - self.rx
 
     def as_dict(self) -> dict | None:

@@ -90,7 +90,9 @@ class VehicleLink:
     def reset(self) -> None:
         """Forget the vehicle's state (a new run)."""
         self.status = VehicleStatus()
-        self.truth = SimTruth()  # the SITL's true state, when it sends one (logged, not used)
+        # the SITL's true state, when it sends one (logged, not used), on ArduCopter's clock through its position stream
+        self.truth = SimTruth.for_link("ardupilot" if isinstance(self.profile, ArduPilotProfile) else "px4",
+                                       self.telem.wanted)
         self.arming = ArmingRetry(timeout=self.arm_timeout)
         self.link_lost = False
         self.t_offset = math.inf  # receive time - vehicle time stamp (clock sync estimate) [s]
@@ -114,6 +116,8 @@ class VehicleLink:
     def on_message(self, msg, rx: float) -> None:
         """Fold one message received at ``rx`` [s] in."""
         typ = msg.get_type()
+        if typ == self.truth.partner:
+            self.truth.update(msg, rx)  # its time_boot_ms places the truth sent in the same loop
         if typ in self.telem.wanted:
             self._on_telemetry(msg, rx)
         elif typ == "HEARTBEAT":

@@ -11,8 +11,10 @@ HIL_STATE_QUATERNION, read through :class:`firmware_bridge.truth.SimTruth`):
 * frame: local NED [m] from the first true position (where the vehicle stands: the floor's origin of
   the lab), north-aligned (a calibrated system's frame rotated to north, as both autopilots expect when
   they take the yaw from it);
+* truth: refined below its message's grid and, on ArduCopter, placed on the autopilot's clock
+  (:mod:`firmware_bridge.truth_refine`; PX4 SIH's on arrival);
 * latency: every sent pose is the truth ``latency_s`` before the send, interpolated between the samples
-  received (stamped on arrival: the SITL's own transport adds ~1 ms on loopback);
+  received;
 * noise: white Gaussian on each position axis and attitude angle (and velocity, for ODOMETRY);
 * rate: ``rate_hz`` sends per second from its own thread, whatever rate the truth arrives at.
 
@@ -32,10 +34,10 @@ import numpy as np
 
 from ddpc_codegen.robot.frames import euler_ned_from_enu, ned_from_enu, quat_from_euler, rotate_inverse, wrap_pi
 from firmware_bridge.truth import TRUTH_MESSAGES, SimTruth
+from firmware_bridge.truth_refine import LinkClock
 
 __all__ = ["MocapConfig", "MocapPose", "TruthBuffer", "MocapSampler", "MocapStandIn", "pose_from_truth",
-           "vision_position_fields", "odometry_fields", "MESSAGES",
-           "Dequantizer", "TRUTH_GRID", "LinkClock", "CLOCK_PARTNER"]
+           "vision_position_fields", "odometry_fields", "MESSAGES", "CLOCK_PARTNER"]
 
 MESSAGES = ("vision_position", "odometry")
 MAV_FRAME_LOCAL_NED = 1
@@ -141,110 +143,10 @@ class TruthBuffer:
                          euler)
 
 
-# The grid each SITL reports its true position on [m] (up, north, east) and which side of a grid value the
-# true one lies: ArduPilot's SIM_STATE carries its simulator's Location (altitude in whole centimetres,
-# truncated: the truth is in [q, q + 1 cm); latitude / longitude in 1e-7 deg); PX4's HIL_STATE_QUATERNION
-# its altitude in whole millimetres (truncated) and latitude / longitude in 1e-7 deg. The velocities are
-# exact (ArduPilot: float m/s) or on a 1 cm/s grid (PX4).
-_DEG7_M = 1e-7 * math.pi / 180.0 * 6378137.0  # 1e-7 deg of latitude [m]
-TRUTH_GRID = {"SIM_STATE": 0.01, "HIL_STATE_QUATERNION": 0.001}
-
-
-class Dequantizer:
-    """One coordinate reported on a grid, made finer with its rate: the integral of the rate since the
-    first sample, plus the offset that keeps it inside every grid cell seen (the intersection of the cells,
-    widened by ``drift`` [m/s] for the integral's own error). A vehicle standing still gets the middle of its
-    cell; one that moves across cell edges gets them as bounds (a hover's millimetres of motion cross them).
-
-    Args:
-        step: the grid [m]; cell: the true value's interval around a reported q, as multiples of ``step``
-            ((0, 1): truncated down; (-1, 1): the rounding unknown).
-    """
-
-    def __init__(self, step: float, cell: tuple[float, float] = (0.0, 1.0), drift: float = 0.001):
-        self.step, self.cell, self.drift = step, cell, drift
-        self._t = self._v = math.nan
-        self._integral = 0.0
-        self._lo, self._hi = -math.inf, math.inf
-
-    def update(self, q: float, rate: float, t: float) -> float:
-        """Fold in the reported value ``q`` [m] and rate [m/s] at ``t`` [s]; the refined value [m]."""
-        if math.isfinite(self._t):
-            dt = max(0.0, t - self._t)
-            self._integral += 0.5 * (self._v + rate) * dt
-            self._lo, self._hi = self._lo - self.drift * dt, self._hi + self.drift * dt
-        self._t, self._v = t, rate
-        a = q + self.cell[0] * self.step - self._integral
-        b = q + self.cell[1] * self.step - self._integral
-        lo, hi = max(self._lo, a), min(self._hi, b)
-        if lo > hi:  # the integral drifted out of the cells (or the position was reset): start again here
-            lo, hi = a, b
-        self._lo, self._hi = lo, hi
-        return self._integral + 0.5 * (lo + hi)
-
-
-# ArduCopter sends the truth in bursts (TCP; 0-23 ms after its loop sent them, measured): stamped on arrival a moving
-# truth is off by its speed times that, and a velocity integral over arrival gaps breaks the Dequantizer's cells. A
-# message with the autopilot's time, asked at the truth's rate, leaves in the same loop and arrives beside it
-# (SIM_STATE within 0.3 ms of it): :class:`LinkClock` stamps the truth with that time. PX4 SIH sends no such pair.
+# ArduCopter sends the truth in bursts (TCP; 0-23 ms after its loop sent them, measured); ATTITUDE, asked at the
+# truth's rate, leaves in the same loop and arrives beside it (SIM_STATE within 0.3 ms of it): the stand-in places the
+# truth on its time (:class:`~firmware_bridge.truth_refine.LinkClock`). PX4 SIH sends no such pair.
 CLOCK_PARTNER = {"ardupilot": ("ATTITUDE", 30)}
-
-
-class LinkClock:
-    """A link's truth samples stamped with the sender's clock. Each one is matched, first come first matched, with a
-    message carrying the sender's ``time_boot_ms`` that arrived within ``pair_s`` of it, before or after (the two
-    leave the sender's same loop, in either order), and takes that time, mapped onto the receiver's clock by the
-    smallest arrival - boot offset of the last ``window_s`` (the link's quickest transit; the window follows a SITL
-    clock that slips behind). A truth sample with no partner keeps its arrival time.
-
-    Feed every message in arrival order: :meth:`stamped` (the partner) and :meth:`truth`; both return the truth
-    samples now placed, as (message, time [s, the receiver's clock]) in arrival order."""
-
-    def __init__(self, pair_s: float = 0.002, window_s: float = 2.0) -> None:
-        self.pair_s, self.window_s = pair_s, window_s
-        self._offsets: deque[tuple[float, float]] = deque()  # (rx, rx - boot), offsets increasing: a running min
-        self._stamps: deque[tuple[float, float]] = deque()   # (rx, boot) not matched yet
-        self._truth: deque[tuple[Any, float]] = deque()      # (message, rx) not matched yet
-        self.paired = self.unpaired = 0
-
-    def _expire(self, rx: float) -> list[tuple[Any, float]]:
-        while self._stamps and rx - self._stamps[0][0] > self.pair_s:
-            self._stamps.popleft()
-        out = []
-        while self._truth and rx - self._truth[0][1] > self.pair_s:  # no partner came: its arrival time
-            self.unpaired += 1
-            out.append(self._truth.popleft())
-        return out
-
-    def at(self, boot_s: float) -> float:
-        """The sender's time ``boot_s`` [s] on the receiver's clock [s] (after a :meth:`stamped`)."""
-        return boot_s + self._offsets[0][1]
-
-    def stamped(self, boot_s: float, rx: float) -> list[tuple[Any, float]]:
-        """A message with the sender's time ``boot_s`` [s] arrived at ``rx`` [s]."""
-        off = rx - boot_s
-        while self._offsets and self._offsets[-1][1] >= off:
-            self._offsets.pop()
-        self._offsets.append((rx, off))
-        while self._offsets[0][0] < rx - self.window_s:
-            self._offsets.popleft()
-        out = self._expire(rx)
-        if self._truth:
-            self.paired += 1
-            out.append((self._truth.popleft()[0], self.at(boot_s)))
-        else:
-            self._stamps.append((rx, boot_s))
-        return out
-
-    def truth(self, msg: Any, rx: float) -> list[tuple[Any, float]]:
-        """A truth sample arrived at ``rx`` [s]: placed now if its partner came first, else when it comes."""
-        out = self._expire(rx)
-        if self._stamps:
-            self.paired += 1
-            out.append((msg, self.at(self._stamps.popleft()[1])))
-        else:
-            self._truth.append((msg, rx))
-        return out
 
 
 class MocapSampler:
@@ -259,24 +161,14 @@ class MocapSampler:
         self.truth = SimTruth()
         self.buffer = TruthBuffer(max_extrapolation_s=config.max_extrapolation_s)
         self.rng = np.random.default_rng(config.seed)
-        self._fine: list[Dequantizer] = []
 
     def feed(self, msg: Any, rx: float) -> None:
-        """Fold in one SIM_STATE / HIL_STATE_QUATERNION received at ``rx`` [s]; its position refined below
-        the message's grid (:class:`Dequantizer`) with its velocity."""
+        """Fold in one SIM_STATE / HIL_STATE_QUATERNION of the instant ``rx`` [s]; its position refined below the
+        message's grid with its velocity (by :class:`~firmware_bridge.truth.SimTruth`, as the bridge logs it)."""
         seq = self.truth.seq
         self.truth.update(msg, rx)
-        if self.truth.seq == seq:
-            return
-        pose = pose_from_truth(self.truth, rx)
-        if not self._fine:
-            north = _DEG7_M
-            east = _DEG7_M * math.cos(math.radians(self.truth.lat0))
-            # down = -(up): a truncated-down altitude puts the true down in (q - step, q]
-            self._fine = [Dequantizer(north, (-1.0, 1.0)), Dequantizer(east, (-1.0, 1.0)),
-                          Dequantizer(TRUTH_GRID.get(self.truth.source, 0.01), (-1.0, 0.0))]
-        pos = np.array([f.update(float(q), float(v), rx) for f, q, v in zip(self._fine, pose.position, pose.velocity)])
-        self.buffer.add(MocapPose(pose.t, pos, pose.velocity, pose.euler))
+        if self.truth.seq != seq:
+            self.buffer.add(pose_from_truth(self.truth, rx))
 
     def sample(self, now: float) -> MocapPose | None:
         """The measurement sent at ``now`` [s]: the truth at ``now - latency_s`` plus noise (None without truth)."""
@@ -397,13 +289,7 @@ class MocapStandIn(threading.Thread):
     def _receive(self, msg: Any, rx: float) -> None:
         """A truth or clock message received at ``rx`` [s]: the truth into the sampler, on the autopilot's clock where
         the link has one (:class:`LinkClock`)."""
-        if self.clock is None:
-            placed = [(msg, rx)]
-        elif msg.get_type() == self.clock_partner[0]:
-            placed = self.clock.stamped(msg.time_boot_ms * 1e-3, rx)
-        else:
-            placed = self.clock.truth(msg, rx)
-        for m, t in placed:
+        for m, t in [(msg, rx)] if self.clock is None else self.clock.place(msg, rx, self.clock_partner[0]):
             self.sampler.feed(m, t)
             self.stats.truth += 1
             if self.stats.origin_sent == 0:

@@ -5,13 +5,13 @@ heartbeats and status texts, each stamped on arrival (``time.time()``). A flight
 height, not on what the flying side believed.
 
 The true height is refined below the grid the message reports it on (ArduCopter: whole centimetres, truncated;
-PX4: millimetres) with its vertical velocity, by the motion-capture stand-in's own
-:class:`~ddpc_codegen.testbed.mocap.Dequantizer`: on the raw centimetres a moving flight's estimate - truth
-carries the grid's ~2.9 mm RMS, and a hover up to 5 mm of offset, that neither estimate nor steering has. On the
-ground both refine to the same cell's middle, so the frames' offset measured there (:meth:`Observer.ground`) is
-the mocap's origin in flight. Truth and estimate are paired by arrival: both are sent from the autopilot's same
-loop on the same link and arrive in the same bursts (measured on ArduCopter: SIM_STATE within 0.3 ms of the
-LOCAL_POSITION_NED beside it, while the bursts themselves lag the autopilot's clock by 0-23 ms);
+PX4: millimetres) with its vertical velocity, by the :class:`~firmware_bridge.truth_refine.Dequantizer` that the
+motion-capture stand-in and the bridge's tick log (:class:`~firmware_bridge.truth.SimTruth`) use: on the raw
+centimetres a moving flight's estimate - truth carries the grid's ~2.9 mm RMS, and a hover up to 5 mm of offset,
+that neither estimate nor steering has. On the ground both refine to the same cell's middle, so the frames' offset
+measured there (:meth:`Observer.ground`) is the mocap's origin in flight. On ArduCopter truth and estimate are
+placed on the autopilot's clock (:class:`~firmware_bridge.truth_refine.LinkClock`, by the LOCAL_POSITION_NED sent
+from the same loop: its bursts lag that clock by 0-23 ms); PX4's keep their arrival.
 :meth:`Observer.estimate_lag` measures what lag is left between them.
 """
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ddpc_codegen.testbed.mocap import TRUTH_GRID, Dequantizer, LinkClock
+from firmware_bridge.truth_refine import TRUTH_GRID, Dequantizer, LinkClock
 
 __all__ = ["Observer", "HOME_ALT", "SPARE_PORT", "wait_tcp_port", "wait_udp_bound", "estimate_lag"]
 
