@@ -141,15 +141,25 @@ def _same(got: float, want: float) -> bool:
     return abs(got - want) <= 1e-9 * max(1.0, abs(want))
 
 
+_ABSURD = AdaptSettings(enabled=True, forgetting=0.99, window=100, offset=True, max_gain_change=0.0)
+
+
+@pytest.fixture(scope="module")
+def absurd_build(tmp_path_factory):
+    """The absolute-form problem and its build with _ABSURD, compiled once for both probes (each test makes its
+    own workspaces and twin)."""
+    prob = _problem("absolute")
+    return prob, compile_alone(prob, _ABSURD, tmp_path_factory.mktemp("absurd"), NAME)
+
+
 @pytest.mark.parametrize("probe", ["outliers", "1e300"])
-def test_absurd_columns_install_no_offset_in_c_either(probe, tmp_path):
+def test_absurd_columns_install_no_offset_in_c_either(probe, absurd_build):
     """A genuine output offset is installed (C and numpy alike, the default finite max_offset); then 1 % outliers
     of 1e7 or 1e300 samples in the recent window: the estimate is refused by both, the offset in use stays, and
     the solver still solves."""
-    prob = _problem("absolute")
-    st = AdaptSettings(enabled=True, forgetting=0.99, window=100, offset=True, max_gain_change=0.0)
+    prob, (ffi, lib) = absurd_build
+    st = _ABSURD
     name = NAME
-    ffi, lib = compile_alone(prob, st, tmp_path, name)
     twin = AdaptiveProblem(prob, st, solver="fast")
     ref = twin.adapter
     assert np.all(np.isfinite(ref.max_offset))
