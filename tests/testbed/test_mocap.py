@@ -1,5 +1,6 @@
 """The motion-capture stand-in without a SITL: the truth's frame (SIM_STATE / HIL_STATE_QUATERNION -> local
-NED), the latency, the noise, the refinement below the truth's grid, the message fields and the parameter sets."""
+NED), the latency, the noise, the refinement below the truth's grid, the message fields and the parameter sets
+(the refinement's and the link clock's own tests: ``tests/firmware_bridge/test_truth_refine.py``)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,6 @@ from ddpc_codegen.testbed.mocap import (MAV_FRAME_LOCAL_NED, MocapConfig, MocapP
 from ddpc_codegen.testbed.mocap_params import (ARDUPILOT_LAB, PX4_LAB, lab_params, px4_has_external_vision,
                                                transport_allowance_ms)
 from firmware_bridge.truth import EARTH_RADIUS_M
-from firmware_bridge.truth_refine import Dequantizer, LinkClock
 
 LAT0, LON0, ALT0 = -35.363261, 149.165230, 584.09
 _M_PER_DEG = math.radians(1.0) * EARTH_RADIUS_M
@@ -122,49 +122,6 @@ def test_the_centimetre_altitude_is_refined_with_the_velocity():
             raw.append(msg.alt - ALT0 - u)
     assert np.sqrt(np.mean(np.square(raw))) > 0.004  # what the message alone gives: ~cm steps
     assert np.sqrt(np.mean(np.square(err))) < 0.0005
-
-
-def test_dequantizer_restarts_when_the_cells_contradict_the_integral():
-    d = Dequantizer(0.01, (0.0, 1.0))
-    assert d.update(1.00, 0.0, 0.0) == pytest.approx(1.005)
-    assert d.update(1.50, 0.0, 0.1) == pytest.approx(1.505)  # a jump no rate explains: this cell again
-
-
-@pytest.mark.parametrize("truth_first", [True, False])
-def test_link_clock_puts_bursty_truth_on_the_senders_clock(truth_first):
-    """ArduCopter's loop sends the truth and a stamped message together every 5 ms; TCP delivers several loops at
-    once, 0-20 ms late. Matched first come first matched (in either order), each truth sample takes its loop's time
-    on the receiver's clock (the quickest transit's offset), not its arrival."""
-    rng = np.random.default_rng(0)
-    clock, placed, sent = LinkClock(), [], []
-    boot0, transit = 100.0, 0.0001  # the sender's clock is 100 s ahead of the receiver's
-    delay = 0.0
-    for k in range(400):
-        boot = boot0 + 0.005 * k
-        if k % 4 == 0:
-            delay = rng.uniform(0.0, 0.02)  # a new burst: four loops arrive together
-        rx = boot - boot0 + transit + delay
-        first, second = ("truth", "stamp") if truth_first else ("stamp", "truth")
-        for i, what in enumerate((first, second)):
-            if what == "truth":
-                placed += clock.truth(k, rx + 1e-5 * i)
-            else:
-                placed += clock.stamped(boot, rx + 1e-5 * i)
-        sent.append(boot - boot0 + transit)
-    got = dict(placed)
-    assert clock.paired == len(placed) == 400 and clock.unpaired == 0
-    err = np.array([got[k] - sent[k] for k in range(400)])
-    assert err.min() > -1e-6 and err.max() < 0.02  # never before it was sent, never later than it arrived
-    assert np.abs(err[100:]).max() < 5e-4  # once a quick burst set the offset: its send time, whatever its delay
-
-
-def test_link_clock_keeps_the_arrival_of_a_truth_sample_without_partner():
-    clock = LinkClock(pair_s=0.002)
-    assert clock.stamped(10.0, 1.0) == []
-    assert clock.truth("a", 1.0005) == [("a", pytest.approx(1.0))]  # its loop's stamp
-    assert clock.truth("b", 1.010) == []  # none yet: held
-    assert clock.truth("c", 1.020) == [("b", 1.010)]  # none came within 2 ms: its arrival
-    assert clock.at(10.5) == pytest.approx(1.5) and clock.unpaired == 1
 
 
 def test_truth_buffer_interpolates_and_wraps_the_yaw():
