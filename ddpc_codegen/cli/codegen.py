@@ -74,7 +74,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", default="generated", help="output root (default generated/)")
     p.add_argument("--march-native", action="store_true", help="opt-in -march=native (binary tied to this CPU)")
     p.add_argument("--holdout", type=_share, default=0.2, metavar="SHARE",
-                   help="keep the last SHARE of each trajectory out of a second fit and print how well that "
-                        "predictor predicts it (RMSE, persistence, fit %%; in the manifest); 0 = skip (default 0.2)")
+                   help="keep the last SHARE of each trajectory (of stretches too short to split: the last whole "
+                        "ones) out of a second fit and print how well that predictor predicts it (RMSE, persistence, "
+                        "fit %%; in the manifest; ddpc-proxy's --model-watch needs it); 0 = skip (default 0.2)")
     p.add_argument("--quiet", action="store_true", help="print only the output folders")
     p.set_defaults(func=_cmd_codegen)

@@ -1,7 +1,8 @@
 """How well a fitted predictor predicts data it was not fitted on (``ddpc-codegen codegen --holdout``).
 
 The last ``share`` of every trajectory long enough for it is kept out of a second fit with the same settings
-(the shipped predictor is still fitted on everything). That predictor then predicts every Tf-sample horizon of
+(the shipped predictor is still fitted on everything). Data in stretches too short for that (a collect split
+by gaps) keep whole stretches out instead: the last ones, about ``share`` of the samples. That predictor then predicts every Tf-sample horizon of
 the held-out parts from the Tini samples before it and the inputs that were really sent, as the steering uses
 it. Figures per output, in its units: the RMSE one sample ahead, at the horizon's end and over the whole
 horizon; the same for persistence (the output held at its last value: what any predictor must beat); and the
@@ -21,7 +22,7 @@ import numpy as np
 from ddpc_codegen.design.data import IODataset
 from ddpc_codegen.design.predictor import Predictor
 
-__all__ = ["HoldoutFigures", "split_holdout", "holdout_figures", "holdout_check"]
+__all__ = ["HoldoutFigures", "split_holdout", "hold_out_whole", "holdout_figures", "holdout_check"]
 
 MIN_WINDOWS = 20  # horizons a held-out part must give (fewer: no figure, said so)
 
@@ -65,6 +66,27 @@ def split_holdout(ds: IODataset, share: float, min_part: int) -> tuple[IODataset
     return fit_ds, held
 
 
+def hold_out_whole(ds: IODataset, share: float, min_len: int) -> tuple[IODataset, list[tuple[np.ndarray, np.ndarray]]]:
+    """(fit part, held-out parts) with whole trajectories held out: from the last one back, each of at least
+    ``min_len`` samples, until ``share`` of all samples is held out, while the fit part keeps at least half of
+    them; the first trajectory always stays in the fit part (no held-out part when only one trajectory exists)."""
+    tr = ds.trajectories()
+    total = sum(u.shape[0] for u, _ in tr)
+    target = share * total
+    held_idx, n = set(), 0
+    for i in range(len(tr) - 1, 0, -1):
+        if n >= target:
+            break
+        if tr[i][0].shape[0] >= min_len and total - n - tr[i][0].shape[0] >= 0.5 * total:
+            held_idx.add(i)
+            n += tr[i][0].shape[0]
+    keep = [t for i, t in enumerate(tr) if i not in held_idx]
+    fit_ds = IODataset([u for u, _ in keep], [y for _, y in keep], ds.dt, input_names=ds.input_names,
+                       output_names=ds.output_names, input_units=ds.input_units, output_units=ds.output_units,
+                       metadata=dict(ds.metadata))
+    return fit_ds, [tr[i] for i in sorted(held_idx)]
+
+
 def holdout_figures(pred: Predictor, parts: list[tuple[np.ndarray, np.ndarray]], stride: int = 5) -> HoldoutFigures | None:
     """The figures of ``pred`` over every horizon (every ``stride`` samples) of the held-out ``parts``
     ((T, m) inputs, (T, p) outputs each); None if they give fewer than ``MIN_WINDOWS`` horizons."""
@@ -94,16 +116,20 @@ def holdout_check(config, ds: IODataset, fit: Callable[[object, IODataset], Pred
     ``share`` of each trajectory of ``ds`` is held out of it (units: the config's output units)."""
     depth = config.t_ini + config.t_f
     fit_ds, parts = split_holdout(ds, share, min_part=2 * depth)
+    what = f"the last {share:.0%} of the data"
+    if not parts:  # stretches too short to split: whole ones held out
+        fit_ds, parts = hold_out_whole(ds, share, min_len=depth)
+        what = f"{len(parts)} whole stretch{'es' * (len(parts) != 1)} of the data"
     if not parts:
         return None, [f"held-out check skipped: no trajectory is long enough to keep {share:.0%} of it "
-                      f"(>= {2 * depth} samples) out of the fit"], []
+                      f"(>= {2 * depth} samples) out of the fit, nor a second one of >= {depth} samples to hold "
+                      "out whole"], []
     figs = holdout_figures(fit(config, fit_ds), parts)
     if figs is None:
         return None, [f"held-out check skipped: the held-out {share:.0%} gives fewer than {MIN_WINDOWS} "
                       "horizons"], []
     units = tuple(config.output_units) or ("",) * len(figs.outputs)
-    lines = [f"held-out prediction (the last {share:.0%} of the data, {figs.windows} horizons, predictor fitted "
-             f"without it):"]
+    lines = [f"held-out prediction ({what}, {figs.windows} horizons, predictor fitted without it):"]
     warnings = []
     for i, name in enumerate(figs.outputs):
         unit = f" {units[i]}" if i < len(units) and units[i] else ""

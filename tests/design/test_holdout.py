@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from support.lti import LTI, random_lti
 from ddpc_codegen import IODataset, fit_predictor
-from ddpc_codegen.design.holdout import holdout_check, holdout_figures, split_holdout
+from ddpc_codegen.design.holdout import hold_out_whole, holdout_check, holdout_figures, split_holdout
 
 T_INI, T_F = 6, 12
 CFG = SimpleNamespace(t_ini=T_INI, t_f=T_F, output_units=("m", "rad"))
@@ -64,6 +64,29 @@ def test_a_predictor_worse_than_holding_the_last_value_is_warned_about():
 def test_data_too_short_for_a_held_out_part_skip_the_check_and_say_so():
     figs, lines, warnings = holdout_check(CFG, _data(random_lti(4, 2, 2, 3), n=(60, 50)), _fit, 0.2)
     assert figs is None and not warnings and "skipped" in lines[0]
+
+
+def test_data_in_stretches_too_short_to_split_hold_out_whole_ones():
+    # (a collect split by gaps: 10 stretches of 80 samples, none long enough to keep 20 % of it out)
+    sys_ = random_lti(4, 2, 2, 3)
+    figs, lines, warnings = holdout_check(CFG, _data(sys_, n=(80,) * 10), _fit, 0.2)
+    assert figs is not None and figs.samples_held_out == 160 and figs.windows >= 20
+    assert max(figs.rmse) < 1e-8 and not warnings and "2 whole stretches" in lines[0]
+
+
+@settings(max_examples=60, deadline=None)
+@given(lengths=st.lists(st.integers(1, 300), min_size=1, max_size=8), share=st.floats(0.05, 0.95),
+       min_len=st.integers(1, 100))
+def test_whole_stretches_held_out_keep_every_sample_once(lengths, share, min_len):
+    rng = np.random.default_rng(0)
+    ds = IODataset([rng.standard_normal((n, 1)) for n in lengths], [rng.standard_normal((n, 2)) for n in lengths], 0.01)
+    fit_ds, held = hold_out_whole(ds, share, min_len)
+    both = fit_ds.trajectories() + held
+    key = lambda t: t[0][0, 0]  # noqa: E731  (each stretch's first input sample: distinct)
+    assert sorted(map(key, both)) == sorted(map(key, ds.trajectories())) and len(both) == len(lengths)
+    assert key(fit_ds.trajectories()[0]) == key(ds.trajectories()[0])  # the first stays in the fit
+    assert all(u.shape[0] >= min_len for u, _ in held)
+    assert sum(u.shape[0] for u, _ in fit_ds.trajectories()) >= 0.5 * sum(lengths)
 
 
 @settings(max_examples=40, deadline=None)
