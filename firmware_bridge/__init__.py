@@ -22,7 +22,8 @@ the same ones):
 
 * :mod:`.vehicle_link` -- one vehicle as the loop sees it: messages in, heartbeats, streams, parameters,
   reboots, link loss; :mod:`.mode_requests` -- arming, the off-board mode, LAND, the hand-back at exit.
-* :mod:`.clock` -- the loop's own tick grid, or lock-step on telemetry (:class:`~.clock.TickTrigger`).
+* :mod:`.clock` -- the loop's own tick grid, or lock-step on telemetry (:class:`~.clock.TickTrigger`);
+  :mod:`.phase_lock` -- the grid's phase locked to the telemetry's arrivals (the period unchanged).
 * :mod:`.engagement` -- engagement edges, the trajectory clock, take-off, bumpless blends, staleness.
 * :mod:`.reference_stage` -- nominal reference -> the mode's reference (a frozen ``TickReference``);
   :mod:`.hopping_loop` -- hopping's phases and ground-phase windows; :mod:`.excitation` -- collect's PRBS.

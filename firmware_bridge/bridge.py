@@ -159,7 +159,7 @@ class Bridge:
         hover = ctrl_cfg.model_mass * ctrl_cfg.g / ctrl_cfg.max_thrust
         self.shaping = AttitudeSetpoints(self.frame, profile, hover, c.thrust_min, c.thrust_max)
         self.gate = _tick_gate(c, self.steering, hover, self.events)
-        self.trigger = TickTrigger(self.period, c.lockstep, c.max_gap_fill)
+        self.trigger = TickTrigger(self.period, c.lockstep, c.max_gap_fill, c.tick_margin)
         self.vehicle_info: VehicleInfo | None = None  # known after the preflight (before the first tick)
         self._stop = False
         self.stop_reason = ""

@@ -131,6 +131,8 @@ class BridgeConfig:
         duration: stop after this long in off-board [s] (None: until signalled).
         timeout: overall wall-clock limit [s] (None: none). wait_heartbeat: give up if no vehicle [s].
         lockstep: tick only on telemetry, controller time = vehicle time stamps.
+        tick_margin: real time: the tick grid's phase locks to this long after the position sample's
+            typical arrival (its late edge: the median plus three half interquartile ranges) [s] (None: the grid runs free at its first tick's phase; see :mod:`.phase_lock`).
         log: tick log path (.npz; an IODataset; another suffix is replaced by ``.npz``).
         summary: JSON summary path. An existing log or summary file is refused unless ``overwrite``.
         dataset_skip: seconds after each activation left out of the dataset part of the log.
@@ -199,6 +201,7 @@ class BridgeConfig:
     timeout: float | None = None
     wait_heartbeat: float = 30.0
     lockstep: bool = False
+    tick_margin: float | None = 200e-6
     log: str | None = None
     overwrite: bool = False
     summary: str | None = None
@@ -242,6 +245,8 @@ class BridgeConfig:
                 raise ValueError(f"{key} must be positive; got {getattr(self, key)!r}")
         if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
             raise ValueError("need 0 <= thrust_min < thrust_max <= 1")
+        if self.tick_margin is not None and not 0.0 <= self.tick_margin < 0.5 / self.rate_hz:
+            raise ValueError(f"tick_margin must be in [0, half the period); got {self.tick_margin!r} s")
         if not isinstance(self.max_gap_fill, int) or self.max_gap_fill < 0:
             raise ValueError(f"max_gap_fill must be an integer >= 0; got {self.max_gap_fill!r}")
         if self.frame not in ("start", "world"):

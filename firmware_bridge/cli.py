@@ -33,6 +33,7 @@ from firmware_bridge.cli_args import (
     POSITION_STREAMS,
     add_realtime_args,
     host_port,
+    margin_us,
     signing_key_file,
     fault_spec,
     floats,
@@ -146,6 +147,10 @@ def _bridge_loop_args(g) -> None:
                         "ATT_POS_MOCAP or ODOMETRY, local NED); logged beside the estimate, steered on with "
                         "--position-source mocap")
     g.add_argument("--lockstep", action="store_true", help="tick only on telemetry, vehicle time (ddpc-vehicle --lockstep)")
+    g.add_argument("--tick-margin-us", type=margin_us, default=round(_D["tick_margin"] * 1e6, 3), metavar="US|free",
+                   help="lock the tick grid's phase to this long after the position samples' late edge of arrivals (their "
+                        "median plus three half interquartile ranges) "
+                        "(the period is unchanged; free: the grid keeps its first tick's phase; default %(default)g)")
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds in off-board")
     g.add_argument("--timeout", type=float, default=None, help="stop after this many seconds of wall time")
     g.add_argument("--wait-heartbeat", type=float, default=_D["wait_heartbeat"], help="give up if no vehicle heartbeat [s]")
@@ -262,7 +267,7 @@ def bridge_config_from_args(a: argparse.Namespace) -> BridgeConfig:
         approach_timeout=a.approach_timeout, approach_tolerance=a.approach_tolerance,
         land=a.land, blend_rates=a.blend_rates,
         prestream=a.prestream, duration=a.duration, timeout=a.timeout, wait_heartbeat=a.wait_heartbeat,
-        lockstep=a.lockstep, log=a.log, overwrite=a.overwrite, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
+        lockstep=a.lockstep, tick_margin=None if a.tick_margin_us is None else a.tick_margin_us / 1e6, log=a.log, overwrite=a.overwrite, summary=a.summary, dataset_skip=a.dataset_skip, settle=a.settle,
         excitation=a.excitation, excitation_hold=a.excitation_hold, seed=a.seed,
         inject_solver_failure=a.inject_solver_failure, controller=ctrl, contact=contact, trajectory=traj, frame=a.frame, rt_priority=a.rt_priority,
         cpu_latency_us=qos_request(a.cpu_latency_us), cpus=a.cpus,

@@ -10,7 +10,7 @@ from firmware_bridge.signing import SigningError, load_signing_key
 from firmware_bridge.transports import parse_address
 
 __all__ = ["ATTITUDE_STREAMS", "POSITION_STREAMS", "floats", "floats_or_none", "time_window", "fault_spec", "cpu_list",
-           "push_spec", "qos_request", "add_realtime_args", "host_port", "signing_key_file"]
+           "push_spec", "qos_request", "add_realtime_args", "host_port", "signing_key_file", "margin_us"]
 
 ATTITUDE_STREAMS = {"attitude": "ATTITUDE", "quaternion": "ATTITUDE_QUATERNION", "odometry": "ODOMETRY"}
 POSITION_STREAMS = {"local": "LOCAL_POSITION_NED", "odometry": "ODOMETRY"}
@@ -86,6 +86,19 @@ def push_spec(s: str) -> tuple:
     if len(force) != 3 or not all(math.isfinite(v) for v in (*force, t, dur)) or dur <= 0:
         raise bad
     return (t, force, dur)
+
+
+def margin_us(s: str) -> float | None:
+    """``--tick-margin-us``: ``free`` (any case; no phase lock) or a finite number of microseconds >= 0."""
+    if str(s).strip().lower() == "free":
+        return None
+    try:
+        v = float(s)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected microseconds >= 0 or 'free', got {s!r}")
+    return v
 
 
 def qos_request(v: int) -> int | None:

@@ -11,6 +11,12 @@ the tick log contains the telemetry delay it will see when steering.
 An overrun longer than one period (the process was not scheduled) skips grid points instead of
 firing a burst of catch-up ticks: the skipped ones are counted, the grid phase is kept.
 
+The grid's phase follows the telemetry's arrivals (:class:`firmware_bridge.phase_lock.PhaseLock`): the vehicle's
+send clock and this one run free and drift against each other, so with a fixed phase a sample would at times arrive
+just after a tick and wait a whole period. Locked, each tick fires a margin after the position sample's typical
+arrival; the phase slews by a bounded amount per tick (the period and the control-clock time ``k * period`` are
+unchanged), and without periodic telemetry the grid runs free.
+
 :class:`TickTrigger` says when a tick is due: on the grid in real time, on every sample of both streams in
 lock-step (the vehicle's stamps are the clock there; a lost sample is a gap, bridged in the history for up to
 ``max_gap_fill`` ticks).
@@ -20,6 +26,7 @@ from __future__ import annotations
 
 import math
 
+from firmware_bridge.phase_lock import PhaseLock
 from firmware_bridge.telemetry import TelemetryState
 
 __all__ = ["TickClock", "TickTrigger"]
@@ -77,6 +84,11 @@ class TickClock:
         self.skipped += n
         return n
 
+    def slew(self, delta: float) -> None:
+        """Move the grid's phase by ``delta`` [s] (the caller bounds it well below the period): every later
+        deadline moves with it, the grid time :meth:`time` does not."""
+        self.t0 += delta
+
     def advance(self, now: float) -> int:
         """Mark the current tick done; returns how many grid points were skipped (0 normally)."""
         self.k += 1
@@ -95,13 +107,16 @@ class TickTrigger:
     Args:
         period: the tick [s]; lockstep: tick on telemetry (vehicle time) instead of the grid.
         max_gap_fill: lock-step: lost samples bridged in the history (a longer hole resets it).
+        margin: real time: the grid's ticks lock to this long after the position samples' late edge of arrivals [s]
+        (None: the grid runs free at the phase of its first tick).
     """
 
-    def __init__(self, period: float, lockstep: bool, max_gap_fill: int) -> None:
+    def __init__(self, period: float, lockstep: bool, max_gap_fill: int, margin: float | None = None) -> None:
         self.period = period
         self.lockstep = lockstep
         self.max_gap_fill = max_gap_fill
         self.gaps = 0  # lock-step: telemetry gaps seen
+        self.lock = PhaseLock(period, margin) if margin is not None and not lockstep else None
         self.reset()
 
     def reset(self) -> None:
@@ -110,10 +125,14 @@ class TickTrigger:
         self.last_seq = (0, 0)        # telemetry sample counts used by the last event tick
         self.seen_total = 0           # telemetry samples (both streams) up to the last tick
         self.last_stamp = math.nan
+        if self.lock is not None:
+            self.lock.reset()
 
     def restart_samples(self) -> None:
         """The vehicle rebooted: its sample counts start again."""
         self.last_seq = (0, 0)
+        if self.lock is not None:
+            self.lock.reset()  # a new time line: its arrivals are learnt afresh
 
     def wake_in(self, now: float) -> float:
         """Seconds the loop may sleep in the link's wait."""
@@ -127,6 +146,8 @@ class TickTrigger:
             return ""
         if self.lockstep:
             return "event" if tel.att.seq > self.last_seq[0] and tel.pos.seq > self.last_seq[1] else ""
+        if self.lock is not None:
+            self.lock.observe(tel.pos.seq, tel.pos.rx)
         if not self.clock.started:
             self.clock.start(now)  # the grid starts with the first complete telemetry
         if not self.clock.due(now):
@@ -135,9 +156,11 @@ class TickTrigger:
         return "grid"
 
     def done(self, kind: str, now: float) -> None:
-        """The tick of ``kind`` is done (the grid moves to its next deadline)."""
+        """The tick of ``kind`` is done (the grid moves to its next deadline, its phase toward the lock's)."""
         if kind == "grid":
             self.clock.advance(now)
+            if self.lock is not None:
+                self.clock.slew(self.lock.slew(self.clock.deadline, now))
 
     def timing(self, now: float, tel: TelemetryState) -> tuple[float, float, int]:
         """(age of the oldest stream's newest sample [s], control-clock time [s], samples new since the last

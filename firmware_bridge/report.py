@@ -209,6 +209,7 @@ class FlightRecorder:
             **{k: r[k] for k in ("latency_us", "missed_ticks", "max_gap_ms", "fallbacks", "fallback_reasons",
                                  "reasons", "event_ticks")},
             "activations": engagement.activations, "grid_skipped": trigger.clock.skipped,
+            "phase_lock": None if trigger.lock is None else trigger.lock.summary(),
             "telemetry": telemetry_summary({"attitude": vehicle.telem.att, "position": vehicle.telem.pos}),
             "arming": {"attempts": vehicle.arming.attempts, "refusals": vehicle.arming.refusals[-5:]},
             "vehicle": None if vehicle_info is None else asdict(vehicle_info),

@@ -7,7 +7,16 @@ import re
 
 import pytest
 
-from firmware_bridge.cli_args import cpu_list, fault_spec, floats, floats_or_none, push_spec, qos_request, time_window
+from firmware_bridge.cli_args import (
+    cpu_list,
+    fault_spec,
+    floats,
+    floats_or_none,
+    margin_us,
+    push_spec,
+    qos_request,
+    time_window,
+)
 
 
 def test_values_parse_to_their_tuples():
@@ -35,3 +44,10 @@ def test_values_parse_to_their_tuples():
 def test_bad_values_are_refused_with_the_expected_form(parse, text, message):
     with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
         parse(text)
+
+
+def test_tick_margin_is_microseconds_or_free():
+    assert margin_us("250") == 250.0 and margin_us("0") == 0.0 and margin_us(" Free ") is None
+    for bad in ("-1", "nan", "inf", "soon"):
+        with pytest.raises(argparse.ArgumentTypeError, match="microseconds"):
+            margin_us(bad)
