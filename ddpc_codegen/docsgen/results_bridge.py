@@ -45,13 +45,27 @@ def _flood_row(name: str, r: dict) -> list[str]:
     flooded = bool(fl)
     pre_pin = sum(fo.get(k, 0) for k in ("foreign", "bad_data", "parse_errors"))
     return [name, _load(r), _us(r.get("latency_us")), _us(parts.get("compute")), _us(parts.get("solve")),
-            _us(parts.get("receive_to_deadline")),
+            _us(parts.get("receive_to_deadline")), _age(r.get("age_at_tick_us")),
             _us(parts.get("wake")), f"{r.get('latency_over_1ms', NA)} of {r.get('event_ticks', NA)}",
             str(r.get("waited_a_period", NA)),
             str(r.get("missed_ticks", NA)), f"{r.get('setpoints_sent', NA)} / {r.get('setpoints_received', NA)}",
             str(fl.get("datagrams", NA)) if flooded else "0",
             f"{fo.get('foreign_packets', 0)} / {pre_pin}" if flooded else NA,
             str(fl.get("received", NA)) if flooded else NA]
+
+
+def _age(d: dict | None) -> str:
+    return f"{_us(d, 'p1')} / {_us(d, 'p50')} / {_us(d)}" if d else NA
+
+
+def _grid(r: dict) -> str:
+    """How the flight's tick grid was placed: locked to the arrivals (its margin) or free (an older report)."""
+    lock = r.get("phase_lock")
+    if not lock:
+        return ("idle: the vehicle's and the bridge's 200 Hz grids run free, their phase set by the first tick")
+    return (f"the bridge's grid is phase-locked to the position sample's arrivals, {num(lock.get('margin_us'), 1.0, 0)} "
+            "µs after their late edge (the median plus three half interquartile ranges), so the telemetry's age at "
+            "the tick is constant")
 
 
 def _flood_section(rnd: dict | None) -> list[str]:
@@ -62,13 +76,13 @@ def _flood_section(rnd: dict | None) -> list[str]:
              f"under a {khz} kHz flood (garbage and valid MAVLink of other system ids) from {rnd.get('ports', '?')} "
              "foreign ports, from before the bridge started to after it ended. Per tick with new telemetry, p99 of "
              "each part of the latency: compute (tick start to send; of it the solver call), receive to the grid "
-             "boundary (idle: the vehicle's and the bridge's 200 Hz grids run free, their phase set by the first "
-             "tick), and the wake-up after the boundary (above the least-late ticks'); a sample that arrived just after "
+             f"boundary ({_grid(rnd.get('quiet') or {})}), and the wake-up after the boundary (above the least-late "
+             "ticks'); the telemetry's age at the tick p1 / p50 / p99; a sample that arrived just after "
              "a boundary waits for the next tick (about 5 ms). The load is the machine's 1-minute load average before "
              "the flight (2 cores, shared). Target: p99 <= 1 ms, no setpoint lost at the vehicle.\n")
     rows = [_flood_row("no flood", rnd.get("quiet") or {}), _flood_row(f"{khz} kHz flood", rnd.get("flood") or {})]
     return [intro, table(["flight", "load", "latency p99 [µs]", "compute p99 [µs]", "of it the solver p99 [µs]",
-                          "receive to boundary p99 [µs]",
+                          "receive to boundary p99 [µs]", "age at the tick p1 / p50 / p99 [µs]",
                           "wake-up p99 [µs]", "ticks over 1 ms", "samples that waited for the next tick",
                           "missed ticks",
                           "setpoints sent / at the vehicle", "flood datagrams",

@@ -184,7 +184,7 @@ def _report(runs: dict[str, dict], ip: dict, solver: Path, settings: dict) -> di
         "runs": {k: {key: v["summary"][key] for key in ("rate_hz", "latency_us", "missed_ticks", "max_gap_ms",
                                                         "fallbacks", "fallback_reasons", "telemetry_gaps",
                                                         "duration_s", "rmse_z_measured", "stop_reason")}
-                 for k, v in runs.items()},
+                     | {"phase_lock": v["summary"].get("phase_lock")} for k, v in runs.items()},
         "steering": runs["steered"]["summary"].get("steering"),
         "in_process_steering": ip["steering"],
         "settings": settings,

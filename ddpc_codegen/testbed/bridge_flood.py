@@ -25,6 +25,7 @@ __all__ = ["FLOOD_HZ", "tick_latency_us", "latency_parts", "round_figures", "flo
 FLOOD_HZ = 10_000.0
 FLOOD_PORTS = 4
 _EDGE_PERCENTILE = 0.5  # the grid's deadlines sit at this percentile of the ticks' phases (see latency_parts)
+_PHASE_BLOCK = 50  # ticks whose median phase is the typical one (the locked grid's phase moves a little a tick)
 
 
 def tick_latency_us(ticks: dict[str, np.ndarray]) -> np.ndarray:
@@ -41,30 +42,43 @@ def latency_parts(ticks: dict[str, np.ndarray], period: float) -> dict:
     (latency - compute), split into ``receive_to_deadline`` (waiting for the grid boundary; negative when the sample
     arrived after the deadline, before the late wake-up) and ``wake`` (deadline -> tick start). The deadlines are
     the grid ``period`` [s] placed at the phase of the least-late ticks (the 0.5th percentile), so ``wake`` is the
-    lateness above theirs."""
+    lateness above theirs; the grid's phase follows the telemetry's (:mod:`firmware_bridge.phase_lock`), so the
+    ticks' phases are taken against their running median (:func:`_tick_phase`)."""
     ev = np.asarray(ticks["event"], bool)
     lat, comp = np.asarray(ticks["latency_us"], float), np.asarray(ticks["compute_us"], float)
     t = np.asarray(ticks["t_wall"], float)
     solve = np.asarray(ticks["solve_us"], float) if "solve_us" in ticks else np.full(t.shape, np.nan)
     if t.size == 0:
         return {k: percentiles(()) for k in ("compute", "solve", "receive_to_start", "receive_to_deadline", "wake")}
-    phase = np.mod(t, period)
-    centre = float(np.median(phase))
-    # Around the typical tick's phase, which is close to the deadline: from a quarter period before it (no tick
-    # wakes before its deadline) to three quarters after. The deadline is the lower edge of that cluster: a low
-    # percentile, not the least value, which a tick later than three quarters of a period would be, wrapped round.
-    dev = np.mod(phase - centre + period / 4, period) - period / 4
+    dev = _tick_phase(t, period)
     wake = (dev - np.percentile(dev, _EDGE_PERCENTILE)) * 1e6
     start = lat - comp
     return {"compute": percentiles(comp[ev]), "solve": percentiles(solve[ev]), "receive_to_start": percentiles(start[ev]),
             "receive_to_deadline": percentiles((start - wake)[ev]), "wake": percentiles(wake[ev])}
 
 
+def _tick_phase(t: np.ndarray, period: float) -> np.ndarray:
+    """Each tick's phase [s] around the typical one's: from a quarter period before it (no tick wakes before its
+    deadline) to three quarters after, the typical one the running median of the (unwrapped) phases over
+    :data:`_PHASE_BLOCK` ticks (the locked grid's phase moves, by a bounded step a tick). The deadline is the lower
+    edge of that cluster: a low percentile, not the least value, which a tick later than three quarters of a period
+    would be, wrapped round."""
+    phase = np.unwrap(np.mod(t, period), period=period)
+    h = min(_PHASE_BLOCK // 2, (t.size - 1) // 2)
+    centre = np.median(np.lib.stride_tricks.sliding_window_view(phase, 2 * h + 1), axis=1)  # ticks h .. n - h - 1
+    if h > 0:  # the first and last h ticks: the running median's trend continued
+        lo, hi = (centre[min(h, centre.size - 1)] - centre[0]) / h, (centre[-1] - centre[max(centre.size - 1 - h, 0)]) / h
+        k = np.arange(1, h + 1)
+        centre = np.concatenate((centre[0] - lo * k[::-1], centre, centre[-1] + hi * k))
+    return np.mod(phase - centre + period / 4, period) - period / 4
+
+
 def round_figures(summary: dict, vehicle: dict | None, ticks: dict[str, np.ndarray], period: float,
                   flood: dict | None) -> dict:
     """One flight's figures from the bridge's ``summary``, the vehicle's summary, the tick log's ``ticks`` (period
     [s]) and the flooder's counts (None: no flood). ``waited_a_period``: event ticks whose sample arrived after the
-    previous tick's boundary (the two processes' free-running grids drifted into each other)."""
+    previous tick's boundary (the two processes' grids drifted into each other); ``age_at_tick_us``: the telemetry's
+    age at the event ticks (constant when the grid is locked to the arrivals: ``phase_lock``, the bridge's)."""
     link = summary.get("link") or {}
     sent = int(summary.get("setpoints_sent", 0)) + int(summary.get("setpoints_repeated", 0))
     got = None if vehicle is None else int(vehicle.get("setpoints", 0)) + int(vehicle.get("setpoints_ignored", 0))
@@ -76,6 +90,9 @@ def round_figures(summary: dict, vehicle: dict | None, ticks: dict[str, np.ndarr
         "latency_us": percentiles(lat), "latency_parts_us": latency_parts(ticks, period),
         "latency_over_1ms": int(np.sum(lat > 1000.0)), "event_ticks": int(lat.size),
         "waited_a_period": int(np.sum(waited)),
+        "age_at_tick_us": percentiles(np.asarray(ticks["age_ms"])[np.asarray(ticks["event"], bool)] * 1e3,
+                                      (1, 50, 99)),
+        "phase_lock": summary.get("phase_lock"),
         "ticks": int(summary.get("ticks", 0)), "missed_ticks": int(summary.get("missed_ticks", 0)),
         "grid_skipped": int(summary.get("grid_skipped", 0)), "max_gap_ms": summary.get("max_gap_ms"),
         "telemetry_gaps": summary.get("telemetry_gaps"), "fallbacks": int(summary.get("fallbacks", 0)),

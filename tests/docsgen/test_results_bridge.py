@@ -26,7 +26,9 @@ REPORT = {"rate_hz": 200.0, "latency_us": {"p50": 560.0, "p99": 930.0, "max": 51
           "rmse_z_in_process": {"baseline": 0.0405, "steered": 0.0095}, "scheduling": "SCHED_FIFO 30, mlockall",
           "kernel": {"preemption": "PREEMPT_DYNAMIC"},
           "flood_round": {"rate_hz": 10000.0, "ports": 4, "duration_s": 20.0,
-                          "quiet": _flight(912.4, 545.0, 4005, 4005, None, 0.42),
+                          "quiet": {**_flight(912.4, 545.0, 4005, 4005, None, 0.42),
+                                    "age_at_tick_us": {"p1": 280.0, "p50": 300.0, "p99": 350.0},
+                                    "phase_lock": {"margin_us": 200.0, "locked_ticks": 3960, "free_ticks": 40}},
                           "flood": _flight(987.6, 560.0, 4004, 4004, FLOOD, 1.37)}}
 
 
@@ -37,8 +39,12 @@ def test_the_timing_page_shows_the_flights_and_the_flood_round_with_the_load():
     assert "receive to the grid boundary and the wake-up, not only the tick's work" in md  # which latency it is
     assert "| 200.0 | 560 / 930 / 5100 | 2 | 100 | 0 | 41.2 / 40.5 | 10.1 / 9.5 |" in md
     assert "under a 10 kHz flood (garbage and valid MAVLink of other system ids) from 4 foreign ports" in md
-    assert "| no flood | 0.42 | 912 | 545 | 61 | 310 | 180 | 7 of 3900 | 2 | 0 | 4005 / 4005 | 0 | -- | -- |" in md
-    assert "| 10 kHz flood | 1.37 | 988 | 560 | 61 | 310 | 180 | 7 of 3900 | 2 | 0 | 4004 / 4004 | 205000 | 190000 / 9100 | 0 |" in md
+    assert "| no flood | 0.42 | 912 | 545 | 61 | 310 | 280 / 300 / 350 | 180 | 7 of 3900 | 2 | 0 | 4005 / 4005 | 0 | -- | -- |" in md
+    assert ("| 10 kHz flood | 1.37 | 988 | 560 | 61 | 310 | -- | 180 | 7 of 3900 | 2 | 0 | 4004 / 4004 | 205000 | 190000 / 9100 "
+            "| 0 |") in md
+    assert "phase-locked to the position sample's arrivals, 200 µs after their late edge" in md
+    older = {**REPORT, "flood_round": {**REPORT["flood_round"], "quiet": _flight(912.4, 545.0, 4005, 4005, None, 0.42)}}
+    assert "grids run free, their phase set by the first tick" in bridge_section(older)
 
 
 def test_the_index_gives_the_p99_quiet_and_flooded_and_links_the_section():

@@ -19,16 +19,17 @@ P = 0.005
 
 
 def _ticks(n: int = 400, rx_before: float = 300e-6, wake: float = 20e-6, compute: float = 400e-6,
-           grid0: float = 1.0023) -> dict:
+           grid0: float = 1.0023, slew: float = 0.0) -> dict:
     """Ticks on a grid ``grid0 + k P`` [s]: each wakes ``wake`` s late (every 50th 1 ms, the 10th 3 ms, the 14th 4.5 ms), its telemetry arrived
-    ``rx_before`` s before the deadline, compute ``compute`` s; every 4th tick has no new telemetry."""
+    ``rx_before`` s before the deadline, compute ``compute`` s; every 4th tick has no new telemetry. ``slew``: the
+    grid's phase moves this much per tick [s] (locked to drifting telemetry)."""
     k = np.arange(n)
     late = np.full(n, wake)
     late[::50] = 1e-3
     late[9] = 3e-3  # more than half a period late: still late, not early
     late[13] = 4.5e-3  # so late its phase wraps round to just before the deadline: no deadline is placed there
-    t_wall = grid0 + k * P + late
-    return {"t_wall": t_wall, "latency_us": (rx_before + late + compute) * 1e6,
+    t_wall = grid0 + k * (P + slew) + late
+    return {"t_wall": t_wall, "latency_us": (rx_before + late + compute) * 1e6, "age_ms": (rx_before + late) * 1e3,
             "compute_us": np.full(n, compute * 1e6), "solve_us": np.full(n, 30.0), "event": k % 4 != 3}
 
 
@@ -48,6 +49,14 @@ def test_latency_parts_split_the_wait_for_the_grid_from_the_wake_up_and_the_work
     # (the 4.5 ms late tick's wake-up, wrapped round, is counted as waiting for the grid: one tick, not the p99)
     assert parts["receive_to_deadline"]["p99"] == pytest.approx(320.0, abs=1e-3)
     assert parts["compute"]["n"] == 300 and parts["solve"]["p99"] == pytest.approx(30.0)
+
+
+def test_latency_parts_follow_a_slewing_grid():
+    """A grid locked to drifting telemetry moves its phase by up to 10 us a tick: 10 ms over 1,000 ticks, yet the
+    wake-up is measured against the deadlines nearby, not against one phase for the flight."""
+    parts = latency_parts(_ticks(n=1000, slew=10e-6), P)
+    assert parts["wake"]["p50"] == pytest.approx(0.0, abs=25.0) and parts["receive_to_deadline"]["p50"] == pytest.approx(
+        300.0, abs=25.0)
 
 
 def test_latency_parts_of_no_ticks_are_empty():
@@ -71,6 +80,9 @@ def test_one_flights_figures_count_setpoints_at_both_ends_and_the_flood_against_
     assert r["latency_over_1ms"] == 10  # the late wake-ups (k = 0, 50, ... 350, 9 and 13: all event ticks)
     assert r["foreign"]["foreign_packets"] == 9000 and r["foreign"]["peer_changes"] == 1 and r["flood"] is FLOOD
     assert r["latency_us"]["p50"] == pytest.approx(720.0) and r["waited_a_period"] == 2  # the 3 and 4.5 ms late ticks
+    assert r["age_at_tick_us"]["p50"] == pytest.approx(320.0) and r["phase_lock"] is None
+    lock = {"margin_us": 250.0, "locked_ticks": 380, "free_ticks": 20}
+    assert round_figures({**SUMMARY, "phase_lock": lock}, VEHICLE, _ticks(), P, FLOOD)["phase_lock"] == lock
     quiet = round_figures({**SUMMARY, "link": {}}, None, _ticks(), P, None)
     assert quiet["setpoints_received"] is None and quiet["setpoints_lost"] is None and quiet["foreign"]["unpinned"] == 0
 
