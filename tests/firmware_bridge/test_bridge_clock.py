@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.ndimage import median_filter
 import pytest
 from support.bridge_helpers import FakeVehicle, Procs, free_port, read_json
 
@@ -64,10 +65,12 @@ def test_irregular_telemetry_steers_on_the_grid_and_keeps_every_sample(tmp_path,
     # every sample the vehicle sent is in the log (a burst is two samples, not one)
     assert {k: v["samples"] for k, v in s["telemetry"].items()} == sent
     assert log.samples["attitude"].shape == (sent["attitude"], 2)
-    # setpoints on the bridge's grid: ticks at multiples of 5 ms; a tick the machine could not run
-    # in time is skipped and counted, never fired late in a burst (a loaded 2-core CI box skips some)
+    # setpoints on the bridge's grid: ticks a multiple of 5 ms apart (the grid's phase may slew onto the
+    # arrivals, by at most 10 us a tick); a tick the machine could not run in time is skipped and counted,
+    # never fired late in a burst (a loaded 2-core CI box skips some)
     grid = (t["t_wall"] - t["t_wall"][0]) / 0.005
-    assert np.median(np.abs(grid - np.round(grid))) < 0.2
+    phase = np.unwrap(2 * np.pi * (grid - np.round(grid))) / (2 * np.pi)  # [periods], slewing slowly
+    assert np.median(np.abs(phase - median_filter(phase, size=51, mode="nearest"))) < 0.2
     gaps = np.diff(t["t_wall"]) * 1e3
     assert s["ticks"] + s["grid_skipped"] == pytest.approx(np.round(grid[-1]) + 1, abs=2), (
         f"ticks {s['ticks']} + skipped {s['grid_skipped']} vs grid span {np.round(grid[-1]) + 1:.0f}; largest gaps "
