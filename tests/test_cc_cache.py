@@ -71,12 +71,17 @@ def _build_and_run(env: dict, folder: Path, *flags: str) -> tuple[subprocess.Com
     return comp, subprocess.run([str(folder / "main")], capture_output=True, text=True, check=True).stdout.strip()
 
 
+def _counting_cache(tmp_path):
+    """(the environment of a session cache in front of a fake compiler that logs its calls, the calls so far)."""
+    real, log = _fake_compiler(tmp_path)
+    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
+    return env, lambda: len(log.read_text().splitlines()) if log.exists() else 0
+
+
 @needs_cc
 @pytest.mark.compiler
 def test_identical_steps_reuse_the_object_and_changes_compile_again(tmp_path):
-    real, log = _fake_compiler(tmp_path)
-    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
-    n_compiles = lambda: len(log.read_text().splitlines()) if log.exists() else 0  # noqa: E731
+    env, n_compiles = _counting_cache(tmp_path)
 
     assert _build_and_run(env, _program(tmp_path / "a", "41"))[1] == "41" and n_compiles() == 1
     # another folder (other -I path, other object path), the same content: reused, and it runs
@@ -91,9 +96,7 @@ def test_identical_steps_reuse_the_object_and_changes_compile_again(tmp_path):
 @pytest.mark.compiler
 def test_a_macro_the_source_never_reads_reuses_the_object(tmp_path):
     """-D/-U are not in the key as arguments: what they change is in the preprocessed source, which is."""
-    real, log = _fake_compiler(tmp_path)
-    env = dict(os.environ, **install(tmp_path / "cache", {"CC": str(real)}))
-    n_compiles = lambda: len(log.read_text().splitlines()) if log.exists() else 0  # noqa: E731
+    env, n_compiles = _counting_cache(tmp_path)
 
     assert _build_and_run(env, _program(tmp_path / "a", "41"))[1] == "41" and n_compiles() == 1
     assert _build_and_run(env, _program(tmp_path / "b", "41"), "-DUNREAD=3", "-U", "OTHER")[1] == "41"
