@@ -17,6 +17,7 @@ from firmware_bridge.cli_args import add_realtime_args, qos_request
 from firmware_bridge.link import LinkError, MavLink
 from firmware_bridge.mocap_input import MocapInput
 from firmware_bridge.proxy.core import Proxy
+from firmware_bridge.proxy.file_preview import FilePreview
 from firmware_bridge.proxy.preview import make_preview
 from firmware_bridge.proxy.record import ProxyRecord
 from firmware_bridge.proxy.steering import ProxySteering
@@ -56,6 +57,10 @@ def build_proxy_parser() -> argparse.ArgumentParser:
     s.add_argument("--preview-delay", type=float, default=0.0, metavar="S",
                    help="play the app's setpoints S seconds late and steer with them as a true preview "
                         "(default 0: a local preview from the setpoint's velocity / acceleration, or its slope)")
+    s.add_argument("--preview-file", type=Path, default=None, metavar="FILE",
+                   help="the app's path given ahead as a trajectory file (.csv / .toml: t, x, z up, ...), matched to "
+                        "the app's stream on the height (any start time and height): the file previews the steering "
+                        "while it matches, the local preview otherwise (no delay; not with --preview-delay)")
     s.add_argument("--collect", type=Path, default=None, metavar="FILE",
                    help="record the engaged stretches as a dataset for ddpc-codegen (.npz): heights sent in, "
                         "the vehicle's height out")
@@ -101,14 +106,17 @@ def build_proxy_parser() -> argparse.ArgumentParser:
 def _steering(args) -> ProxySteering | None:
     """The rewrite hook the options ask for (None: a transparent proxy)."""
     if args.steer is None and args.collect is None and args.log is None and not args.dither \
-            and not args.preview_delay and args.position_source == "autopilot" and not args.mocap \
-            and args.mocap_offset is None:
+            and not args.preview_delay and args.preview_file is None and args.position_source == "autopilot" \
+            and not args.mocap and args.mocap_offset is None:
         return None
     if args.steer is not None and args.dither:
         raise ValueError("--dither excites a collect flight; it does not go with --steer")
     for name, v, lo in (("--preview-delay", args.preview_delay, 0.0), ("--dither", args.dither, 0.0)):
         if not (v >= lo and v < float("inf")):
             raise ValueError(f"{name} must be a finite number >= {lo:g}; got {v}")
+    if args.preview_file is not None and args.preview_delay > 0:
+        raise ValueError(f"--preview-file and --preview-delay {args.preview_delay:g} are two previews: give one (the "
+                         "file's path is matched to the app's stream without a delay)")
     if not (0.0 < args.max_age < float("inf")):
         raise ValueError(f"--max-age must be a finite number of seconds > 0; got {args.max_age}")
     if args.dither_hold < 1:
@@ -120,13 +128,20 @@ def _steering(args) -> ProxySteering | None:
     for path in (args.collect, args.log):
         if path is not None:
             output_path(path, args.overwrite)  # refused now, not after the flight
+    preview = make_preview(args.preview_delay) if args.preview_file is None else \
+        FilePreview.from_file(args.preview_file)
     solver = None
     if args.steer is not None:
         solver = load_solver(args.steer)
-    return ProxySteering(VehicleView(mocap=_mocap(args), mocap_offset=args.mocap_offset), solver=solver, preview=make_preview(args.preview_delay),
-                         max_age=args.max_age, max_step=args.max_step, dither=args.dither,
+    hook = ProxySteering(VehicleView(mocap=_mocap(args), mocap_offset=args.mocap_offset), solver=solver,
+                         preview=preview, max_age=args.max_age, max_step=args.max_step, dither=args.dither,
                          dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward,
                          coordinates=args.coordinates, model_watch=args.model_watch)
+    if args.preview_file is not None and hook.mode == "steer" and hook.deviation:
+        print("ddpc-proxy: --preview-file: this solver steers in deviation coordinates (z_offset -> z_error), whose "
+              "desired error is 0 whatever the path ahead: the match is reported, the steering does not use it",
+              file=sys.stderr)
+    return hook
 
 
 def _mocap(args) -> MocapInput | None:
@@ -160,6 +175,13 @@ class _WallClock:
 
     def close(self) -> None:
         self.link.close()
+
+
+def _said(preview: dict) -> str:
+    """The preview in words (the start line)."""
+    if preview["kind"] == "file":
+        return f"from the trajectory file {preview['file']}, matched to the app's stream"
+    return f"delayed {preview['delay_s']:g} s" if preview["kind"] == "delay" else "local"
 
 
 def _save(hook: ProxySteering, args) -> dict:
@@ -197,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _stop)
     rt = setup_realtime(args.rt_priority, cpus=args.cpus, cpu_latency_us=qos_request(args.cpu_latency_us))
     print(f"ddpc-proxy: apps on {', '.join(apps)}, vehicle on {vehicle} ({rt.describe()})"
-          + (f"; {hook.mode}, preview delay {args.preview_delay:g} s" if hook else ""), file=sys.stderr, flush=True)
+          + (f"; {hook.mode}, preview {_said(hook.preview.summary())}" if hook else ""), file=sys.stderr, flush=True)
     try:
         with rt:
             proxy.run(args.duration, stop=lambda: bool(stopping))

@@ -12,6 +12,10 @@ An app streams only the present; the steering wants the desired height over its 
   what arrived, the newest is held. Only ever a setpoint the app sent: when the app stops, so does the
   stream (the tick is the app's own next setpoint).
 
+A third, :class:`.file_preview.FilePreview` (``--preview-file FILE``), matches the app's path given ahead as a
+trajectory file to the stream. Each preview has ``push`` / ``current`` / ``desired`` / ``reset``, ``delay``, and
+``bind`` (the steering's event log) / ``summary`` (JSON-ready).
+
 Heights are up (the setpoints' LOCAL_NED ``-z``, or the height the caller gives: a global setpoint's ``alt``) [m];
 times on the ``time.time()`` clock [s].
 """
@@ -67,6 +71,11 @@ class LocalPreview:
         """The setpoint to steer at ``t`` (the newest)."""
         return self.msg
 
+    @property
+    def height(self) -> float:
+        """The newest setpoint's height [m, up]."""
+        return self._h
+
     def desired(self, ahead: np.ndarray) -> np.ndarray:
         """(len(ahead), 1) desired heights at the offsets ``ahead`` [s] from the current setpoint."""
         tau = np.minimum(np.asarray(ahead, dtype=float), self.reach)
@@ -74,6 +83,12 @@ class LocalPreview:
 
     def reset(self) -> None:
         self._prev, self._slope = None, 0.0
+
+    def bind(self, events) -> None:
+        """Nothing to say (:class:`.file_preview.FilePreview` says its locks)."""
+
+    def summary(self) -> dict:
+        return {"kind": "local", "reach_s": self.reach}
 
 
 class DelayedPreview:
@@ -105,6 +120,12 @@ class DelayedPreview:
 
     def reset(self) -> None:
         """Nothing to forget: the held stream stays the app's."""
+
+    def bind(self, events) -> None:
+        """Nothing to say."""
+
+    def summary(self) -> dict:
+        return {"kind": "delay", "delay_s": self.delay}
 
 
 def make_preview(delay: float) -> LocalPreview | DelayedPreview:

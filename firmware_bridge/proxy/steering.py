@@ -44,6 +44,7 @@ from firmware_bridge.engagement import Engagement
 from firmware_bridge.events import EventLog
 from firmware_bridge.excitation import Excitation
 from firmware_bridge.gate import SetpointGate
+from firmware_bridge.proxy.file_preview import FilePreview
 from firmware_bridge.proxy.preview import DelayedPreview, LocalPreview
 from firmware_bridge.proxy.record import ProxyRecord
 from firmware_bridge.proxy.rewrite import SetpointEncoder
@@ -89,7 +90,8 @@ class ProxySteering:
     Args:
         view: the vehicle as the proxy sees it.
         solver: a loaded generated solver (steer); None: passthrough or (``dither`` > 0) collect.
-        preview: :class:`.preview.LocalPreview` or :class:`.preview.DelayedPreview`.
+        preview: :class:`.preview.LocalPreview`, :class:`.preview.DelayedPreview` or
+            :class:`.file_preview.FilePreview` (its matched / fallback ticks in :meth:`summary`'s ``preview``).
         dt: the tick without a solver [s] (None: the app's measured period; a solver brings its own).
         max_age: an older position sample is stale [s]; max_step: the steering's step guard [m].
         dither: collect: the PRBS amplitude added to the app's height [m]; dither_hold: its shortest hold [ticks].
@@ -103,8 +105,9 @@ class ProxySteering:
             0: no watch).
     """
 
-    def __init__(self, view: VehicleView, *, solver=None, preview: LocalPreview | DelayedPreview | None = None,
-                 dt: float | None = None, max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
+    def __init__(self, view: VehicleView, *, solver=None,
+                 preview: LocalPreview | DelayedPreview | FilePreview | None = None, dt: float | None = None,
+                 max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
                  dither_hold: int = 3, seed: int = 0, period_tolerance: float = 0.25, offset_rate: float = 1.0,
                  events: EventLog | None = None, record: ProxyRecord | None = None,
                  z_feedforward: str = "keep", coordinates: str = "absolute", model_watch: float = 8.0) -> None:
@@ -113,6 +116,7 @@ class ProxySteering:
         self.ff_fields = {"vz": 0.0, "afz": 0.0} if z_feedforward == "zero" else {}
         self.view, self.preview = view, preview or LocalPreview()
         self.events = events or EventLog(name="proxy")
+        self.preview.bind(self.events)
         self.dt, self.coordinates = check_proxy_solver(solver) if solver is not None else (dt, coordinates)
         if self.coordinates not in COORDINATES:
             raise ValueError(f"coordinates must be one of {sorted(COORDINATES)}; got {coordinates!r}")
@@ -342,6 +346,7 @@ class ProxySteering:
         """Counts, the engagement, the gate and the steering's own summary (JSON-ready)."""
         self.settle()
         out = {"mode": self.mode, "coordinates": self.coordinates, "dt": self.tick, "preview_delay_s": self.preview.delay,
+               "preview": self.preview.summary(),
                "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts, "frames": dict(self.frames),
                "frame_offsets": self.view.offsets.summary(self.engagement.t_last),
                "app_period": self.period.summary(), "activations": self.engagement.activations,
