@@ -10,6 +10,9 @@ level (``MAV_FRAME_GLOBAL_INT``), as an app that thinks in latitude, longitude a
 ``GLOBAL_POSITION_INT`` beside the ``LOCAL_POSITION_NED`` of the same instant anchors the local frame (flat earth
 over the few metres flown; its log stays in local NED).
 
+``--write-path FILE``: instead of flying, write the named path as a trajectory CSV (t from 0 to the duration, x, y,
+z the path's offsets [m], z up), the file a user gives ``ddpc-proxy --preview-file``.
+
 ``python -m ddpc_codegen.testbed.proxy_app --connect udpout:127.0.0.1:14541 --path helix --duration 30``
 """
 
@@ -25,9 +28,10 @@ from pathlib import Path
 import numpy as np
 from pymavlink import mavutil
 
+from ddpc_codegen.robot.trajectory_files import save_trajectory_csv
 from firmware_bridge.truth import EARTH_RADIUS_M
 
-__all__ = ["PATHS", "App", "path_point", "await_telemetry", "take_off", "fly", "main"]
+__all__ = ["PATHS", "App", "PathTrajectory", "path_point", "write_path", "await_telemetry", "take_off", "fly", "main"]
 
 M = mavutil.mavlink
 GUIDED, PX4_OFFBOARD = 4, 6 << 16
@@ -74,6 +78,22 @@ def path_point(name: str, t: float, dt: float = 1e-3) -> tuple[np.ndarray, np.nd
     f = PATHS[name]
     p = f(np.array([t - dt, t, t + dt]))
     return p[:, 1], (p[:, 2] - p[:, 0]) / (2 * dt), (p[:, 2] - 2 * p[:, 1] + p[:, 0]) / (dt * dt)
+
+
+class PathTrajectory:
+    """Path ``name`` as a trajectory (``sample``: its x, y, z offsets [m, z up] at times t [s])."""
+
+    def __init__(self, name: str) -> None:
+        self.f = PATHS[name]
+
+    def sample(self, t) -> dict[str, np.ndarray]:
+        x, y, z = self.f(np.asarray(t, dtype=float))
+        return {"x": x, "y": y, "z": z}
+
+
+def write_path(name: str, duration: float, path: Path, dt: float = 0.02) -> Path:
+    """Path ``name`` over [0, ``duration``] [s] as a trajectory CSV (t, x, y, z every ``dt`` [s]) at ``path``."""
+    return save_trajectory_csv(path, PathTrajectory(name), duration, dt, columns=("t", "x", "y", "z"))
 
 
 class App:
@@ -253,7 +273,8 @@ def fly(url: str, path: str, duration: float, rate: float = 50.0, feedforward: s
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m ddpc_codegen.testbed.proxy_app", description=__doc__.split("\n\n")[0])
-    p.add_argument("--connect", required=True, help="pymavlink connection string (udpout:HOST:PORT, tcp:HOST:PORT)")
+    p.add_argument("--connect", default=None,
+                   help="pymavlink connection string (udpout:HOST:PORT, tcp:HOST:PORT; required to fly)")
     p.add_argument("--path", choices=sorted(PATHS), default="helix")
     p.add_argument("--duration", type=float, default=30.0, help="seconds of the path (after a 6 s lead-in)")
     p.add_argument("--rate", type=float, default=50.0, help="setpoints per second (default %(default)s)")
@@ -264,7 +285,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frame", choices=("local", *FRAMES), default="local",
                    help="local: SET_POSITION_TARGET_LOCAL_NED; relative_alt / amsl: SET_POSITION_TARGET_GLOBAL_INT "
                         "above home / sea level after the take-off (default %(default)s)")
+    p.add_argument("--write-path", type=Path, default=None, metavar="FILE",
+                   help="write the path as a trajectory CSV (t, x, y, z up, from 0 to --duration) and exit")
     a = p.parse_args(argv)
+    if a.write_path is not None:
+        print(write_path(a.path, a.duration, a.write_path))
+        return 0
+    if a.connect is None:
+        p.error("--connect is required to fly (or --write-path FILE)")
     return fly(a.connect, a.path, a.duration, a.rate, a.feedforward, a.height, a.log, frame=a.frame)
 
 

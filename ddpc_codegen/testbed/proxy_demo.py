@@ -1,11 +1,12 @@
 """``make proxy-demo``: a user's own app (:mod:`.proxy_app`, plain pymavlink) flies the ArduCopter and PX4 SIH SITLs
-directly and through ``ddpc-proxy``: pass-through, then steered with the local preview and with a declared preview
-delay, on paths the steering never saw; on PX4 it then times the off-board-loss failsafe over many trials, the app
-directly against through the proxy (:mod:`.proxy_failsafe`, ``--failsafe-repeats``). The steering is learned from the
-app's own flight through the proxy (``--collect`` with a dither). Every flight is judged on the simulator's true
-height against the path the app declared (played late by the delay where there is one), with the autopilot's estimate
-and its own error beside; the proxy's counters and added latency come from its statistics. Writes
-``reports/proxy.json``.
+directly and through ``ddpc-proxy``: pass-through, then steered with the local preview, with a declared preview
+delay and with the app's path given ahead as a trajectory file (``--preview-file``, the path written by
+:func:`.proxy_app.write_path`), on paths the steering never saw; on PX4 it then times the off-board-loss failsafe
+over many trials, the app directly against through the proxy (:mod:`.proxy_failsafe`, ``--failsafe-repeats``). The
+steering is learned from the app's own flight through the proxy (``--collect`` with a dither). Every flight is judged
+on the simulator's true height against the path the app declared (played late by the delay where there is one), with
+the autopilot's estimate and its own error beside; the proxy's counters and added latency come from its statistics.
+Writes ``reports/proxy.json``.
 
 Two estimation setups (``--setup``, :mod:`.sitl_setups`): "lab" (default), a motion-capture stand-in
 (:mod:`.mocap`) whose poses reach the proxy (``--position-source mocap``: it measures the height as a lab's
@@ -34,6 +35,7 @@ import numpy as np
 from ddpc_codegen.experiments.report_file import nan_as_null, update_report
 from ddpc_codegen.testbed.bridge_flights import stop_process
 from ddpc_codegen.testbed.mocap import MocapConfig
+from ddpc_codegen.testbed.proxy_app import write_path
 from ddpc_codegen.testbed.sitl import make_sitl, missing_reason, run_isolated
 from ddpc_codegen.testbed.sitl_demo import codegen
 from ddpc_codegen.testbed.sitl_observer import SPARE_PORT, Observer, wait_tcp_port, wait_udp_bound
@@ -189,12 +191,12 @@ def _proxy_figures(stats: dict | None) -> dict | None:
             "app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
             "latency_us": {"app_to_vehicle": up["latency_us"], "vehicle_to_app": down["latency_us"]},
             "steering": {**{k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
-                                                   "period_mismatch", "preview_delay_s", "frames")},
+                                                   "period_mismatch", "preview_delay_s", "frames", "preview")},
                          "model_mismatch": (solver.get("fallback_reasons") or {}).get("model_mismatch", 0),
                          "prediction_watch": solver.get("prediction_watch")} if st else None}
 
 
-KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
+KINDS = ("direct", "passthrough", "steer_local", "steer_delay", "steer_file")
 # The steering's config per autopilot (the app sends its own feed-forward: deviation coordinates on both)
 CONFIGS = {"ardupilot": "proxy_ardupilot.toml", "px4": "proxy_px4_app.toml"}
 # The collect's dither [m] per autopilot. ArduCopter's height loop is not linear in the size of a move (its position
@@ -209,10 +211,10 @@ def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, 
         proxy_death: bool = True, frame: str = "local") -> dict:
     """In a private network namespace: the SITL of ``autopilot`` in ``setup`` (:mod:`.sitl_setups`; in the lab the
     proxy measures on the motion capture, which ArduCopter's EKF fuses too), the collect flight, codegen,
-    then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``), each
-    with the vehicle's reaction to the app's end (:func:`failsafe`); ``proxy_death``: one more steered flight whose
-    proxy is killed mid-path; ``frame``: the app's frame in the path flights (the collect's is local). Returns the
-    report's entry of ``autopilot``."""
+    then per path the ``kinds`` of flight: direct, pass-through, steered (local preview), steered (``delay``),
+    steered (the path's file, :func:`.proxy_app.write_path`), each with the vehicle's reaction to the app's end
+    (:func:`failsafe`); ``proxy_death``: one more steered flight whose proxy is killed mid-path; ``frame``: the
+    app's frame in the path flights (the collect's is local). Returns the report's entry of ``autopilot``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     sitl = make_sitl(autopilot, params=setup_params(autopilot, setup, {}, MocapConfig(seed=1))).start()
@@ -255,8 +257,10 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
         extra = [*extra, f"--mocap-offset={offset:.6f}"]  # "=": argparse takes "-1e-05" for an option
         res["collect"]["mocap_offset_m"] = offset
     for path in paths:
+        ahead = [str(write_path(path, duration, out / f"{path}.path.csv"))] if "steer_file" in kinds else []
         runs = {"direct": None, "passthrough": [*extra], "steer_local": ["--steer", str(solver), *extra],
-                "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}", *extra]}
+                "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}", *extra],
+                "steer_file": ["--steer", str(solver), "--preview-file", *ahead, *extra]}
         res["paths"][path] = {}
         for kind in (k for k in runs if k in kinds):
             print(f"[proxy-demo] {lab.autopilot}: {path}, {kind}", flush=True)

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from ddpc_codegen.robot.trajectory import SampledTrajectory
 from ddpc_codegen.robot.trajectory_files import save_trajectory_csv
+from ddpc_codegen.testbed import proxy_app
 from ddpc_codegen.testbed.proxy_app import PATHS
 from firmware_bridge.proxy.cli import main
 from firmware_bridge.proxy.file_preview import FilePreview
@@ -162,7 +163,7 @@ def test_the_steering_reports_the_match_and_previews_from_the_csv_file(tmp_path)
     """Through :class:`ProxySteering` (pass-through) with a CSV written as the demo's app writes its path: the
     summary's ``preview`` counts the ticks matched and fallen back, the steering's events hold the lock, and the
     desired heights ahead are the file's."""
-    path = save_trajectory_csv(tmp_path / "wander.csv", _Path("wander"), DURATION, dt=0.02,
+    path = save_trajectory_csv(tmp_path / "wander.csv", proxy_app.PathTrajectory("wander"), DURATION, dt=0.02,
                                columns=("t", "x", "y", "z"))
     hook = ProxySteering(VehicleView(), record=ProxyRecord(), preview=FilePreview.from_file(path))
     n = int(20.0 / DT)
@@ -175,15 +176,23 @@ def test_the_steering_reports_the_match_and_previews_from_the_csv_file(tmp_path)
     assert np.allclose(hook._desired(AHEAD)[:, 0], 2.0 + _wander(s + AHEAD), atol=3e-3)
 
 
-class _Path:
-    """A demo path as a trajectory (x, y, z offsets [m]; what ``proxy_app --write-path`` writes)."""
+def test_the_demo_apps_written_path_previews_its_flight(tmp_path, capsys):
+    """``proxy_app --write-path`` (what ``make proxy-demo`` hands ``--preview-file``): the app's steps flight, its
+    lead-in from another height included, locks on the file once a ramp is in and previews the next ramps."""
+    f = tmp_path / "steps.path.csv"
+    assert proxy_app.main(["--write-path", str(f), "--path", "steps", "--duration", "30"]) == 0
+    pv = FilePreview.from_file(f)
 
-    def __init__(self, name: str) -> None:
-        self.f = PATHS[name]
+    def z_app(s):  # the app's lead-in: 6 s from 2.2 m to its start at 2.5 m (in 3.6 s), then the path
+        u = np.clip((s + 6.0) / 3.6, 0.0, 1.0)
+        return np.where(s < 0, 2.2 + 0.3 * (0.5 - 0.5 * np.cos(np.pi * u)), 2.5 + PATHS["steps"](s)[2])
 
-    def sample(self, t):
-        p = self.f(np.asarray(t, dtype=float))
-        return {"x": p[0], "y": p[1], "z": p[2]}
+    errors = []
+    _stream(pv, lambda s: z_app(np.clip(s, None, 30.0)), c=0.0, lead=6.0, end=31.0, jitter=0.002,
+            check=lambda s, h: errors.append(_future_error(pv, lambda t: PATHS["steps"](np.clip(t, 0, 30))[2], s, 2.5))
+            if pv.locked else None)
+    assert pv.summary()["locks"] == 1 and pv.summary()["losses"] == 0 and max(errors) < 0.008
+    assert len(errors) * DT > 24.0  # (the path's first 4 s hold and its first ramp before the lock)
 
 
 def _refused(capsys, *argv: str) -> str:
@@ -194,7 +203,7 @@ def _refused(capsys, *argv: str) -> str:
 
 
 def test_the_command_line_refuses_a_file_with_a_delay_or_a_bad_file(capsys, tmp_path):
-    good = save_trajectory_csv(tmp_path / "p.csv", _Path("helix"), 5.0)
+    good = save_trajectory_csv(tmp_path / "p.csv", proxy_app.PathTrajectory("helix"), 5.0)
     assert "--preview-file and --preview-delay 0.5 are two previews: give one" in _refused(
         capsys, "--preview-file", str(good), "--preview-delay", "0.5")
     assert str(tmp_path / "none.csv") in _refused(capsys, "--preview-file", str(tmp_path / "none.csv"))
