@@ -1,6 +1,7 @@
 """The steering proxy's results (``make proxy-demo``, ``reports/proxy.json``): a user's own app flown directly and
-through ``ddpc-proxy`` (pass-through, steered with the local preview, steered with a declared delay), per
-autopilot and app path, on the true height; the proxy's message counts and added latency."""
+through ``ddpc-proxy`` (pass-through, steered with the local preview, with a declared delay, with the app's path as a
+file), per autopilot and app path, on the true height; which preview wins where; the proxy's message counts and
+added latency."""
 
 from __future__ import annotations
 
@@ -8,8 +9,11 @@ from ddpc_codegen.docsgen.results_format import NA, label, missing, num, page_he
 
 __all__ = ["KINDS", "proxy_page", "headline", "autopilots"]
 
-KINDS = ("direct", "passthrough", "steer_local", "steer_delay")
-_NAMES = {"direct": "app direct (its own ff)", "passthrough": "through the proxy", "steer_local": "steered, local preview", "steer_delay": "steered, delay"}
+KINDS = ("direct", "passthrough", "steer_local", "steer_delay", "steer_file")
+STEERED = ("steer_local", "steer_delay", "steer_file")
+_NAMES = {"direct": "app direct (its own ff)", "passthrough": "through the proxy",
+          "steer_local": "steered, local preview", "steer_delay": "steered, delay", "steer_file": "steered, path file"}
+_PREVIEWS = {"steer_local": "the local preview", "steer_delay": "the declared delay", "steer_file": "the path file"}
 
 
 _SETUPS = {"lab": "lab (ArduCopter's EKF on the motion-capture stand-in: the true height judges)",
@@ -35,7 +39,7 @@ def _judged(run: dict | None) -> float | None:
 
 def _best(runs: dict) -> tuple[str, float] | None:
     """The steered flight with the lowest true-height error."""
-    flown = [(v, k) for k in ("steer_local", "steer_delay") if isinstance(v := _judged(runs.get(k)), (int, float))]
+    flown = [(v, k) for k in STEERED if isinstance(v := _judged(runs.get(k)), (int, float))]
     return (min(flown)[1], min(flown)[0]) if flown else None
 
 
@@ -55,11 +59,21 @@ def _errors(ap: dict) -> str:
         d = _judged(runs.get("direct"))
         for k in (k for k in KINDS if k in runs):
             r = runs.get(k) or {}
-            rows.append([path, _NAMES[k] + (f" {r.get('delay_s', 0):g} s" if k == "steer_delay" else ""),
+            flight = _NAMES[k] + (f" {r.get('delay_s', 0):g} s" if k == "steer_delay" else "") + _matched(r)
+            rows.append([path, flight,
                          num(r.get("rmse_z_truth_mm")), num(r.get("rmse_z_mm")), num(r.get("estimator_rms_mm")),
                          ratio(d, _judged(r)) if k != "direct" else NA, _handed_back(r)])
     return table(["app path", "flight", "true height [mm]", "estimate [mm]", "estimator error [mm]",
                   "app direct / this", "handed back by the prediction watch"], rows)
+
+
+def _matched(run: dict) -> str:
+    """A path-file flight's share of ticks the file previewed (the rest fell back to the local preview); "" else."""
+    pv = ((run.get("proxy") or {}).get("steering") or {}).get("preview") or {}
+    n = (pv.get("matched") or 0) + (pv.get("fallback") or 0)
+    if pv.get("kind") != "file" or not n:
+        return ""
+    return f" ({100.0 * pv['matched'] / n:.0f} % of ticks matched, {pv.get('losses', 0)} losses)"
 
 
 def _handed_back(run: dict) -> str:
@@ -154,31 +168,47 @@ def _realtime(ap: dict) -> str:
 
 def _verdict(ap: dict) -> str:
     """Which preview wins on which path (a sentence per path, from the figures)."""
-    out, gain, better, n = [], [], 0, 0
+    out, gains, better, n = [], {"steer_delay": [], "steer_file": []}, 0, 0
     for path, runs in ap["paths"].items():
-        loc, dly, d = (_judged(runs.get(k)) for k in ("steer_local", "steer_delay", "direct"))
-        if None in (loc, dly, d):
+        d = _judged(runs.get("direct"))
+        flown = {k: v for k in STEERED if isinstance(v := _judged(runs.get(k)), (int, float))}
+        if d is None or len(flown) < 2:
             continue
-        win = "the declared delay" if dly < loc else "the local preview"
-        worse = ": the steering made it worse" if min(loc, dly) > d else ""
-        out.append(f"- {path}: {win} wins ({num(min(loc, dly))} mm against {num(max(loc, dly))} mm; the app alone "
+        win = min(flown, key=flown.get)
+        others = [k for k in flown if k != win]
+        against = f"{num(flown[others[0]])} mm" if len(others) == 1 else " and ".join(
+            f"{num(flown[k])} mm ({_PREVIEWS[k]})" for k in others)
+        worse = ": the steering made it worse" if flown[win] > d else ""
+        out.append(f"- {path}: {_PREVIEWS[win]} wins ({num(flown[win])} mm against {against}; the app alone "
                    f"{num(d)} mm{worse}).")
-        better, n = better + (min(loc, dly) < d), n + 1
-        gain.append(100.0 * (dly - loc) / loc)
+        better, n = better + (flown[win] < d), n + 1
+        for k, g in gains.items():
+            if k in flown and "steer_local" in flown:
+                g.append(100.0 * (flown[k] - flown["steer_local"]) / flown["steer_local"])
     if not out:
         return ""
-    return (f"The steered app (its better preview) below the app alone on {better} of {n} paths.\n\n"
-            + "\n".join(out) + f"\n\nThe true preview (the delayed stream) against the local guess: {min(gain):+.0f} % to "
-            f"{max(gain):+.0f} % of the error on these paths. " + _file_preview(min(gain)) + "\n")
+    return (f"The steered app (its best preview) below the app alone on {better} of {n} paths.\n\n" + "\n".join(out)
+            + "\n\n" + _gains(gains) + _coordinates(ap) + "\n")
 
 
-def _file_preview(best_gain: float) -> str:
-    """What the figures say about a trajectory file as preview (the same true preview, without the delay)."""
-    if best_gain > -10.0:
-        return ("A trajectory file given ahead would be the same true preview without the delay, so it is not "
-                "offered: the steering's gain here is its feedback on the measured height, not its look ahead.")
-    return (f"The true preview cut the error by up to {-best_gain:.0f} %: a trajectory file given ahead would give "
-            "it without the delay (not offered yet).")
+def _gains(gains: dict[str, list[float]]) -> str:
+    """The true previews (the delayed stream, the path file) against the local guess, in % of its error."""
+    said = [f"{what} against the local guess: {min(g):+.0f} % to {max(g):+.0f} % of the error on these paths. "
+            for k, what in (("steer_delay", "The true preview (the delayed stream)"),
+                            ("steer_file", "The path file (the same preview without the delay)")) if (g := gains[k])]
+    if not gains["steer_file"]:
+        said.append("The path file (`--preview-file`) was not flown in this report. ")
+    return "".join(said)
+
+
+def _coordinates(ap: dict) -> str:
+    """What the steering's coordinates make of a preview (deviation: the future heights do not enter it)."""
+    if (ap.get("collect") or {}).get("coordinates") != "deviation":
+        return ""
+    return ("The steering here is in deviation coordinates (the offset added to the app's height in, the tracking "
+            "error out): the error it wants ahead is zero whatever the app's future heights, so the local preview and "
+            "the path file steer alike and their difference is the spread between flights; the delay changes what "
+            "the vehicle is sent and when it is judged.")
 
 
 def _setup(ap: dict) -> str:

@@ -208,13 +208,14 @@ def test_the_proxy_page_says_which_preview_wins_on_each_path():
     assert "- helix: the declared delay wins (8.0 mm against 12.0 mm; the app alone 40.0 mm)." in page
     assert "| helix | steered, delay 0.5 s | 8.0 | 7.5 | 2.0 | 5.00 |" in page
     assert "| helix | steered, local preview | 1000 | 1000 | 990 | 0 | 0 | 0 | 0 | 120 | 480 |" in page
-    assert "The steered app (its better preview) below the app alone on 1 of 1 paths." in page
-    assert "-33 % to -33 % of the error" in page and "cut the error by up to 33 %" in page
+    assert "The steered app (its best preview) below the app alone on 1 of 1 paths." in page
+    assert "The true preview (the delayed stream) against the local guess: -33 % to -33 % of the error" in page
+    assert "The path file (`--preview-file`) was not flown in this report." in page
     index = results.pages({"proxy.json": rep})["index.md"]
     assert "| helix | 40.0 | 8.0 (steered, delay) | 5.00 |" in index
 
 
-def test_the_proxy_page_says_where_steering_made_it_worse_and_what_a_file_preview_would_add():
+def test_the_proxy_page_says_where_steering_made_it_worse():
     runs = {"direct": {**_proxy_run(40.0, 39.0), "proxy": None}, "passthrough": _proxy_run(41.0, 40.0),
             "steer_local": _proxy_run(50.0, 49.0, 990), "steer_delay": _proxy_run(52.0, 51.0, 1000, 0.5)}
     rep = {"px4": {"setup": "lab", "collect": {"path": "wander", "seconds": 60, "dither_m": 0.15},
@@ -223,7 +224,38 @@ def test_the_proxy_page_says_where_steering_made_it_worse_and_what_a_file_previe
     assert "- steps: the local preview wins (50.0 mm against 52.0 mm; the app alone 40.0 mm: the steering made it " \
            "worse)." in page
     assert "below the app alone on 0 of 1 paths" in page
-    assert "+4 % to +4 % of the error" in page and "so it is not offered" in page
+    assert "+4 % to +4 % of the error" in page and "deviation coordinates" not in page
+
+
+def test_the_proxy_page_says_which_of_three_previews_wins_and_how_much_the_file_matched():
+    """A report with the path-file flight (its preview's counts) and the steering in deviation coordinates: each
+    path's winner among the three previews, from the figures; the file's matched share beside its flight; the best
+    steered flight in the headline; what deviation coordinates make of a preview."""
+    def file_run(truth: float, matched: int, losses: int) -> dict:
+        r = _proxy_run(truth, truth - 1.0, 1000)
+        r["proxy"]["steering"] = {"mode": "steer", "ticks": 1000, "model_mismatch": 0, "prediction_watch": None,
+                                  "preview": {"kind": "file", "matched": matched, "fallback": 1000 - matched,
+                                              "losses": losses}}
+        return r
+
+    paths = {"helix": {"direct": {**_proxy_run(40.0, 39.0), "proxy": None}, "steer_local": _proxy_run(12.0, 11.0, 990),
+                       "steer_delay": _proxy_run(10.0, 9.0, 1000, 0.5), "steer_file": file_run(6.0, 900, 0)},
+             "steps": {"direct": {**_proxy_run(40.0, 39.0), "proxy": None}, "steer_local": _proxy_run(20.0, 19.0, 990),
+                       "steer_delay": _proxy_run(30.0, 29.0, 1000, 0.5), "steer_file": file_run(25.0, 450, 2)}}
+    rep = {"ardupilot": {"setup": "lab", "collect": {"path": "wander", "seconds": 60, "dither_m": 0.05,
+                                                     "coordinates": "deviation"}, "paths": paths}}
+    page = results.pages({"proxy.json": rep})["proxy.md"]
+    assert ("- helix: the path file wins (6.0 mm against 12.0 mm (the local preview) and 10.0 mm (the declared "
+            "delay); the app alone 40.0 mm).") in page
+    assert ("- steps: the local preview wins (20.0 mm against 30.0 mm (the declared delay) and 25.0 mm (the path "
+            "file); the app alone 40.0 mm).") in page
+    assert "| helix | steered, path file (90 % of ticks matched, 0 losses) | 6.0 | 5.0 | 2.0 | 6.67 |" in page
+    assert "| steps | steered, path file (45 % of ticks matched, 2 losses) | 25.0 |" in page
+    assert "The path file (the same preview without the delay) against the local guess: -50 % to +25 %" in page
+    assert "not flown" not in page and "the local preview and the path file steer alike" in page
+    assert "| helix | steered, path file | 1000 | 1000 | 1000 |" in page  # its messages and latency row
+    index = results.pages({"proxy.json": rep})["index.md"]
+    assert "| helix | 40.0 | 6.0 (steered, path file) | 6.67 |" in index
 
 
 def _run(cond: dict, estimator: str = "") -> dict:
