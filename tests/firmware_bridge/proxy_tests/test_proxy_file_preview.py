@@ -6,6 +6,8 @@ so; the command line refuses the option with a delay or a bad file."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -20,7 +22,11 @@ from firmware_bridge.proxy.file_preview import FilePreview
 from firmware_bridge.proxy.record import ProxyRecord
 from firmware_bridge.proxy.steering import ProxySteering
 from firmware_bridge.proxy.vehicle_view import VehicleView
+from ddpc_codegen.runtime.loader import load_solver
+from firmware_bridge.proxy.preview import DelayedPreview
 from lti_loop import DT, fly
+from test_proxy_steering import _hook, _rmse, solver  # noqa: F401 (solver: the fixture of the known loop's solver)
+from test_proxy_steering import _path as _steering_path
 
 AHEAD = np.arange(0.0, 2.0, 0.02)  # the steering's horizon (100 ticks of 20 ms)
 DURATION = 30.0  # s: the file's path
@@ -210,3 +216,24 @@ def test_the_command_line_refuses_a_file_with_a_delay_or_a_bad_file(capsys, tmp_
     bad = tmp_path / "bad.csv"
     bad.write_text("t,x,z\n0,0,0\n0,1,1\n")
     assert "not after" in _refused(capsys, "--preview-file", str(bad))
+
+
+@pytest.mark.compiler
+def test_the_file_previews_an_absolute_steering_as_well_as_a_delay_without_it(solver):  # noqa: F811 (the fixture)
+    """The known loop steered in absolute coordinates on a fast path, where the local guess of the future is wrong:
+    with the path given as a file (its heights 2 m below the app's, its start 3 s after the stream's) the steering
+    follows it closer than with the local preview, and about as close as with a 1.5 s delay, without the delay."""
+    n, start = 1500, 3.0
+    fast = _steering_path(n, seed=2)
+    t = np.arange(n) * DT
+    shifted = lambda s: np.interp(s + start, t, fast) - 2.0  # noqa: E731 (the file: file time 0 = stream time 3 s)
+    local, filed = (_hook(solver=load_solver(solver), preview=p) for p in (None, FilePreview(_trajectory(
+        shifted, duration=(n - 1) * DT - start, step=DT))))
+    e = {k: _rmse(fly(h, fast)["h"], fast, skip=400) for k, h in (("local", local), ("file", filed))}
+    delay = 1.5
+    late, lag = _hook(solver=load_solver(solver), preview=DelayedPreview(delay)), int(round(delay / DT))
+    e["delay"] = _rmse(fly(late, fast)["h"], np.concatenate((np.full(lag, fast[0]), fast[:-lag])), skip=400 + lag)
+    out = filed.summary()["preview"]
+    print(json.dumps({**{k: v * 1e3 for k, v in e.items()}, "matched": out["matched"]}))
+    assert out["locks"] == 1 and out["losses"] == 0 and out["matched"] > n - 450
+    assert e["file"] < 0.7 * e["local"] and e["file"] < 1.3 * e["delay"]
