@@ -17,11 +17,15 @@ path from any start height and start it at any moment, so the match tracks two n
 app's frame as the stream's (the steering subtracts the frame's offset, as for the other previews).
 
 Lock: the best match of the last ``lock_window`` seconds (longer than ``window``: a short stretch of a smooth
-path looks like many stretches of another) over the whole file, its residual RMS within 0.4 ``tolerance`` and
+path looks like many stretches of another) over the whole file, its residual RMS within ``_LOCK`` ``tolerance`` and
 within ``sharpness`` of the window's own spread (a small wiggle matches too much of any path to lock on), and every
-other match predicting the same next ``horizon`` seconds (a path that repeats itself locks; one whose windows look alike with different
-futures waits for a window that tells them apart). Loss of lock: the window's RMS over ``tolerance`` at a
-correction, or the newest setpoint more than twice ``tolerance`` off the file's height at ``s`` (every tick).
+other match predicting the same next ``horizon`` seconds (a path that repeats itself locks; one whose windows look
+alike with different futures waits for a window that tells them apart). Loss of lock: the window's RMS over
+``tolerance`` at a correction, or the newest setpoint more than twice ``tolerance`` off the file's height at ``s``
+(checked every tick).
+
+The cost of a tick stays bounded: a match uses at most ``_MAX_POINTS`` of the window's setpoints, and the whole
+file is scanned ``_CHUNK`` candidates a tick.
 
 Fallback: a tick without the lock (before the first, after a loss, a frame change: :meth:`FilePreview.reset`) takes
 the local preview's guess (:class:`.preview.LocalPreview`) and counts as ``fallback``, a locked one as ``matched``
@@ -53,15 +57,16 @@ class FilePreview:
     """The preview of a trajectory file matched to the app's stream (see the module docstring).
 
     Args:
-        trajectory: the file's path: anything with ``sample(t) -> {"z": ...}`` and ``time_span()`` (file time [s]).
+        trajectory: the file's trajectory: anything with ``sample(t) -> {"z": ...}`` and ``time_span()`` (file
+            time [s]).
         source: the file's name for the summary and events.
         window: the recent stream matched to the file [s]; lock_window: the longer one a lock needs [s].
         every: the correction's period [s] (locked; a search for the lock runs at most every ``5 * every``).
         tolerance: the window's residual RMS that still matches [m]; min_change: an informative window's height
             range [m].
         sharpness: to lock, the RMS must also be under this fraction of the window's standard deviation.
-        search: the correction's reach around the clock's estimate of ``s`` [s]; horizon: the future two matches must
-            agree on for a lock [s]; step: the file's sampling for the match [s].
+        search: the correction's reach around the clock's estimate of ``s`` [s]; horizon: the future two matches
+            must agree on for a lock [s]; step: the file's sampling for the match [s].
         reach: the local preview's reach [s] (the fallback).
     """
 
@@ -69,8 +74,7 @@ class FilePreview:
 
     def __init__(self, trajectory, source: str = "<trajectory>", *, window: float = 2.5, lock_window: float = 5.0,
                  every: float = 0.1, tolerance: float = 0.025, min_change: float = 0.05, sharpness: float = 0.05,
-                 search: float = 0.3,
-                 horizon: float = 2.0, step: float = 0.01, reach: float = 0.5) -> None:
+                 search: float = 0.3, horizon: float = 2.0, step: float = 0.01, reach: float = 0.5) -> None:
         if not (0 < window <= lock_window and every > 0 and tolerance > 0 and min_change >= 0 and search > 0
                 and step > 0):
             raise ValueError("FilePreview needs 0 < window <= lock_window; every, tolerance, search and step > 0; "
@@ -116,8 +120,10 @@ class FilePreview:
         off = abs(h - self._file(self.s(t)) - self.offset) if self.locked else 0.0
         if off > 2 * self.tolerance:
             self._lose(f"the newest setpoint is {off * 1e3:.0f} mm off it")
-        if t >= self._next:
-            self._correct(t) if self.locked else self._lock(t)
+        if t >= self._next and self.locked:
+            self._correct(t)
+        elif t >= self._next:
+            self._lock(t)
         self.counts["matched" if self.locked else "fallback"] += 1
 
     def current(self, t: float):
