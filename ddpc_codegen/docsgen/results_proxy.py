@@ -62,9 +62,9 @@ def _errors(ap: dict) -> str:
             flight = _NAMES[k] + (f" {r.get('delay_s', 0):g} s" if k == "steer_delay" else "") + _matched(r)
             rows.append([path, flight,
                          num(r.get("rmse_z_truth_mm")), num(r.get("rmse_z_mm")), num(r.get("estimator_rms_mm")),
-                         ratio(d, _judged(r)) if k != "direct" else NA, _handed_back(r)])
+                         ratio(d, _judged(r)) if k != "direct" else NA, _handed_back(r), _paused(r)])
     return table(["app path", "flight", "true height [mm]", "estimate [mm]", "estimator error [mm]",
-                  "app direct / this", "handed back by the prediction watch"], rows)
+                  "app direct / this", "handed back by the prediction watch", "paused by the jerk guard"], rows)
 
 
 def _matched(run: dict) -> str:
@@ -82,6 +82,17 @@ def _handed_back(run: dict) -> str:
     if st.get("mode") != "steer" or st.get("prediction_watch") is None or not st.get("ticks"):
         return NA
     return f"{100.0 * st.get('model_mismatch', 0) / st['ticks']:.0f} % ({st['prediction_watch'].get('trips', 0)} trips)"
+
+
+def _paused(run: dict) -> str:
+    """The share of a steered flight's ticks the ``--max-jerk`` guard paused, and whether the preview spread the app's
+    acceleration jumps ("--" without the guard)."""
+    st = (run.get("proxy") or {}).get("steering") or {}
+    jb = st.get("jerk_bound")
+    if st.get("mode") != "steer" or not jb or not st.get("ticks"):
+        return NA
+    spread = f", {jb.get('smoothed', 0)} setpoints spread" if jb.get("preview_s") else ""
+    return f"{100.0 * st.get('beyond_jerk', 0) / st['ticks']:.0f} % ({jb.get('jumps', 0)} jumps{spread})"
 
 
 def _link(ap: dict) -> str:

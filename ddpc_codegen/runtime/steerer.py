@@ -64,6 +64,8 @@ class ReferenceSteerer:
             (a guard against a predictor driven outside its data).
         watch: a :class:`~ddpc_codegen.runtime.prediction_watch.PredictionWatch` fed the same history; while it
             finds the predictor wrong, the tick falls back ("model_mismatch") without a solve.
+        pause: set by the caller for the ticks its loop is outside the predictor's range (e.g. the proxy's
+            ``--max-jerk`` guard): while not "", the tick falls back with this reason, without a solve.
     """
 
     solver: SolverLike
@@ -76,6 +78,7 @@ class ReferenceSteerer:
     has_nominal: bool = True
     max_step: np.ndarray | None = None
     watch: PredictionWatch | None = None
+    pause: str = ""
     counts: Counter = field(default_factory=Counter)
     solve_us: list = field(default_factory=list)
 
@@ -174,6 +177,8 @@ class ReferenceSteerer:
             self.watch.poll()
             if not self.watch.ok:
                 return self._fallback(fallback, "model_mismatch")
+        if self.pause:
+            return self._fallback(fallback, self.pause)
         t0 = time.perf_counter()
         try:
             res = self.solver.solve(self._u, self._y, y_des, u_nom if self.has_nominal else None)

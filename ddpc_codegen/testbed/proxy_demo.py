@@ -191,8 +191,10 @@ def _proxy_figures(stats: dict | None) -> dict | None:
             "app_to_vehicle": {k: up[k] for k in keep}, "vehicle_to_app": {k: down[k] for k in keep},
             "latency_us": {"app_to_vehicle": up["latency_us"], "vehicle_to_app": down["latency_us"]},
             "steering": {**{k: st.get(k) for k in ("mode", "ticks", "steered", "rewritten", "activations",
-                                                   "period_mismatch", "preview_delay_s", "frames", "preview")},
+                                                   "period_mismatch", "preview_delay_s", "frames", "preview",
+                                                   "jerk_bound")},
                          "model_mismatch": (solver.get("fallback_reasons") or {}).get("model_mismatch", 0),
+                         "beyond_jerk": (solver.get("fallback_reasons") or {}).get("beyond_jerk", 0),
                          "prediction_watch": solver.get("prediction_watch")} if st else None}
 
 
@@ -203,6 +205,9 @@ CONFIGS = {"ardupilot": "proxy_ardupilot.toml", "px4": "proxy_px4_app.toml"}
 # controller's square-root law): +-0.15 m steps identify a loop slower than the one the steering's small moves meet,
 # and the steering then rings. PX4's offsets mostly carry its estimator's drift, steered well with +-0.15 m.
 DITHERS = {"ardupilot": 0.05, "px4": 0.15}
+# The autopilot's vertical jerk limit the steered flights declare (--max-jerk): ArduCopter's PSC_JERK_Z default. PX4's
+# offboard position control does not shape an app's acceleration field that way: none.
+JERK_LIMITS = {"ardupilot": 5.0}
 
 
 def run(autopilot: str, out_dir: str, paths: list[str], duration: float = 30.0, collect_s: float = 60.0,
@@ -252,15 +257,18 @@ def _flights(lab, obs: Observer, out: Path, paths, duration, collect_s, delay, d
     res = {"collect": {"path": "wander", "seconds": collect_s, "dither_m": dither, "dither_hold": hold,
                        "config": config.name, "coordinates": coords, "proxy": _proxy_figures(col["proxy"])}, "paths": {}}
     solver = codegen(config, out / "collect.npz", out / "solver")
+    limit = JERK_LIMITS.get(lab.autopilot)
+    jerk = [] if limit is None else ["--max-jerk", f"{limit:g}"]
+    res["collect"]["max_jerk"] = limit
     offset = ((col["proxy"] or {}).get("steering") or {}).get("position_source", {}).get("offset_m")
     if offset is not None:  # the frames' offset measured on the ground before the collect's take-off, kept after
         extra = [*extra, f"--mocap-offset={offset:.6f}"]  # "=": argparse takes "-1e-05" for an option
         res["collect"]["mocap_offset_m"] = offset
     for path in paths:
         ahead = [str(write_path(path, duration, out / f"{path}.path.csv"))] if "steer_file" in kinds else []
-        runs = {"direct": None, "passthrough": [*extra], "steer_local": ["--steer", str(solver), *extra],
-                "steer_delay": ["--steer", str(solver), "--preview-delay", f"{delay:g}", *extra],
-                "steer_file": ["--steer", str(solver), "--preview-file", *ahead, *extra]}
+        steer = ["--steer", str(solver), *jerk, *extra]
+        runs = {"direct": None, "passthrough": [*extra], "steer_local": steer,
+                "steer_delay": [*steer, "--preview-delay", f"{delay:g}"], "steer_file": [*steer, "--preview-file", *ahead]}
         res["paths"][path] = {}
         for kind in (k for k in runs if k in kinds):
             print(f"[proxy-demo] {lab.autopilot}: {path}, {kind}", flush=True)

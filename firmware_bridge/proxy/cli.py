@@ -61,6 +61,11 @@ def build_proxy_parser() -> argparse.ArgumentParser:
                    help="the app's path given ahead as a trajectory file (.csv / .toml: t, x, z up, ...), matched to "
                         "the app's stream on the height (any start time and height): the file previews the steering "
                         "while it matches, the local preview otherwise (no delay; not with --preview-delay)")
+    s.add_argument("--max-jerk", type=float, default=0.0, metavar="J",
+                   help="the autopilot's vertical jerk limit J [m/s^3] (ArduCopter: PSC_JERK_Z, default 5), which its "
+                        "guided mode applies to the app's setpoints: the steering pauses around the jumps of the "
+                        "app's z acceleration it shapes (the loop is not the linear one fitted there), and with "
+                        "--preview-delay those jumps are spread over the preview to J (default 0: neither)")
     s.add_argument("--collect", type=Path, default=None, metavar="FILE",
                    help="record the engaged stretches as a dataset for ddpc-codegen (.npz): heights sent in, "
                         "the vehicle's height out")
@@ -106,7 +111,8 @@ def build_proxy_parser() -> argparse.ArgumentParser:
 def _steering(args) -> ProxySteering | None:
     """The rewrite hook the options ask for (None: a transparent proxy)."""
     if args.steer is None and args.collect is None and args.log is None and not args.dither \
-            and not args.preview_delay and args.preview_file is None and args.position_source == "autopilot" \
+            and not args.preview_delay and args.preview_file is None and not args.max_jerk \
+            and args.position_source == "autopilot" \
             and not args.mocap and args.mocap_offset is None:
         return None
     if args.steer is not None and args.dither:
@@ -136,7 +142,7 @@ def _steering(args) -> ProxySteering | None:
     hook = ProxySteering(VehicleView(mocap=_mocap(args), mocap_offset=args.mocap_offset), solver=solver,
                          preview=preview, max_age=args.max_age, max_step=args.max_step, dither=args.dither,
                          dither_hold=args.dither_hold, record=ProxyRecord(), z_feedforward=args.z_feedforward,
-                         coordinates=args.coordinates, model_watch=args.model_watch)
+                         coordinates=args.coordinates, model_watch=args.model_watch, max_jerk=args.max_jerk)
     if args.preview_file is not None and hook.mode == "steer" and hook.deviation:
         print("ddpc-proxy: --preview-file: this solver steers in deviation coordinates (z_offset -> z_error), whose "
               "desired error is 0 whatever the path ahead: the match is reported, the steering does not use it",

@@ -45,6 +45,7 @@ from firmware_bridge.events import EventLog
 from firmware_bridge.excitation import Excitation
 from firmware_bridge.gate import SetpointGate
 from firmware_bridge.proxy.file_preview import FilePreview
+from firmware_bridge.proxy.jerk_bound import JerkBound
 from firmware_bridge.proxy.preview import DelayedPreview, LocalPreview
 from firmware_bridge.proxy.record import ProxyRecord
 from firmware_bridge.proxy.rewrite import SetpointEncoder
@@ -103,6 +104,9 @@ class ProxySteering:
         model_watch: steer: while the predictor's error on the flight exceeds this many times its held-out error,
             the app's own setpoints go out (:class:`~ddpc_codegen.runtime.prediction_watch.PredictionWatch`;
             0: no watch).
+        max_jerk: the autopilot's vertical jerk limit [m/s^3] (ArduCopter's ``PSC_JERK_Z``): the steering pauses
+            around the app's acceleration jumps it shapes, and a delayed preview spreads them (:mod:`.jerk_bound`);
+            0: neither.
     """
 
     def __init__(self, view: VehicleView, *, solver=None,
@@ -110,11 +114,15 @@ class ProxySteering:
                  max_age: float = 0.2, max_step: float | None = None, dither: float = 0.0,
                  dither_hold: int = 3, seed: int = 0, period_tolerance: float = 0.25, offset_rate: float = 1.0,
                  events: EventLog | None = None, record: ProxyRecord | None = None,
-                 z_feedforward: str = "keep", coordinates: str = "absolute", model_watch: float = 8.0) -> None:
+                 z_feedforward: str = "keep", coordinates: str = "absolute", model_watch: float = 8.0,
+                 max_jerk: float = 0.0) -> None:
         if z_feedforward not in ("zero", "keep"):
             raise ValueError(f"z_feedforward must be 'zero' or 'keep'; got {z_feedforward!r}")
         self.ff_fields = {"vz": 0.0, "afz": 0.0} if z_feedforward == "zero" else {}
         self.view, self.preview = view, preview or LocalPreview()
+        self.jerk = JerkBound(max_jerk, self.preview.delay) if max_jerk else None
+        if self.jerk is not None and self.ff_fields:
+            raise ValueError("--max-jerk spreads the app's own z feed-forward; --z-feedforward zero sends none")
         self.events = events or EventLog(name="proxy")
         self.preview.bind(self.events)
         self.dt, self.coordinates = check_proxy_solver(solver) if solver is not None else (dt, coordinates)
@@ -236,19 +244,25 @@ class ProxySteering:
             self._new_frame(kind, t_rx)
         h_app = app_height(msg)
         self.preview.push(t_rx, msg, h_app)
+        if self.jerk is not None:
+            self.jerk.push(t_rx, msg)
         cur = self.preview.current(t_rx)
         delayed = cur is not msg
         if delayed:
             h_app, kind = app_height(cur), steered_frame(cur)
+        if self.jerk is not None and self.steerer is not None:
+            t_sent = t_rx - self.preview.delay if delayed else t_rx  # (the held setpoint came about a delay ago)
+            self.steerer.pause = "beyond_jerk" if self.jerk.paused(t_sent) else ""
         u, reason = self._tick(h_app, self.view.frame_offset(kind, t_rx), t_rx)
         if reason == "steered" or reason == "collect":
             self.counts["steered"] += 1
         if not delayed and (u is None or np.float32(u) == np.float32(h_app)):  # the same bytes: the app's frame
             return None
         self.counts["rewritten"] += 1
+        ff = self.ff_fields if self.jerk is None or not delayed else self.jerk.fields(cur)
         if u is None:
-            return self.encoder.encode(cur)
-        return self.encoder.encode(cur, **height_fields(cur, u), **self.ff_fields)
+            return self.encoder.encode(cur, **ff)
+        return self.encoder.encode(cur, **height_fields(cur, u), **ff)
 
     def _new_frame(self, kind: str, now: float) -> None:
         """The app's setpoints are in frame ``kind`` from now on: a local preview's slope starts anew; a delayed one
@@ -347,7 +361,8 @@ class ProxySteering:
         self.settle()
         out = {"mode": self.mode, "coordinates": self.coordinates, "dt": self.tick, "preview_delay_s": self.preview.delay,
                "preview": self.preview.summary(),
-               "z_feedforward": "zero" if self.ff_fields else "keep", **self.counts, "frames": dict(self.frames),
+               "z_feedforward": "zero" if self.ff_fields else "keep",
+               "jerk_bound": None if self.jerk is None else self.jerk.summary(), **self.counts, "frames": dict(self.frames),
                "frame_offsets": self.view.offsets.summary(self.engagement.t_last),
                "app_period": self.period.summary(), "activations": self.engagement.activations,
                "gate": self.gate.gate.summary(), "position_source": self.view.source_summary(), "events": [list(e) for e in self.events.events],

@@ -315,3 +315,19 @@ def test_the_proxy_page_gives_the_repeated_failsafe_trials_and_the_interval_of_t
     assert "against the app's own stamp after its last send: -0.24 to +0.40 ms." in page
     rep["px4"]["failsafe_repeats"]["stats"]["verdict"] = "unresolved"
     assert "not resolved (the interval crosses +-30 ms" in results.pages({"proxy.json": rep})["proxy.md"]
+
+
+def test_the_proxy_page_gives_the_share_the_jerk_guard_paused():
+    runs = {"direct": {**_proxy_run(88.0, 87.0), "proxy": None}, "steer_local": _proxy_run(83.0, 82.0, 990),
+            "steer_delay": _proxy_run(40.0, 39.0, 1000, 0.5)}
+    for k, n, preview in (("steer_local", 550, 0.0), ("steer_delay", 620, 0.5)):
+        runs[k]["proxy"]["steering"] = {"mode": "steer", "ticks": 1000, "model_mismatch": 0, "beyond_jerk": n,
+                                        "prediction_watch": None,
+                                        "jerk_bound": {"max_jerk": 5.0, "preview_s": preview, "jumps": 24,
+                                                       "smoothed": 700 if preview else 0}}
+    rep = {"ardupilot": {"setup": "lab", "collect": {"path": "wander", "seconds": 60, "dither_m": 0.05},
+                         "paths": {"steps": runs}}}
+    page = results.pages({"proxy.json": rep})["proxy.md"]
+    assert "| steps | steered, local preview | 83.0 | 82.0 | 2.0 | 1.06 | -- | 55 % (24 jumps) |" in page
+    assert "| steps | steered, delay 0.5 s | 40.0 | 39.0 | 2.0 | 2.20 | -- | 62 % (24 jumps, 700 setpoints spread) |" \
+        in page

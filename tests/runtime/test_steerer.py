@@ -68,3 +68,17 @@ def test_fill_gap_ignores_nonpositive_counts(n):
     st.observe([1.0, 1.0], [1.0])
     st.fill_gap(n, np.array([2.0]))
     assert st.summary()["gap_filled_ticks"] == 0
+
+
+def test_a_pause_falls_back_without_a_solve_until_it_is_lifted():
+    st = _steerer()
+    y_des, u_nom = np.zeros((3, 1)), np.ones((3, 2))
+    for k in range(4):
+        st.observe([1.0, 1.0], [float(k)])
+    st.solver.window = None
+    st.pause = "beyond_jerk"
+    out = st.step(y_des, u_nom)
+    assert (out.reason, out.steered, st.solver.window) == ("beyond_jerk", False, None)
+    np.testing.assert_array_equal(out.u, [1.0, 1.0])
+    st.pause = ""
+    assert st.step(y_des, u_nom).steered and st.summary()["fallback_reasons"] == {"beyond_jerk": 1}

@@ -37,6 +37,9 @@ def _refused(capsys, *argv: str) -> str:
     (["--position-source", "mocap", "--mocap", "udpin:127.0.0.1:0", "--mocap-offset", "nan"],
      "--mocap-offset must be a finite number"),
     (["--position-source", "mocap", "--mocap", "bogus:x"], "--mocap bogus:x"),
+    (["--max-jerk=-5"], "--max-jerk must be a finite number of m/s^3 > 0"),
+    (["--max-jerk", "nan"], "--max-jerk must be a finite number of m/s^3 > 0"),
+    (["--max-jerk", "5", "--dither", "0.1", "--z-feedforward", "zero"], "--z-feedforward zero sends none"),
 ])
 def test_bad_values_are_refused_with_the_option_named(capsys, argv, says):
     assert says in _refused(capsys, *argv)
