@@ -120,11 +120,15 @@ class FilePreview:
         off = abs(h - self._file(self.s(t)) - self.offset) if self.locked else 0.0
         if off > 2 * self.tolerance:
             self._lose(f"the newest setpoint is {off * 1e3:.0f} mm off it")
-        if t >= self._next and self.locked:
-            self._correct(t)
-        elif t >= self._next:
-            self._lock(t)
         self.counts["matched" if self.locked else "fallback"] += 1
+
+    def catch_up(self) -> None:
+        """The match's due work on the newest setpoint (a correction, or a part of the search for the lock): after
+        the tick's send, off the app's latency (:meth:`.steering.ProxySteering.settle`); the next tick uses it."""
+        if self._t >= self._next and self.locked:
+            self._correct(self._t)
+        elif self._t >= self._next and self._buf:
+            self._lock(self._t)
 
     def current(self, t: float):
         """The setpoint to steer at ``t`` (the newest)."""

@@ -60,7 +60,7 @@ class JerkBound:
         if not (0.0 <= preview < math.inf and 0.0 <= hold < math.inf):
             raise ValueError(f"the preview and the hold must be finite times >= 0 s; got {preview}, {hold}")
         self.max_jerk, self.preview, self.hold = float(max_jerk), float(preview), float(hold)
-        self._buf: deque = deque(maxlen=max_buffer)  # (t, msg) with usable fields, oldest first
+        self._buf: deque = deque(maxlen=max_buffer)  # (t, vz, afz, msg) with usable fields, oldest first
         self._jumps: deque = deque(maxlen=256)  # arrival times of the setpoints that jump
         self._last: tuple[float, float] | None = None  # (t, afz) of the previous usable setpoint
         self.counts = {"jumps": 0, "paused": 0, "smoothed": 0, "short": 0}
@@ -76,7 +76,7 @@ class JerkBound:
             self.counts["jumps"] += 1
         self._last = (t, a)
         if self.preview > 0:
-            self._buf.append((t, msg))
+            self._buf.append((t, float(msg.vz), a, msg))
             while len(self._buf) > 2 and self._buf[0][0] < t - 3.0 * self.preview:
                 self._buf.popleft()
 
@@ -92,11 +92,10 @@ class JerkBound:
         when there is no preview, ``msg`` ignores them, is no longer held or has no jump to spread."""
         if self.preview <= 0 or not _fields_ok(msg):
             return {}
-        t0 = next((t for t, m in self._buf if m is msg), None)
+        t0 = next((row[0] for row in self._buf if row[3] is msg), None)
         if t0 is None:
             return {}
-        rows = np.array([(t, float(m.vz), float(m.afz)) for t, m in self._buf
-                         if t0 - self.preview <= t <= t0 + self.preview]).reshape(-1, 3)
+        rows = np.array([row[:3] for row in self._buf if t0 - self.preview <= row[0] <= t0 + self.preview])
         ts, vz, az = rows[:, 0], rows[:, 1], rows[:, 2]
         if ts.size < 2:
             return {}

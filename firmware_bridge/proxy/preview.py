@@ -87,6 +87,9 @@ class LocalPreview:
     def bind(self, events) -> None:
         """Nothing to say (:class:`.file_preview.FilePreview` says its locks)."""
 
+    def catch_up(self) -> None:
+        """Nothing left for after the send (:class:`.file_preview.FilePreview` matches its file then)."""
+
     def summary(self) -> dict:
         return {"kind": "local", "reach_s": self.reach}
 
@@ -123,6 +126,9 @@ class DelayedPreview:
 
     def bind(self, events) -> None:
         """Nothing to say."""
+
+    def catch_up(self) -> None:
+        """Nothing left for after the send."""
 
     def summary(self) -> dict:
         return {"kind": "delay", "delay_s": self.delay}

@@ -218,6 +218,7 @@ class ProxySteering:
         p, self._pending = self._pending, None
         if p is None:
             return
+        self.preview.catch_up()  # (a file's match, off this tick's latency)
         now, ref, u, flags, age, engaged, base, steered = p
         if steered:
             self.stage.applied(ref, u)

@@ -54,13 +54,15 @@ def _trajectory(z_of, duration: float = DURATION, step: float = 0.05) -> Sampled
 def _stream(preview, z_of, *, t0: float = 1000.0, c: float = 2.5, rate: float = 50.0, jitter: float = 0.0,
             drift: float = 0.0, lead: float = 2.0, end: float = 25.0, seed: int = 0, check=None) -> None:
     """Stream the app's heights ``z_of(s) + c`` at ``rate`` [Hz] from file time ``-lead`` to ``end`` [s] into
-    ``preview``, each arriving at ``t0 + s (1 + drift) + U(-jitter, jitter)``; ``check(s, h)`` after each push."""
+    ``preview``, each arriving at ``t0 + s (1 + drift) + U(-jitter, jitter)``; ``check(s, h)`` after each push, the match's
+    work after it (as the proxy's tick: push, steer, send, catch up)."""
     rng = np.random.default_rng(seed)
     for s in np.arange(-lead, end, 1.0 / rate):
         h = float(z_of(np.array([s]))[0]) + c
         preview.push(t0 + s * (1.0 + drift) + rng.uniform(-jitter, jitter), _Setpoint(h))
         if check is not None:
             check(s, h)
+        preview.catch_up()  # after the tick's send, as the proxy does
 
 
 def _future_error(preview: FilePreview, z_of, s: float, c: float) -> float:
