@@ -58,7 +58,6 @@ Safety:
 from __future__ import annotations
 
 import dataclasses
-import gc
 import math
 import signal
 import time
@@ -76,6 +75,7 @@ from firmware_bridge.clock import TickTrigger
 from firmware_bridge.engagement import Engagement
 from firmware_bridge.events import EventLog
 from firmware_bridge.gate import GATE_FLAGS
+from firmware_bridge.gc_pacer import GcPacer
 from firmware_bridge.hopping_loop import HoppingLoop
 from firmware_bridge.link import MavLink
 from firmware_bridge.mode_requests import ModeRequests
@@ -202,16 +202,14 @@ class Bridge:
         self._new_run()
         if len(interrupted):
             self.stop()
-        gc_was = gc.isenabled()
+        pacer = GcPacer()
         try:
             self.vehicle.wait_for_heartbeat(c.wait_heartbeat, lambda: self._stop)
             if not self._stop:  # interrupted while waiting: straight to the log and the summary
                 self._preflight()
                 self.vehicle.request_streams()
-            gc.collect()
-            gc.freeze()  # keep the collector's full passes off the tick path (objects made so far are immortal)
-            gc.disable()
-            self._loop()
+            pacer.start()
+            self._loop(pacer)
             self.modes.hand_back(self.period)
             self._stop = True
         except NoVehicleError:
@@ -222,20 +220,16 @@ class Bridge:
             raise
         finally:
             self._rt.release()
-            if gc_was:
-                gc.enable()
-            gc.unfreeze()
+            pacer.stop()
             self._finish()
         if self.failure:
             raise FlightError(self.failure)
         return self.summary()
 
-    def _loop(self) -> None:
+    def _loop(self, pacer: GcPacer) -> None:
         """Wait, fold the messages in, tick when due; housekeeping after the tick (never delays a setpoint)."""
         link, tel = self.link, self.vehicle.telem
         next_hb = 0.0
-        last_gc = time.monotonic()
-        n_gc = 0
         while not self._stop:
             timeout = self.trigger.wake_in(time.monotonic())
             if timeout > 0:
@@ -253,12 +247,8 @@ class Bridge:
                 next_hb = now + 1.0
             self.vehicle.housekeeping(now, heartbeat=beat)
             self._supervise(now)
-            if now - last_gc > 1.0 and now - self.stream.last_send < 0.5 * self.period:
-                # Right after a tick, off the critical path: young generations only (the setup objects
-                # are frozen), the middle one every ~30 s.
-                n_gc += 1
-                gc.collect(1 if n_gc % 30 == 0 else 0)
-                last_gc = now
+            if now - self.stream.last_send < 0.5 * self.period:  # right after a tick: off the critical path
+                pacer.idle(now)
 
     # ------------------------------------------------------------------ one tick
     def _tick(self, kind: str, now: float) -> None:

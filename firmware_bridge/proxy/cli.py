@@ -228,8 +228,10 @@ def main(argv: list[str] | None = None) -> int:
           + (f"; {hook.mode}, preview {_said(hook.preview.summary())}" if hook else ""), file=sys.stderr, flush=True)
     try:
         with rt:
+            proxy.pacer.start()
             proxy.run(args.duration, stop=lambda: bool(stopping))
     finally:
+        proxy.pacer.stop()
         proxy.close()
     summary = proxy.summary()
     summary["stop_reason"] = stopping[0] if stopping else "duration"

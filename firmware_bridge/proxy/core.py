@@ -27,6 +27,7 @@ import select
 import time
 from typing import Any, Callable
 
+from firmware_bridge.gc_pacer import GcPacer
 from firmware_bridge.proxy.app_side import open_app_side
 from firmware_bridge.proxy.frames import checksum_ok, frame_size, msgid, setpoint_target, splice, split_frames
 from firmware_bridge.proxy.rewrite import SETPOINT_MSGIDS, SetpointRewrite, decode_setpoint, has_position
@@ -64,6 +65,7 @@ class Proxy:
         self.vehicle = VehicleSide(vehicle, baud, reconnect_interval, repin_after=client_timeout)
         self.rewrite, self.view = rewrite, view
         self.between_clients = between_clients
+        self.pacer = GcPacer()  # started by the command, its process's one loop: collect after a setpoint's send
         self.client_timeout = client_timeout
         # (app endpoint index, address) -> [last heard (monotonic), datagrams in, datagrams out]
         self.clients: dict[tuple[int, Any], list] = {}
@@ -213,6 +215,8 @@ class Proxy:
             self.setpoints.add(t_rx)
         for frame, msg in later:
             self._settle(frame, msg, t_rx)
+        if later:
+            self.pacer.idle(time.monotonic())
         if self.between_clients:
             clean = data if not garbage else b"".join(data[i:i + n] for i, n in spans)
             for a in list(self.clients):

@@ -132,8 +132,7 @@ class ProxySteering:
         self.record = record
         self.period = SetpointPeriod(ring_size=64)
         self.mode = "steer" if solver is not None else "collect" if dither > 0 else "passthrough"
-        self.model_watch = model_watch
-        self.stage, self.steerer, lo, hi, rate = self._stage(solver, max_step, dither, dither_hold, seed)
+        self.stage, self.steerer, lo, hi, rate = self._stage(solver, max_step, dither, dither_hold, seed, model_watch)
         rate = np.minimum(rate, offset_rate * self.tick)  # the envelope's offset rate, as the bridge's gate
         self.gate = TickGate(SetpointGate(lo, hi, None if self.mode == "collect" else rate), self.events,
                              max_step=None if max_step is None else np.array([max_step]), max_tilt=math.pi,
@@ -160,7 +159,7 @@ class ProxySteering:
         """An older position sample is stale [s] (the engagement's limit)."""
         return self.engagement.max_age
 
-    def _stage(self, solver, max_step, dither, hold, seed):
+    def _stage(self, solver, max_step, dither, hold, seed, model_watch):
         """(reference stage, steerer or None, lo (1,), hi (1,), rate per tick (1,)) of the mode."""
         if solver is None:
             lo, hi, rate = np.array([-_WIDE]), np.array([_WIDE]), np.array([np.inf])
@@ -171,7 +170,7 @@ class ProxySteering:
             return (ReferenceStage("passthrough", self._desired, self.tick, policy=PassthroughPolicy()), None,
                     lo, hi, rate)
         steerer = ReferenceSteerer.for_solver(solver, max_step=None if max_step is None else np.array([max_step]),
-                                              watch=self._watch(solver))
+                                              watch=self._watch(solver, model_watch))
         policy = SteeringPolicy(steerer, ramp_ticks=max(int(round(0.5 / self.dt)), 1))
         t_f = solver.manifest["dims"]["t_f"]
         desired = _no_error if self.deviation else self._desired
@@ -182,19 +181,20 @@ class ProxySteering:
         lo, hi = solver_input_bounds(solver)
         return stage, steerer, lo, hi, rate
 
-    def _watch(self, solver) -> PredictionWatch | None:
-        """The steering's prediction watch (None: switched off, or the solver's manifest has no held-out error)."""
-        if not self.model_watch:
+    def _watch(self, solver, ratio: float) -> PredictionWatch | None:
+        """The steering's prediction watch at ``ratio`` (None: 0, switched off, or the solver's manifest has no
+        held-out error)."""
+        if not ratio:
             return None
-        watch = PredictionWatch.for_solver(solver, self.model_watch, on_change=self._watch_changed)
+        watch = PredictionWatch.for_solver(solver, ratio, on_change=self._watch_changed)
         if watch is None:
             self.events("the solver's manifest has no held-out prediction error: no prediction watch (regenerate it)")
         return watch
 
     def _watch_changed(self, ok: bool, score: float) -> None:
         self.events(f"the predictor describes the flight again ({score:.1f}x its held-out error): steering" if ok else
-                    f"the predictor is {score:.1f}x its held-out error on this flight, over {self.model_watch:g}x: the "
-                    "app's own setpoints go out until it is back under")
+                    f"the predictor is {score:.1f}x its held-out error on this flight, over "
+                    f"{self.steerer.watch.ratio:g}x: the app's own setpoints go out until it is back under")
 
     # ------------------------------------------------------------------ the hook
     def __call__(self, msg, frame: bytes, t_rx: float) -> bytes | None:
