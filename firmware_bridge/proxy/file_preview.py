@@ -24,8 +24,9 @@ alike with different futures waits for a window that tells them apart). Loss of 
 ``tolerance`` at a correction, or the newest setpoint more than twice ``tolerance`` off the file's height at ``s``
 (checked every tick).
 
-The cost of a tick stays bounded: a match uses at most ``_MAX_POINTS`` of the window's setpoints, and the whole
-file is scanned ``_CHUNK`` candidates a tick.
+The match runs after the tick's send (:meth:`FilePreview.catch_up`; the next tick uses it), and its cost stays
+bounded: a match uses at most ``_MAX_POINTS`` of the window's setpoints, and the whole file is scanned ``_CHUNK``
+candidates a tick.
 
 Fallback: a tick without the lock (before the first, after a loss, a frame change: :meth:`FilePreview.reset`) takes
 the local preview's guess (:class:`.preview.LocalPreview`) and counts as ``fallback``, a locked one as ``matched``
